@@ -1,0 +1,1 @@
+"""The desktop viewer/editor (GLFW + imgui-bundle) over the GL splat renderer."""

@@ -1,0 +1,71 @@
+"""The ``inceptiongs`` command line: one subcommand per module in ``inceptiongs.commands``.
+
+Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int | None``. Bad input raises :class:`InputError`, which is printed as one
+line and exits with status 2 (the traceback only with ``--debug``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import InputError
+
+# name -> module in inceptiongs.commands; order is the order in --help.
+COMMANDS = {
+    "info": "info",
+    "demo-scene": "demo_scene",
+    "render": "render",
+    "train": "train",
+    "eval": "evaluate",
+    "report": "report",
+    "demo": "demo",
+}
+
+
+def _available_commands() -> dict[str, object]:
+    modules = {}
+    for name, module_name in COMMANDS.items():
+        try:
+            modules[name] = importlib.import_module(f"inceptiongs.commands.{module_name}")
+        except ModuleNotFoundError as exc:
+            # Only hide a command whose own module is absent, never a broken import inside it.
+            if exc.name != f"inceptiongs.commands.{module_name}":
+                raise
+    return modules
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="inceptiongs", description=__doc__.splitlines()[0])
+    parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, module in _available_commands().items():
+        command_parser = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        command_parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                                    help="show tracebacks for errors")
+        module.add_arguments(command_parser)
+        command_parser.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in argv
+    try:
+        args = build_parser().parse_args(argv)
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        if debug:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

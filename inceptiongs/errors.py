@@ -1,0 +1,10 @@
+"""User-facing errors.
+
+An :class:`InputError` is a problem with what the user gave us (a path, a file, a value).
+Its message is one line that names the file and the problem; the CLI prints it and exits
+with status 2, without a traceback unless ``--debug`` is given.
+"""
+
+
+class InputError(Exception):
+    """Bad input: message is '<path>: <problem>' on one line."""

@@ -1,0 +1,51 @@
+"""The one hand-off between a training job and the viewer: a lock and a version number.
+
+The job publishes immutable snapshots (numpy copies made on the job's thread); the viewer
+asks for the newest one it has not seen. Nothing else is shared, so there is no tearing and
+the viewer re-uploads Gaussians only when the version moved.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """What a job shows the world at one moment. ``gaussians`` holds numpy arrays keyed as
+    :meth:`inceptiongs.gaussians.Gaussians.numpy` returns them (or None: nothing new)."""
+
+    version: int
+    iteration: int
+    gaussians: dict | None
+    metrics: dict = field(default_factory=dict)
+    message: str = ""
+
+
+class SnapshotBox:
+    """Single-slot, versioned mailbox: publish() from the job thread, latest() from the UI."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._snapshot: Snapshot | None = None
+        self._version = 0
+
+    @property
+    def version(self) -> int:
+        with self._lock:
+            return self._version
+
+    def publish(self, iteration: int, gaussians: dict | None, metrics: dict | None = None,
+                message: str = "") -> int:
+        with self._lock:
+            self._version += 1
+            self._snapshot = Snapshot(self._version, iteration, gaussians, dict(metrics or {}), message)
+            return self._version
+
+    def latest(self, seen_version: int = 0) -> Snapshot | None:
+        """The newest snapshot if its version is greater than ``seen_version``, else None."""
+        with self._lock:
+            if self._snapshot is None or self._snapshot.version <= seen_version:
+                return None
+            return self._snapshot
