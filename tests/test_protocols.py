@@ -1,0 +1,133 @@
+"""Split properties of the llff / unstructured / none protocols."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from inceptiongs.camera import Camera, look_at, pose_distance
+from inceptiongs.errors import InputError
+from inceptiongs.protocols import Split, make_split, pose_distance_matrix
+
+
+def ring_cameras(n: int, radius: float = 3.0) -> list[Camera]:
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return [Camera(f"view{i:03d}", 64, 48, 50.0, 50.0, 32.0, 24.0,
+                   look_at([radius * np.cos(a), 0.3 * np.sin(3 * a), radius * np.sin(a)], [0, 0, 0]))
+            for i, a in enumerate(angles)]
+
+
+def check_partition(split: Split, n: int) -> None:
+    assert sorted(split.train + split.test) == list(range(n))
+    assert not set(split.train) & set(split.test)
+    assert sorted(split.scarce_test + split.covered_test) == split.test
+    assert split.problem() is None
+
+
+@pytest.mark.parametrize("n", [12, 23, 40])
+@pytest.mark.parametrize("seed", [0, 1, 7])
+def test_unstructured_cluster_properties(n, seed):
+    cameras = ring_cameras(n)
+    split = make_split(cameras, "unstructured", seed)
+    check_partition(split, n)
+    # 6 clusters partitioning the views
+    assert len(split.clusters) == 6
+    assert sorted(i for c in split.clusters for i in c) == list(range(n))
+    # the target view is held out and is the centroid of the scarce cluster
+    scarce = split.scarce_cluster
+    assert split.target_view in split.test and split.target_view in scarce
+    distances = pose_distance_matrix(cameras)
+    sums = {i: sum(distances[i, j] for j in scarce) for i in scarce}
+    assert sums[split.target_view] == pytest.approx(min(sums.values()))
+    # 90% of the scarce cluster held out (round half up), one view always trains
+    expected_scarce = min(len(scarce) - 1, max(1, math.floor(0.9 * len(scarce) + 0.5)))
+    assert sorted(split.scarce_test) == sorted(i for i in scarce if i in split.test)
+    assert len(split.scarce_test) == expected_scarce
+    # 5% (at least one) of every other cluster, never all of it
+    for cluster in split.clusters:
+        if split.target_view in cluster:
+            continue
+        held = [i for i in cluster if i in split.test]
+        assert all(i in split.covered_test for i in held)
+        expected = min(len(cluster) - 1, max(1, math.floor(0.05 * len(cluster) + 0.5))) if len(cluster) > 1 else 0
+        assert len(held) == expected
+        assert len(held) < len(cluster)
+
+
+def test_clusters_are_farthest_point_groups():
+    # Views in 6 tight, well separated groups must come out as exactly those groups.
+    rng = np.random.default_rng(0)
+    cameras = []
+    for g in range(6):
+        angle = g * np.pi / 3
+        for k in range(4):
+            eye = np.array([10 * np.cos(angle), 0.0, 10 * np.sin(angle)]) + 0.05 * rng.standard_normal(3)
+            cameras.append(Camera(f"g{g}_{k}", 32, 32, 30, 30, 16, 16, look_at(eye, [0, 0, 0])))
+    split = make_split(cameras, "unstructured", 3)
+    assert sorted(sorted(c) for c in split.clusters) == [list(range(4 * g, 4 * g + 4)) for g in range(6)]
+
+
+def test_deterministic_per_seed_and_seeds_differ():
+    cameras = ring_cameras(30)
+    a, b = make_split(cameras, "unstructured", 5), make_split(cameras, "unstructured", 5)
+    assert a == b
+    others = [make_split(cameras, "unstructured", s) for s in range(6, 12)]
+    assert any(o.test != a.test for o in others)
+
+
+def test_llff_every_eighth_and_none():
+    cameras = ring_cameras(20)
+    split = make_split(cameras, "llff", 0)
+    assert split.test == [0, 8, 16] and split.covered_test == [0, 8, 16]
+    assert split.target_view is None and split.scarce_test == []
+    check_partition(split, 20)
+    everything = make_split(cameras, "none", 0)
+    assert everything.train == list(range(20)) and everything.test == []
+
+
+def test_few_views_rules():
+    for n in range(2, 12):
+        split = make_split(ring_cameras(n), "unstructured", 0)
+        check_partition(split, n)
+        assert len(split.clusters) == n // 2
+        assert split.target_view in split.test and split.train  # something always trains
+    with pytest.raises(InputError, match="at least 2 views"):
+        make_split(ring_cameras(1), "unstructured", 0)
+    with pytest.raises(InputError, match="unknown protocol"):
+        make_split(ring_cameras(4), "random", 0)
+
+
+def test_duplicate_poses_give_no_empty_cluster():
+    base = ring_cameras(3)
+    cameras = [Camera(f"d{i}", 32, 32, 30, 30, 16, 16, base[i % 3].world_to_camera) for i in range(14)]
+    split = make_split(cameras, "unstructured", 0)
+    assert len(split.clusters) == 3 and all(split.clusters)
+    check_partition(split, 14)
+
+
+def test_distance_mixes_position_and_orientation():
+    cameras = ring_cameras(8)
+    d = pose_distance_matrix(cameras)
+    centers = np.array([c.center for c in cameras])
+    weight = np.mean(np.linalg.norm(centers - centers.mean(0), axis=1))
+    assert d[1, 5] == pytest.approx(pose_distance(cameras[1].world_to_camera, cameras[5].world_to_camera, weight))
+    assert np.allclose(d, d.T) and np.all(np.diag(d) == 0)
+
+
+def test_save_load_round_trip_and_validation(tmp_path):
+    cameras = ring_cameras(16)
+    split = make_split(cameras, "unstructured", 2)
+    path = tmp_path / "split.json"
+    split.save(path)
+    assert Split.load(path, cameras) == split
+    with pytest.raises(InputError, match="other views"):
+        Split.load(path, cameras[:10])
+    bad = split.to_json()
+    bad["test"] = bad["test"] + [bad["train"][0]]
+    (tmp_path / "bad.json").write_text(__import__("json").dumps(bad))
+    with pytest.raises(InputError, match="bad.json"):
+        Split.load(tmp_path / "bad.json")
+    with pytest.raises(InputError, match="does not exist"):
+        Split.load(tmp_path / "missing.json")
