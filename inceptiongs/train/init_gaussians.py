@@ -1,0 +1,100 @@
+"""Initial Gaussians: one per sparse point, or random points inside the cameras' view volume."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..constants import SH_C0, SH_OFFSET, sh_coeff_count
+from ..gaussians import Gaussians
+
+INITIAL_OPACITY = 0.1
+# Floor on the nearest-neighbour distance used as the initial scale: duplicate points
+# (distance 0) would give log(0).
+_MIN_NEIGHBOUR_DISTANCE = 1e-7
+_CHUNK = 2048
+
+
+def scene_extent(cameras: list[Camera]) -> float:
+    """Radius of the camera centres around their centroid, x1.1 (the 3DGS convention).
+
+    Used to scale the position learning rate and the densification size limits. A single
+    camera (or coincident ones) has no spread, so fall back to 1 scene unit.
+    """
+    centers = np.stack([c.center for c in cameras])
+    radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max()) * 1.1
+    return radius if radius > 1e-6 else 1.0
+
+
+def mean_neighbour_distance(points: torch.Tensor, k: int = 3) -> torch.Tensor:
+    """points: [P, 3] -> mean distance to the k nearest other points: [P] (chunked cdist)."""
+    p = points.shape[0]
+    k_eff = min(k, p - 1)
+    if k_eff < 1:
+        return torch.ones(p, dtype=points.dtype)
+    out = torch.empty(p, dtype=points.dtype)
+    for start in range(0, p, _CHUNK):
+        block = torch.cdist(points[start:start + _CHUNK], points)
+        # k_eff + 1 smallest include the point itself (distance 0).
+        nearest = block.topk(k_eff + 1, dim=1, largest=False).values[:, 1:]
+        out[start:start + _CHUNK] = nearest.mean(1)
+    return out.clamp_min(_MIN_NEIGHBOUR_DISTANCE)
+
+
+def random_points_in_view(cameras: list[Camera], count: int, near: float, far: float,
+                          generator: np.random.Generator) -> np.ndarray:
+    """Points uniformly over random cameras' pixels at depths uniform in [near, far]: [count, 3]."""
+    out = np.empty((count, 3))
+    which = generator.integers(0, len(cameras), size=count)
+    for index, cam in enumerate(cameras):
+        rows = np.nonzero(which == index)[0]
+        if rows.size == 0:
+            continue
+        u = generator.uniform(0, cam.width, rows.size)
+        v = generator.uniform(0, cam.height, rows.size)
+        z = generator.uniform(near, far, rows.size)
+        camera_points = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
+        c2w = cam.camera_to_world
+        out[rows] = camera_points @ c2w[:3, :3].T + c2w[:3, 3]
+    return out
+
+
+def gaussians_from_points(points: np.ndarray, colors: np.ndarray | None, sh_degree: int,
+                          dtype=torch.float32) -> Gaussians:
+    """points: [P, 3]; colors: [P, 3] uint8 or None (grey) -> isotropic Gaussians.
+
+    Scale = mean distance to the 3 nearest points (so the cloud starts hole-free), opacity
+    0.1, identity rotation, SH with all ``sh_degree`` bands allocated and the higher bands 0.
+    """
+    means = torch.as_tensor(np.asarray(points, np.float64), dtype=dtype)
+    p = means.shape[0]
+    rgb = (torch.full((p, 3), 0.5, dtype=dtype) if colors is None
+           else torch.as_tensor(np.asarray(colors), dtype=dtype) / 255.0)
+    sh = torch.zeros(p, sh_coeff_count(sh_degree), 3, dtype=dtype)
+    sh[:, 0] = (rgb - SH_OFFSET) / SH_C0
+    log_scales = torch.log(mean_neighbour_distance(means)).unsqueeze(1).repeat(1, 3)
+    quats = torch.zeros(p, 4, dtype=dtype)
+    quats[:, 0] = 1.0
+    opacity_logits = torch.full((p,), math.log(INITIAL_OPACITY / (1 - INITIAL_OPACITY)), dtype=dtype)
+    return Gaussians(means, log_scales.to(dtype), quats, opacity_logits, sh)
+
+
+def initial_gaussians(cameras: list[Camera], points: np.ndarray, colors: np.ndarray | None,
+                      sh_degree: int, seed: int, random_count: int = 20_000) -> tuple[Gaussians, str]:
+    """Gaussians from the sparse points, or random in the view volume if there are none.
+
+    Returns the Gaussians and one line saying which initialisation was used.
+    """
+    if len(points) > 0:
+        return (gaussians_from_points(points, colors, sh_degree),
+                f"initialised {len(points)} Gaussians from the sparse points")
+    extent = scene_extent(cameras)
+    rng = np.random.default_rng(seed)
+    # Without points the depth range is unknown: span from near the cameras to a few
+    # extents away, which covers a normalised scene centred in front of the cameras.
+    random_points = random_points_in_view(cameras, random_count, 0.1 * extent, 3.0 * extent, rng)
+    return (gaussians_from_points(random_points, None, sh_degree),
+            f"scene has no sparse points: initialised {random_count} random Gaussians in the view volume")

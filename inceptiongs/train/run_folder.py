@@ -1,0 +1,96 @@
+"""The run folder shared with evaluation and the viewer.
+
+RUN/config.json (resolved TrainConfig), RUN/split.json, RUN/checkpoints/step_*.pt,
+RUN/model.ply (final model in the scene's ORIGINAL frame), RUN/metrics.jsonl.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import torch
+
+from ..atomic import atomic_write_text
+from ..errors import InputError
+from ..gaussians import Gaussians
+from .checkpoint import latest_checkpoint, load_checkpoint
+from .config import TrainConfig
+
+
+def _log_scale_factor(scale: float) -> float:
+    if not scale > 0 or not math.isfinite(scale):
+        raise ValueError(f"scene normalisation scale must be positive and finite, got {scale}")
+    return math.log(scale)
+
+
+def to_original_frame(gaussians: Gaussians, normalization) -> Gaussians:
+    """Normalised frame (x_n = (x - c) s) -> original: x = x_n / s + c; log scales - log s.
+
+    Uses ``normalization.gaussians_to_original`` when the scene module provides it.
+    """
+    if hasattr(normalization, "gaussians_to_original"):
+        return normalization.gaussians_to_original(gaussians)
+    scale = float(normalization.scale)
+    center = torch.as_tensor(normalization.center, dtype=gaussians.dtype)
+    return Gaussians(gaussians.means / scale + center, gaussians.log_scales - _log_scale_factor(scale),
+                     gaussians.quats, gaussians.opacity_logits, gaussians.sh)
+
+
+def to_normalized_frame(gaussians: Gaussians, normalization) -> Gaussians:
+    if hasattr(normalization, "gaussians_to_normalized"):
+        return normalization.gaussians_to_normalized(gaussians)
+    scale = float(normalization.scale)
+    center = torch.as_tensor(normalization.center, dtype=gaussians.dtype)
+    return Gaussians((gaussians.means - center) * scale, gaussians.log_scales + _log_scale_factor(scale),
+                     gaussians.quats, gaussians.opacity_logits, gaussians.sh)
+
+
+def append_metrics(run_dir: Path, record: dict) -> None:
+    """One JSON line per call (appended and flushed; a torn last line is dropped on resume)."""
+    with open(Path(run_dir) / "metrics.jsonl", "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(record) + "\n")
+        handle.flush()
+
+
+def truncate_metrics(run_dir: Path, last_iteration: int) -> None:
+    """Keep only records up to ``last_iteration`` (the resumed checkpoint): the steps after
+    it will be run again and logged again."""
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.exists():
+        return
+    kept = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # the line a kill cut in half
+        if isinstance(record, dict) and record.get("iteration", 0) <= last_iteration:
+            kept.append(line)
+    atomic_write_text(path, "".join(line + "\n" for line in kept))
+
+
+def load_run(run_dir: str | Path):
+    """RUN -> (Gaussians in the normalised frame (float32, CPU), Scene, TrainConfig).
+
+    The final model.ply when training finished, else the newest checkpoint.
+    """
+    from ..ply import read_ply
+    from ..scene import load_scene
+
+    run_dir = Path(run_dir)
+    config_path = run_dir / "config.json"
+    if not config_path.is_file():
+        raise InputError(f"{run_dir}: not a run folder (no config.json)")
+    config = TrainConfig.load(config_path)
+    scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+    model = run_dir / "model.ply"
+    if model.is_file():
+        return to_normalized_frame(read_ply(model), scene.normalization), scene, config
+    checkpoint = latest_checkpoint(run_dir)
+    if checkpoint is None:
+        raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint")
+    from .optim import gaussians_from_params
+    params = load_checkpoint(checkpoint)["params"]
+    return gaussians_from_params(params).detach(), scene, config
