@@ -1,0 +1,134 @@
+"""Runs a training job in a background thread and feeds the UI from its SnapshotBox.
+
+A job is anything with ``run(box: SnapshotBox, control) -> None`` (the stage-I trainer's job
+class, later the bootstrap loop). ``control`` has two threading.Events: ``pause`` (set =
+paused) and ``stop`` (set = finish soon, keep the checkpoint). The job's exception is caught
+on its thread and shown by the UI; the app never dies with it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+
+from inceptiongs.live import Snapshot, SnapshotBox
+
+
+def _trainer_control_class():
+    """The trainer's JobControl when it exists (so its jobs get exactly their own type),
+    else the local one with the same two events."""
+    try:
+        from inceptiongs.train.job import JobControl  # noqa: PLC0415 (optional dependency)
+        return JobControl
+    except ImportError:
+        return LocalJobControl
+
+
+@dataclass
+class LocalJobControl:
+    pause: threading.Event = field(default_factory=threading.Event)
+    stop: threading.Event = field(default_factory=threading.Event)
+
+
+@dataclass
+class TrainingProgress:
+    """What the panel shows. history: metric name -> ([iterations], [values])."""
+
+    iteration: int = 0
+    gaussian_count: int = 0
+    iterations_per_second: float = 0.0
+    message: str = ""
+    history: dict = field(default_factory=dict)
+
+
+class LiveTraining:
+    """One job run: start / pause / resume / stop, and :meth:`poll` for the newest snapshot."""
+
+    def __init__(self, job, control=None, box: SnapshotBox | None = None) -> None:
+        self.job = job
+        self.box = box or SnapshotBox()
+        self.control = control if control is not None else _trainer_control_class()()
+        self.progress = TrainingProgress()
+        self.error: str | None = None
+        self._thread: threading.Thread | None = None
+        self._seen_version = 0
+        self._rate_anchor: tuple[float, int] | None = None  # (time, iteration) of the last rate sample
+
+    # --- lifecycle -------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            raise RuntimeError("a job run can be started once")
+        self._thread = threading.Thread(target=self._run, name="inceptiongs-training", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self.job.run(self.box, self.control)
+        except BaseException as exc:  # noqa: BLE001 - anything the job raises is shown, not fatal
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.traceback = traceback.format_exc()
+
+    @property
+    def state(self) -> str:
+        """"not started" | "running" | "paused" | "stopping" | "failed" | "stopped" | "finished"."""
+        if self._thread is None:
+            return "not started"
+        if self._thread.is_alive():
+            if self.control.stop.is_set():
+                return "stopping"
+            return "paused" if self.control.pause.is_set() else "running"
+        if self.error is not None:
+            return "failed"
+        return "stopped" if self.control.stop.is_set() else "finished"
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def pause(self) -> None:
+        self.control.pause.set()
+
+    def resume(self) -> None:
+        self.control.pause.clear()
+
+    def stop(self, timeout: float | None = 30.0) -> bool:
+        """Ask the job to finish (it writes its checkpoint) and wait; True if it ended."""
+        self.control.stop.set()
+        self.control.pause.clear()  # a paused job must wake up to see the stop
+        if self._thread is None:
+            return True
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    # --- data ------------------------------------------------------------------------------
+    def poll(self) -> Snapshot | None:
+        """The newest unseen snapshot (its metrics folded into :attr:`progress`), or None."""
+        snapshot = self.box.latest(self._seen_version)
+        if snapshot is None:
+            return None
+        self._seen_version = snapshot.version
+        self._record(snapshot)
+        return snapshot
+
+    def _record(self, snapshot: Snapshot) -> None:
+        progress = self.progress
+        now = time.perf_counter()
+        if self._rate_anchor is None:
+            self._rate_anchor = (now, snapshot.iteration)
+        else:
+            then, iteration = self._rate_anchor
+            # Rate over at least half a second, so one quick snapshot does not spike it.
+            if now - then >= 0.5 and snapshot.iteration > iteration:
+                progress.iterations_per_second = (snapshot.iteration - iteration) / (now - then)
+                self._rate_anchor = (now, snapshot.iteration)
+        progress.iteration = snapshot.iteration
+        progress.message = snapshot.message
+        if snapshot.gaussians is not None:
+            progress.gaussian_count = len(snapshot.gaussians["means"])
+        for name, value in snapshot.metrics.items():
+            if isinstance(value, (int, float)):
+                iterations, values = progress.history.setdefault(name, ([], []))
+                iterations.append(float(snapshot.iteration))
+                values.append(float(value))

@@ -1,0 +1,197 @@
+"""Camera controllers: fly (WASD + mouse look) and orbit around a pivot. Pure numpy.
+
+The controller keeps a camera centre and a world-to-camera rotation (OpenCV axes: x right,
+y down, z forward) plus the world direction that counts as "up" for yaw, so mouse look never
+rolls the horizon. :meth:`NavigationState.camera` turns the state into a :class:`Camera`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from inceptiongs.camera import Camera, look_at
+
+# Pitch stops this far (radians) short of looking straight along +-up: beyond it yaw about
+# `up` and pitch about the camera's x axis become the same rotation and the view would flip.
+_PITCH_LIMIT_MARGIN = 0.02
+# Field of view limits (degrees) of the FOV control; outside them tan() explodes or the
+# image collapses to a point.
+FOV_MIN_DEG = 5.0
+FOV_MAX_DEG = 150.0
+# Closest the orbit zoom may bring the camera to the pivot (scene units), so the distance
+# stays positive and the look direction defined.
+_ORBIT_MIN_DISTANCE = 1e-3
+
+
+def axis_angle_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation [3, 3] by ``angle`` radians about ``axis`` [3] (Rodrigues). A zero axis
+    gives the identity: there is no rotation to make."""
+    axis = np.asarray(axis, np.float64)
+    norm = np.linalg.norm(axis)
+    if norm < 1e-12:
+        return np.eye(3)
+    x, y, z = axis / norm
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
+
+
+def orthonormalize(rotation: np.ndarray) -> np.ndarray:
+    """Nearest proper rotation to ``rotation`` [3, 3] (SVD), to stop drift after many small
+    incremental rotations."""
+    u, _, vt = np.linalg.svd(rotation)
+    out = u @ vt
+    if np.linalg.det(out) < 0:
+        u[:, -1] *= -1
+        out = u @ vt
+    return out
+
+
+def look_at_upright(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """World-to-camera [4, 4] at ``eye`` looking at ``target`` with world ``up`` [3] shown up
+    in the image. Wraps camera.look_at and rolls by 180 degrees when its result has ``up``
+    pointing down (look_at's own up convention is inverted relative to its docstring at the
+    time of writing; this stays right whichever way it resolves)."""
+    pose = look_at(np.asarray(eye, np.float64), np.asarray(target, np.float64), np.asarray(up, np.float64))
+    image_up = -pose[1, :3]
+    if image_up @ np.asarray(up, np.float64) < 0:
+        pose[:2] *= -1.0  # rotate 180 degrees about the viewing axis: x and y flip, z stays
+    return pose
+
+
+def estimate_up(cameras: list[Camera]) -> np.ndarray:
+    """World up [3] as the mean of the cameras' up directions (-y camera axis); -y of the
+    world when there are no cameras or they cancel out."""
+    if cameras:
+        ups = np.stack([-c.rotation[1] for c in cameras])
+        mean = ups.mean(axis=0)
+        norm = np.linalg.norm(mean)
+        if norm > 1e-6:
+            return mean / norm
+    return np.array([0.0, -1.0, 0.0])
+
+
+@dataclass
+class NavigationState:
+    """center: [3] camera centre; rotation: [3, 3] world-to-camera; up: [3] unit world up;
+    pivot: [3] orbit centre; fov_y_deg: vertical field of view; speed: scene units / second."""
+
+    center: np.ndarray
+    rotation: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
+    pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    fov_y_deg: float = 60.0
+    speed: float = 1.0
+
+    @staticmethod
+    def from_camera(camera: Camera, up: np.ndarray | None = None, speed: float = 1.0,
+                    pivot: np.ndarray | None = None) -> "NavigationState":
+        """Adopt ``camera``'s pose and vertical field of view."""
+        fov = math.degrees(2.0 * math.atan(0.5 * camera.height / camera.fy))
+        up = -camera.rotation[1] if up is None else np.asarray(up, np.float64)
+        if pivot is None:
+            pivot = camera.center + camera.rotation[2] * max(speed, _ORBIT_MIN_DISTANCE)
+        return NavigationState(camera.center.copy(), camera.rotation.copy(), up / np.linalg.norm(up),
+                               np.asarray(pivot, np.float64), float(np.clip(fov, FOV_MIN_DEG, FOV_MAX_DEG)),
+                               speed)
+
+    def copy(self) -> "NavigationState":
+        return replace(self, center=self.center.copy(), rotation=self.rotation.copy(),
+                       up=self.up.copy(), pivot=self.pivot.copy())
+
+    @property
+    def world_to_camera(self) -> np.ndarray:
+        """[4, 4] float64."""
+        out = np.eye(4)
+        out[:3, :3] = self.rotation
+        out[:3, 3] = -self.rotation @ self.center
+        return out
+
+    def camera(self, width: int, height: int, name: str = "viewer") -> Camera:
+        """A centred pinhole camera of this pose at ``width`` x ``height`` pixels."""
+        focal = 0.5 * height / math.tan(math.radians(self.fov_y_deg) * 0.5)
+        return Camera(name, int(width), int(height), focal, focal, 0.5 * width, 0.5 * height,
+                      self.world_to_camera)
+
+    # --- fly -------------------------------------------------------------------------------
+    def fly(self, direction: np.ndarray, seconds: float, boost: float = 1.0) -> None:
+        """Move along ``direction`` [3] given in camera axes (x right, y down, z forward) for
+        ``seconds`` at ``speed * boost``. The direction is normalised so diagonals are not faster."""
+        direction = np.asarray(direction, np.float64)
+        norm = np.linalg.norm(direction)
+        if norm < 1e-12:
+            return
+        step = self.rotation.T @ (direction / norm) * (self.speed * boost * seconds)
+        self.center = self.center + step
+        self.pivot = self.pivot + step
+
+    def look(self, dx: float, dy: float, radians_per_pixel: float = 0.004) -> None:
+        """Mouse look: dx > 0 turns right (yaw about world up), dy < 0 looks up (pitch)."""
+        self.rotation = self._turned(self.rotation, dx * radians_per_pixel, -dy * radians_per_pixel)
+
+    def _turned(self, rotation: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
+        """World-to-camera rotation after yawing right by ``yaw`` about ``up`` and pitching up by
+        ``pitch`` about the camera's x axis (right x forward = up, so +pitch looks up); the pitch is limited so the forward axis never reaches +-up."""
+        camera_to_world = rotation.T
+        forward = camera_to_world[:, 2]
+        elevation = math.asin(float(np.clip(forward @ self.up, -1.0, 1.0)))
+        limit = 0.5 * math.pi - _PITCH_LIMIT_MARGIN
+        pitch = float(np.clip(elevation + pitch, -limit, limit)) - elevation
+        right = camera_to_world[:, 0]
+        # Rotating by +a about up swings forward towards -right (up x forward = -right), so a
+        # turn to the right is a rotation by -yaw.
+        turned = axis_angle_matrix(self.up, -yaw) @ axis_angle_matrix(right, pitch) @ camera_to_world
+        return orthonormalize(turned).T
+
+    # --- orbit -----------------------------------------------------------------------------
+    def orbit(self, dx: float, dy: float, radians_per_pixel: float = 0.005) -> None:
+        """Rotate the camera about ``pivot``: dragging right swings the camera to the left
+        around the pivot (the scene turns with the mouse, so the view turns right), dragging
+        down lifts it (the view tilts down). The pivot keeps its place in the image."""
+        old = self.rotation
+        new = self._turned(old, dx * radians_per_pixel, -dy * radians_per_pixel)
+        # The same world rotation that took the old orientation to the new one moves the centre.
+        world_rotation = new.T @ old
+        self.center = self.pivot + world_rotation @ (self.center - self.pivot)
+        self.rotation = new
+
+    def zoom(self, steps: float, factor_per_step: float = 0.85) -> None:
+        """Move towards (steps > 0) or away from the pivot by a constant ratio per step."""
+        offset = self.center - self.pivot
+        distance = np.linalg.norm(offset)
+        if distance < 1e-12:
+            return
+        new_distance = max(distance * factor_per_step ** steps, _ORBIT_MIN_DISTANCE)
+        self.center = self.pivot + offset * (new_distance / distance)
+
+    def set_fov(self, fov_y_deg: float) -> None:
+        self.fov_y_deg = float(np.clip(fov_y_deg, FOV_MIN_DEG, FOV_MAX_DEG))
+
+    def scale_speed(self, scroll_steps: float, factor_per_step: float = 1.2) -> None:
+        self.speed = float(np.clip(self.speed * factor_per_step ** scroll_steps, 1e-4, 1e4))
+
+
+def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 60.0,
+                 up: np.ndarray | None = None) -> NavigationState:
+    """A view of a point set without cameras: looking at the median of ``means`` [N, 3] from
+    far enough that the robust extent (the 5-95 % range) fills the field of view."""
+    up = np.array([0.0, -1.0, 0.0]) if up is None else np.asarray(up, np.float64)
+    if len(means) == 0:
+        center_of_interest, extent = np.zeros(3), 1.0
+    else:
+        center_of_interest = np.median(means, axis=0)
+        lo, hi = np.percentile(means, [5, 95], axis=0)
+        extent = float(max(np.linalg.norm(hi - lo), 1e-3))
+    distance = extent / math.tan(math.radians(fov_y_deg) * 0.5)
+    # Look along the world axis most orthogonal to up, from the +z side like a default 3DGS view.
+    forward = np.array([0.0, 0.0, 1.0])
+    forward = forward - (forward @ up) * up
+    if np.linalg.norm(forward) < 1e-6:
+        forward = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    forward /= np.linalg.norm(forward)
+    eye = center_of_interest - forward * distance
+    pose = look_at_upright(eye, center_of_interest, up)
+    return NavigationState(eye, pose[:3, :3], up / np.linalg.norm(up), center_of_interest,
+                           fov_y_deg, speed=max(extent * 0.3, 1e-3))

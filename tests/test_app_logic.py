@@ -1,0 +1,299 @@
+"""The viewer's GL-free parts: camera controllers, flags file, selection math, undo stack,
+frustums, the training thread wrapper, and the reference comparison maths."""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from inceptiongs.camera import Camera, read_camera_json
+from inceptiongs.errors import InputError
+from inceptiongs.live import SnapshotBox
+from inceptiongs.app import editing, flags, frustums, navigation, reference
+from inceptiongs.app.live_training import LiveTraining
+
+
+def _camera(eye=(0.0, 0.0, -4.0), target=(0.0, 0.0, 0.0), width=64, height=48, f=50.0):
+    pose = navigation.look_at_upright(np.array(eye), np.array(target), np.array([0.0, -1.0, 0.0]))
+    return Camera("c", width, height, f, f, width / 2, height / 2, pose)
+
+
+# --- navigation -------------------------------------------------------------------------
+
+def test_from_camera_round_trips_pose_and_fov():
+    cam = _camera(eye=(1.0, -0.5, -3.0))
+    state = navigation.NavigationState.from_camera(cam)
+    out = state.camera(cam.width, cam.height)
+    np.testing.assert_allclose(out.world_to_camera, cam.world_to_camera, atol=1e-12)
+    np.testing.assert_allclose(out.fy, cam.fy, rtol=1e-12)
+
+
+def test_fly_moves_along_camera_axes_at_speed():
+    cam = _camera()
+    state = navigation.NavigationState.from_camera(cam, speed=2.0)
+    state.fly(np.array([0.0, 0.0, 1.0]), seconds=0.5)  # W: forward
+    np.testing.assert_allclose(state.center, cam.center + cam.rotation[2] * 1.0, atol=1e-12)
+    state.fly(np.array([1.0, 0.0, 1.0]), seconds=1.0)  # diagonal is not faster
+    assert math.isclose(np.linalg.norm(state.center - cam.center - cam.rotation[2]), 2.0, rel_tol=1e-12)
+
+
+def test_look_right_turns_forward_towards_right_and_keeps_horizon():
+    state = navigation.NavigationState.from_camera(_camera())
+    right_before = state.rotation[0].copy()
+    forward_before = state.rotation[2].copy()
+    state.look(50.0, 0.0)
+    assert state.rotation[2] @ right_before > 0  # turned right
+    assert abs(state.rotation[0] @ state.up) < 1e-9  # no roll: x stays horizontal
+    state.look(0.0, -10_000.0)  # far past straight up: pitch is limited
+    assert state.rotation[2] @ state.up < 1.0 - 1e-5
+    assert np.allclose(state.rotation @ state.rotation.T, np.eye(3), atol=1e-9)
+    assert state.rotation[2] @ forward_before > -1  # still a valid orientation
+
+
+def test_orbit_keeps_distance_and_pivot_in_view():
+    cam = _camera()
+    pivot = np.zeros(3)
+    state = navigation.NavigationState.from_camera(cam, pivot=pivot)
+    distance = np.linalg.norm(state.center - pivot)
+    for dx, dy in [(40, 0), (0, 30), (-70, 15)]:
+        state.orbit(dx, dy)
+        assert math.isclose(np.linalg.norm(state.center - pivot), distance, rel_tol=1e-9)
+        pixels, depth = editing.project_means(pivot[None], state.camera(64, 48))
+        np.testing.assert_allclose(pixels[0], (32, 24), atol=1e-6)  # pivot stays at image centre
+        assert depth[0] > 0
+    state.zoom(2)
+    assert math.isclose(np.linalg.norm(state.center - pivot), distance * 0.85 ** 2, rel_tol=1e-9)
+
+
+def test_default_view_sees_all_points():
+    rng = np.random.default_rng(0)
+    means = rng.normal(size=(500, 3)) + np.array([10.0, 2.0, -3.0])
+    state = navigation.default_view(means, 320, 240)
+    pixels, depth = editing.project_means(means, state.camera(320, 240))
+    inside = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < 320) & (pixels[:, 1] >= 0) & (pixels[:, 1] < 240)
+    assert inside.mean() > 0.9
+
+
+def test_look_at_upright_shows_up_up():
+    up = np.array([0.0, 0.0, 1.0])
+    pose = navigation.look_at_upright(np.array([3.0, 1.0, 0.5]), np.zeros(3), up)
+    assert -pose[1, :3] @ up > 0.9
+    assert np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3)) and np.linalg.det(pose[:3, :3]) > 0
+    pixels, _ = editing.project_means(np.zeros((1, 3)), Camera("c", 10, 10, 5, 5, 5, 5, pose))
+    np.testing.assert_allclose(pixels[0], (5, 5), atol=1e-9)
+
+
+def test_estimate_up_from_cameras():
+    cams = [_camera(eye=(x, 0.0, -4.0)) for x in (-1.0, 0.0, 1.0)]
+    np.testing.assert_allclose(navigation.estimate_up(cams), [0.0, -1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(navigation.estimate_up([]), [0.0, -1.0, 0.0])
+
+
+# --- flags --------------------------------------------------------------------------------
+
+def test_flags_round_trip_and_format(tmp_path):
+    path = flags.flags_path(tmp_path)
+    assert flags.load_flags(path) == []
+    cam = _camera()
+    items = [flags.flag_camera(cam, "flag 1"), flags.flag_aimed_at(cam, np.array([0.5, 0.2, 0.0]), "flag 2")]
+    flags.save_flags(path, items)
+    data = json.loads(path.read_text())
+    assert data["version"] == 1 and [f["name"] for f in data["flags"]] == ["flag 1", "flag 2"]
+    assert set(data["flags"][0]["camera"]) >= {"width", "height", "fx", "fy", "cx", "cy", "world_to_camera"}
+    # each flag's camera is plain camera JSON: the project's camera reader takes it as is
+    (tmp_path / "cam.json").write_text(json.dumps(data["flags"][1]["camera"]))
+    np.testing.assert_allclose(read_camera_json(tmp_path / "cam.json").world_to_camera,
+                               items[1].camera.world_to_camera)
+    loaded = flags.load_flags(path)
+    assert [f.name for f in loaded] == ["flag 1", "flag 2"]
+    np.testing.assert_allclose(loaded[1].camera.world_to_camera, items[1].camera.world_to_camera)
+    assert flags.unique_flag_name(loaded) == "flag 3"
+
+
+def test_flag_aimed_at_looks_at_target_from_same_place():
+    cam = _camera()
+    target = np.array([0.7, -0.4, 1.0])
+    flag = flags.flag_aimed_at(cam, target, "f")
+    np.testing.assert_allclose(flag.camera.center, cam.center, atol=1e-12)
+    pixels, _ = editing.project_means(target[None], flag.camera)
+    np.testing.assert_allclose(pixels[0], (cam.cx, cam.cy), atol=1e-9)
+    assert flag.camera.rotation[1] @ cam.rotation[1] > 0.5  # not rolled upside down
+
+
+def test_unproject_inverts_projection():
+    cam = _camera(eye=(0.3, -1.0, -4.0))
+    point = np.array([0.2, 0.1, 0.5])
+    pixels, depth = editing.project_means(point[None], cam)
+    back = flags.unproject_pixel(cam, pixels[0, 0] - 0.5, pixels[0, 1] - 0.5, depth[0])
+    np.testing.assert_allclose(back, point, atol=1e-12)
+
+
+@pytest.mark.parametrize("text, problem", [("{", "not a readable"), ('{"flags": []}', "version"),
+                                           ('{"version": 1, "flags": [{"camera": {"width": 1}}]}', "missing")])
+def test_bad_flags_file_is_input_error(tmp_path, text, problem):
+    path = tmp_path / "flags.json"
+    path.write_text(text)
+    with pytest.raises(InputError, match=problem) as info:
+        flags.load_flags(path)
+    assert str(path) in str(info.value)
+
+
+# --- editing ------------------------------------------------------------------------------
+
+def _arrays(n=200, seed=1):
+    rng = np.random.default_rng(seed)
+    return {"means": rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+            "log_scales": rng.uniform(-5, 0, (n, 3)).astype(np.float32),
+            "quats": np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+            "opacity_logits": rng.normal(size=n).astype(np.float32),
+            "sh": rng.normal(size=(n, 1, 3)).astype(np.float32)}
+
+
+def test_projection_matches_pinhole_loop():
+    cam = _camera(eye=(0.5, -0.3, -3.0))
+    means = _arrays()["means"]
+    pixels, depth = editing.project_means(means, cam)
+    for m, p, z in zip(means[:20], pixels[:20], depth[:20]):
+        c = cam.world_to_camera @ np.append(m, 1.0)
+        assert math.isclose(z, c[2], rel_tol=1e-9)
+        assert math.isclose(p[0], cam.fx * c[0] / c[2] + cam.cx, rel_tol=1e-9)
+    behind, _ = editing.project_means(np.array([[0.0, 0.0, -10.0]]), cam)
+    assert np.isnan(behind).all()
+    assert not editing.select_rectangle(behind, (-1e9, -1e9), (1e9, 1e9)).any()
+
+
+def test_rectangle_and_brush_selection():
+    pixels = np.array([[1.0, 1.0], [5.0, 5.0], [9.0, 2.0], [np.nan, np.nan]])
+    assert editing.select_rectangle(pixels, (6.0, 0.0), (0.0, 6.0)).tolist() == [True, True, False, False]
+    assert editing.select_brush(pixels, (5.0, 4.0), 1.5).tolist() == [False, True, False, False]
+
+
+def test_threshold_selection():
+    logits = np.array([-5.0, 0.0, 5.0])
+    log_scales = np.log(np.array([[0.01] * 3, [0.5, 0.01, 0.01], [0.02] * 3]))
+    assert editing.select_thresholds(logits, log_scales, max_opacity=0.1).tolist() == [True, False, False]
+    assert editing.select_thresholds(logits, log_scales, min_size=0.1).tolist() == [False, True, False]
+    assert editing.select_thresholds(logits, log_scales).tolist() == [False, False, False]
+
+
+def test_delete_undo_redo_crop():
+    arrays = _arrays()
+    state = editing.EditState(arrays)
+    first = arrays["means"][:, 0] > 0.5
+    state.select(first)
+    assert state.delete_selected()
+    assert state.count == 200 - first.sum()
+    assert not state.selected.any()
+    np.testing.assert_array_equal(state.visible_arrays()["means"], arrays["means"][~first])
+    state.crop(np.array([-1, -1, -0.5]), np.array([1, 1, 1]))
+    expected = ~first & (arrays["means"][:, 2] >= -0.5)
+    np.testing.assert_array_equal(state.alive, expected)
+    assert state.undo() and np.array_equal(state.alive, ~first)
+    assert state.undo() and state.alive.all()
+    assert not state.undo()
+    assert state.redo() and np.array_equal(state.alive, ~first)
+    state.select(arrays["means"][:, 1] > 0.9)
+    state.delete_selected()  # a new edit drops the redo history
+    assert not state.redo()
+    # deleted Gaussians cannot be selected
+    state.select(np.ones(200, bool))
+    assert not (state.selected & ~state.alive).any()
+
+
+def test_selection_modes():
+    a = np.array([True, True, False, False])
+    b = np.array([False, True, True, False])
+    assert editing.combine_selection(a, b, "add").tolist() == [True, True, True, False]
+    assert editing.combine_selection(a, b, "subtract").tolist() == [True, False, False, False]
+    assert editing.combine_selection(a, b, "replace").tolist() == b.tolist()
+
+
+# --- frustums -----------------------------------------------------------------------------
+
+def test_frustum_corners_project_to_image_corners():
+    cam = _camera(eye=(0.2, 0.3, -2.0))
+    segments = frustums.frustum_segments(cam, depth=0.5)
+    assert segments.shape == (8, 2, 3)
+    np.testing.assert_allclose(segments[:4, 0], np.tile(cam.center, (4, 1)))
+    pixels, depth = editing.project_means(segments[:4, 1], cam)
+    np.testing.assert_allclose(pixels, [[0, 0], [64, 0], [64, 48], [0, 48]], atol=1e-9)
+    np.testing.assert_allclose(depth, 0.5, atol=1e-12)
+    assert frustums.segments_for_cameras([], 1.0).shape == (0, 2, 3)
+
+
+# --- training thread wrapper ----------------------------------------------------------------
+
+class _CountingJob:
+    """Publishes a moving Gaussian every few milliseconds until told to stop."""
+
+    def __init__(self, fail_at=None):
+        self.fail_at = fail_at
+        self.finished_cleanly = False
+
+    def run(self, box, control):
+        iteration = 0
+        while not control.stop.is_set():
+            if control.pause.is_set():
+                time.sleep(0.005)
+                continue
+            iteration += 1
+            if self.fail_at is not None and iteration == self.fail_at:
+                raise RuntimeError("loss is NaN")
+            arrays = _arrays(3)
+            arrays["means"][:, 0] += iteration
+            box.publish(iteration, arrays, {"loss": 1.0 / iteration})
+            time.sleep(0.002)
+        self.finished_cleanly = True
+
+
+def test_live_training_pause_resume_stop():
+    job = _CountingJob()
+    run = LiveTraining(job)
+    run.start()
+    deadline = time.time() + 5
+    while run.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    assert run.state == "running" and run.progress.iteration >= 1
+    run.pause()
+    time.sleep(0.05)
+    run.poll()
+    paused_at = run.progress.iteration
+    time.sleep(0.1)
+    run.poll()
+    assert run.state == "paused" and run.progress.iteration == paused_at
+    run.resume()
+    time.sleep(0.1)
+    run.poll()
+    assert run.progress.iteration > paused_at
+    assert run.stop(timeout=5)
+    assert job.finished_cleanly and run.state == "stopped"
+    iterations, losses = run.progress.history["loss"]
+    assert iterations == sorted(iterations) and all(l > 0 for l in losses)
+    assert run.progress.gaussian_count == 3
+
+
+def test_live_training_exception_is_reported_not_raised():
+    run = LiveTraining(_CountingJob(fail_at=3))
+    run.start()
+    run._thread.join(5)
+    assert run.state == "failed" and "loss is NaN" in run.error
+    assert threading.current_thread().is_alive()
+
+
+# --- reference comparison -------------------------------------------------------------------
+
+def test_psnr_and_heatmap():
+    a = np.zeros((4, 6, 3), np.float32)
+    b = a.copy()
+    b[0, 0] = 1.0  # one pixel fully wrong: mse = 3 / 72
+    assert math.isclose(reference.psnr(a, b), 10 * math.log10(72 / 3), rel_tol=1e-9)
+    assert reference.psnr(a, a) == pytest.approx(100.0)
+    heat = reference.error_heatmap(a, b)
+    assert heat.shape == (4, 6, 3) and heat[0, 0].tolist() == [1.0, 1.0, 0.0] and heat[1:].max() == 0
+    both = reference.side_by_side(a, np.ones_like(a))
+    assert both[:, :3].max() == 0 and both[:, 4:].min() == 1
