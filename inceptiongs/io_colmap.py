@@ -1,0 +1,178 @@
+"""COLMAP models (binary or text, in ``sparse/0/``, ``sparse/`` or the folder itself) via pycolmap.
+
+pycolmap trusts the counts inside the binary files, so a truncated or corrupt file can make it
+fail with an unrelated message (or allocate for a garbage count). The binary files are
+therefore walked once first (a cheap record-by-record size check) and the file at fault is
+named in the error.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Camera
+from .errors import InputError
+from .io_common import RawScene, check_finite_pose, check_intrinsics
+
+# COLMAP camera model id -> (name, number of parameters), from COLMAP's camera model table.
+_MODELS = {
+    0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
+    4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
+    8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16), 12: ("SIMPLE_DIVISION", 4), 13: ("DIVISION", 5),
+    14: ("SIMPLE_FISHEYE", 3), 15: ("FISHEYE", 4), 16: ("EUCM", 6), 17: ("EQUIRECTANGULAR", 2),
+}
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+
+
+def find_model_dir(root: Path) -> tuple[Path, str] | None:
+    """(model folder, "colmap-binary" | "colmap-text") or None if root holds no COLMAP model."""
+    for folder in (root / "sparse" / "0", root / "sparse", root):
+        for ext, fmt in ((".bin", "colmap-binary"), (".txt", "colmap-text")):
+            if (folder / f"cameras{ext}").is_file() and (folder / f"images{ext}").is_file():
+                return folder, fmt
+    return None
+
+
+class _Reader:
+    """Bounds-checked struct reads over one file's bytes."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.data = path.read_bytes()
+        self.pos = 0
+
+    def read(self, fmt: str) -> tuple:
+        size = struct.calcsize(fmt)
+        if self.pos + size > len(self.data):
+            raise InputError(f"{self.path}: truncated COLMAP binary file (ends at byte {len(self.data)})")
+        values = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += size
+        return values
+
+    def skip(self, count: int, item_size: int) -> None:
+        if count < 0 or self.pos + count * item_size > len(self.data):
+            raise InputError(f"{self.path}: truncated or corrupt COLMAP binary file "
+                             f"(a record claims {count} entries past the end of the file)")
+        self.pos += count * item_size
+
+    def read_name(self) -> str:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise InputError(f"{self.path}: truncated COLMAP binary file (unterminated image name)")
+        name = self.data[self.pos:end].decode("utf-8", errors="replace")
+        self.pos = end + 1
+        return name
+
+    def finish(self) -> None:
+        if self.pos != len(self.data):
+            raise InputError(f"{self.path}: corrupt COLMAP binary file "
+                             f"({len(self.data) - self.pos} unexpected bytes after the last record)")
+
+
+def check_binary_model(folder: Path) -> None:
+    """Walk cameras.bin, images.bin and points3D.bin record by record; InputError naming the
+    file for truncation, trailing garbage or an unknown camera model."""
+    cameras = _Reader(folder / "cameras.bin")
+    (count,) = cameras.read("<Q")
+    for _ in range(count):
+        _, model_id, _, _ = cameras.read("<iiQQ")
+        if model_id not in _MODELS:
+            raise InputError(f"{cameras.path}: unknown COLMAP camera model id {model_id} (corrupt file?)")
+        cameras.skip(_MODELS[model_id][1], 8)
+    cameras.finish()
+
+    images = _Reader(folder / "images.bin")
+    (count,) = images.read("<Q")
+    for _ in range(count):
+        images.read("<i7di")
+        images.read_name()
+        (num_points,) = images.read("<Q")
+        images.skip(num_points, 24)  # x, y (double) + point3D id (int64)
+    images.finish()
+
+    points_path = folder / "points3D.bin"
+    if points_path.is_file():
+        points = _Reader(points_path)
+        (count,) = points.read("<Q")
+        for _ in range(count):
+            points.read("<Q3d3Bd")
+            (track,) = points.read("<Q")
+            points.skip(track, 8)  # image id + point2D index (int32 each)
+        points.finish()
+
+
+def _distortion(model: str, params: np.ndarray) -> np.ndarray | None:
+    """OpenCV distortion coefficients for a supported COLMAP model (None for pinhole models)."""
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        return None
+    if model == "SIMPLE_RADIAL":
+        return np.array([params[3], 0.0, 0.0, 0.0])
+    if model == "RADIAL":
+        return np.array([params[3], params[4], 0.0, 0.0])
+    if model == "OPENCV":
+        return np.array(params[4:8], dtype=np.float64)
+    if model == "FULL_OPENCV":
+        return np.array(params[4:12], dtype=np.float64)
+    raise AssertionError(model)
+
+
+def load_colmap(root: Path) -> RawScene:
+    import pycolmap  # heavy; only needed for COLMAP scenes
+
+    found = find_model_dir(root)
+    if found is None:
+        raise InputError(f"{root}: no COLMAP model (cameras/images .bin or .txt) found")
+    folder, fmt = found
+    if fmt == "colmap-binary":
+        check_binary_model(folder)
+    try:
+        recon = pycolmap.Reconstruction(str(folder))
+    except Exception as exc:  # pycolmap raises ValueError/IndexError/RuntimeError for bad files
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{folder}: cannot read COLMAP model ({message})") from None
+
+    image_dir = root / "images"
+    cameras, paths, models, distortion, warnings = [], [], [], [], []
+    for image in sorted(recon.images.values(), key=lambda im: im.name):
+        source = f"{folder} image {image.name!r}"
+        if not image.has_pose:
+            warnings.append(f"image {image.name} is not registered (no pose); skipped")
+            continue
+        cam = recon.cameras[image.camera_id]
+        model = cam.model.name
+        if model not in SUPPORTED_MODELS:
+            raise InputError(f"{folder}: camera {cam.camera_id} uses the {model} model, which is not "
+                             f"supported (supported: {', '.join(SUPPORTED_MODELS)})")
+        params = np.asarray(cam.params, dtype=np.float64)
+        if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+            fx = fy = params[0]
+            cx, cy = params[1], params[2]
+        else:
+            fx, fy, cx, cy = params[:4]
+        check_intrinsics(cam.width, cam.height, [fx, fy, cx, cy, *params], f"{folder} camera {cam.camera_id}")
+        pose = np.eye(4)
+        pose[:3, :] = image.cam_from_world().matrix()
+        check_finite_pose(pose, source)
+        cameras.append(Camera(image.name, int(cam.width), int(cam.height), float(fx), float(fy),
+                              float(cx), float(cy), pose))
+        paths.append(image_dir / image.name)
+        models.append(model)
+        distortion.append(_distortion(model, params))
+    if not cameras:
+        raise InputError(f"{folder}: COLMAP model has no registered images")
+
+    if recon.num_points3D() > 0:
+        point_list = list(recon.points3D.values())
+        points = np.array([p.xyz for p in point_list], dtype=np.float64)
+        colors = np.array([p.color for p in point_list], dtype=np.uint8)
+        finite = np.all(np.isfinite(points), axis=1)
+        if not finite.all():
+            warnings.append(f"{int((~finite).sum())} sparse point(s) with NaN/Inf coordinates dropped")
+            points, colors = points[finite], colors[finite]
+    else:
+        points, colors = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    return RawScene(root, fmt, cameras, paths, models, distortion, points, colors, warnings)

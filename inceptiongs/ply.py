@@ -1,0 +1,194 @@
+"""3DGS PLY read/write: the standard layout of the reference implementation.
+
+Vertex properties, in this order on write: x y z nx ny nz f_dc_0..2 f_rest_0..(3*(K-1)-1)
+opacity scale_0..2 rot_0..3, all float32, binary little-endian. f_rest is channel-major:
+f_rest[c * (K - 1) + k] is coefficient k + 1 of colour channel c. On read the SH degree comes
+from the number of f_rest fields, other properties (normals, extras) are ignored, and the
+float32 values are kept as they are so a read/write round trip is bit-exact.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .atomic import atomic_open
+from .constants import SH_MAX_DEGREE, sh_coeff_count
+from .errors import InputError
+from .gaussians import Gaussians
+
+# PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_BYTE_ORDER = {"binary_little_endian": "<", "binary_big_endian": ">"}
+# A header longer than this is not a 3DGS PLY (the largest standard one is ~1.5 KB).
+_MAX_HEADER_BYTES = 1 << 20
+
+
+def _parse_header(raw: bytes, path: Path) -> tuple[int, str, list[tuple[str, int, list[tuple[str, str]]]]]:
+    """-> (header length in bytes, byte order, elements [(name, count, [(prop, type)])])."""
+    if not raw.startswith(b"ply\n") and not raw.startswith(b"ply\r\n"):
+        raise InputError(f"{path}: not a PLY file (missing 'ply' magic)")
+    end = raw.find(b"end_header")
+    if end < 0:
+        raise InputError(f"{path}: PLY header has no end_header (truncated or corrupt)")
+    newline = raw.find(b"\n", end)
+    if newline < 0:
+        raise InputError(f"{path}: PLY header is truncated after end_header")
+    header_len = newline + 1
+    try:
+        lines = raw[:end].decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: PLY header is not ASCII text") from None
+    byte_order = None
+    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    for line in lines[1:]:
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "format":
+            if len(words) < 2:
+                raise InputError(f"{path}: PLY format line is malformed: {line!r}")
+            if words[1] == "ascii":
+                raise InputError(f"{path}: ASCII PLY is not supported; save it as binary_little_endian")
+            if words[1] not in _BYTE_ORDER:
+                raise InputError(f"{path}: unknown PLY format {words[1]!r}")
+            byte_order = _BYTE_ORDER[words[1]]
+        elif words[0] == "element":
+            if len(words) != 3 or not re.fullmatch(r"\d+", words[2]):
+                raise InputError(f"{path}: PLY element line is malformed: {line!r}")
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property":
+            if not elements:
+                raise InputError(f"{path}: PLY property before any element: {line!r}")
+            if len(words) >= 2 and words[1] == "list":
+                raise InputError(f"{path}: PLY element {elements[-1][0]!r} has a list property, "
+                                 "which a 3DGS PLY does not have")
+            if len(words) != 3 or words[1] not in _PLY_TYPES:
+                raise InputError(f"{path}: PLY property line is malformed: {line!r}")
+            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+        else:
+            raise InputError(f"{path}: unexpected PLY header line {line!r}")
+    if byte_order is None:
+        raise InputError(f"{path}: PLY header has no format line")
+    return header_len, byte_order, elements
+
+
+def _sh_rest_count(names: set[str], path: Path) -> int:
+    """Number of f_rest_* fields, checked to be 3 * ((d+1)^2 - 1) and contiguous from 0."""
+    count = sum(1 for name in names if name.startswith("f_rest_"))
+    allowed = [3 * (sh_coeff_count(d) - 1) for d in range(SH_MAX_DEGREE + 1)]
+    if count not in allowed:
+        raise InputError(f"{path}: {count} f_rest fields is not an SH degree 0-3 "
+                         f"(expected one of {allowed})")
+    missing = [f"f_rest_{i}" for i in range(count) if f"f_rest_{i}" not in names]
+    if missing:
+        raise InputError(f"{path}: f_rest fields are not numbered 0..{count - 1} (missing {missing[0]})")
+    return count
+
+
+def read_ply(path: str | Path) -> Gaussians:
+    """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: PLY file does not exist")
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(_MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    header_len, byte_order, elements = _parse_header(head, path)
+
+    offset = header_len
+    vertex = None
+    for name, count, props in elements:
+        dtype = np.dtype([(prop, byte_order + code) for prop, code in props])
+        if name == "vertex":
+            vertex = (count, dtype, offset)
+            break
+        offset += count * dtype.itemsize  # fixed-size elements before the vertices are skipped
+    if vertex is None:
+        raise InputError(f"{path}: PLY has no 'vertex' element")
+    count, dtype, offset = vertex
+    names = set(dtype.names or ())
+    required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+                "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    missing = [name for name in required if name not in names]
+    if missing:
+        raise InputError(f"{path}: PLY vertex element lacks 3DGS field(s) {', '.join(missing)}")
+    rest_count = _sh_rest_count(names, path)
+
+    file_size = path.stat().st_size
+    needed = offset + count * dtype.itemsize
+    if file_size < needed:
+        raise InputError(f"{path}: truncated PLY: header declares {count} vertices "
+                         f"({needed} bytes) but the file has {file_size} bytes")
+    data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
+
+    def column(name: str) -> np.ndarray:
+        values = data[name].astype(np.float32, copy=False)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            raise InputError(f"{path}: field {name} has {int(bad.sum())} NaN/Inf value(s) "
+                             f"(first at vertex {int(np.argmax(bad))})")
+        return values
+
+    def stack(names_: list[str]) -> np.ndarray:
+        return np.stack([column(n) for n in names_], axis=1) if names_ else np.zeros((count, 0), np.float32)
+
+    k_rest = rest_count // 3
+    f_dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])                              # [N, 3]
+    f_rest = stack([f"f_rest_{i}" for i in range(rest_count)])               # [N, 3 * k_rest]
+    sh = np.concatenate([f_dc[:, None, :], f_rest.reshape(count, 3, k_rest).transpose(0, 2, 1)], axis=1)
+    arrays = {
+        "means": stack(["x", "y", "z"]),
+        "log_scales": stack(["scale_0", "scale_1", "scale_2"]),
+        "quats": stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        "opacity_logits": np.ascontiguousarray(column("opacity")),
+        "sh": np.ascontiguousarray(sh),
+    }
+    return Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(a)) for name, a in arrays.items()})
+
+
+def ply_field_names(sh_degree: int) -> list[str]:
+    """The standard property names, in file order, for an SH degree 0..3."""
+    rest = 3 * (sh_coeff_count(sh_degree) - 1)
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(rest)]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+def write_ply(gaussians: Gaussians, path: str | Path) -> None:
+    """Write the standard 3DGS PLY (float32, binary little-endian) atomically.
+
+    Normals are written as zeros (the model has none); values are converted to float32.
+    """
+    arrays = gaussians.numpy()
+    n = len(gaussians)
+    k = arrays["sh"].shape[1]
+    names = ply_field_names(gaussians.sh_degree)
+    record = np.zeros(n, dtype=np.dtype([(name, "<f4") for name in names]))
+    for axis, name in enumerate("xyz"):
+        record[name] = arrays["means"][:, axis]
+    for c in range(3):
+        record[f"f_dc_{c}"] = arrays["sh"][:, 0, c]
+    rest = arrays["sh"][:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # channel-major
+    for i in range(rest.shape[1]):
+        record[f"f_rest_{i}"] = rest[:, i]
+    record["opacity"] = arrays["opacity_logits"]
+    for i in range(3):
+        record[f"scale_{i}"] = arrays["log_scales"][:, i]
+    for i in range(4):
+        record[f"rot_{i}"] = arrays["quats"][:, i]
+    header = "".join(["ply\n", "format binary_little_endian 1.0\n", f"element vertex {n}\n",
+                      *[f"property float {name}\n" for name in names], "end_header\n"])
+    with atomic_open(path, "wb") as handle:
+        handle.write(header.encode("ascii"))
+        handle.write(record.tobytes())

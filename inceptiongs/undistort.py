@@ -1,0 +1,86 @@
+"""Lens undistortion to a pinhole camera (OpenCV distortion models, COLMAP's pixel convention).
+
+Pixel (i, j) is the continuous point (i + 0.5, j + 0.5) here and in COLMAP, while cv2.remap
+indexes pixel centres at integers; the maps below are built in our convention and shifted by
+0.5 only at the cv2 boundary, so undistortion adds no half-pixel offset.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .camera import Camera
+
+# Fixed-point iterations for inverting the distortion; each one is cheap and the models
+# that COLMAP fits converge in a handful for any physically sensible lens.
+_UNDISTORT_ITERATIONS = 20
+
+
+def _coefficients(dist: np.ndarray) -> np.ndarray:
+    """Pad to the 8 OpenCV rational-model coefficients (k1, k2, p1, p2, k3, k4, k5, k6)."""
+    out = np.zeros(8)
+    out[: len(dist)] = dist
+    return out
+
+
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Apply OpenCV distortion to normalised image points. xy: [..., 2] -> [..., 2]."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = _coefficients(dist)
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    # The rational denominator is 1 + O(r^2) and positive for any lens OpenCV can calibrate
+    # within the image; it is not guarded further.
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Invert :func:`distort_normalized` by fixed-point iteration. [..., 2] -> [..., 2]."""
+    xy = xy_distorted.copy()
+    for _ in range(_UNDISTORT_ITERATIONS):
+        offset = distort_normalized(xy, dist) - xy
+        xy = xy_distorted - offset
+    return xy
+
+
+def undistorted_camera(camera: Camera, dist: np.ndarray) -> Camera:
+    """The pinhole camera (same size) whose image holds only valid undistorted pixels.
+
+    The focal lengths are chosen so that every pixel of the undistorted image comes from
+    inside the distorted image (no black borders); the principal point is kept.
+    """
+    w, h = camera.width, camera.height
+    # Sample the border of the distorted image and find the normalised extent it covers.
+    t = np.linspace(0.0, 1.0, 64)
+    border = np.concatenate([
+        np.stack([t * w, np.zeros_like(t)], 1), np.stack([t * w, np.full_like(t, h)], 1),
+        np.stack([np.zeros_like(t), t * h], 1), np.stack([np.full_like(t, w), t * h], 1)])
+    normalized = np.stack([(border[:, 0] - camera.cx) / camera.fx, (border[:, 1] - camera.cy) / camera.fy], 1)
+    ideal = undistort_normalized(normalized, dist)
+    # The largest rectangle around the principal point inside the undistorted border: on
+    # each side the innermost undistorted border point limits it.
+    left = ideal[border[:, 0] == 0, 0].max()
+    right = ideal[border[:, 0] == w, 0].min()
+    top = ideal[border[:, 1] == 0, 1].max()
+    bottom = ideal[border[:, 1] == h, 1].min()
+    # Keep the principal point and pick per axis the smallest focal length whose image
+    # rectangle [-cx / f, (w - cx) / f] stays inside that region on both sides. The sides lie
+    # on opposite signs of 0 for any camera whose principal point is inside the image; the
+    # guard only keeps a degenerate one from dividing by zero.
+    scale_x = max(camera.cx / max(-left, 1e-12), (w - camera.cx) / max(right, 1e-12))
+    scale_y = max(camera.cy / max(-top, 1e-12), (h - camera.cy) / max(bottom, 1e-12))
+    return Camera(camera.name, w, h, float(scale_x), float(scale_y), camera.cx, camera.cy,
+                  camera.world_to_camera)
+
+
+def undistort_image(image: np.ndarray, distorted: Camera, dist: np.ndarray, pinhole: Camera) -> np.ndarray:
+    """Resample image [H, W, C] taken by ``distorted`` into the ``pinhole`` camera's image."""
+    u, v = np.meshgrid(np.arange(pinhole.width) + 0.5, np.arange(pinhole.height) + 0.5)
+    xy = np.stack([(u - pinhole.cx) / pinhole.fx, (v - pinhole.cy) / pinhole.fy], -1)
+    xd = distort_normalized(xy, dist)
+    map_x = (xd[..., 0] * distorted.fx + distorted.cx - 0.5).astype(np.float32)
+    map_y = (xd[..., 1] * distorted.fy + distorted.cy - 0.5).astype(np.float32)
+    return cv2.remap(image, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
