@@ -147,3 +147,28 @@ def ssim(pred, target, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
 def psnr_from_mse(value: float) -> float:
     """PSNR in dB from an MSE for a peak of 1 (math floats; +inf for 0)."""
     return math.inf if value <= 0 else -10.0 * math.log10(value)
+
+
+def frechet_distance(features_a: torch.Tensor, features_b: torch.Tensor) -> float:
+    """Fréchet distance between Gaussians fitted to two feature sets (the FID formula):
+    |mu_a - mu_b|^2 + tr(S_a + S_b - 2 (S_a^1/2 S_b S_a^1/2)^1/2).
+
+    features_a: [N, D], features_b: [M, D], N, M >= 2 (a covariance needs two samples).
+    Computed in float64 with symmetric eigendecompositions only; eigenvalues that rounding
+    pushes below zero are clamped to 0 before the square roots.
+    """
+    a = torch.as_tensor(features_a, dtype=torch.float64)
+    b = torch.as_tensor(features_b, dtype=torch.float64)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ValueError(f"feature sets must be [N, D] and [M, D], got {tuple(a.shape)}, {tuple(b.shape)}")
+    if a.shape[0] < 2 or b.shape[0] < 2:
+        raise ValueError("the Fréchet distance needs at least two samples per set")
+    mean_a, mean_b = a.mean(0), b.mean(0)
+    cov_a, cov_b = torch.cov(a.T).reshape(a.shape[1], -1), torch.cov(b.T).reshape(b.shape[1], -1)
+    eigvals_a, eigvecs_a = torch.linalg.eigh(cov_a)
+    sqrt_a = (eigvecs_a * eigvals_a.clamp_min(0).sqrt()) @ eigvecs_a.T
+    middle = sqrt_a @ cov_b @ sqrt_a
+    # middle is symmetric PSD; its eigenvalues' roots sum to tr(sqrt(S_a S_b)).
+    trace_sqrt = torch.linalg.eigvalsh((middle + middle.T) / 2).clamp_min(0).sqrt().sum()
+    value = (mean_a - mean_b).square().sum() + torch.trace(cov_a) + torch.trace(cov_b) - 2 * trace_sqrt
+    return float(value)
