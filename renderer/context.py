@@ -1,0 +1,39 @@
+"""OpenGL contexts for the splat renderer: headless EGL for tests, the CLI and benchmarks.
+
+The app makes its own GLFW window and passes ``moderngl.create_context()`` to
+:class:`~inceptiongs.renderer.splats.SplatRenderer`; :func:`check_context` tells either kind
+of context what the renderer can do with it.
+"""
+
+from __future__ import annotations
+
+import moderngl
+
+# Instanced quads, transform feedback, texelFetch and integer attributes: GL 3.3 core.
+GL_VERSION_MIN = 330
+# Compute shaders and shader storage buffers (the GPU depth sort): GL 4.3.
+GL_VERSION_COMPUTE = 430
+
+
+class RendererError(RuntimeError):
+    """The GL context cannot do what the renderer needs (message says what was found)."""
+
+
+def check_context(ctx: moderngl.Context) -> bool:
+    """Raise RendererError below GL 3.3; return True when compute shaders (GL 4.3) exist."""
+    version = int(ctx.version_code)
+    if version < GL_VERSION_MIN:
+        renderer = ctx.info.get("GL_RENDERER", "unknown renderer")
+        raise RendererError(f"OpenGL {version // 100}.{version % 100 // 10} found ({renderer}); "
+                            f"the splat renderer needs OpenGL 3.3 or newer")
+    return version >= GL_VERSION_COMPUTE
+
+
+def create_offscreen_context() -> moderngl.Context:
+    """A headless EGL context (Mesa llvmpipe on machines without a GPU)."""
+    try:
+        ctx = moderngl.create_context(standalone=True, backend="egl")
+    except Exception as exc:  # moderngl raises plain Exception for a missing EGL/driver
+        raise RendererError(f"could not create an EGL OpenGL context ({exc})") from None
+    check_context(ctx)
+    return ctx

@@ -1,0 +1,300 @@
+"""SplatRenderer: Gaussians drawn as instanced, opacity-aware quads, sorted back to front.
+
+A frame is three passes:
+1. preprocess (transform feedback, one vertex per Gaussian): EWA projection, footprint box,
+   colour/depth/normal -> three vec4 per Gaussian;
+2. depth sort (compute-shader bitonic sort on GL >= 4.3, numpy otherwise);
+3. draw: one quad per Gaussian = the box where alpha >= ALPHA_MIN, premultiplied "over"
+   blending into an RGBA32F target (or the caller's framebuffer).
+
+Uploads: set_gaussians with an unchanged version uploads nothing; a camera change only
+sets uniforms and re-runs passes 1-3. Buffers and textures are reused and only grow.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import moderngl
+import numpy as np
+
+from inceptiongs.camera import Camera
+from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
+
+from .context import RendererError, check_context
+from .gl_camera import pixel_to_ndc_scale, shader_camera
+from .shaders import build_source
+from .sorting import GpuDepthSort, back_to_front_order
+
+MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
+# Width of the packed data textures (texels); height grows with the Gaussian count.
+TEXTURE_WIDTH = 4096
+# Texels per Gaussian before the SH: mean - anchor & opacity logit, log-scales, quaternion.
+_BASE_TEXELS = 3
+# The preprocess pass writes this many vec4 per Gaussian.
+_SPLAT_TEXELS = 3
+
+
+def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
+    """Gaussians.numpy() arrays -> (texels [N, 3 + S, 4] float32, anchor [3] float64, degree).
+
+    Means are stored relative to their float64 centroid (the anchor) so shader arithmetic is
+    as precise far from the origin as next to it. S = ceil(3 K / 4) texels hold the
+    K = (degree + 1)^2 SH coefficients, channel-interleaved as in the arrays.
+    """
+    means = np.asarray(arrays["means"], np.float64).reshape(-1, 3)
+    n = means.shape[0]
+    sh = np.asarray(arrays["sh"], np.float32).reshape(n, -1, 3)
+    degree = sh_degree_from_count(sh.shape[1])
+    anchor = means.mean(axis=0) if n else np.zeros(3)
+    if not np.all(np.isfinite(anchor)):
+        anchor = np.zeros(3)
+    sh_texels = math.ceil(3 * sh.shape[1] / 4)
+    texels = np.zeros((n, _BASE_TEXELS + sh_texels, 4), np.float32)
+    texels[:, 0, :3] = means - anchor
+    texels[:, 0, 3] = np.asarray(arrays["opacity_logits"], np.float32).reshape(n)
+    texels[:, 1, :3] = np.asarray(arrays["log_scales"], np.float32).reshape(n, 3)
+    texels[:, 2, :] = np.asarray(arrays["quats"], np.float32).reshape(n, 4)
+    flat_sh = texels[:, _BASE_TEXELS:, :].reshape(n, sh_texels * 4)
+    flat_sh[:, : 3 * sh.shape[1]] = sh.reshape(n, -1)
+    texels[:, _BASE_TEXELS:, :] = flat_sh.reshape(n, sh_texels, 4)
+    return texels, anchor, degree
+
+
+def _texture_height(texel_count: int) -> int:
+    return max(1, -(-texel_count // TEXTURE_WIDTH))
+
+
+class SplatRenderer:
+    """Draws Gaussians with one moderngl context; owns its GL resources (see release())."""
+
+    def __init__(self, ctx: moderngl.Context):
+        self.ctx = ctx
+        self.has_compute = check_context(ctx)
+        self.timings: dict[str, float] = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
+        self._gpu_sort = GpuDepthSort(ctx) if self.has_compute else None
+        self._draw = ctx.program(
+            vertex_shader=build_source(330, ["splat_common.glsl", "splat_draw.vert"],
+                                       {"TEXTURE_WIDTH": TEXTURE_WIDTH}),
+            fragment_shader=build_source(330, ["splat_draw.frag"]))
+        self._preprocess: dict[int, moderngl.Program] = {}
+        self._version: int | None = None
+        self._count = 0
+        self._degree = 0
+        self._anchor = np.zeros(3)
+        self._relative_means = np.zeros((0, 3), np.float32)
+        self._gaussian_texture: moderngl.Texture | None = None
+        self._splat_buffer: moderngl.Buffer | None = None
+        self._splat_texture: moderngl.Texture | None = None
+        self._index_buffer: moderngl.Buffer | None = None
+        self._draw_vao: moderngl.VertexArray | None = None
+        self._draw_vao_source: moderngl.Buffer | None = None
+        self._preprocess_vao: moderngl.VertexArray | None = None
+        self._offscreen: moderngl.Framebuffer | None = None
+
+    # --- model upload ---------------------------------------------------------------------
+
+    @property
+    def count(self) -> int:
+        return self._count
+
+    def set_gaussians(self, arrays: dict[str, np.ndarray], version: int | None = None) -> None:
+        """arrays: as Gaussians.numpy() (means [N,3], log_scales [N,3], quats [N,4],
+        opacity_logits [N], sh [N,K,3]). The same non-None version as last time: no upload."""
+        if version is not None and version == self._version:
+            return
+        texels, anchor, degree = pack_gaussians(arrays)
+        n, per_gaussian = texels.shape[0], texels.shape[1]
+        height = _texture_height(n * per_gaussian)
+        if height > self.ctx.info["GL_MAX_TEXTURE_SIZE"]:
+            raise RendererError(f"{n} Gaussians with SH degree {degree} exceed this GL's "
+                                f"texture size ({self.ctx.info['GL_MAX_TEXTURE_SIZE']})")
+        self._count, self._degree, self._anchor, self._version = n, degree, anchor, version
+        self._relative_means = np.ascontiguousarray(texels[:, 0, :3])
+        if n == 0:
+            return
+        self._gaussian_texture = self._grow_texture(self._gaussian_texture, height)
+        data = np.zeros((height * TEXTURE_WIDTH, 4), np.float32)
+        data[: n * per_gaussian] = texels.reshape(-1, 4)
+        self._gaussian_texture.write(data.tobytes())
+        splat_height = _texture_height(n * _SPLAT_TEXELS)
+        self._splat_texture = self._grow_texture(self._splat_texture, splat_height)
+        splat_bytes = TEXTURE_WIDTH * splat_height * 16
+        if self._splat_buffer is None or self._splat_buffer.size != splat_bytes:
+            if self._splat_buffer is not None:
+                self._splat_buffer.release()
+            # Exactly the splat texture's size: the buffer is copied into it each frame.
+            self._splat_buffer = self.ctx.buffer(reserve=splat_bytes)
+
+    def _grow_texture(self, texture: moderngl.Texture | None, height: int) -> moderngl.Texture:
+        if texture is not None and texture.height == height:
+            return texture
+        if texture is not None:
+            texture.release()
+        texture = self.ctx.texture((TEXTURE_WIDTH, height), 4, dtype="f4")
+        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return texture
+
+    def _preprocess_program(self) -> moderngl.Program:
+        program = self._preprocess.get(self._degree)
+        if program is None:
+            defines = {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SH_DEGREE": self._degree,
+                       "SH_TEXELS": math.ceil(3 * (self._degree + 1) ** 2 / 4),
+                       "GAUSSIAN_TEXELS": _BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)}
+            program = self.ctx.program(
+                vertex_shader=build_source(330, ["splat_common.glsl", "splat_preprocess.vert"], defines),
+                varyings=["out_screen", "out_conic", "out_value"])
+            self._preprocess[self._degree] = program
+        return program
+
+    # --- frame ------------------------------------------------------------------------------
+
+    def render(self, camera: Camera, mode: str = "rgb", background=(0.0, 0.0, 0.0),
+               sh_degree_cap: int | None = None, splat_scale: float = 1.0) -> np.ndarray:
+        """Offscreen frame as float32 numpy, row 0 = image top.
+
+        rgb [H,W,3] = blended colour + (1 - alpha) * background; depth [H,W,1] = blended z /
+        alpha (0 where alpha < ALPHA_EPS); normal [H,W,3] blended, not renormalised; alpha [H,W,1].
+        """
+        width, height = int(camera.width), int(camera.height)
+        fbo = self._offscreen_target(width, height)
+        clear = tuple(float(v) for v in background) if mode == "rgb" else (0.0, 0.0, 0.0)
+        self._frame(camera, mode, fbo, clear, sh_degree_cap, splat_scale, flip_y=False)
+        raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
+        raw = raw.reshape(height, width, 4)
+        alpha = raw[..., 3:4].copy()
+        if mode == "alpha":
+            return alpha
+        if mode == "depth":
+            safe = np.maximum(alpha, ALPHA_EPS)  # only used where alpha >= ALPHA_EPS
+            return np.where(alpha >= ALPHA_EPS, raw[..., 0:1] / safe, 0.0).astype(np.float32)
+        return raw[..., :3].copy()
+
+    def draw(self, camera: Camera, mode: str, framebuffer: moderngl.Framebuffer,
+             background=(0.0, 0.0, 0.0), sh_degree_cap: int | None = None,
+             splat_scale: float = 1.0, clear: bool = True) -> None:
+        """Draw upright into ``framebuffer`` (e.g. the app's window). The camera's size should be
+        the framebuffer's viewport. rgb and alpha are final; depth is the blended z before the
+        division by alpha that render() does, and normal is the blended normal."""
+        self._frame(camera, mode, framebuffer, tuple(float(v) for v in background) if clear else None,
+                    sh_degree_cap, splat_scale, flip_y=True)
+
+    def pick_depth(self, camera: Camera, x: int, y: int) -> float | None:
+        """Expected camera z at pixel (x, y) (column, row from the top), None where nothing was
+        drawn (alpha < ALPHA_EPS) or outside the image. Renders only that one pixel."""
+        if not (0 <= x < camera.width and 0 <= y < camera.height):
+            return None
+        depth = self.render(camera.cropped(int(x), int(y), 1, 1), mode="depth")
+        value = float(depth[0, 0, 0])
+        return value if value > 0.0 else None
+
+    def _offscreen_target(self, width: int, height: int) -> moderngl.Framebuffer:
+        fbo = self._offscreen
+        if fbo is None or fbo.size != (width, height):
+            if fbo is not None:
+                for attachment in fbo.color_attachments:
+                    attachment.release()
+                fbo.release()
+            colour = self.ctx.renderbuffer((width, height), 4, dtype="f4")
+            fbo = self._offscreen = self.ctx.framebuffer(color_attachments=[colour])
+        return fbo
+
+    def _frame(self, camera: Camera, mode: str, fbo: moderngl.Framebuffer, clear_colour,
+               sh_degree_cap: int | None, splat_scale: float, flip_y: bool) -> None:
+        if mode not in MODES:
+            raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
+        if not (math.isfinite(splat_scale) and splat_scale > 0):
+            raise ValueError(f"splat_scale must be a positive finite number, got {splat_scale}")
+        ctx = self.ctx
+        fbo.use()
+        if clear_colour is not None:
+            fbo.clear(*clear_colour, 0.0)
+        self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
+        if self._count == 0:
+            return
+        cam = shader_camera(camera, self._anchor)
+        degree = self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
+
+        start = time.perf_counter()
+        program = self._preprocess_program()
+        program["rotation"].write(cam.rotation.T.astype(np.float32).tobytes())  # column-major
+        program["translation"].value = tuple(map(float, cam.translation))
+        self._set_optional(program, "camera_center", tuple(map(float, cam.center)))
+        program["intrinsics"].value = tuple(map(float, cam.intrinsics))
+        program["image_size"].value = tuple(map(float, cam.size))
+        program["mode"].value = MODES[mode]
+        self._set_optional(program, "sh_degree", degree)
+        program["splat_scale"].value = float(splat_scale)
+        self._set_optional(program, "gaussians", 0)
+        self._gaussian_texture.use(0)
+        if self._preprocess_vao is None or self._preprocess_vao.program is not program:
+            if self._preprocess_vao is not None:
+                self._preprocess_vao.release()
+            self._preprocess_vao = ctx.vertex_array(program, [])
+        self._preprocess_vao.transform(self._splat_buffer, mode=moderngl.POINTS, vertices=self._count)
+        ctx.finish()
+        preprocess_done = time.perf_counter()
+
+        if self._gpu_sort is not None:
+            order_buffer = self._gpu_sort.sort(self._splat_buffer, self._count)
+            order_format = "4x u4 /i"  # the index is the second uint of each (key, index) pair
+        else:
+            order = back_to_front_order(self._relative_means, cam.rotation, cam.translation)
+            if self._index_buffer is None or self._index_buffer.size < order.nbytes:
+                if self._index_buffer is not None:
+                    self._index_buffer.release()
+                self._index_buffer = ctx.buffer(reserve=order.nbytes)
+            self._index_buffer.write(order.tobytes())
+            order_buffer, order_format = self._index_buffer, "u4 /i"
+        self._splat_texture.write(self._splat_buffer)
+        ctx.finish()
+        sort_done = time.perf_counter()
+
+        if self._draw_vao is None or self._draw_vao_source is not order_buffer:
+            if self._draw_vao is not None:
+                self._draw_vao.release()
+            self._draw_vao = ctx.vertex_array(self._draw, [(order_buffer, order_format, "splat_index")])
+            self._draw_vao_source = order_buffer
+        draw = self._draw
+        draw["splat_count"].value = self._count
+        draw["pixel_to_ndc"].value = pixel_to_ndc_scale(cam.size[0], cam.size[1], flip_y)
+        draw["image_size"].value = tuple(map(float, cam.size))
+        draw["flip_height"].value = float(cam.size[1]) if flip_y else 0.0
+        self._set_optional(draw, "splats", 0)
+        self._splat_texture.use(0)
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
+        ctx.blend_equation = moderngl.FUNC_ADD
+        self._draw_vao.render(mode=moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
+        ctx.finish()
+        ctx.disable(moderngl.BLEND)
+        end = time.perf_counter()
+        self.timings = {"preprocess_ms": 1e3 * (preprocess_done - start),
+                        "sort_ms": 1e3 * (sort_done - preprocess_done),
+                        "draw_ms": 1e3 * (end - sort_done)}
+
+    @staticmethod
+    def _set_optional(program: moderngl.Program, name: str, value) -> None:
+        # The GLSL compiler drops uniforms a specialisation does not use (e.g. camera_center
+        # for SH degree 0 is still used, sh_degree is not): setting them must not fail.
+        if name in program:
+            program[name].value = value
+
+    def release(self) -> None:
+        """Free every GL object this renderer made (the context stays the caller's)."""
+        objects = [self._gaussian_texture, self._splat_buffer, self._splat_texture, self._index_buffer,
+                   self._draw_vao, self._preprocess_vao, self._draw, *self._preprocess.values()]
+        if self._offscreen is not None:
+            objects += list(self._offscreen.color_attachments) + [self._offscreen]
+        for obj in objects:
+            if obj is not None:
+                obj.release()
+        if self._gpu_sort is not None:
+            self._gpu_sort.release()
+        self._preprocess.clear()
+        self._gaussian_texture = self._splat_buffer = self._splat_texture = None
+        self._index_buffer = self._draw_vao = self._preprocess_vao = self._offscreen = None
+        self._count = 0
+        self._version = None

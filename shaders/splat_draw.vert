@@ -1,0 +1,33 @@
+// One instanced quad (4-vertex strip) per Gaussian, in back-to-front order: splat_index is the
+// sorted position's Gaussian. The quad is the footprint box computed by the preprocess pass.
+uniform sampler2D splats;      // 3 texels per Gaussian (see splat_preprocess.vert)
+uniform int splat_count;
+uniform vec4 pixel_to_ndc;     // ndc = pixel * xy + zw
+uniform vec2 image_size;
+
+in uint splat_index;
+
+flat out vec2 f_mean;
+flat out vec3 f_conic;
+flat out float f_opacity;
+flat out vec3 f_value;
+
+void main() {
+    int index = int(splat_index);
+    vec4 conic = index < splat_count ? fetch_texel(splats, 3 * index + 1) : vec4(0.0);
+    if (conic.w <= 0.0) {
+        // Culled: a zero-area triangle outside the clip volume, rasterises nothing.
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        return;
+    }
+    vec4 screen = fetch_texel(splats, 3 * index);
+    vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+    // Clamping to just beyond the image keeps huge footprints' corners in a sane float range;
+    // the clipped area is the same.
+    vec2 pixel = clamp(screen.xy + corner * screen.zw, vec2(-1.0), image_size + 1.0);
+    gl_Position = vec4(pixel * pixel_to_ndc.xy + pixel_to_ndc.zw, 0.0, 1.0);
+    f_mean = screen.xy;
+    f_conic = conic.xyz;
+    f_opacity = conic.w;
+    f_value = fetch_texel(splats, 3 * index + 2).xyz;
+}
