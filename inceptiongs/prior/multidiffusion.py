@@ -55,7 +55,7 @@ def coverage(height: int, width: int, window: int, stride: int) -> torch.Tensor:
 def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: int, width: int,
                           cond: torch.Tensor | None = None, channels: int = 3, window: int = 64,
                           stride: int = 48, steps: int = 20, seed: int = 0, batch_windows: int = 16,
-                          device=None, progress: bool = False) -> torch.Tensor:
+                          device=None, dtype=torch.float32, progress: bool = False) -> torch.Tensor:
     """Sample one image [1, channels, height, width] in [-1, 1].
 
     cond: [1, Cc, height, width] G-buffer or None. Deterministic for a given seed (the initial
@@ -67,16 +67,16 @@ def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: i
     if cond is not None:
         if cond.ndim != 4 or cond.shape[0] != 1 or tuple(cond.shape[-2:]) != (height, width):
             raise ValueError(f"condition must be [1, Cc, {height}, {width}], got {tuple(cond.shape)}")
-        cond = torch.nn.functional.pad(cond.to(device), (0, canvas_w - width, 0, canvas_h - height))
+        cond = torch.nn.functional.pad(cond.to(device, dtype), (0, canvas_w - width, 0, canvas_h - height))
     boxes = window_boxes(canvas_h, canvas_w, window, stride)
-    count = torch.zeros(1, 1, canvas_h, canvas_w, device=device)
+    count = torch.zeros(1, 1, canvas_h, canvas_w, device=device, dtype=dtype)
     for y0, x0 in boxes:
         count[..., y0:y0 + window, x0:x0 + window] += 1.0
     # Every canvas pixel lies in >= 1 window (window_starts ends flush with the border), so the
     # average below never divides by zero.
     assert bool((count > 0).all())
 
-    x = initial_noise((1, channels, canvas_h, canvas_w), seed, device)
+    x = initial_noise((1, channels, canvas_h, canvas_w), seed, device, dtype)
     timesteps = ddim_timesteps(schedule, steps)
     for i in tqdm(range(len(timesteps)), desc="MultiDiffusion", disable=not progress, leave=False):
         t, t_prev = timesteps[i], (timesteps[i + 1] if i + 1 < len(timesteps) else None)
