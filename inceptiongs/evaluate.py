@@ -183,14 +183,14 @@ def load_torchscript(path: str | Path, what: str) -> Callable:
     return module.eval()
 
 
-def _json_number(value):
+def json_safe(value):
     """JSON has no inf: an exact reconstruction's PSNR is written as the string "inf"."""
     if isinstance(value, float) and math.isinf(value):
         return "inf" if value > 0 else "-inf"
     if isinstance(value, dict):
-        return {k: _json_number(v) for k, v in value.items()}
+        return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_json_number(v) for v in value]
+        return [json_safe(v) for v in value]
     return value
 
 
@@ -208,7 +208,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError(f"{run_dir}: run folder does not exist")
-    gaussians, scene, config = load_run(run_dir)
+    gaussians, scene, _config = load_run(run_dir)
     split = Split.load(run_dir / "split.json", scene.cameras)
     if not split.test:
         raise InputError(f"{run_dir / 'split.json'}: the split holds out no views (protocol "
@@ -216,9 +216,9 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
     lpips_model = load_torchscript(lpips_weights, "LPIPS") if lpips_weights else None
     fid_model = load_torchscript(fid_weights, "FID") if fid_weights else None
     eval_dir = run_dir / "eval"
-    result = evaluate_views(gaussians, scene, split, background=config.get("background"),
-                            save_dir=eval_dir, lpips_model=lpips_model, fid_model=fid_model,
-                            progress=progress)
+    # The trainer scores its test views on black (the rasterizer's default); so do we.
+    result = evaluate_views(gaussians, scene, split, save_dir=eval_dir, lpips_model=lpips_model,
+                            fid_model=fid_model, progress=progress)
     for view in result["views"]:
         view["image"] = f"eval/{view['image']}"
     groups = result["groups"]
@@ -232,7 +232,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
         "lpips": f"computed with {lpips_weights}" if lpips_weights else UNAVAILABLE_LPIPS,
         "fid": f"computed with {fid_weights}" if fid_weights else UNAVAILABLE_FID,
     }
-    atomic_write_text(eval_dir / "eval.json", json.dumps(_json_number(summary), indent=1) + "\n")
+    atomic_write_text(eval_dir / "eval.json", json.dumps(json_safe(summary), indent=1) + "\n")
     return summary
 
 
