@@ -219,7 +219,8 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, -1.0, 0.
         raise ValueError("look_at: eye and target coincide")
     forward /= norm
     up = np.asarray(up, np.float64)
-    right = np.cross(forward, -up)  # camera x = forward x down
+    # OpenCV axes: x = y cross z, i.e. right = down x forward = forward x up.
+    right = np.cross(forward, up)
     if np.linalg.norm(right) < 1e-9:
         fallback = np.array([1.0, 0.0, 0.0]) if abs(forward[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
         right = np.cross(forward, fallback)
