@@ -1,0 +1,68 @@
+"""``inceptiongs-viewer SCENE_DIR | MODEL.ply | RUN_DIR [--screenshot PATH [--camera cam.json] [--size WxH]]``"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from inceptiongs.errors import InputError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="inceptiongs-viewer",
+        description="View, inspect, flag, train and edit a Gaussian-splat scene.")
+    parser.add_argument("source", help="a scene folder, a model .ply or a training run folder")
+    parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (PNG) and exit")
+    parser.add_argument("--camera", metavar="JSON", help="camera for --screenshot (default: first training camera)")
+    parser.add_argument("--size", metavar="WxH", help="image size for --screenshot / window size")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
+    return parser
+
+
+def default_job_factory(source):
+    """The stage-I trainer's job for a scene (None when the trainer's job is not installed)."""
+    try:
+        from inceptiongs.train.job import TrainJob  # noqa: PLC0415
+    except ImportError:
+        return None
+    if source.scene is None:
+        return None
+    return lambda src: TrainJob.for_scene(src.scene.root)  # noqa: E731
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        from .screenshot import parse_size, take_screenshot  # noqa: PLC0415
+        from .sources import open_source  # noqa: PLC0415
+
+        size = parse_size(args.size) if args.size else None
+        if args.camera and not args.screenshot:
+            raise InputError(f"{args.camera}: --camera is only used with --screenshot")
+        source = open_source(args.source)
+        if args.screenshot:
+            path = take_screenshot(source, args.screenshot, args.camera, size)
+            print(f"wrote {path}", file=sys.stderr)
+            return 0
+        from .viewer import Viewer, WindowError  # noqa: PLC0415
+
+        width, height = size or (1280, 720)
+        try:
+            viewer = Viewer(source, width, height, job_factory=default_job_factory(source))
+        except WindowError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        viewer.run()
+        return 0
+    except InputError as exc:
+        if args.debug:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

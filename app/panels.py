@@ -1,0 +1,184 @@
+"""The imgui panels: view, inspect, flags, training, edit. Each panel reads and changes the
+Viewer's state through its public methods; nothing here owns state of its own."""
+
+from __future__ import annotations
+
+import numpy as np
+from imgui_bundle import imgui, implot
+
+from .viewer import RENDER_MODES
+
+
+def draw_panels(viewer) -> None:
+    imgui.set_next_window_pos(imgui.ImVec2(10, 10), imgui.Cond_.first_use_ever)
+    imgui.set_next_window_size(imgui.ImVec2(360, 620), imgui.Cond_.first_use_ever)
+    imgui.begin("InceptionGS")
+    _stats(viewer)
+    if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+        _view(viewer)
+    if imgui.collapsing_header("Inspect", imgui.TreeNodeFlags_.default_open):
+        _inspect(viewer)
+    if imgui.collapsing_header("Flags", imgui.TreeNodeFlags_.default_open):
+        _flags(viewer)
+    if imgui.collapsing_header("Training"):
+        _training(viewer)
+    if imgui.collapsing_header("Edit"):
+        _edit(viewer)
+    if viewer.status:
+        imgui.separator()
+        imgui.text_wrapped(viewer.status)
+    imgui.end()
+
+
+def _stats(viewer) -> None:
+    s = viewer.stats
+    imgui.text(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  draw {s.draw_ms:5.1f} ms")
+    imgui.text(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+
+
+def _view(viewer) -> None:
+    nav = viewer.nav
+    changed, fov = imgui.slider_float("field of view", nav.fov_y_deg, 5.0, 150.0)
+    if changed:
+        nav.set_fov(fov)
+        viewer._moved()
+    _, viewer.settings.orbit = imgui.checkbox("orbit (O; double-click sets the pivot)", viewer.settings.orbit)
+    _, viewer.settings.show_training_cameras = imgui.checkbox("training cameras (T)",
+                                                              viewer.settings.show_training_cameras)
+    imgui.same_line()
+    _, viewer.settings.show_flags = imgui.checkbox("flags", viewer.settings.show_flags)
+    imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
+    if imgui.button("reset view (R)"):
+        viewer.reset_view()
+    if viewer.cameras:
+        imgui.same_line()
+        if imgui.button("< prev (P)"):
+            viewer.snap_to_camera(viewer.camera_index - 1)
+        imgui.same_line()
+        if imgui.button("next (N) >"):
+            viewer.snap_to_camera(viewer.camera_index + 1)
+        names = [c.name for c in viewer.cameras]
+        changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
+        if changed:
+            viewer.snap_to_camera(index)
+    if imgui.button("screenshot (F12)"):
+        viewer.save_screenshot()
+
+
+def _inspect(viewer) -> None:
+    settings = viewer.settings
+    changed, index = imgui.combo("mode (1-5)", RENDER_MODES.index(settings.mode), list(RENDER_MODES))
+    if changed:
+        settings.mode = RENDER_MODES[index]
+    if settings.mode == "reference":
+        views = ["heat-map", "side by side"]
+        changed, index = imgui.combo("show", views.index(settings.reference_view), views)
+        if changed:
+            settings.reference_view = views[index]
+        worker = viewer.reference
+        if worker is not None and worker.error:
+            imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"reference failed: {worker.error}")
+        elif viewer.reference_psnr is not None:
+            imgui.text(f"GL vs torch PSNR {viewer.reference_psnr:.2f} dB"
+                       + (" (updating...)" if worker is not None and worker.busy else ""))
+        else:
+            imgui.text("torch reference rendering...")
+    _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
+    _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
+    settings.splat_scale = max(settings.splat_scale, 0.05)
+
+
+def _flags(viewer) -> None:
+    if imgui.button("flag this view (F)"):
+        viewer.flag_current_view()
+    imgui.same_line()
+    imgui.text_disabled("right-click: flag a view aimed at the point")
+    imgui.text_disabled(str(viewer.flags_file))
+    for index, flag in enumerate(list(viewer.flags)):
+        imgui.push_id(f"flag{index}")
+        if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
+            viewer.selected_flag = index
+        imgui.same_line()
+        if imgui.small_button("go"):
+            viewer.jump_to_flag(index)
+        imgui.same_line()
+        if imgui.small_button("delete"):
+            viewer.delete_flag(index)
+            imgui.pop_id()
+            break
+        imgui.pop_id()
+    if 0 <= viewer.selected_flag < len(viewer.flags):
+        flag = viewer.flags[viewer.selected_flag]
+        changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
+        if changed and name.strip():
+            viewer.rename_flag(viewer.selected_flag, name.strip())
+
+
+def _training(viewer) -> None:
+    run = viewer.training
+    if run is None or not run.alive:
+        if imgui.button("start training"):
+            viewer.start_training()
+    else:
+        if run.control.pause.is_set():
+            if imgui.button("resume"):
+                run.resume()
+        elif imgui.button("pause"):
+            run.pause()
+        imgui.same_line()
+        if imgui.button("stop"):
+            run.control.stop.set()
+    if run is None:
+        return
+    progress = run.progress
+    imgui.text(f"{run.state}: iteration {progress.iteration}, {progress.gaussian_count} Gaussians, "
+               f"{progress.iterations_per_second:.2f} it/s")
+    if progress.message:
+        imgui.text_wrapped(progress.message)
+    if run.error:
+        imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"job failed: {run.error}")
+    if progress.history and implot.begin_plot("losses", imgui.ImVec2(-1, 160)):
+        for name, (iterations, values) in progress.history.items():
+            implot.plot_line(name, np.asarray(iterations, np.float64), np.asarray(values, np.float64))
+        implot.end_plot()
+
+
+def _edit(viewer) -> None:
+    settings = viewer.settings
+    tools = ["none", "rectangle", "brush"]
+    changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
+    if changed:
+        settings.edit_tool = tools[index]
+    modes = ["replace", "add", "subtract"]
+    changed, index = imgui.combo("selection", modes.index(settings.selection_mode), modes)
+    if changed:
+        settings.selection_mode = modes[index]
+    if settings.edit_tool == "brush":
+        _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)
+    _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
+    _, settings.min_size = imgui.input_float("or size above", settings.min_size)
+    if imgui.button("select by thresholds"):
+        viewer.threshold_select()
+    imgui.text(f"{int(viewer.edit.selected.sum())} selected")
+    if imgui.button("delete (Del)"):
+        viewer.delete_selection()
+    imgui.same_line()
+    if imgui.button("undo (Ctrl+Z)"):
+        viewer.undo()
+    imgui.same_line()
+    if imgui.button("redo (Ctrl+Y)"):
+        viewer.redo()
+    _, settings.crop_enabled = imgui.checkbox("crop box", settings.crop_enabled)
+    if settings.crop_enabled:
+        _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
+        _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
+        if imgui.button("crop to box"):
+            viewer.apply_crop()
+    if not hasattr(viewer, "_save_path"):
+        viewer._save_path = str(viewer.source.work_dir / "edited.ply")
+    _, viewer._save_path = imgui.input_text("file", viewer._save_path)
+    if imgui.button("save PLY"):
+        try:
+            viewer.save_ply(viewer._save_path)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line
+            viewer.status = f"save failed: {exc}"
