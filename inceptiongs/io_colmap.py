@@ -176,3 +176,42 @@ def load_colmap(root: Path) -> RawScene:
     else:
         points, colors = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     return RawScene(root, fmt, cameras, paths, models, distortion, points, colors, warnings)
+
+
+_MODEL_IDS = {name: model_id for model_id, (name, _) in _MODELS.items()}
+
+
+def write_colmap_binary(folder: Path, cameras: list[tuple[Camera, str, list[float]]],
+                        points: np.ndarray | None = None, colors: np.ndarray | None = None) -> None:
+    """Write cameras.bin, images.bin and points3D.bin (COLMAP's binary layout) atomically.
+
+    cameras: (camera, COLMAP model name, model parameters) per image, one COLMAP camera each;
+    points: [P, 3] float64 with colors [P, 3] uint8 (tracks left empty: the points carry no
+    observations). Used by the demo scene and by tests that need COLMAP models with known
+    intrinsics and distortion.
+    """
+    from .atomic import atomic_write_bytes
+    from .camera import rotation_to_quat
+
+    folder = Path(folder)
+    camera_bytes = [struct.pack("<Q", len(cameras))]
+    image_bytes = [struct.pack("<Q", len(cameras))]
+    for index, (camera, model, params) in enumerate(cameras, start=1):
+        if model not in _MODEL_IDS or len(params) != _MODELS[_MODEL_IDS[model]][1]:
+            raise ValueError(f"COLMAP model {model} with {len(params)} parameters")
+        camera_bytes.append(struct.pack("<iiQQ", index, _MODEL_IDS[model], camera.width, camera.height))
+        camera_bytes.append(struct.pack(f"<{len(params)}d", *params))
+        quat = rotation_to_quat(camera.world_to_camera[:3, :3])
+        image_bytes.append(struct.pack("<i7di", index, *quat, *camera.world_to_camera[:3, 3], index))
+        image_bytes.append(camera.name.encode("utf-8") + b"\0")
+        image_bytes.append(struct.pack("<Q", 0))
+    points = np.zeros((0, 3)) if points is None else np.asarray(points, np.float64)
+    colors = np.zeros((len(points), 3), np.uint8) if colors is None else np.asarray(colors, np.uint8)
+    record = np.zeros(len(points), np.dtype([("id", "<u8"), ("xyz", "<f8", 3), ("rgb", "u1", 3),
+                                              ("error", "<f8"), ("track", "<u8")]))
+    record["id"] = np.arange(1, len(points) + 1)
+    record["xyz"] = points
+    record["rgb"] = colors
+    atomic_write_bytes(folder / "cameras.bin", b"".join(camera_bytes))
+    atomic_write_bytes(folder / "images.bin", b"".join(image_bytes))
+    atomic_write_bytes(folder / "points3D.bin", struct.pack("<Q", len(points)) + record.tobytes())

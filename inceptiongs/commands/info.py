@@ -1,0 +1,92 @@
+"""``inceptiongs info PATH [--json]``: summarise a scene folder or a 3DGS .ply."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+HELP = "summarise a scene (format, cameras, resolutions, points, extent, warnings) or a .ply"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", help="scene folder (COLMAP, transforms.json, LLFF) or a .ply file")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def scene_summary(path: Path) -> dict:
+    """Summary of a scene in its original units (images need not exist: problems are warnings)."""
+    from ..scene import load_scene
+
+    scene = load_scene(path, require_images=False)
+    norm = scene.normalization
+    centers = norm.to_original(np.array([c.center for c in scene.cameras]))
+    summary = {
+        "path": str(path),
+        "kind": "scene",
+        "format": scene.format,
+        "cameras": len(scene.cameras),
+        "resolutions": {f"{w}x{h}": n for (w, h), n in
+                        sorted(Counter((c.width, c.height) for c in scene.cameras).items())},
+        "camera_models": dict(sorted(Counter(scene.camera_models).items())),
+        "sparse_points": int(len(scene.points)),
+        "camera_center": centers.mean(axis=0).tolist(),
+        # Largest distance of a camera from the cameras' centroid, original units.
+        "camera_extent": float(1.0 / norm.scale),
+        "warnings": scene.warnings,
+    }
+    if len(scene.points):
+        points = norm.to_original(scene.points)
+        summary["points_bounds"] = [points.min(axis=0).tolist(), points.max(axis=0).tolist()]
+    return summary
+
+
+def ply_summary(path: Path) -> dict:
+    from ..ply import read_ply
+
+    g = read_ply(path)
+    summary = {"path": str(path), "kind": "gaussians", "gaussians": len(g), "sh_degree": g.sh_degree}
+    if len(g):
+        means = g.means.numpy()
+        summary["bounds"] = [means.min(axis=0).tolist(), means.max(axis=0).tolist()]
+    return summary
+
+
+def _format_vector(values) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
+
+
+def format_summary(summary: dict) -> str:
+    lines = [f"{summary['path']}"]
+    if summary["kind"] == "gaussians":
+        lines.append(f"  3DGS PLY: {summary['gaussians']} Gaussians, SH degree {summary['sh_degree']}")
+        if "bounds" in summary:
+            lines.append(f"  bounds: {_format_vector(summary['bounds'][0])} .. {_format_vector(summary['bounds'][1])}")
+        return "\n".join(lines)
+    lines.append(f"  format:        {summary['format']}")
+    lines.append(f"  cameras:       {summary['cameras']}")
+    lines.append("  resolutions:   " + ", ".join(f"{r} ({n})" for r, n in summary["resolutions"].items()))
+    lines.append("  camera models: " + ", ".join(f"{m} ({n})" for m, n in summary["camera_models"].items()))
+    lines.append(f"  sparse points: {summary['sparse_points']}")
+    lines.append(f"  camera extent: {summary['camera_extent']:.4g} (max camera distance from "
+                 f"{_format_vector(summary['camera_center'])}, original units)")
+    if "points_bounds" in summary:
+        lines.append(f"  point bounds:  {_format_vector(summary['points_bounds'][0])} .. "
+                     f"{_format_vector(summary['points_bounds'][1])}")
+    lines.append(f"  warnings:      {len(summary['warnings'])}")
+    lines.extend(f"    - {w}" for w in summary["warnings"])
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    path = Path(args.path)
+    if not path.exists():
+        raise InputError(f"{path}: path does not exist")
+    summary = ply_summary(path) if path.suffix.lower() == ".ply" else scene_summary(path)
+    print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
+    return 0

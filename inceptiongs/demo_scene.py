@@ -1,0 +1,305 @@
+"""A small procedural, textured scene with ground-truth cameras, written as a COLMAP model.
+
+Real geometry, ray-cast analytically in numpy: a ground plane, a wall, two boxes and two
+spheres, each with its own detailed texture (checkers, stripes, value noise) and Lambert
+shading, so PSNR against these photos means something. World frame: z up, ground at z = 0.
+
+The cameras follow an uneven path: most of them ("dense") orbit the east side (+x) of the
+scene, a few ("scarce") look from the north-west, the unstructured-sampling problem in
+miniature. ``demo_scene.json`` next to the model names both groups.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from .atomic import atomic_write_bytes, atomic_write_text
+from .camera import Camera, look_at
+from .errors import InputError
+from .io_colmap import write_colmap_binary
+
+# size -> (width, height, dense cameras, scarce cameras)
+SIZES = {"small": (192, 144, 24, 4), "medium": (320, 240, 40, 6)}
+_HORIZONTAL_FOV_DEG = 60.0
+_SUPERSAMPLE = 2             # 2 x 2 rays per pixel, box-filtered: photos without jaggies
+_POINTS_PER_CAMERA = 150     # sparse points sampled from each camera's view
+_GROUND_HALF_SIZE = 6.0
+_LIGHT = np.array([0.45, -0.35, 0.82]) / np.linalg.norm([0.45, -0.35, 0.82])
+_AMBIENT = 0.35
+_NO_HIT = np.inf
+
+
+@dataclass(frozen=True)
+class _Textures:
+    """Value-noise grids for the textures (deterministic for a seed)."""
+
+    noise: np.ndarray  # [64, 64] in [0, 1]
+
+    def sample(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Bilinear, tiling value noise at continuous grid coordinates u, v: [R] -> [R]."""
+        size = self.noise.shape[0]
+        u0, v0 = np.floor(u), np.floor(v)
+        fu, fv = u - u0, v - v0
+        i0, j0 = u0.astype(np.int64) % size, v0.astype(np.int64) % size
+        i1, j1 = (i0 + 1) % size, (j0 + 1) % size
+        n = self.noise
+        return ((n[j0, i0] * (1 - fu) + n[j0, i1] * fu) * (1 - fv)
+                + (n[j1, i0] * (1 - fu) + n[j1, i1] * fu) * fv)
+
+    def fractal(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Two octaves of value noise in [0, 1]: coarse blotches plus fine grain."""
+        return 0.65 * self.sample(u, v) + 0.35 * self.sample(4.1 * u + 17.0, 4.1 * v + 5.0)
+
+
+def _checker(u: np.ndarray, v: np.ndarray, period: float) -> np.ndarray:
+    return ((np.floor(u / period) + np.floor(v / period)) % 2).astype(np.float64)
+
+
+def _mix(a, b, t: np.ndarray) -> np.ndarray:
+    """Blend colours a, b [3] by t [R] -> [R, 3]."""
+    return np.asarray(a)[None] * (1 - t[:, None]) + np.asarray(b)[None] * t[:, None]
+
+
+# --- geometry: each returns ray parameter t [R] (inf = miss) and normals [R, 3] -----------
+
+def _hit_plane(origins, dirs, axis: int, offset: float, lo: np.ndarray, hi: np.ndarray, normal_sign: float):
+    """Axis-aligned rectangle {x[axis] = offset, lo <= other coords <= hi}, one-sided."""
+    d = dirs[:, axis]
+    # Rays parallel to the plane (|d| ~ 0) never hit it; the guard keeps the division finite.
+    safe = np.where(np.abs(d) > 1e-12, d, 1.0)
+    t = np.where(np.abs(d) > 1e-12, (offset - origins[:, axis]) / safe, _NO_HIT)
+    t = np.where(t > 1e-6, t, _NO_HIT)
+    point = origins + dirs * np.where(np.isfinite(t), t, 0.0)[:, None]
+    others = [k for k in range(3) if k != axis]
+    inside = np.all((point[:, others] >= lo) & (point[:, others] <= hi), axis=1)
+    t = np.where(inside, t, _NO_HIT)
+    normal = np.zeros_like(dirs)
+    normal[:, axis] = normal_sign
+    return t, normal
+
+
+def _hit_box(origins, dirs, center, half):
+    """Slab test against an axis-aligned box; normal from the face that was entered."""
+    center, half = np.asarray(center, float), np.asarray(half, float)
+    # Zero direction components are replaced by a tiny value: the slab bounds become +-huge,
+    # which is exactly the parallel-ray limit.
+    safe = np.where(np.abs(dirs) > 1e-12, dirs, 1e-12)
+    t0 = (center - half - origins) / safe
+    t1 = (center + half - origins) / safe
+    t_near = np.minimum(t0, t1)
+    t_far = np.maximum(t0, t1)
+    enter = t_near.max(axis=1)
+    leave = t_far.min(axis=1)
+    hit = (enter <= leave) & (enter > 1e-6)
+    t = np.where(hit, enter, _NO_HIT)
+    face = np.argmax(t_near, axis=1)
+    normal = np.zeros_like(dirs)
+    normal[np.arange(len(dirs)), face] = -np.sign(safe[np.arange(len(dirs)), face])
+    return t, normal
+
+
+def _hit_sphere(origins, dirs, center, radius):
+    """Nearest positive root of |o + t d - c|^2 = r^2 (dirs are unit vectors)."""
+    oc = origins - np.asarray(center, float)
+    b = np.sum(oc * dirs, axis=1)
+    c = np.sum(oc * oc, axis=1) - radius * radius
+    disc = b * b - c
+    root = np.sqrt(np.maximum(disc, 0.0))  # only used where disc >= 0
+    t = np.where(disc >= 0, -b - root, _NO_HIT)
+    t = np.where(t > 1e-6, t, _NO_HIT)
+    point = origins + dirs * np.where(np.isfinite(t), t, 0.0)[:, None]
+    normal = (point - np.asarray(center, float)) / radius
+    return t, normal
+
+
+# --- the scene ------------------------------------------------------------------------------
+
+_BOX_A = ((0.9, -0.9, 0.5), (0.5, 0.5, 0.5))
+_BOX_B = ((-1.0, 1.8, 0.6), (0.4, 0.6, 0.6))
+_SPHERE_A = ((-0.3, -0.2, 0.6), 0.6)
+_SPHERE_B = ((1.3, 1.5, 0.45), 0.45)
+_WALL_X = -3.0
+_WALL_Y = (-3.5, 0.5)
+_WALL_TOP = 2.5
+_OBJECT_CENTER = np.array([-0.2, 0.2, 0.5])
+
+
+def _shade(kind: int, points: np.ndarray, normals: np.ndarray, tex: _Textures) -> np.ndarray:
+    """Albedo [R, 3] of surface ``kind`` at points [R, 3]."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    if kind == 0:  # ground: large checker, tinted by noise, with fine grain
+        base = _mix((0.78, 0.74, 0.62), (0.32, 0.40, 0.30), _checker(x, y, 0.75))
+        return base * (0.6 + 0.5 * tex.fractal(2.0 * x + 31.0, 2.0 * y + 7.0))[:, None]
+    if kind == 1:  # wall: brick-like stripes with offset rows and noise
+        row = np.floor(z / 0.25)
+        brick = ((np.floor((y + 0.25 * (row % 2)) / 0.5) + row) % 2).astype(float)
+        base = _mix((0.72, 0.30, 0.22), (0.85, 0.62, 0.45), brick)
+        mortar = (np.abs(z / 0.25 - np.round(z / 0.25)) < 0.08)
+        base[mortar] = (0.9, 0.9, 0.88)
+        return base * (0.75 + 0.35 * tex.fractal(5.0 * y, 5.0 * z + 11.0))[:, None]
+    if kind == 2:  # box A: small red/white checker on every face
+        uv = points - np.asarray(_BOX_A[0])
+        pattern = ((np.floor(uv[:, 0] / 0.2) + np.floor(uv[:, 1] / 0.2) + np.floor(uv[:, 2] / 0.2)) % 2)
+        return _mix((0.90, 0.88, 0.85), (0.80, 0.12, 0.10), pattern.astype(float))
+    if kind == 3:  # box B: diagonal blue/yellow stripes
+        stripes = (np.floor((x + y + z) / 0.15) % 2).astype(float)
+        return _mix((0.15, 0.25, 0.75), (0.95, 0.80, 0.20), stripes)
+    if kind == 4:  # sphere A: latitude/longitude checker, green
+        d = normals
+        lon = np.arctan2(d[:, 1], d[:, 0])
+        lat = np.arcsin(np.clip(d[:, 2], -1, 1))
+        return _mix((0.10, 0.55, 0.20), (0.85, 0.95, 0.80), _checker(lon, lat, math.pi / 8))
+    # sphere B: orange marbled noise
+    t = tex.fractal(6.0 * x + 3.0, 6.0 * (y + z))
+    return _mix((0.95, 0.55, 0.10), (0.35, 0.12, 0.05), t)
+
+
+def trace(origins: np.ndarray, dirs: np.ndarray, tex: _Textures) -> tuple[np.ndarray, np.ndarray]:
+    """Cast unit rays. origins, dirs: [R, 3] -> (colour [R, 3] in [0, 1], hit distance [R]
+    with inf for rays that leave the scene)."""
+    hits = [
+        _hit_plane(origins, dirs, 2, 0.0, np.array([-_GROUND_HALF_SIZE] * 2), np.array([_GROUND_HALF_SIZE] * 2), 1.0),
+        _hit_plane(origins, dirs, 0, _WALL_X, np.array([_WALL_Y[0], 0.0]), np.array([_WALL_Y[1], _WALL_TOP]), 1.0),
+        _hit_box(origins, dirs, *_BOX_A),
+        _hit_box(origins, dirs, *_BOX_B),
+        _hit_sphere(origins, dirs, *_SPHERE_A),
+        _hit_sphere(origins, dirs, *_SPHERE_B),
+    ]
+    ts = np.stack([h[0] for h in hits])              # [S, R]
+    kind = np.argmin(ts, axis=0)
+    t = ts[kind, np.arange(len(dirs))]
+    # Sky: brighter towards the horizon.
+    colour = _mix((0.55, 0.70, 0.95), (0.85, 0.90, 0.98), 1.0 - np.clip(dirs[:, 2], 0, 1))
+    for k, (_, normals) in enumerate(hits):
+        mask = (kind == k) & np.isfinite(t)
+        if not mask.any():
+            continue
+        points = origins[mask] + dirs[mask] * t[mask, None]
+        normal = normals[mask]
+        # The wall is two-sided: light its back with the flipped normal.
+        normal = np.where(np.sum(normal * dirs[mask], axis=1, keepdims=True) > 0, -normal, normal)
+        albedo = _shade(k, points, normals[mask], tex)
+        light = _AMBIENT + (1 - _AMBIENT) * np.clip(normal @ _LIGHT, 0, 1)
+        colour[mask] = albedo * light[:, None]
+    return np.clip(colour, 0, 1), t
+
+
+def camera_rays(camera: Camera, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World rays through pixel points (i + ox, j + oy) for each offset [S, 2]:
+    -> origins [S*H*W, 3], unit directions [S*H*W, 3], ordered (sample, row, column)."""
+    j, i = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    dirs = []
+    for ox, oy in offsets:
+        x = (i + ox - camera.cx) / camera.fx
+        y = (j + oy - camera.cy) / camera.fy
+        dirs.append(np.stack([x, y, np.ones_like(x)], -1).reshape(-1, 3))
+    d = np.concatenate(dirs) @ camera.rotation  # camera -> world: R^T d, row-vector form
+    d /= np.linalg.norm(d, axis=1, keepdims=True)  # norm >= 1: z component is 1 before rotating
+    return np.broadcast_to(camera.center, d.shape), d
+
+
+def render_photo(camera: Camera, tex: _Textures) -> np.ndarray:
+    """Supersampled photo: [H, W, 3] float in [0, 1]."""
+    s = _SUPERSAMPLE
+    offsets = np.array([((a + 0.5) / s, (b + 0.5) / s) for b in range(s) for a in range(s)])
+    origins, dirs = camera_rays(camera, offsets)
+    colour, _ = trace(origins, dirs, tex)
+    return colour.reshape(len(offsets), camera.height, camera.width, 3).mean(axis=0)
+
+
+def demo_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera], list[str], list[str]]:
+    """-> (cameras, dense names, scarce names). Dense: an arc over the east side; scarce: a
+    few views from the north-west."""
+    width, height, n_dense, n_scarce = SIZES[size]
+    rng = np.random.default_rng(seed)
+    fx = 0.5 * width / math.tan(math.radians(_HORIZONTAL_FOV_DEG) / 2)
+    cameras, dense, scarce = [], [], []
+
+    def add(azimuth_deg: float, radius: float, height_: float, group: list[str]) -> None:
+        a = math.radians(azimuth_deg)
+        eye = np.array([radius * math.cos(a), radius * math.sin(a), height_])
+        target = _OBJECT_CENTER + rng.normal(0, 0.15, 3)
+        name = f"{len(cameras):03d}.png"
+        cameras.append(Camera(name, width, height, fx, fx, width / 2, height / 2,
+                              look_at(eye, target, up=(0.0, 0.0, 1.0))))
+        group.append(name)
+
+    for azimuth in np.linspace(-65, 65, n_dense):
+        add(azimuth + rng.normal(0, 2), 5.0 + rng.normal(0, 0.3), 2.0 + rng.uniform(0, 1.0), dense)
+    for azimuth in np.linspace(105, 140, n_scarce):
+        add(azimuth + rng.normal(0, 2), 5.0 + rng.normal(0, 0.3), 2.2 + rng.uniform(0, 0.6), scarce)
+    return cameras, dense, scarce
+
+
+def _sample_points(cameras: list[Camera], tex: _Textures, rng: np.random.Generator):
+    """Surface points seen by the cameras, with their colours: ([P, 3], [P, 3] uint8)."""
+    points, colours = [], []
+    for camera in cameras:
+        offsets = rng.uniform(0, 1, (1, 2))
+        origins, dirs = camera_rays(camera, offsets)
+        pick = rng.choice(len(dirs), size=_POINTS_PER_CAMERA, replace=False)
+        colour, t = trace(origins[pick], dirs[pick], tex)
+        hit = np.isfinite(t)
+        points.append(origins[pick][hit] + dirs[pick][hit] * t[hit, None])
+        colours.append(np.round(colour[hit] * 255).astype(np.uint8))
+    return np.concatenate(points), np.concatenate(colours)
+
+
+def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, progress: bool = True) -> Path:
+    """Write images/, sparse/0/{cameras,images,points3D}.bin and demo_scene.json to out_dir.
+
+    The folder is built beside out_dir and renamed into place, so an interrupted run leaves
+    nothing half-written. An existing demo scene at out_dir is replaced; any other non-empty
+    folder is refused. Returns out_dir.
+    """
+    if size not in SIZES:
+        raise InputError(f"{out_dir}: unknown demo scene size {size!r} (choose {', '.join(SIZES)})")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir())
+                                                       and not (out_dir / "demo_scene.json").is_file())):
+        raise InputError(f"{out_dir}: exists and is not an empty folder or a previous demo scene")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    tex = _Textures(noise=rng.random((64, 64)))
+    cameras, dense, scarce = demo_cameras(size, seed)
+
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        for camera in tqdm(cameras, desc="demo scene", unit="view", disable=not progress):
+            photo = render_photo(camera, tex)
+            ok, encoded = cv2.imencode(".png", np.round(photo[:, :, ::-1] * 255).astype(np.uint8))
+            if not ok:
+                raise RuntimeError("PNG encoding failed")
+            atomic_write_bytes(staging / "images" / camera.name, encoded.tobytes())
+        points, colours = _sample_points(cameras, tex, rng)
+        model = [(c, "PINHOLE", [c.fx, c.fy, c.cx, c.cy]) for c in cameras]
+        (staging / "sparse" / "0").mkdir(parents=True)
+        write_colmap_binary(staging / "sparse" / "0", model, points, colours)
+        meta = {
+            "description": "InceptionGS procedural demo scene (z up, ground at z = 0)",
+            "size": size, "seed": seed, "width": cameras[0].width, "height": cameras[0].height,
+            "dense_cameras": dense, "scarce_cameras": scarce,
+            "note": "scarce cameras view the north-west side, which the dense arc sees at most obliquely",
+        }
+        atomic_write_text(staging / "demo_scene.json", json.dumps(meta, indent=2) + "\n")
+        if out_dir.exists():
+            old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+            os.replace(out_dir, old)
+            os.replace(staging, out_dir)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return out_dir
