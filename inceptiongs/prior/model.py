@@ -1,0 +1,115 @@
+"""The prior as one object: hash grid + conditional denoiser + noise schedule, and its config.
+
+Images are in [-1, 1] inside the diffusion model (photos in [0, 1] are mapped by 2x - 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..camera import Camera
+from ..gaussians import Gaussians
+from .controlnet import ConditionalDenoiser
+from .gbuffer import gbuffer_channels, render_gbuffer
+from .hashgrid import HashGrid, HashGridConfig
+from .multidiffusion import multidiffusion_sample
+from .schedule import make_schedule, q_sample
+from .unet import UNetConfig
+
+# The hash grid box is fitted to this quantile of the Gaussians' |coordinates|, so a few far
+# floaters do not stretch the box (and waste resolution); points beyond it are clamped onto it.
+BOUND_QUANTILE = 0.99
+# Margin on the fitted box, and a floor for degenerate (single-point) scenes.
+BOUND_MARGIN = 1.05
+BOUND_MIN = 1e-3
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    patch_size: int = 64
+    batch_size: int = 4
+    learning_rate: float = 2e-4
+    hash_learning_rate: float = 1e-2
+    schedule: str = "cosine"
+    num_timesteps: int = 1000
+    seed: int = 0
+    unet: UNetConfig = field(default_factory=UNetConfig)
+    grid: HashGridConfig = field(default_factory=HashGridConfig)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(data: dict) -> "PriorConfig":
+        data = dict(data)
+        unet = dict(data.pop("unet"))
+        unet["channel_mults"] = tuple(unet["channel_mults"])
+        grid = HashGridConfig(**data.pop("grid"))
+        return PriorConfig(**data, unet=UNetConfig(**unet), grid=grid)
+
+
+def fit_bound(means: torch.Tensor) -> float:
+    """Half-size of the hash grid box for Gaussians ``means`` [N, 3] (normalised frame)."""
+    if means.shape[0] == 0:
+        return 1.0
+    extent = means.detach().abs().amax(dim=1).float().cpu().numpy()
+    return max(float(np.quantile(extent, BOUND_QUANTILE)) * BOUND_MARGIN, BOUND_MIN)
+
+
+class Prior(nn.Module):
+    """denoiser: ConditionalDenoiser; hash_grid: HashGrid; schedule: NoiseSchedule."""
+
+    def __init__(self, config: PriorConfig):
+        super().__init__()
+        factor = config.unet.downsample_factor
+        if config.patch_size < factor or config.patch_size % factor:
+            raise ValueError(f"patch_size {config.patch_size} must be a positive multiple of {factor}")
+        self.config = config
+        self.hash_grid = HashGrid(config.grid, seed=config.seed)
+        # The initial weights follow the seed, without disturbing the caller's global RNG.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.seed)
+            self.denoiser = ConditionalDenoiser(config.unet, gbuffer_channels(self.hash_grid))
+        self.schedule = make_schedule(config.schedule, config.num_timesteps)
+
+    @staticmethod
+    def for_gaussians(config: PriorConfig, gaussians: Gaussians) -> "Prior":
+        """A new prior whose hash grid box is fitted to ``gaussians``."""
+        return Prior(replace(config, grid=replace(config.grid, bound=fit_bound(gaussians.means))))
+
+    @property
+    def device(self) -> torch.device:
+        return self.hash_grid.tables[0].device
+
+    def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None) -> torch.Tensor:
+        """[4 + Z, H, W] (see gbuffer.render_gbuffer)."""
+        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop)
+
+    def diffusion_loss(self, images: torch.Tensor, cond: torch.Tensor,
+                       generator: torch.Generator | None = None) -> torch.Tensor:
+        """Epsilon-prediction MSE at uniform random timesteps. images: [B, 3, s, s] in [-1, 1];
+        cond: [B, 4 + Z, s, s]. generator (CPU) makes t and the noise reproducible."""
+        batch = images.shape[0]
+        t = torch.randint(0, self.schedule.num_timesteps, (batch,), generator=generator)
+        noise = torch.randn(images.shape, generator=generator).to(images)
+        t = t.to(images.device)
+        noisy = q_sample(self.schedule, images, t, noise)
+        return (self.denoiser(noisy, t, cond) - noise).pow(2).mean()
+
+    @torch.no_grad()
+    def generate(self, gaussians: Gaussians, camera: Camera, steps: int = 20, seed: int = 0,
+                 window: int | None = None, stride: int | None = None,
+                 progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """A generated image for any viewpoint: (rgb [H, W, 3] in [0, 1], the G-buffer [4 + Z, H, W]).
+        Windows default to the training patch size, stride to 3/4 of it (1/4 overlap)."""
+        window = self.config.patch_size if window is None else window
+        stride = max(1, window * 3 // 4) if stride is None else stride
+        cond = self.gbuffer(gaussians, camera)
+        image = multidiffusion_sample(self.denoiser, self.schedule, camera.height, camera.width,
+                                      cond=cond[None], window=window, stride=stride, steps=steps,
+                                      seed=seed, device=self.device, progress=progress)
+        return ((image[0].permute(1, 2, 0) + 1.0) * 0.5).clamp(0.0, 1.0), cond

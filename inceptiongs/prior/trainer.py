@@ -1,0 +1,181 @@
+"""Training the prior on random s x s patches of the training photos.
+
+Each step draws ``batch_size`` (view, patch) pairs, renders the matching G-buffer patches from
+the *current* Gaussians on the fly (only the patch: Camera.cropped), and takes one Adam step
+on the epsilon-prediction loss; the hash grid is trained through that loss (its own, larger
+learning rate, as hash tables need). Checkpoints go atomically to RUN/prior/prior.pt.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..atomic import atomic_write_bytes
+from ..camera import Camera
+from ..errors import InputError
+from ..gaussians import Gaussians
+from .model import Prior, PriorConfig
+
+CHECKPOINT_NAME = "prior.pt"
+# Adam's epsilon for the hash tables: most slots see no gradient in a step, and a large epsilon
+# would damp the rare updates of the finest levels (Instant-NGP uses 1e-15).
+HASH_ADAM_EPS = 1e-15
+
+
+def prior_dir(run_dir: str | Path) -> Path:
+    return Path(run_dir) / "prior"
+
+
+def patch_size_for(config: PriorConfig, cameras: list[Camera]) -> int:
+    """The patch edge: config.patch_size, shrunk to fit the smallest image (a multiple of the
+    UNet's downsample factor)."""
+    factor = config.unet.downsample_factor
+    smallest = min(min(c.width, c.height) for c in cameras)
+    size = min(config.patch_size, smallest) // factor * factor
+    if size < factor:
+        raise InputError(f"{cameras[0].name}: images of {smallest} px are too small for prior patches")
+    return size
+
+
+@dataclass
+class PriorTrainer:
+    """prior: Prior; gaussians: the current model (re-assign it when the geometry changes);
+    cameras: training cameras; load_image(i) -> [H, W, 3] float in [0, 1] of camera i."""
+
+    prior: Prior
+    gaussians: Gaussians
+    cameras: list[Camera]
+    load_image: Callable[[int], np.ndarray]
+    step_count: int = 0
+    losses: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.cameras:
+            raise InputError("prior training: no training cameras")
+        config = self.prior.config
+        self.patch_size = patch_size_for(config, self.cameras)
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.optimizer = torch.optim.Adam([
+            {"params": list(self.prior.denoiser.parameters()), "lr": config.learning_rate},
+            {"params": list(self.prior.hash_grid.parameters()), "lr": config.hash_learning_rate,
+             "eps": HASH_ADAM_EPS},
+        ])
+        self._images: dict[int, torch.Tensor] = {}
+
+    def _image(self, index: int) -> torch.Tensor:
+        """Photo i as [3, H, W] in [-1, 1], cached (patches are drawn from it many times)."""
+        if index not in self._images:
+            camera = self.cameras[index]
+            image = np.asarray(self.load_image(index), dtype=np.float32)
+            if image.shape != (camera.height, camera.width, 3):
+                raise InputError(f"{camera.name}: image is {image.shape}, camera expects "
+                                 f"{(camera.height, camera.width, 3)}")
+            self._images[index] = torch.from_numpy(image).permute(2, 0, 1).mul(2.0).sub(1.0)
+        return self._images[index]
+
+    def sample_batch(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""
+        s = self.patch_size
+        photos, conds = [], []
+        for _ in range(self.prior.config.batch_size):
+            index = int(torch.randint(len(self.cameras), (1,), generator=self.generator))
+            camera = self.cameras[index]
+            x0 = int(torch.randint(camera.width - s + 1, (1,), generator=self.generator))
+            y0 = int(torch.randint(camera.height - s + 1, (1,), generator=self.generator))
+            photos.append(self._image(index)[:, y0:y0 + s, x0:x0 + s])
+            conds.append(self.prior.gbuffer(self.gaussians, camera, crop=(x0, y0, s, s)))
+        device = self.prior.device
+        return torch.stack(photos).to(device), torch.stack(conds)
+
+    def step(self) -> float:
+        """One Adam step; returns the batch's diffusion loss."""
+        photos, conds = self.sample_batch()
+        loss = self.prior.diffusion_loss(photos, conds, generator=self.generator)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.step_count += 1
+        value = float(loss.detach())
+        self.losses.append(value)
+        return value
+
+    def train(self, steps: int | None = None, minutes: float | None = None,
+              run_dir: str | Path | None = None, checkpoint_every: int = 200,
+              progress: bool = True) -> list[float]:
+        """Train for ``steps`` steps and/or ``minutes`` minutes (whichever ends first), checkpointing
+        into RUN/prior/ every ``checkpoint_every`` steps and at the end when run_dir is given."""
+        if steps is None and minutes is None:
+            raise ValueError("give steps or minutes")
+        deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
+        bar = tqdm(total=steps, desc="prior", disable=not progress, unit="step")
+        done = 0
+        try:
+            while (steps is None or done < steps) and (deadline is None or time.monotonic() < deadline):
+                loss = self.step()
+                done += 1
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss:.4f}")
+                if run_dir is not None and checkpoint_every and self.step_count % checkpoint_every == 0:
+                    save_prior(run_dir, self)
+        finally:
+            bar.close()
+        if run_dir is not None:
+            save_prior(run_dir, self)
+        return self.losses[-done:] if done else []
+
+
+def save_prior(run_dir: str | Path, trainer: PriorTrainer) -> Path:
+    """Write RUN/prior/prior.pt atomically: config, weights, optimiser state, step, losses."""
+    payload = {
+        "config": trainer.prior.config.to_dict(),
+        "model": trainer.prior.state_dict(),
+        "optimizer": trainer.optimizer.state_dict(),
+        "step": trainer.step_count,
+        "losses": list(trainer.losses),
+        "generator": trainer.generator.get_state(),
+    }
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    path = prior_dir(run_dir) / CHECKPOINT_NAME
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
+def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
+    path = prior_dir(run_dir) / CHECKPOINT_NAME
+    if not path.is_file():
+        raise InputError(f"{path}: no prior checkpoint (train one with `inceptiongs prior RUN`)")
+    try:
+        payload = torch.load(path, map_location=device, weights_only=True)
+        return {**payload, "config": PriorConfig.from_dict(payload["config"])}
+    except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
+        raise InputError(f"{path}: not a readable prior checkpoint ({type(exc).__name__}: {exc})") from None
+
+
+def load_prior(run_dir: str | Path, device=None) -> Prior:
+    """The trained Prior of a run (for generation)."""
+    payload = read_prior_checkpoint(run_dir, device)
+    prior = Prior(payload["config"]).to(device)
+    prior.load_state_dict(payload["model"])
+    return prior
+
+
+def resume_trainer(run_dir: str | Path, gaussians: Gaussians, cameras: list[Camera],
+                   load_image: Callable[[int], np.ndarray], device=None) -> PriorTrainer:
+    """A trainer continuing exactly where RUN/prior/prior.pt left off."""
+    payload = read_prior_checkpoint(run_dir, device)
+    prior = Prior(payload["config"]).to(device)
+    prior.load_state_dict(payload["model"])
+    trainer = PriorTrainer(prior, gaussians, cameras, load_image, step_count=int(payload["step"]),
+                           losses=list(payload["losses"]))
+    trainer.optimizer.load_state_dict(payload["optimizer"])
+    trainer.generator.set_state(payload["generator"])
+    return trainer
