@@ -14,9 +14,10 @@ def shader_source(name: str) -> str:
     return resources.files("inceptiongs.shaders").joinpath(name).read_text(encoding="utf-8")
 
 
-def build_source(version: int, names: list[str], defines: dict[str, int] | None = None) -> str:
-    """``#version`` line, the rasterization constants, extra integer defines, then the files."""
+def build_source(version: int, names: list[str], defines: dict[str, int | float | str] | None = None) -> str:
+    """``#version`` line, the rasterization constants, extra defines (ints stay GLSL ints,
+    floats become float literals), then the files."""
     lines = [f"#version {version} core", glsl_defines()]
-    lines += [f"#define {key} {int(value)}" for key, value in (defines or {}).items()]
+    lines += [f"#define {key} {value if isinstance(value, str) else repr(value)}" for key, value in (defines or {}).items()]
     lines += [shader_source(name) for name in names]
     return "\n".join(lines)

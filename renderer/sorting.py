@@ -37,9 +37,11 @@ def padded_size(count: int) -> int:
 class GpuDepthSort:
     """Bitonic sort of (key, index) uint pairs in an SSBO; needs GL 4.3."""
 
-    def __init__(self, ctx: moderngl.Context):
+    def __init__(self, ctx: moderngl.Context, splat_texels: int):
+        """splat_texels: vec4 per Gaussian in the preprocess output (key = z in texel 2's w)."""
         self.ctx = ctx
-        self.keys = ctx.compute_shader(build_source(430, ["sort_keys.comp"]))
+        self.keys = ctx.compute_shader(build_source(430, ["sort_keys.comp"],
+                                                    {"SPLAT_TEXELS": f"{int(splat_texels)}u"}))
         self.bitonic = ctx.compute_shader(build_source(430, ["sort_bitonic.comp"],
                                                        {"BLOCK_HALF": BLOCK // 2}))
         self.pairs: moderngl.Buffer | None = None

@@ -33,7 +33,10 @@ TEXTURE_WIDTH = 4096
 # Texels per Gaussian before the SH: mean - anchor & opacity logit, log-scales, quaternion.
 _BASE_TEXELS = 3
 # The preprocess pass writes this many vec4 per Gaussian.
-_SPLAT_TEXELS = 3
+SPLAT_TEXELS = 4
+# Oriented quads whose semi-axis exceeds this many pixels are drawn as clamped axis-aligned
+# boxes instead (float32 corners far outside the image lose the sub-pixel precision).
+QUAD_AXIS_MAX = 4096.0
 
 
 def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -62,6 +65,12 @@ def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarra
     return texels, anchor, degree
 
 
+def is_software_renderer(ctx: moderngl.Context) -> bool:
+    """True for Mesa's CPU rasterizers (llvmpipe, softpipe, swrast)."""
+    name = str(ctx.info.get("GL_RENDERER", "")).lower()
+    return any(word in name for word in ("llvmpipe", "softpipe", "swrast"))
+
+
 def _texture_height(texel_count: int) -> int:
     return max(1, -(-texel_count // TEXTURE_WIDTH))
 
@@ -69,14 +78,25 @@ def _texture_height(texel_count: int) -> int:
 class SplatRenderer:
     """Draws Gaussians with one moderngl context; owns its GL resources (see release())."""
 
-    def __init__(self, ctx: moderngl.Context):
+    def __init__(self, ctx: moderngl.Context, sort: str = "auto"):
+        """sort: "gpu" (compute shaders, GL >= 4.3), "cpu" (numpy) or "auto": the GPU sort
+        where GL >= 4.3 on a hardware driver, numpy on software rasterizers (llvmpipe), where
+        the "GPU" is the same two CPU cores and numpy's sort is several times faster."""
         self.ctx = ctx
         self.has_compute = check_context(ctx)
+        if sort not in ("auto", "gpu", "cpu"):
+            raise ValueError(f"sort must be 'auto', 'gpu' or 'cpu', got {sort!r}")
+        if sort == "gpu" and not self.has_compute:
+            raise RendererError(f"the GPU sort needs OpenGL 4.3; this context is {ctx.version_code}")
+        if sort == "auto":
+            sort = "gpu" if self.has_compute and not is_software_renderer(ctx) else "cpu"
+        self.sort = sort
         self.timings: dict[str, float] = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
-        self._gpu_sort = GpuDepthSort(ctx) if self.has_compute else None
+        self._gpu_sort = GpuDepthSort(ctx, SPLAT_TEXELS) if sort == "gpu" else None
         self._draw = ctx.program(
             vertex_shader=build_source(330, ["splat_common.glsl", "splat_draw.vert"],
-                                       {"TEXTURE_WIDTH": TEXTURE_WIDTH}),
+                                       {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SPLAT_TEXELS": SPLAT_TEXELS,
+                                        "QUAD_AXIS_MAX": QUAD_AXIS_MAX}),
             fragment_shader=build_source(330, ["splat_draw.frag"]))
         self._preprocess: dict[int, moderngl.Program] = {}
         self._version: int | None = None
@@ -118,7 +138,7 @@ class SplatRenderer:
         data = np.zeros((height * TEXTURE_WIDTH, 4), np.float32)
         data[: n * per_gaussian] = texels.reshape(-1, 4)
         self._gaussian_texture.write(data.tobytes())
-        splat_height = _texture_height(n * _SPLAT_TEXELS)
+        splat_height = _texture_height(n * SPLAT_TEXELS)
         self._splat_texture = self._grow_texture(self._splat_texture, splat_height)
         splat_bytes = TEXTURE_WIDTH * splat_height * 16
         if self._splat_buffer is None or self._splat_buffer.size != splat_bytes:
@@ -144,7 +164,7 @@ class SplatRenderer:
                        "GAUSSIAN_TEXELS": _BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)}
             program = self.ctx.program(
                 vertex_shader=build_source(330, ["splat_common.glsl", "splat_preprocess.vert"], defines),
-                varyings=["out_screen", "out_conic", "out_value"])
+                varyings=["out_screen", "out_conic", "out_value", "out_minor"])
             self._preprocess[self._degree] = program
         return program
 

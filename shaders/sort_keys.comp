@@ -11,8 +11,8 @@ void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= padded_count) return;
     uvec2 pair = uvec2(0xFFFFFFFFu, 0u);
-    if (i < splat_count && splats[3u * i + 1u].w > 0.0) {
-        pair = uvec2(~floatBitsToUint(splats[3u * i + 2u].w), i);
+    if (i < splat_count && splats[SPLAT_TEXELS * i + 1u].w > 0.0) {
+        pair = uvec2(~floatBitsToUint(splats[SPLAT_TEXELS * i + 2u].w), i);
     } else if (i < splat_count) {
         pair = uvec2(0xFFFFFFFFu, i);
     }

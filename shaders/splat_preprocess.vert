@@ -13,14 +13,16 @@ uniform int mode;              // 0 rgb, 1 depth, 2 normal, 3 alpha
 uniform int sh_degree;         // <= SH_DEGREE (the compiled model degree)
 uniform float splat_scale;
 
-out vec4 out_screen;   // mean2d.xy, extent.xy (pixels)
+out vec4 out_screen;   // mean2d.xy, major footprint semi-axis (pixels)
 out vec4 out_conic;    // conic a, b, c, opacity (0 = culled)
 out vec4 out_value;    // value rgb, camera z
+out vec4 out_minor;    // minor footprint semi-axis (pixels), 0, 0
 
 void cull() {
     out_screen = vec4(0.0);
     out_conic = vec4(0.0);
     out_value = vec4(0.0);
+    out_minor = vec4(0.0);
 }
 
 mat3 quat_to_rotation(vec4 q) {
@@ -90,19 +92,26 @@ void main() {
                          0.0, 0.0, exp(log_scale.z) * splat_scale);
 
     float fx = intrinsics.x, fy = intrinsics.y, cx = intrinsics.z, cy = intrinsics.w;
-    // Jacobian at the mean clamped to the frustum widened by the margin.
+    // Jacobian at the mean with t.x/t.z (t.y/t.z) clamped to the image's field of view,
+    // widened on each side by (FRUSTUM_CLAMP_MARGIN - 1) * half the image's angular size.
     float inv_z = 1.0 / t.z;  // t.z >= NEAR_PLANE > 0
-    float tx = t.z * clamp(t.x * inv_z, -FRUSTUM_CLAMP_MARGIN * cx / fx,
-                           FRUSTUM_CLAMP_MARGIN * (image_size.x - cx) / fx);
-    float ty = t.z * clamp(t.y * inv_z, -FRUSTUM_CLAMP_MARGIN * cy / fy,
-                           FRUSTUM_CLAMP_MARGIN * (image_size.y - cy) / fy);
+    float widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * image_size.x / fx;
+    float widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * image_size.y / fy;
+    float tx = t.z * clamp(t.x * inv_z, -cx / fx - widen_x, (image_size.x - cx) / fx + widen_x);
+    float ty = t.z * clamp(t.y * inv_z, -cy / fy - widen_y, (image_size.y - cy) / fy + widen_y);
     mat3 jacobian = mat3(fx * inv_z, 0.0, 0.0,
                          0.0, fy * inv_z, 0.0,
                          -fx * tx * inv_z * inv_z, -fy * ty * inv_z * inv_z, 0.0);
+    // cov2d (before dilation) = T T^T with T = J W R diag(s) (2 x 3, the rows of tm).
     mat3 tm = jacobian * rotation * m;
-    mat3 cov = tm * transpose(tm);
-    float a = cov[0][0] + DILATION_PX, b = cov[0][1], c = cov[1][1] + DILATION_PX;
-    float det = a * c - b * b;
+    vec3 row0 = vec3(tm[0][0], tm[1][0], tm[2][0]);
+    vec3 row1 = vec3(tm[0][1], tm[1][1], tm[2][1]);
+    float xx = dot(row0, row0), xy = dot(row0, row1), yy = dot(row1, row1);
+    // det(T T^T) = |row0 x row1|^2 (Lagrange identity): never negative and free of the
+    // xx*yy - xy^2 cancellation that destroys needle-like Gaussians in float32.
+    vec3 area = cross(row0, row1);
+    float det = dot(area, area) + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX;
+    float a = xx + DILATION_PX, b = xy, c = yy + DILATION_PX;
     if (!(det >= DET_MIN) || isinf(det)) { cull(); return; }
 
     vec2 mean2d = vec2(fx * t.x * inv_z + cx, fy * t.y * inv_z + cy);
@@ -130,7 +139,17 @@ void main() {
     } else {
         value = vec3(t.z);
     }
-    out_screen = vec4(mean2d, extent);
+    // Tight quad: the footprint ellipse's own axes (eigenvectors of cov2d), semi-axes
+    // sqrt(level * lambda). Its area is 4/pi of the ellipse, where the axis-aligned box of a
+    // thin tilted splat can be hundreds of times larger: fragments are the draw's cost.
+    float mid = 0.5 * (a + c);
+    float lambda1 = mid + sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0));
+    float lambda2 = det / lambda1;  // lambda1 >= DILATION_PX > 0; stable for thin splats
+    vec2 major = a >= c ? vec2(lambda1 - c, b) : vec2(b, lambda1 - a);
+    float major_length = length(major);
+    major = major_length > 0.0 ? major / major_length : vec2(1.0, 0.0);  // circle: any axis
+    out_screen = vec4(mean2d, major * sqrt(level * lambda1));
+    out_minor = vec4(vec2(-major.y, major.x) * sqrt(level * max(lambda2, 0.0)), 0.0, 0.0);
     out_conic = vec4(vec3(c, -b, a) / det, opacity);
     out_value = vec4(value, t.z);
 }
