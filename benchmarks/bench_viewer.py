@@ -1,0 +1,113 @@
+"""Viewer frame-rate benchmark: donut.ply at 1280x720 in the real app (Xvfb or a desktop).
+
+Logs per-frame totals and the renderer's sort/draw times for three situations:
+  idle      the camera is still; each frame re-renders the splats at full resolution
+            (the app itself would skip the re-render when nothing changed; that rate is
+            printed too as "idle, cached")
+  moving    the camera turns every frame; the app renders at MOVING_RENDER_SCALE
+  training  a job thread publishes new Gaussians (CPU work competing for the 2 cores)
+Targets: idle >= 10 FPS, moving >= 20 FPS, training >= 5 FPS.
+
+    DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _default_ply() -> Path:
+    root = Path(os.environ.get("INCEPTIONGS_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    return root / "splats" / "donut.ply"
+
+
+class _PublishingJob:
+    """Stands in for the trainer: jitters the model and publishes it ~5 times a second, with
+    numpy work in between so the job thread really competes for the CPU."""
+
+    def __init__(self, arrays: dict):
+        self.arrays = arrays
+
+    def run(self, box, control):
+        rng = np.random.default_rng(0)
+        step = 0
+        while not control.stop.is_set():
+            step += 1
+            arrays = dict(self.arrays)
+            arrays["means"] = self.arrays["means"] + rng.normal(0, 1e-3, self.arrays["means"].shape).astype(np.float32)
+            box.publish(step, arrays, {"loss": 1.0 / step})
+            deadline = time.perf_counter() + 0.2
+            while time.perf_counter() < deadline and not control.stop.is_set():
+                np.linalg.svd(rng.normal(size=(120, 120)))  # busy work like an optimiser step
+
+
+def _measure(viewer, frames: int, before_frame) -> dict:
+    totals, sorts, draws = [], [], []
+    for i in range(frames):
+        before_frame(i)
+        start = time.perf_counter()
+        viewer.step()
+        totals.append(time.perf_counter() - start)
+        sorts.append(viewer.stats.sort_ms)
+        draws.append(viewer.stats.draw_ms)
+    mean = statistics.mean(totals)
+    return {"fps": 1.0 / mean, "frame_ms": 1e3 * mean, "p90_ms": 1e3 * sorted(totals)[int(0.9 * len(totals))],
+            "sort_ms": statistics.mean(sorts), "draw_ms": statistics.mean(draws)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ply", type=Path, default=_default_ply())
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--size", default="1280x720")
+    args = parser.parse_args()
+    if not args.ply.is_file():
+        print(f"benchmark skipped: {args.ply} not found", file=sys.stderr)
+        return 0
+    from inceptiongs.app import viewer as viewer_module
+    from inceptiongs.app.sources import open_source
+
+    width, height = (int(v) for v in args.size.split("x"))
+    source = open_source(args.ply)
+    job = _PublishingJob(source.gaussians)
+    viewer = viewer_module.Viewer(source, width, height, job_factory=lambda s: job)
+    results = {}
+    try:
+        viewer.step()
+
+        def force_full_render(_):
+            viewer._last_render_key = None  # re-render although nothing changed
+        results["idle"] = _measure(viewer, args.frames, force_full_render)
+        results["idle, cached"] = _measure(viewer, args.frames, lambda _: None)
+
+        def turn(_):
+            viewer.nav.look(4.0, 0.0)
+            viewer._moved()
+        results["moving"] = _measure(viewer, args.frames, turn)
+        time.sleep(viewer_module.STILL_SECONDS)
+        viewer.start_training()
+        time.sleep(0.3)
+        results["training"] = _measure(viewer, args.frames, force_full_render)
+    finally:
+        viewer.close()
+    targets = {"idle": 10.0, "moving": 20.0, "training": 5.0}
+    print(f"{args.ply.name} at {width}x{height}, {viewer.edit.count} Gaussians, {args.frames} frames each "
+          f"(software GL: llvmpipe; shared machine, figures are noisy)")
+    for name, r in results.items():
+        target = targets.get(name)
+        verdict = "" if target is None else (" ok" if r["fps"] >= target else f" BELOW target {target:g}")
+        print(f"  {name:13s} {r['fps']:6.1f} FPS  frame {r['frame_ms']:7.1f} ms (p90 {r['p90_ms']:7.1f})  "
+              f"sort {r['sort_ms']:6.1f} ms  draw {r['draw_ms']:6.1f} ms{verdict}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

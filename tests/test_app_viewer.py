@@ -1,0 +1,363 @@
+"""The real viewer under Xvfb: screenshot regression against golden PNGs, flags made by
+injected key/mouse events, live training through the snapshot hand-off, and --screenshot
+against the GL renderer run on its own.
+
+Regenerate the golden images (after an intended rendering change, check them by eye):
+    INCEPTIONGS_REGEN_GOLDEN=1 python3 -m pytest -q tests/test_app_viewer.py -k golden
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from inceptiongs.camera import Camera, write_camera_json
+from inceptiongs.gaussians import Gaussians
+from inceptiongs.app.navigation import look_at_upright
+
+GOLDEN = Path(__file__).parent / "golden"
+REGENERATE = os.environ.get("INCEPTIONGS_REGEN_GOLDEN") == "1"
+# Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
+# (a wrong sort, a flipped image, a shader bug) moves far more than this.
+GOLDEN_MEAN_ABS_MAX = 1.5 / 255
+GOLDEN_P99_ABS_MAX = 24 / 255
+
+pytestmark = pytest.mark.gl
+
+
+def _free_display() -> int:
+    for number in range(90, 200):
+        if not (Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists()):
+            return number
+    raise RuntimeError("no free X display number between 90 and 199")
+
+
+@pytest.fixture(scope="module")
+def xvfb():
+    """An Xvfb server for this module; DISPLAY points at it while the tests run."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (scripts/install.sh --dev installs it)")
+    number = _free_display()
+    process = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    socket = Path(f"/tmp/.X11-unix/X{number}")
+    deadline = time.time() + 10
+    while not socket.exists() and time.time() < deadline and process.poll() is None:
+        time.sleep(0.05)
+    if not socket.exists():
+        process.kill()
+        pytest.skip(f"Xvfb :{number} did not start")
+    previous = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{number}"
+    yield f":{number}"
+    if previous is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = previous
+    process.terminate()
+    process.wait(10)
+
+
+def synthetic_gaussians(shift: float = 0.0) -> dict:
+    """A 12 x 9 grid of coloured, slightly flattened blobs on the plane z = 0 (x, y in [-1, 1]),
+    plus a second smaller layer behind it so sorting matters. Arrays as Gaussians.numpy()."""
+    xs, ys = np.meshgrid(np.linspace(-1, 1, 12), np.linspace(-0.75, 0.75, 9))
+    front = np.stack([xs.ravel() + shift, ys.ravel(), np.zeros(xs.size)], 1)
+    back = front[::3] * 1.2 + np.array([0.05, 0.05, 0.6])
+    means = np.concatenate([front, back]).astype(np.float32)
+    n = len(means)
+    hue = np.linspace(0, 1, n, endpoint=False)
+    rgb = np.stack([0.5 + 0.4 * np.cos(2 * np.pi * hue), 0.5 + 0.4 * np.cos(2 * np.pi * (hue - 1 / 3)),
+                    0.5 + 0.4 * np.cos(2 * np.pi * (hue - 2 / 3))], 1)
+    log_scales = np.tile(np.log([0.07, 0.05, 0.01]), (n, 1))
+    angle = np.linspace(0, np.pi, n)
+    quats = np.stack([np.cos(angle / 2), np.zeros(n), np.zeros(n), np.sin(angle / 2)], 1)
+    return {"means": means, "log_scales": log_scales.astype(np.float32), "quats": quats.astype(np.float32),
+            "opacity_logits": np.full(n, 2.0, np.float32),
+            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
+
+
+def front_camera(width=160, height=120) -> Camera:
+    pose = look_at_upright(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
+    focal = 0.9 * width
+    return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
+
+
+@pytest.fixture()
+def model(tmp_path) -> Path:
+    from inceptiongs.ply import write_ply
+
+    path = tmp_path / "model.ply"
+    write_ply(Gaussians.from_numpy(synthetic_gaussians()), path)
+    return path
+
+
+def _viewer(source_path: Path, **kwargs):
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    return Viewer(open_source(source_path), 640, 480, **kwargs)
+
+
+def _run_viewer_cli(*args, env_display=True, timeout=120):
+    env = dict(os.environ)
+    if not env_display:
+        env.pop("DISPLAY", None)
+    return subprocess.run([sys.executable, "-m", "inceptiongs.app.main", *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=timeout)
+
+
+def _compare(image: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
+    difference = np.abs(image.astype(np.float64) - expected.astype(np.float64)) / 255.0
+    return float(difference.mean()), float(np.percentile(difference, 99))
+
+
+# --- screenshots ------------------------------------------------------------------------------
+
+def test_screenshot_golden(xvfb, model, tmp_path):
+    from inceptiongs.app.images import read_png, write_png
+
+    camera_path = tmp_path / "cam.json"
+    write_camera_json(front_camera(), camera_path)
+    out = tmp_path / "shot.png"
+    result = _run_viewer_cli(model, "--screenshot", out, "--camera", camera_path, "--size", "160x120")
+    assert result.returncode == 0, result.stderr
+    image = read_png(out)
+    assert image.shape == (120, 160, 3)
+    golden = GOLDEN / "viewer_grid_160x120.png"
+    if REGENERATE:
+        write_png(golden, image)
+    if not golden.exists():
+        pytest.fail(f"{golden} missing: regenerate with INCEPTIONGS_REGEN_GOLDEN=1")
+    mean, p99 = _compare(image, read_png(golden))
+    assert mean <= GOLDEN_MEAN_ABS_MAX and p99 <= GOLDEN_P99_ABS_MAX, (mean, p99)
+
+
+def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path):
+    """The Xvfb/GLFW screenshot, the display-less (EGL) screenshot and the GL renderer called
+    directly on the same camera agree; --size rescales the camera's intrinsics."""
+    from inceptiongs.app.images import read_png, to_uint8
+    from inceptiongs.ply import read_ply
+    from inceptiongs.renderer.context import create_offscreen_context
+    from inceptiongs.renderer.splats import SplatRenderer
+
+    camera = front_camera(320, 240)
+    camera_path = tmp_path / "cam.json"
+    write_camera_json(camera, camera_path)
+    windowed, headless = tmp_path / "x.png", tmp_path / "egl.png"
+    for out, display in ((windowed, True), (headless, False)):
+        result = _run_viewer_cli(model, "--screenshot", out, "--camera", camera_path, "--size", "160x120",
+                                 env_display=display)
+        assert result.returncode == 0, result.stderr
+    ctx = create_offscreen_context()
+    renderer = SplatRenderer(ctx)
+    renderer.set_gaussians(read_ply(model).numpy())
+    direct = to_uint8(renderer.render(camera.scaled(2.0), "rgb"))
+    renderer.release()
+    ctx.release()
+    for path in (windowed, headless):
+        mean, p99 = _compare(read_png(path), direct)
+        assert mean <= 0.5 / 255 and p99 <= 2 / 255, (path.name, mean, p99)
+
+
+def test_screenshot_matches_render_command(xvfb, model, tmp_path):
+    from inceptiongs.cli import _available_commands
+    from inceptiongs.app.images import read_png
+
+    if "render" not in _available_commands():
+        pytest.skip("`inceptiongs render` is not available yet")
+    camera_path = tmp_path / "cam.json"
+    write_camera_json(front_camera(), camera_path)
+    ours, theirs = tmp_path / "viewer.png", tmp_path / "cli.png"
+    assert _run_viewer_cli(model, "--screenshot", ours, "--camera", camera_path).returncode == 0
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "render", str(model), "--camera",
+                             str(camera_path), "--backend", "gl", "--out", str(theirs)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    mean, p99 = _compare(read_png(ours), read_png(theirs))
+    assert mean <= 0.5 / 255 and p99 <= 2 / 255, (mean, p99)
+
+
+def test_bad_source_is_one_line_error_exit_2(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    for bad in (tmp_path / "missing", tmp_path / "notes.txt", tmp_path):
+        result = _run_viewer_cli(bad, "--screenshot", tmp_path / "x.png", env_display=False)
+        assert result.returncode == 2
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: ") and str(bad) in lines[0]
+
+
+# --- the interactive app ------------------------------------------------------------------------
+
+def test_flags_from_injected_key_and_right_click(xvfb, model):
+    import glfw
+
+    from inceptiongs.app import editing
+    from inceptiongs.app.flags import load_flags
+
+    viewer = _viewer(model)
+    try:
+        viewer.step()
+        # The F key, as GLFW delivers it.
+        viewer.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
+        viewer.on_key(viewer.window, glfw.KEY_F, 0, glfw.RELEASE, 0)
+        # A right-click on a covered pixel away from the panel (the panel starts at the top left).
+        viewer.settings.mode = "opacity"
+        coverage = viewer.render_image()[..., 0]
+        viewer.settings.mode = "rgb"
+        rows, cols = np.nonzero(coverage[:, 400:] > 0.9)
+        assert len(rows), "the model should cover part of the right side of the window"
+        x, y = float(cols[len(cols) // 2] + 400), float(rows[len(rows) // 2])
+        viewer.on_cursor(viewer.window, x, y)
+        viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
+        viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
+        viewer.step()
+        current = viewer.current_camera()
+        flags = load_flags(viewer.flags_file)
+        assert [f.name for f in flags] == ["flag 1", "flag 2"], viewer.status
+        np.testing.assert_allclose(flags[0].camera.world_to_camera, current.world_to_camera, atol=1e-9)
+        aimed = flags[1].camera
+        np.testing.assert_allclose(aimed.center, current.center, atol=1e-9)
+        # The picked surface point: on the ray through the clicked pixel and at the image
+        # centre of the flagged view, lying on the model's front plane z = 0.
+        depth = viewer.renderer.pick_depth(current, int(x), int(y))
+        from inceptiongs.app.flags import unproject_pixel
+        point = unproject_pixel(current, int(x), int(y), depth)
+        pixels, _ = editing.project_means(point[None], aimed)
+        np.testing.assert_allclose(pixels[0], (aimed.cx, aimed.cy), atol=1e-6)
+        assert abs(point[2]) < 0.1
+        # Reloaded on start.
+        viewer.close()
+        viewer = _viewer(model)
+        assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
+        viewer.delete_flag(0)
+        viewer.rename_flag(0, "bad corner")
+        assert [f.name for f in load_flags(viewer.flags_file)] == ["bad corner"]
+    finally:
+        viewer.close()
+
+
+class MovingGridJob:
+    """A fake training job (the hand-off is what is tested): publishes the grid shifted a little
+    further each step, then keeps its 'checkpoint' when told to stop."""
+
+    def __init__(self):
+        self.checkpoint_written = False
+        self.steps = 0
+
+    def run(self, box, control):
+        while not control.stop.is_set():
+            if control.pause.is_set():
+                time.sleep(0.01)
+                continue
+            self.steps += 1
+            box.publish(self.steps, synthetic_gaussians(shift=0.1 * self.steps), {"loss": 1.0 / self.steps})
+            time.sleep(0.05)
+        self.checkpoint_written = True
+
+
+def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
+    job = MovingGridJob()
+    viewer = _viewer(model, job_factory=lambda source: job)
+    try:
+        viewer.step()
+        viewer.start_training()
+        images, frames = [], viewer.stats.frames
+        deadline = time.time() + 60
+        while len(images) < 3 and time.time() < deadline:
+            before = viewer.model_version
+            viewer.step()
+            if viewer.model_version != before:
+                images.append(viewer.render_image())
+        assert len(images) == 3, "the job's snapshots should reach the renderer"
+        assert viewer.stats.frames > frames + 3  # the UI kept drawing frames meanwhile
+        for a, b in zip(images, images[1:]):
+            assert np.abs(a - b).mean() > 1e-3, "the rendered frame should change as the job publishes"
+        assert viewer.training.progress.history["loss"][1]
+        viewer.training.pause()
+        time.sleep(0.2)
+        viewer.step()
+        steps = job.steps
+        time.sleep(0.2)
+        assert job.steps == steps and viewer.training.state == "paused"
+        viewer.training.resume()
+    finally:
+        viewer.close()
+    assert job.checkpoint_written and viewer.training.state == "stopped"
+
+
+def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
+    class Broken:
+        def run(self, box, control):
+            raise ValueError("CUDA out of memory (pretend)")
+
+    viewer = _viewer(model, job_factory=lambda source: Broken())
+    try:
+        viewer.start_training()
+        viewer.training._thread.join(10)
+        frames = viewer.stats.frames
+        viewer.step()
+        viewer.step()
+        assert viewer.stats.frames == frames + 2
+        assert viewer.training.state == "failed" and "out of memory" in viewer.training.error
+    finally:
+        viewer.close()
+
+
+def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
+    from inceptiongs.ply import read_ply
+
+    viewer = _viewer(model)
+    try:
+        viewer.step()
+        total = viewer.edit.count
+        viewer.rectangle_select((320, 0), (640, 480))  # the right half of the window
+        selected = int(viewer.edit.selected.sum())
+        assert 0 < selected < total
+        before = viewer.render_image()
+        viewer.delete_selection()
+        viewer.step()
+        after = viewer.render_image()
+        assert viewer.edit.count == total - selected
+        assert np.abs(after[:, 400:] - before[:, 400:]).mean() > 1e-3  # right side changed
+        saved = viewer.save_ply(tmp_path / "edited.ply")
+        assert len(read_ply(saved)) == total - selected
+        viewer.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
+        viewer.step()
+        assert viewer.edit.count == total
+        np.testing.assert_allclose(viewer.render_image(), before, atol=1e-6)
+    finally:
+        viewer.close()
+
+
+def test_navigation_keys_move_the_camera(xvfb, model):
+    import glfw
+
+    viewer = _viewer(model)
+    try:
+        viewer.step()
+        start = viewer.nav.center.copy()
+        forward = viewer.nav.rotation[2].copy()
+        viewer.on_key(viewer.window, glfw.KEY_W, 0, glfw.PRESS, 0)
+        for _ in range(3):
+            viewer.step()
+        viewer.on_key(viewer.window, glfw.KEY_W, 0, glfw.RELEASE, 0)
+        moved = viewer.nav.center - start
+        assert moved @ forward > 0 and np.linalg.norm(np.cross(moved, forward)) < 1e-9
+        assert viewer.stats.rendered_scale < 1.0  # reduced resolution while moving
+        time.sleep(0.2)
+        viewer.step()
+        assert viewer.stats.rendered_scale == 1.0  # refined once still
+        viewer.on_key(viewer.window, glfw.KEY_R, 0, glfw.PRESS, 0)
+        np.testing.assert_allclose(viewer.nav.center, start)
+    finally:
+        viewer.close()
