@@ -1,7 +1,7 @@
 """Per-frame back-to-front depth sort of the Gaussians.
 
-Order: camera z descending, ties by index descending: the exact reverse of the torch
-rasterizer's stable front-to-back order, so both renderers composite in the same order.
+Front to back: camera z ascending, ties by index ascending (the torch rasterizer's stable
+order); back to front: its exact reverse. Either way both renderers composite in the same order.
 GL >= 4.3: a bitonic sort in compute shaders over (key, index) pairs, keys from the camera z
 the preprocess pass wrote. Otherwise: numpy on camera z computed in float64.
 """
@@ -17,13 +17,14 @@ from .shaders import build_source
 BLOCK = 1024
 
 
-def back_to_front_order(relative_means: np.ndarray, rotation: np.ndarray,
-                        translation: np.ndarray) -> np.ndarray:
+def depth_order(relative_means: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
+                front_to_back: bool) -> np.ndarray:
     """relative_means: [N, 3] (mean - anchor); rotation [3, 3], translation [3] as in
-    ShaderCamera. Returns [N] uint32 indices, far to near, ties by descending index."""
+    ShaderCamera. Returns [N] uint32 draw order (camera z in float64)."""
     z = relative_means.astype(np.float64) @ rotation[2] + translation[2]
-    # Stable ascending sort, reversed: descending z and, among equal z, descending index.
-    return np.ascontiguousarray(np.argsort(z, kind="stable")[::-1].astype(np.uint32))
+    order = np.argsort(z, kind="stable")
+    # Reversing the stable ascending order gives descending z with ties by descending index.
+    return np.ascontiguousarray((order if front_to_back else order[::-1]).astype(np.uint32))
 
 
 def padded_size(count: int) -> int:
@@ -37,13 +38,14 @@ def padded_size(count: int) -> int:
 class GpuDepthSort:
     """Bitonic sort of (key, index) uint pairs in an SSBO; needs GL 4.3."""
 
-    def __init__(self, ctx: moderngl.Context, splat_texels: int):
+    def __init__(self, ctx: moderngl.Context, splat_texels: int, front_to_back: bool):
         """splat_texels: vec4 per Gaussian in the preprocess output (key = z in texel 2's w)."""
         self.ctx = ctx
-        self.keys = ctx.compute_shader(build_source(430, ["sort_keys.comp"],
-                                                    {"SPLAT_TEXELS": f"{int(splat_texels)}u"}))
-        self.bitonic = ctx.compute_shader(build_source(430, ["sort_bitonic.comp"],
-                                                       {"BLOCK_HALF": BLOCK // 2}))
+        order = {"FRONT_TO_BACK": 1} if front_to_back else {}
+        self.keys = ctx.compute_shader(build_source(
+            430, ["sort_keys.comp"], {"SPLAT_TEXELS": f"{int(splat_texels)}u", **order}))
+        self.bitonic = ctx.compute_shader(build_source(
+            430, ["sort_bitonic.comp"], {"BLOCK_HALF": BLOCK // 2, **order}))
         self.pairs: moderngl.Buffer | None = None
 
     def ensure_capacity(self, count: int) -> moderngl.Buffer:
@@ -57,7 +59,7 @@ class GpuDepthSort:
 
     def sort(self, splats: moderngl.Buffer, count: int) -> moderngl.Buffer:
         """splats: the preprocess output (3 vec4 per Gaussian). Returns the sorted pair buffer;
-        entry i's second uint is the Gaussian drawn i-th (far to near)."""
+        entry i's second uint is the Gaussian drawn i-th."""
         size = padded_size(count)
         pairs = self.ensure_capacity(count)
         splats.bind_to_storage_buffer(0)

@@ -2,10 +2,13 @@
 
 A frame is three passes:
 1. preprocess (transform feedback, one vertex per Gaussian): EWA projection, footprint box,
-   colour/depth/normal -> three vec4 per Gaussian;
+   colour/depth/normal -> four vec4 per Gaussian;
 2. depth sort (compute-shader bitonic sort on GL >= 4.3, numpy otherwise);
-3. draw: one quad per Gaussian = the box where alpha >= ALPHA_MIN, premultiplied "over"
-   blending into an RGBA32F target (or the caller's framebuffer).
+3. draw: one quad per Gaussian = the oriented box of the ellipse where alpha >= ALPHA_MIN.
+   render() (offscreen, RGBA32F) composites front to back in the fragment shader through
+   framebuffer fetch, stop rule included, exactly like the torch rasterizer; without that
+   extension, and in draw() (the caller's framebuffer), premultiplied "over" blending back
+   to front, which cannot stop early (the difference is bounded: docs/rendering.md).
 
 Uploads: set_gaussians with an unchanged version uploads nothing; a camera change only
 sets uniforms and re-runs passes 1-3. Buffers and textures are reused and only grow.
@@ -25,9 +28,10 @@ from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 from .context import RendererError, check_context
 from .gl_camera import pixel_to_ndc_scale, shader_camera
 from .shaders import build_source
-from .sorting import GpuDepthSort, back_to_front_order
+from .sorting import GpuDepthSort, depth_order
 
 MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
+FRAMEBUFFER_FETCH = "GL_EXT_shader_framebuffer_fetch"
 # Width of the packed data textures (texels); height grows with the Gaussian count.
 TEXTURE_WIDTH = 4096
 # Texels per Gaussian before the SH: mean - anchor & opacity logit, log-scales, quaternion.
@@ -92,12 +96,18 @@ class SplatRenderer:
             sort = "gpu" if self.has_compute and not is_software_renderer(ctx) else "cpu"
         self.sort = sort
         self.timings: dict[str, float] = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
-        self._gpu_sort = GpuDepthSort(ctx, SPLAT_TEXELS) if sort == "gpu" else None
-        self._draw = ctx.program(
-            vertex_shader=build_source(330, ["splat_common.glsl", "splat_draw.vert"],
-                                       {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SPLAT_TEXELS": SPLAT_TEXELS,
-                                        "QUAD_AXIS_MAX": QUAD_AXIS_MAX}),
-            fragment_shader=build_source(330, ["splat_draw.frag"]))
+        # Exact front-to-back compositing needs the fragment shader to read the pixel.
+        self.exact_compositing = FRAMEBUFFER_FETCH in ctx.extensions
+        self._gpu_sorts: dict[bool, GpuDepthSort] = {}
+        vertex = build_source(330, ["splat_common.glsl", "splat_draw.vert"],
+                              {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SPLAT_TEXELS": SPLAT_TEXELS,
+                               "QUAD_AXIS_MAX": QUAD_AXIS_MAX})
+        self._draw_programs = {False: ctx.program(vertex_shader=vertex,
+                                                  fragment_shader=build_source(330, ["splat_draw.frag"]))}
+        if self.exact_compositing:
+            self._draw_programs[True] = ctx.program(
+                vertex_shader=vertex,
+                fragment_shader=build_source(330, ["splat_draw.frag"], {"FRONT_TO_BACK": 1}))
         self._preprocess: dict[int, moderngl.Program] = {}
         self._version: int | None = None
         self._count = 0
@@ -108,8 +118,7 @@ class SplatRenderer:
         self._splat_buffer: moderngl.Buffer | None = None
         self._splat_texture: moderngl.Texture | None = None
         self._index_buffer: moderngl.Buffer | None = None
-        self._draw_vao: moderngl.VertexArray | None = None
-        self._draw_vao_source: moderngl.Buffer | None = None
+        self._draw_vaos: dict[tuple, moderngl.VertexArray] = {}
         self._preprocess_vao: moderngl.VertexArray | None = None
         self._offscreen: moderngl.Framebuffer | None = None
 
@@ -179,16 +188,30 @@ class SplatRenderer:
         """
         width, height = int(camera.width), int(camera.height)
         fbo = self._offscreen_target(width, height)
-        clear = tuple(float(v) for v in background) if mode == "rgb" else (0.0, 0.0, 0.0)
-        self._frame(camera, mode, fbo, clear, sh_degree_cap, splat_scale, flip_y=False)
+        exact = self.exact_compositing
+        if exact:
+            # rgb accumulates T * alpha * value, a holds T (negated once the pixel stopped).
+            self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 1.0), sh_degree_cap, splat_scale,
+                        flip_y=False, front_to_back=True)
+        else:
+            self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 0.0), sh_degree_cap, splat_scale,
+                        flip_y=False, front_to_back=False)
         raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
         raw = raw.reshape(height, width, 4)
-        alpha = raw[..., 3:4].copy()
+        if exact:
+            transmittance = np.abs(raw[..., 3:4])
+            alpha = 1.0 - transmittance
+        else:
+            alpha = raw[..., 3:4].copy()
+            transmittance = 1.0 - alpha
         if mode == "alpha":
             return alpha
         if mode == "depth":
             safe = np.maximum(alpha, ALPHA_EPS)  # only used where alpha >= ALPHA_EPS
             return np.where(alpha >= ALPHA_EPS, raw[..., 0:1] / safe, 0.0).astype(np.float32)
+        if mode == "rgb":
+            background = np.asarray(background, np.float32).reshape(1, 1, 3)
+            return (raw[..., :3] + transmittance * background).astype(np.float32)
         return raw[..., :3].copy()
 
     def draw(self, camera: Camera, mode: str, framebuffer: moderngl.Framebuffer,
@@ -197,8 +220,10 @@ class SplatRenderer:
         """Draw upright into ``framebuffer`` (e.g. the app's window). The camera's size should be
         the framebuffer's viewport. rgb and alpha are final; depth is the blended z before the
         division by alpha that render() does, and normal is the blended normal."""
-        self._frame(camera, mode, framebuffer, tuple(float(v) for v in background) if clear else None,
-                    sh_degree_cap, splat_scale, flip_y=True)
+        # Cleared to (background, 0): "over" blending then leaves colour + T * background.
+        clear_colour = (*(float(v) for v in background), 0.0) if clear else None
+        self._frame(camera, mode, framebuffer, clear_colour, sh_degree_cap, splat_scale,
+                    flip_y=True, front_to_back=False)
 
     def pick_depth(self, camera: Camera, x: int, y: int) -> float | None:
         """Expected camera z at pixel (x, y) (column, row from the top), None where nothing was
@@ -221,7 +246,8 @@ class SplatRenderer:
         return fbo
 
     def _frame(self, camera: Camera, mode: str, fbo: moderngl.Framebuffer, clear_colour,
-               sh_degree_cap: int | None, splat_scale: float, flip_y: bool) -> None:
+               sh_degree_cap: int | None, splat_scale: float, flip_y: bool,
+               front_to_back: bool) -> None:
         if mode not in MODES:
             raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
         if not (math.isfinite(splat_scale) and splat_scale > 0):
@@ -229,7 +255,7 @@ class SplatRenderer:
         ctx = self.ctx
         fbo.use()
         if clear_colour is not None:
-            fbo.clear(*clear_colour, 0.0)
+            fbo.clear(*clear_colour)
         self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
         if self._count == 0:
             return
@@ -256,11 +282,14 @@ class SplatRenderer:
         ctx.finish()
         preprocess_done = time.perf_counter()
 
-        if self._gpu_sort is not None:
-            order_buffer = self._gpu_sort.sort(self._splat_buffer, self._count)
+        if self.sort == "gpu":
+            sorter = self._gpu_sorts.get(front_to_back)
+            if sorter is None:
+                sorter = self._gpu_sorts[front_to_back] = GpuDepthSort(ctx, SPLAT_TEXELS, front_to_back)
+            order_buffer = sorter.sort(self._splat_buffer, self._count)
             order_format = "4x u4 /i"  # the index is the second uint of each (key, index) pair
         else:
-            order = back_to_front_order(self._relative_means, cam.rotation, cam.translation)
+            order = depth_order(self._relative_means, cam.rotation, cam.translation, front_to_back)
             if self._index_buffer is None or self._index_buffer.size < order.nbytes:
                 if self._index_buffer is not None:
                     self._index_buffer.release()
@@ -271,12 +300,15 @@ class SplatRenderer:
         ctx.finish()
         sort_done = time.perf_counter()
 
-        if self._draw_vao is None or self._draw_vao_source is not order_buffer:
-            if self._draw_vao is not None:
-                self._draw_vao.release()
-            self._draw_vao = ctx.vertex_array(self._draw, [(order_buffer, order_format, "splat_index")])
-            self._draw_vao_source = order_buffer
-        draw = self._draw
+        draw = self._draw_programs[front_to_back]
+        key = (front_to_back, id(order_buffer), order_buffer.size)
+        vao = self._draw_vaos.get(key)
+        if vao is None:
+            # A new order buffer (or program) invalidates the old arrays; they are cheap.
+            for old_vao in self._draw_vaos.values():
+                old_vao.release()
+            self._draw_vaos.clear()
+            vao = self._draw_vaos[key] = ctx.vertex_array(draw, [(order_buffer, order_format, "splat_index")])
         draw["splat_count"].value = self._count
         draw["pixel_to_ndc"].value = pixel_to_ndc_scale(cam.size[0], cam.size[1], flip_y)
         draw["image_size"].value = tuple(map(float, cam.size))
@@ -284,10 +316,13 @@ class SplatRenderer:
         self._set_optional(draw, "splats", 0)
         self._splat_texture.use(0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        ctx.enable(moderngl.BLEND)
-        ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
-        ctx.blend_equation = moderngl.FUNC_ADD
-        self._draw_vao.render(mode=moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
+        if front_to_back:
+            ctx.disable(moderngl.BLEND)  # the fragment shader composites
+        else:
+            ctx.enable(moderngl.BLEND)
+            ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
+            ctx.blend_equation = moderngl.FUNC_ADD
+        vao.render(mode=moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
         ctx.finish()
         ctx.disable(moderngl.BLEND)
         end = time.perf_counter()
@@ -305,16 +340,20 @@ class SplatRenderer:
     def release(self) -> None:
         """Free every GL object this renderer made (the context stays the caller's)."""
         objects = [self._gaussian_texture, self._splat_buffer, self._splat_texture, self._index_buffer,
-                   self._draw_vao, self._preprocess_vao, self._draw, *self._preprocess.values()]
+                   *self._draw_vaos.values(), self._preprocess_vao, *self._draw_programs.values(),
+                   *self._preprocess.values()]
         if self._offscreen is not None:
             objects += list(self._offscreen.color_attachments) + [self._offscreen]
         for obj in objects:
             if obj is not None:
                 obj.release()
-        if self._gpu_sort is not None:
-            self._gpu_sort.release()
+        for sorter in self._gpu_sorts.values():
+            sorter.release()
+        self._gpu_sorts.clear()
+        self._draw_vaos.clear()
+        self._draw_programs.clear()
         self._preprocess.clear()
         self._gaussian_texture = self._splat_buffer = self._splat_texture = None
-        self._index_buffer = self._draw_vao = self._preprocess_vao = self._offscreen = None
+        self._index_buffer = self._preprocess_vao = self._offscreen = None
         self._count = 0
         self._version = None

@@ -1,5 +1,6 @@
-// Bitonic sort of (key, index) pairs: ascending key, ties by DESCENDING index, i.e. exactly
-// the reverse of the torch rasterizer's stable front-to-back order. Three modes:
+// Bitonic sort of (key, index) pairs: ascending key; ties by ascending index for the
+// front-to-back order (the torch rasterizer's stable order), by descending index for the
+// back-to-front order (its exact reverse). Three modes:
 //   0: sort every BLOCK-element block in shared memory (stages k = 2 .. BLOCK);
 //   1: one global compare-exchange step (stage k, distance j >= BLOCK);
 //   2: finish stage k (> BLOCK) in shared memory (distances BLOCK/2 .. 1).
@@ -12,7 +13,11 @@ uniform uint distance;   // j (mode 1)
 shared uvec2 tile[2 * BLOCK_HALF];
 
 bool before(uvec2 a, uvec2 b) {
+#ifdef FRONT_TO_BACK
+    return a.x < b.x || (a.x == b.x && a.y < b.y);
+#else
     return a.x < b.x || (a.x == b.x && a.y > b.y);
+#endif
 }
 
 void exchange_local(uint lo, uint hi, uint global_lo, uint k) {
