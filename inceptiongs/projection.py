@@ -101,14 +101,13 @@ def opacities_from_logits(logits: torch.Tensor) -> torch.Tensor:
 
 
 def camera_space_means(means: torch.Tensor, world_to_camera: torch.Tensor) -> torch.Tensor:
-    """means: [N, 3], world_to_camera: [4, 4] -> t = R mean + T: [N, 3] in means' dtype.
+    """means: [N, 3], world_to_camera: [4, 4] -> t = R mean + T: [N, 3] float64.
 
-    Computed in float64 and cast back: a scene far from the origin (1e6 units) with a camera
-    beside it would otherwise lose the mean-to-camera offset to float32 cancellation.
+    float64 because a scene far from the origin (1e6 units) with a camera beside it would
+    otherwise lose the mean-to-camera offset to float32 cancellation.
     """
     pose = world_to_camera.to(torch.float64)
-    t = means.to(torch.float64) @ pose[:3, :3].T + pose[:3, 3]
-    return t.to(means.dtype)
+    return means.to(torch.float64) @ pose[:3, :3].T + pose[:3, 3]
 
 
 def camera_centre(world_to_camera: torch.Tensor) -> torch.Tensor:
@@ -142,8 +141,15 @@ def project(
     intrinsics: Intrinsics,
 ) -> Projection:
     """Project N Gaussians (means [N, 3], log_scales [N, 3], quats [N, 4], opacity_logits [N])
-    through world_to_camera [4, 4] (any float dtype; may require grad) and ``intrinsics``."""
+    through world_to_camera [4, 4] (any float dtype; may require grad) and ``intrinsics``.
+
+    The per-Gaussian geometry is computed in float64 whatever the model's dtype (it is O(N)
+    and cheap next to compositing): squared pixel covariances of huge or very close Gaussians
+    (1e5-unit scales at the near plane) overflow float32, and far-from-origin scenes cancel.
+    Results are returned in the model's dtype.
+    """
     dtype = means.dtype
+    f64 = torch.float64
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     width, height = intrinsics.width, intrinsics.height
 
@@ -167,8 +173,8 @@ def project(
         torch.stack([zeros, fy / z, -fy * clamped_y / z], -1),
     ], -2)  # [N, 2, 3]
 
-    rotation_cam = world_to_camera[:3, :3].to(dtype)
-    scaled_axes = quat_to_rotation(quats) * scales_from_log(log_scales)[:, None, :]  # R diag(s): [N, 3, 3]
+    rotation_cam = world_to_camera[:3, :3].to(f64)
+    scaled_axes = quat_to_rotation(quats.to(f64)) * scales_from_log(log_scales.to(f64))[:, None, :]  # R diag(s): [N, 3, 3]
     # M = J W R diag(s), so cov2d (before dilation) = M M^T exactly and symmetric.
     m = jacobian @ (rotation_cam @ scaled_axes)  # [N, 2, 3]
     row0, row1 = m[:, 0], m[:, 1]
@@ -184,7 +190,7 @@ def project(
     cov2d = torch.stack([xx, xy, yy], -1)
 
     opacities = opacities_from_logits(opacity_logits)
-    extents = torch.sqrt(2.0 * footprint_level(opacities)[:, None] * torch.stack([xx, yy], -1))
+    extents = torch.sqrt(2.0 * footprint_level(opacities.to(f64))[:, None] * torch.stack([xx, yy], -1))
 
     visible = in_depth_range & (det >= DET_MIN) & torch.isfinite(det) & (opacities >= ALPHA_MIN)
     visible &= torch.isfinite(means2d).all(-1) & torch.isfinite(extents).all(-1)
@@ -198,12 +204,12 @@ def project(
     conics = torch.stack([yy / safe_det, -xy / safe_det, xx / safe_det], -1)
     radii = torch.where(visible, torch.ceil(ext.max(-1).values.nan_to_num(0.0)), torch.zeros_like(det))
     return Projection(
-        camera_means=t,
-        means2d=means2d,
-        cov2d=cov2d,
-        conics=conics,
+        camera_means=t.to(dtype),
+        means2d=means2d.to(dtype),
+        cov2d=cov2d.to(dtype),
+        conics=conics.to(dtype),
         opacities=opacities,
-        extents=extents,
+        extents=extents.to(dtype),
         visible=visible,
         radii=radii.to(torch.int64),
     )
