@@ -1,0 +1,187 @@
+"""``inceptiongs render MODEL (--camera cam.json | --view NAME) --backend torch|gl ...``.
+
+MODEL is a 3DGS PLY or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest PLY
+in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
+in the model file's own (original) frame; with --view the camera comes from the scene (the
+run's config names it, or --scene), in the scene's normalised frame, and the model is moved
+into that frame with the scene's normalisation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_open, atomic_write_bytes
+from ..camera import Camera, read_camera_json
+from ..constants import ALPHA_EPS
+from ..errors import InputError
+
+HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
+MODES = ("rgb", "depth", "normal", "alpha")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="a 3DGS .ply or a run folder")
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--camera", help="camera JSON {width, height, fx, fy, cx, cy, world_to_camera}")
+    which.add_argument("--view", help="name of a camera (image) of the scene")
+    parser.add_argument("--scene", help="scene folder for --view (default: the run's scene)")
+    parser.add_argument("--backend", choices=("torch", "gl"), default="gl")
+    parser.add_argument("--mode", choices=MODES, default="rgb")
+    parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
+    parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
+    parser.add_argument("--height", type=int, help="output height (intrinsics rescaled)")
+    parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(np.isfinite(values)):
+        raise InputError(f"--background: expected three numbers r,g,b, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def resized_camera(camera: Camera, width: int | None, height: int | None) -> Camera:
+    """The camera at a new image size; one given side keeps the aspect ratio."""
+    if width is None and height is None:
+        return camera
+    if (width is not None and width <= 0) or (height is not None and height <= 0):
+        raise InputError(f"--width/--height: must be positive, got {width}x{height}")
+    if width is None:
+        width = max(1, round(camera.width * height / camera.height))
+    if height is None:
+        height = max(1, round(camera.height * width / camera.width))
+    sx, sy = width / camera.width, height / camera.height
+    return replace(camera, width=int(width), height=int(height), fx=camera.fx * sx, fy=camera.fy * sy,
+                   cx=camera.cx * sx, cy=camera.cy * sy)
+
+
+def find_model_ply(run_dir: Path) -> Path | None:
+    """RUN/model.ply, else RUN/point_cloud.ply, else the newest *.ply anywhere below RUN."""
+    for name in ("model.ply", "point_cloud.ply"):
+        if (run_dir / name).is_file():
+            return run_dir / name
+    plies = sorted(run_dir.rglob("*.ply"), key=lambda p: p.stat().st_mtime)
+    return plies[-1] if plies else None
+
+
+def _run_scene_path(run_dir: Path) -> str | None:
+    config = run_dir / "config.json"
+    if not config.is_file():
+        return None
+    try:
+        return json.loads(config.read_text()).get("scene") or None
+    except (OSError, json.JSONDecodeError, AttributeError):
+        raise InputError(f"{config}: not a readable run config") from None
+
+
+def load_model_and_camera(args):
+    """-> (Gaussians, Camera) in one frame, per the rules in the module docstring."""
+    from ..ply import read_ply
+
+    model = Path(args.model)
+    if not model.exists():
+        raise InputError(f"{model}: model does not exist")
+    run_dir = model if model.is_dir() else None
+    ply = find_model_ply(model) if run_dir else model
+    if args.camera:
+        if ply is None:
+            raise InputError(f"{model}: no .ply model in the run folder (--camera needs one)")
+        return read_ply(ply), read_camera_json(args.camera)
+    from ..scene import load_scene
+
+    scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
+    if not scene_path:
+        raise InputError(f"{model}: --view needs --scene (or a run folder whose config names its scene)")
+    if run_dir is not None and ply is None:
+        from ..train.run_folder import load_run
+        gaussians, scene, _ = load_run(run_dir)  # newest checkpoint, normalised frame
+    else:
+        scene = load_scene(scene_path, require_images=False)
+        gaussians = scene.normalization.gaussians_to_normalized(read_ply(ply))
+    return gaussians, scene.camera_by_name(args.view)
+
+
+def render_image(gaussians, camera: Camera, backend: str, mode: str, background) -> np.ndarray:
+    """[H, W, 3] (rgb, normal) or [H, W, 1] (depth, alpha) float32 from either renderer."""
+    if backend == "torch":
+        import torch
+
+        from ..rasterize import render
+        with torch.no_grad():
+            out = render(gaussians, camera, outputs=(mode,), background=torch.tensor(background))
+        return out[mode].numpy().astype(np.float32)
+    from ..renderer.context import create_offscreen_context
+    from ..renderer.splats import SplatRenderer
+    ctx = create_offscreen_context()
+    renderer = SplatRenderer(ctx)
+    try:
+        renderer.set_gaussians(gaussians.numpy())
+        return renderer.render(camera, mode=mode, background=background)
+    finally:
+        renderer.release()
+        ctx.release()
+
+
+def to_png_rgb(image: np.ndarray, mode: str) -> np.ndarray:
+    """Float image -> uint8 [H, W, 3] for viewing: rgb clipped; alpha grey; normal 0.5 n + 0.5;
+    depth through a colour map over its valid range (black where nothing was drawn)."""
+    if mode == "rgb":
+        shown = np.clip(image, 0.0, 1.0)
+    elif mode == "alpha":
+        shown = np.repeat(np.clip(image, 0.0, 1.0), 3, axis=-1)
+    elif mode == "normal":
+        shown = np.clip(0.5 * image + 0.5, 0.0, 1.0)
+    else:
+        import matplotlib
+        depth = image[..., 0]
+        valid = depth > ALPHA_EPS
+        shown = np.zeros(depth.shape + (3,), np.float32)
+        if valid.any():
+            low, high = float(depth[valid].min()), float(depth[valid].max())
+            span = high - low if high > low else 1.0  # a flat depth map maps to one colour
+            t = np.clip((depth - low) / span, 0.0, 1.0)
+            shown = matplotlib.colormaps["turbo"](t)[..., :3].astype(np.float32)
+            shown[~valid] = 0.0
+    return (shown * 255.0 + 0.5).astype(np.uint8)
+
+
+def write_output(image: np.ndarray, mode: str, out: Path) -> None:
+    if out.suffix.lower() == ".npy":
+        with atomic_open(out, "wb") as handle:
+            np.save(handle, image.astype(np.float32))
+        return
+    import cv2
+    ok, encoded = cv2.imencode(".png", cv2.cvtColor(to_png_rgb(image, mode), cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise InputError(f"{out}: PNG encoding failed")
+    atomic_write_bytes(out, encoded.tobytes())
+
+
+def run(args) -> int:
+    out = Path(args.out)
+    if out.suffix.lower() not in (".png", ".npy"):
+        raise InputError(f"{out}: output must end in .png or .npy")
+    background = parse_background(args.background)
+    gaussians, camera = load_model_and_camera(args)
+    camera = resized_camera(camera, args.width, args.height)
+    try:
+        image = render_image(gaussians, camera, args.backend, args.mode, background)
+    except RuntimeError as exc:
+        # RendererError (no usable GL) is not the user's input, but it is one line to show.
+        if type(exc).__name__ != "RendererError":
+            raise
+        print(f"error: {exc}", file=__import__("sys").stderr)
+        return 1
+    write_output(image, args.mode, out)
+    print(f"wrote {out} ({camera.width}x{camera.height}, {args.mode}, {args.backend})")
+    return 0
