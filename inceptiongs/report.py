@@ -164,18 +164,20 @@ def _format_point(point: EvalPoint | None) -> str:
 def report_table(runs: dict[str, RunLog], minutes=REPORT_MINUTES) -> str:
     """Rows: run x group; columns: PSNR/SSIM of the last evaluation at or before each time
     ("-" where the run had no evaluation yet or never ran that long)."""
-    header = ["run", "views"] + [f"{m:g} min" for m in minutes]
+    header = ["run", "views"] + [f"{m:g} min" for m in minutes] + ["last (at s)"]
     rows = []
     for label, log in runs.items():
         if not log.series:
-            rows.append([label, "(no evaluations)"] + ["-"] * len(minutes))
+            rows.append([label, "(no evaluations)"] + ["-"] * (len(minutes) + 1))
         for group, points in log.series.items():
+            last = f"{_format_point(points[-1])} ({points[-1].wall_s:.0f})"
             rows.append([label, group] + [_format_point(score_at(points, 60.0 * m, log.duration_s))
-                                          for m in minutes])
+                                          for m in minutes] + [last])
     widths = [max(len(str(row[i])) for row in [header] + rows) for i in range(len(header))]
     lines = ["  ".join(str(cell).ljust(width) for cell, width in zip(row, widths)).rstrip()
              for row in [header] + rows]
-    lines.append("cells: PSNR (dB) / SSIM of the last evaluation at or before that time; '-' = not reached")
+    lines.append("cells: PSNR (dB) / SSIM of the last evaluation at or before that time ('-': no evaluation "
+                 "yet or the run never got there); last: the final evaluation and its wall-clock second")
     return "\n".join(lines)
 
 

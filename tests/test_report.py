@@ -48,8 +48,10 @@ def test_table_picks_last_evaluation_at_or_before_each_time(tmp_path):
     table = make_report([tmp_path / "runA"], None)
     rows = {line.split()[1]: line.split()[2:] for line in table.splitlines()[1:] if line.startswith("runA")}
     # the log runs to 1290 s: at 20 min the last evaluation is still the 600 s one
-    assert rows["scarce"] == ["10.00/0.100", "11.00/0.110", "13.00/0.130", "14.00/0.140", "14.00/0.140"]
-    assert rows["covered"] == ["20.00/0.200", "21.00/0.210", "23.00/0.230", "24.00/0.240", "24.00/0.240"]
+    assert rows["scarce"] == ["10.00/0.100", "11.00/0.110", "13.00/0.130", "14.00/0.140", "14.00/0.140",
+                              "14.00/0.140", "(600)"]
+    assert rows["covered"] == ["20.00/0.200", "21.00/0.210", "23.00/0.230", "24.00/0.240", "24.00/0.240",
+                               "24.00/0.240", "(600)"]
 
 
 def test_table_dashes_where_the_run_never_got(tmp_path):
@@ -57,7 +59,7 @@ def test_table_dashes_where_the_run_never_got(tmp_path):
                if r["wall_s"] <= 250.0]
     write_log(tmp_path / "short", records)
     line = [l for l in make_report([tmp_path / "short"], None).splitlines() if " covered " in l][0]
-    assert line.split()[2:] == ["20.00/0.200", "20.00/0.200", "-", "-", "-"]
+    assert line.split()[2:] == ["20.00/0.200", "20.00/0.200", "-", "-", "-", "22.00/0.220", "(200)"]
 
 
 def test_cli_writes_figure_for_several_runs(tmp_path, capsys):
