@@ -121,8 +121,13 @@ def eval_series(records: list[dict], source: str = "<metrics>") -> dict[str, lis
         for group, values in scores.items():
             series.setdefault(group, []).append(EvalPoint(wall, None if iteration is None else int(iteration),
                                                           values.get("psnr"), values.get("ssim")))
-    for points in series.values():
+    for group, points in series.items():
         points.sort(key=lambda p: p.wall_s)
+        # A model state evaluated twice (e.g. at the last step and again at the end of the
+        # run) is one point: keep its first evaluation.
+        seen: set[int] = set()
+        series[group] = [p for p in points if p.iteration is None
+                         or not (p.iteration in seen or seen.add(p.iteration))]
     return {g: series[g] for g in sorted(series, key=lambda g: GROUP_ORDER.index(g))}
 
 
@@ -191,16 +196,17 @@ def plot_report(runs: dict[str, RunLog], out_path: str | Path) -> None:
     figure = Figure(figsize=(12, 4.5), dpi=100)
     by_time, by_iteration = figure.subplots(1, 2)
     styles = {"scarce": "--", "covered": "-", "all": ":", "test": "-"}
-    for label, log in runs.items():
+    for run_number, (label, log) in enumerate(runs.items()):
+        colour = f"C{run_number % 10}"  # one colour per run, one line style per group
         for group, points in log.series.items():
             finite = [p for p in points if p.psnr is not None and math.isfinite(p.psnr)]
             if not finite:
                 continue
-            line, = by_time.plot([p.wall_s for p in finite], [p.psnr for p in finite],
-                                 styles[group], marker="o", markersize=3, label=f"{label} {group}")
+            by_time.plot([p.wall_s for p in finite], [p.psnr for p in finite], styles[group],
+                         color=colour, marker="o", markersize=3, label=f"{label} {group}")
             with_iteration = [p for p in finite if p.iteration is not None]
             by_iteration.plot([p.iteration for p in with_iteration], [p.psnr for p in with_iteration],
-                              styles[group], marker="o", markersize=3, color=line.get_color(),
+                              styles[group], marker="o", markersize=3, color=colour,
                               label=f"{label} {group}")
     by_time.set_xlabel("wall-clock time (s)")
     by_iteration.set_xlabel("iteration")

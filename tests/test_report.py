@@ -54,6 +54,14 @@ def test_table_picks_last_evaluation_at_or_before_each_time(tmp_path):
                                "24.00/0.240", "(600)"]
 
 
+def test_same_iteration_evaluated_twice_is_one_point(tmp_path):
+    records = [{"wall_s": 10.0, "iteration": 30, "all_psnr": 12.0},
+               {"wall_s": 14.0, "iteration": 30, "all_psnr": 12.0},
+               {"wall_s": 20.0, "iteration": 60, "all_psnr": 13.0}]
+    series = eval_series(records)
+    assert [(p.wall_s, p.iteration) for p in series["all"]] == [(10.0, 30), (20.0, 60)]
+
+
 def test_table_dashes_where_the_run_never_got(tmp_path):
     records = [r for r in training_records([(50.0, 150, 10.0, 20.0), (200.0, 600, 12.0, 22.0)])
                if r["wall_s"] <= 250.0]
