@@ -166,7 +166,7 @@ def load_colmap(root: Path) -> RawScene:
         raise InputError(f"{folder}: COLMAP model has no registered images")
 
     if recon.num_points3D() > 0:
-        point_list = list(recon.points3D.values())
+        point_list = [point for _, point in sorted(recon.points3D.items())]  # by point id
         points = np.array([p.xyz for p in point_list], dtype=np.float64)
         colors = np.array([p.color for p in point_list], dtype=np.uint8)
         finite = np.all(np.isfinite(points), axis=1)

@@ -12,9 +12,13 @@ import numpy as np
 
 from .camera import Camera
 
-# Fixed-point iterations for inverting the distortion; each one is cheap and the models
-# that COLMAP fits converge in a handful for any physically sensible lens.
-_UNDISTORT_ITERATIONS = 20
+# Newton iterations for inverting the distortion (quadratic convergence: a handful suffice
+# for any lens COLMAP fits; extra ones cost little since only border points are inverted).
+_NEWTON_ITERATIONS = 20
+# Finite-difference step for the 2x2 Jacobian of the distortion (normalised coordinates).
+_JACOBIAN_STEP = 1e-6
+# Below this |det J| the distortion folds over; the step falls back to the plain residual.
+_DET_MIN = 1e-12
 
 
 def _coefficients(dist: np.ndarray) -> np.ndarray:
@@ -37,12 +41,33 @@ def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=-1)
 
 
+def _jacobian_det(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """det of d distort / d xy at xy [..., 2] (central differences) -> [...]."""
+    dx = np.array([_JACOBIAN_STEP, 0.0])
+    dy = np.array([0.0, _JACOBIAN_STEP])
+    jx = (distort_normalized(xy + dx, dist) - distort_normalized(xy - dx, dist)) / (2 * _JACOBIAN_STEP)
+    jy = (distort_normalized(xy + dy, dist) - distort_normalized(xy - dy, dist)) / (2 * _JACOBIAN_STEP)
+    return jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+
+
 def undistort_normalized(xy_distorted: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Invert :func:`distort_normalized` by fixed-point iteration. [..., 2] -> [..., 2]."""
-    xy = xy_distorted.copy()
-    for _ in range(_UNDISTORT_ITERATIONS):
-        offset = distort_normalized(xy, dist) - xy
-        xy = xy_distorted - offset
+    """Invert :func:`distort_normalized` by Newton's method. [..., 2] -> [..., 2]."""
+    target = np.asarray(xy_distorted, np.float64)
+    xy = target.copy()
+    dx = np.array([_JACOBIAN_STEP, 0.0])
+    dy = np.array([0.0, _JACOBIAN_STEP])
+    with np.errstate(over="ignore", invalid="ignore"):  # diverging points are detected by the caller
+        for _ in range(_NEWTON_ITERATIONS):
+            residual = distort_normalized(xy, dist) - target
+            jx = (distort_normalized(xy + dx, dist) - distort_normalized(xy - dx, dist)) / (2 * _JACOBIAN_STEP)
+            jy = (distort_normalized(xy + dy, dist) - distort_normalized(xy - dy, dist)) / (2 * _JACOBIAN_STEP)
+            det = jx[..., 0] * jy[..., 1] - jy[..., 0] * jx[..., 1]
+            ok = np.abs(det) > _DET_MIN
+            safe_det = np.where(ok, det, 1.0)
+            step_x = (jy[..., 1] * residual[..., 0] - jy[..., 0] * residual[..., 1]) / safe_det
+            step_y = (-jx[..., 1] * residual[..., 0] + jx[..., 0] * residual[..., 1]) / safe_det
+            step = np.where(ok[..., None], np.stack([step_x, step_y], -1), residual)
+            xy = xy - step
     return xy
 
 
@@ -60,12 +85,25 @@ def undistorted_camera(camera: Camera, dist: np.ndarray) -> Camera:
         np.stack([np.zeros_like(t), t * h], 1), np.stack([np.full_like(t, w), t * h], 1)])
     normalized = np.stack([(border[:, 0] - camera.cx) / camera.fx, (border[:, 1] - camera.cy) / camera.fy], 1)
     ideal = undistort_normalized(normalized, dist)
+    # Where the model cannot reach a border pixel (a strong radial term folds over before
+    # the image corner) Newton does not converge; such points set no limit.
+    converged = np.all(np.abs(distort_normalized(ideal, dist) - normalized) < 1e-6, axis=1)
+    converged &= np.all(np.isfinite(ideal), axis=1)
+    # Past the fold the model maps outward rays back inward; a root there (on the far side of
+    # the fold, or mirrored through the centre) is not the pixel's ray.
+    converged &= np.sum(ideal * normalized, axis=1) >= 0
+    converged &= _jacobian_det(np.where(np.isfinite(ideal), ideal, 0.0), dist) > 0
+
+    def limit(mask: np.ndarray, axis: int, reduce, fallback: float) -> float:
+        values = ideal[mask & converged, axis]
+        return float(reduce(values)) if len(values) else fallback
+
     # The largest rectangle around the principal point inside the undistorted border: on
     # each side the innermost undistorted border point limits it.
-    left = ideal[border[:, 0] == 0, 0].max()
-    right = ideal[border[:, 0] == w, 0].min()
-    top = ideal[border[:, 1] == 0, 1].max()
-    bottom = ideal[border[:, 1] == h, 1].min()
+    left = limit(border[:, 0] == 0, 0, np.max, -camera.cx / camera.fx)
+    right = limit(border[:, 0] == w, 0, np.min, (w - camera.cx) / camera.fx)
+    top = limit(border[:, 1] == 0, 1, np.max, -camera.cy / camera.fy)
+    bottom = limit(border[:, 1] == h, 1, np.min, (h - camera.cy) / camera.fy)
     # Keep the principal point and pick per axis the smallest focal length whose image
     # rectangle [-cx / f, (w - cx) / f] stays inside that region on both sides. The sides lie
     # on opposite signs of 0 for any camera whose principal point is inside the image; the
