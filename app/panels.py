@@ -34,6 +34,8 @@ def _stats(viewer) -> None:
     s = viewer.stats
     imgui.text(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  draw {s.draw_ms:5.1f} ms")
     imgui.text(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+    if viewer.last_gl_error:
+        imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {viewer.last_gl_error}")
 
 
 def _view(viewer) -> None:

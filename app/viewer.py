@@ -153,6 +153,7 @@ class Viewer:
         except InputError as exc:
             self.flags, self.status = [], f"flags not loaded: {exc}"
         self.selected_flag = -1
+        self.last_gl_error: str | None = None
         self.job_factory = job_factory
         self.training: LiveTraining | None = None
         self.reference = None  # ReferenceWorker, made when the reference mode is first used
@@ -609,6 +610,11 @@ class Viewer:
         self._draw_overlays(screen)
         if self.imgui_impl is not None:
             from .panels import draw_panels  # noqa: PLC0415
+            # PyOpenGL (used by imgui's backend) raises on any pending GL error, even one left
+            # by an earlier draw; read it here (which clears it) and show it instead.
+            error = self.ctx.error
+            if error != "GL_NO_ERROR":
+                self.last_gl_error = error
             self.imgui_impl.process_inputs()
             from imgui_bundle import imgui  # noqa: PLC0415
             imgui.new_frame()

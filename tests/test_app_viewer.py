@@ -142,13 +142,11 @@ def test_screenshot_golden(xvfb, model, tmp_path):
     assert mean <= GOLDEN_MEAN_ABS_MAX and p99 <= GOLDEN_P99_ABS_MAX, (mean, p99)
 
 
+@pytest.mark.slow
 def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path):
     """The Xvfb/GLFW screenshot, the display-less (EGL) screenshot and the GL renderer called
     directly on the same camera agree; --size rescales the camera's intrinsics."""
-    from inceptiongs.app.images import read_png, to_uint8
-    from inceptiongs.ply import read_ply
-    from inceptiongs.renderer.context import create_offscreen_context
-    from inceptiongs.renderer.splats import SplatRenderer
+    from inceptiongs.app.images import read_png
 
     camera = front_camera(320, 240)
     camera_path = tmp_path / "cam.json"
@@ -158,17 +156,25 @@ def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path)
         result = _run_viewer_cli(model, "--screenshot", out, "--camera", camera_path, "--size", "160x120",
                                  env_display=display)
         assert result.returncode == 0, result.stderr
-    ctx = create_offscreen_context()
-    renderer = SplatRenderer(ctx)
-    renderer.set_gaussians(read_ply(model).numpy())
-    direct = to_uint8(renderer.render(camera.scaled(2.0), "rgb"))
-    renderer.release()
-    ctx.release()
+    # The GL renderer on its own, in a separate process: an EGL context next to this
+    # process's GLX (GLFW) contexts is not something the tests should depend on.
+    direct_path = tmp_path / "direct.png"
+    script = ("import sys; from inceptiongs.camera import read_camera_json; from inceptiongs.ply import read_ply;"
+              "from inceptiongs.renderer.context import create_offscreen_context;"
+              "from inceptiongs.renderer.splats import SplatRenderer; from inceptiongs.app.images import write_png;"
+              "r = SplatRenderer(create_offscreen_context()); r.set_gaussians(read_ply(sys.argv[1]).numpy());"
+              "write_png(sys.argv[3], r.render(read_camera_json(sys.argv[2]).scaled(2.0), 'rgb'))")
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    result = subprocess.run([sys.executable, "-c", script, str(model), str(camera_path), str(direct_path)],
+                            capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 0, result.stderr
+    direct = read_png(direct_path)
     for path in (windowed, headless):
         mean, p99 = _compare(read_png(path), direct)
         assert mean <= 0.5 / 255 and p99 <= 2 / 255, (path.name, mean, p99)
 
 
+@pytest.mark.slow
 def test_screenshot_matches_render_command(xvfb, model, tmp_path):
     from inceptiongs.cli import _available_commands
     from inceptiongs.app.images import read_png
@@ -214,9 +220,9 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         viewer.settings.mode = "opacity"
         coverage = viewer.render_image()[..., 0]
         viewer.settings.mode = "rgb"
-        rows, cols = np.nonzero(coverage[:, 400:] > 0.9)
+        rows, cols = np.nonzero(coverage[:, 380:] > 0.5)
         assert len(rows), "the model should cover part of the right side of the window"
-        x, y = float(cols[len(cols) // 2] + 400), float(rows[len(rows) // 2])
+        x, y = float(cols[len(cols) // 2] + 380), float(rows[len(rows) // 2])
         viewer.on_cursor(viewer.window, x, y)
         viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
         viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
@@ -328,7 +334,7 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
         viewer.step()
         after = viewer.render_image()
         assert viewer.edit.count == total - selected
-        assert np.abs(after[:, 400:] - before[:, 400:]).mean() > 1e-3  # right side changed
+        assert np.abs(after[:, 380:] - before[:, 380:]).mean() > 1e-3  # right side changed
         saved = viewer.save_ply(tmp_path / "edited.ply")
         assert len(read_ply(saved)) == total - selected
         viewer.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
