@@ -87,6 +87,16 @@ def _cameras_json(path: Path) -> list[Camera]:
     return [camera_from_json_dict(entry, f"{path} (camera {i})") for i, entry in enumerate(data)]
 
 
+def _open_run(run_dir: Path) -> ViewerSource:
+    """A trainer run folder: its model (normalised frame) with its scene's cameras."""
+    from inceptiongs.train.run_folder import load_run  # noqa: PLC0415
+
+    gaussians, scene, _config = load_run(run_dir)
+    model = run_dir / "model.ply"
+    return ViewerSource("run", run_dir, gaussians.numpy(), list(scene.cameras), scene.work_dir,
+                        model_path=model if model.is_file() else None, scene=scene)
+
+
 def open_source(path: str | Path) -> ViewerSource:
     path = Path(path)
     if not path.exists():
@@ -98,6 +108,8 @@ def open_source(path: str | Path) -> ViewerSource:
                             model_path=path)
     from inceptiongs.scene import load_scene  # noqa: PLC0415
 
+    if (path / "config.json").is_file():
+        return _open_run(path)
     try:
         scene = load_scene(path)
     except InputError as scene_error:
@@ -107,10 +119,13 @@ def open_source(path: str | Path) -> ViewerSource:
                              f"(no .ply inside)") from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
-    model = newest_ply(scene.work_dir)
-    if model is not None:
-        return ViewerSource("scene", path, _read_ply_arrays(model), list(scene.cameras), scene.work_dir,
-                            model_path=model, scene=scene)
+    runs = [c.parent for c in scene.work_dir.rglob("config.json")
+            if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir()]
+    if runs:
+        newest = max(runs, key=lambda run: max(p.stat().st_mtime for p in run.iterdir()))
+        source = _open_run(newest)
+        source.kind, source.path, source.work_dir = "scene", path, scene.work_dir
+        return source
     return ViewerSource("scene", path, points_as_splats(scene.points, scene.point_colors),
                         list(scene.cameras), scene.work_dir, sparse_points=True, scene=scene,
                         notes=["no trained model yet: showing the sparse points"])

@@ -458,7 +458,7 @@ class Viewer:
 
         gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         scene = self.source.scene
-        if scene is not None and self.source.model_path is not None and self.source.kind != "ply":
+        if scene is not None:  # everything shown for a scene or run is in its normalised frame
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         write_ply(gaussians, path)
         self.status = f"saved {len(gaussians)} Gaussians to {path}"
