@@ -261,6 +261,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     background = None  # black, the renderer's default
     budget_s = None if config.minutes is None else config.minutes * 60.0
     last_eval: dict = {}
+    last_eval_iteration = -1
     finished = True
     bar = tqdm(total=config.iterations, initial=state.iteration, desc="train", file=sys.stderr,
                dynamic_ncols=True, disable=not progress, unit="it")
@@ -298,6 +299,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                     eval_start = time.perf_counter()
                     gaussians = gaussians_from_params(state.params).detach()
                     last_eval = evaluate(gaussians, scene, split, data)
+                    last_eval_iteration = step
                     record.update(last_eval)
                     train_clock += time.perf_counter() - eval_start  # evaluation is not training time
                 append_metrics(run_dir, record)
@@ -313,7 +315,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     checkpoint_now()
     gaussians = gaussians_from_params(state.params).detach()
     if finished:
-        if not last_eval or state.iteration % config.eval_every != 0:
+        if last_eval_iteration != state.iteration:
             last_eval = evaluate(gaussians, scene, split, data)
             if last_eval:
                 append_metrics(run_dir, {"iteration": state.iteration, "wall_s": state.wall_s,
