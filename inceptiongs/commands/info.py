@@ -17,13 +17,15 @@ HELP = "summarise a scene (format, cameras, resolutions, points, extent, warning
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="scene folder (COLMAP, transforms.json, LLFF) or a .ply file")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--strict", action="store_true",
+                        help="fail (exit 2) on missing, unreadable or mis-sized images instead of listing them")
 
 
-def scene_summary(path: Path) -> dict:
-    """Summary of a scene in its original units (images need not exist: problems are warnings)."""
+def scene_summary(path: Path, strict: bool = False) -> dict:
+    """Summary of a scene in its original units. Image problems are warnings unless strict."""
     from ..scene import load_scene
 
-    scene = load_scene(path, require_images=False)
+    scene = load_scene(path, require_images=strict)
     norm = scene.normalization
     centers = norm.to_original(np.array([c.center for c in scene.cameras]))
     summary = {
@@ -87,6 +89,6 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if not path.exists():
         raise InputError(f"{path}: path does not exist")
-    summary = ply_summary(path) if path.suffix.lower() == ".ply" else scene_summary(path)
+    summary = ply_summary(path) if path.suffix.lower() == ".ply" else scene_summary(path, args.strict)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0
