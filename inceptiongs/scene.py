@@ -251,7 +251,7 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
     seen: set[str] = set()
     for camera, path in zip(raw.cameras, raw.image_paths):
         if camera.name in seen:
-            problems.append(f"duplicate image name {camera.name}")
+            problems.append(f"{path}: duplicate image name {camera.name} (more than one camera uses it)")
         seen.add(camera.name)
         if not path.is_file():
             problems.append(f"{path}: image file does not exist")
