@@ -285,7 +285,7 @@ def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
             if viewer.model_version != before:
                 images.append(viewer.render_image())
         assert len(images) == 3, "the job's snapshots should reach the renderer"
-        assert viewer.stats.frames > frames + 3  # the UI kept drawing frames meanwhile
+        assert viewer.stats.frames >= frames + 3  # the UI kept drawing frames meanwhile
         for a, b in zip(images, images[1:]):
             assert np.abs(a - b).mean() > 1e-3, "the rendered frame should change as the job publishes"
         assert viewer.training.progress.history["loss"][1]
