@@ -131,3 +131,16 @@ def test_save_load_round_trip_and_validation(tmp_path):
         Split.load(tmp_path / "bad.json")
     with pytest.raises(InputError, match="does not exist"):
         Split.load(tmp_path / "missing.json")
+
+
+def test_real_scenes_split_properties():
+    from conftest import require_data
+    from inceptiongs.scene import load_scene
+
+    statuette = load_scene(require_data("statuette"), downscale=2)
+    split = make_split(statuette, "unstructured", 0)
+    check_partition(split, len(statuette.cameras))
+    assert len(split.clusters) == 6 and split.target_view in split.scarce_test
+    assert len(split.covered_test) == 5  # one per covered cluster (each has < 10 views)
+    fern = load_scene(require_data("fern"))
+    assert make_split(fern, "llff", 0).test == [0, 8, 16]
