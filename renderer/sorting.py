@@ -15,6 +15,14 @@ from .shaders import build_source
 
 # Elements sorted in one workgroup's shared memory (2 * local size). 1024 pairs = 8 KiB.
 BLOCK = 1024
+# Corner order of the two triangles of a quad (corner = (x bit, y bit)).
+QUAD_CORNERS = np.array([0, 1, 2, 2, 1, 3], np.uint32)
+
+
+def quad_elements(order: np.ndarray) -> np.ndarray:
+    """order: [M] uint32 Gaussians in draw order -> [6 M] uint32 element indices
+    4 * gaussian + corner (see splat_draw.vert)."""
+    return np.ascontiguousarray((4 * order.astype(np.uint32)[:, None] + QUAD_CORNERS).ravel())
 
 
 def depth_order(relative_means: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
@@ -46,7 +54,9 @@ class GpuDepthSort:
             430, ["sort_keys.comp"], {"SPLAT_TEXELS": f"{int(splat_texels)}u", **order}))
         self.bitonic = ctx.compute_shader(build_source(
             430, ["sort_bitonic.comp"], {"BLOCK_HALF": BLOCK // 2, **order}))
+        self.elements_shader = ctx.compute_shader(build_source(430, ["sort_indices.comp"]))
         self.pairs: moderngl.Buffer | None = None
+        self.elements: moderngl.Buffer | None = None
 
     def ensure_capacity(self, count: int) -> moderngl.Buffer:
         """The pair buffer (8 bytes per padded element); reallocated only when it grows."""
@@ -58,8 +68,8 @@ class GpuDepthSort:
         return self.pairs
 
     def sort(self, splats: moderngl.Buffer, count: int) -> moderngl.Buffer:
-        """splats: the preprocess output (3 vec4 per Gaussian). Returns the sorted pair buffer;
-        entry i's second uint is the Gaussian drawn i-th."""
+        """splats: the preprocess output. Returns the element buffer of the sorted quads
+        (6 uint32 per Gaussian, see quad_elements)."""
         size = padded_size(count)
         pairs = self.ensure_capacity(count)
         splats.bind_to_storage_buffer(0)
@@ -78,7 +88,15 @@ class GpuDepthSort:
                 j //= 2
             self._run(2, k, 0, groups)
             k *= 2
-        return pairs
+        if self.elements is None or self.elements.size < 24 * count:
+            if self.elements is not None:
+                self.elements.release()
+            self.elements = self.ctx.buffer(reserve=24 * count)
+        self.elements.bind_to_storage_buffer(2)
+        self.elements_shader["splat_count"] = count
+        self.elements_shader.run(group_x=(count + 255) // 256)
+        self.ctx.memory_barrier()
+        return self.elements
 
     def _run(self, mode: int, stage: int, distance: int, groups: int) -> None:
         self.bitonic["sort_mode"] = mode
@@ -90,7 +108,7 @@ class GpuDepthSort:
         self.ctx.memory_barrier()
 
     def release(self) -> None:
-        for obj in (self.pairs, self.keys, self.bitonic):
+        for obj in (self.pairs, self.elements, self.keys, self.bitonic, self.elements_shader):
             if obj is not None:
                 obj.release()
-        self.pairs = None
+        self.pairs = self.elements = None

@@ -28,7 +28,7 @@ from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 from .context import RendererError, check_context
 from .gl_camera import pixel_to_ndc_scale, shader_camera
 from .shaders import build_source
-from .sorting import GpuDepthSort, depth_order
+from .sorting import GpuDepthSort, depth_order, quad_elements
 
 MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
 FRAMEBUFFER_FETCH = "GL_EXT_shader_framebuffer_fetch"
@@ -286,29 +286,37 @@ class SplatRenderer:
             sorter = self._gpu_sorts.get(front_to_back)
             if sorter is None:
                 sorter = self._gpu_sorts[front_to_back] = GpuDepthSort(ctx, SPLAT_TEXELS, front_to_back)
-            order_buffer = sorter.sort(self._splat_buffer, self._count)
-            order_format = "4x u4 /i"  # the index is the second uint of each (key, index) pair
+            element_buffer = sorter.sort(self._splat_buffer, self._count)
+            element_count = 6 * self._count
         else:
+            # Culled Gaussians (opacity 0 in the preprocess output) are left out of the draw.
+            conics = np.frombuffer(self._splat_buffer.read(size=self._count * SPLAT_TEXELS * 16),
+                                   np.float32).reshape(self._count, SPLAT_TEXELS, 4)
+            visible = conics[:, 1, 3] > 0.0
             order = depth_order(self._relative_means, cam.rotation, cam.translation, front_to_back)
-            if self._index_buffer is None or self._index_buffer.size < order.nbytes:
+            elements = quad_elements(order[visible[order]])
+            element_count = elements.size
+            if self._index_buffer is None or self._index_buffer.size < max(elements.nbytes, 4):
                 if self._index_buffer is not None:
                     self._index_buffer.release()
-                self._index_buffer = ctx.buffer(reserve=order.nbytes)
-            self._index_buffer.write(order.tobytes())
-            order_buffer, order_format = self._index_buffer, "u4 /i"
+                self._index_buffer = ctx.buffer(reserve=max(elements.nbytes, 4))
+            if elements.size:
+                self._index_buffer.write(elements.tobytes())
+            element_buffer = self._index_buffer
         self._splat_texture.write(self._splat_buffer)
         ctx.finish()
         sort_done = time.perf_counter()
 
         draw = self._draw_programs[front_to_back]
-        key = (front_to_back, id(order_buffer), order_buffer.size)
+        key = (front_to_back, id(element_buffer), element_buffer.size)
         vao = self._draw_vaos.get(key)
         if vao is None:
-            # A new order buffer (or program) invalidates the old arrays; they are cheap.
+            # A new element buffer (or program) invalidates the old arrays; they are cheap.
             for old_vao in self._draw_vaos.values():
                 old_vao.release()
             self._draw_vaos.clear()
-            vao = self._draw_vaos[key] = ctx.vertex_array(draw, [(order_buffer, order_format, "splat_index")])
+            vao = self._draw_vaos[key] = ctx.vertex_array(draw, [], index_buffer=element_buffer,
+                                                          index_element_size=4)
         draw["splat_count"].value = self._count
         draw["pixel_to_ndc"].value = pixel_to_ndc_scale(cam.size[0], cam.size[1], flip_y)
         draw["image_size"].value = tuple(map(float, cam.size))
@@ -322,7 +330,8 @@ class SplatRenderer:
             ctx.enable(moderngl.BLEND)
             ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
             ctx.blend_equation = moderngl.FUNC_ADD
-        vao.render(mode=moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
+        if element_count:
+            vao.render(mode=moderngl.TRIANGLES, vertices=element_count)
         ctx.finish()
         ctx.disable(moderngl.BLEND)
         end = time.perf_counter()

@@ -1,11 +1,12 @@
-// One instanced quad (4-vertex strip) per Gaussian, in back-to-front order: splat_index is the
-// sorted position's Gaussian. The quad is the footprint box computed by the preprocess pass.
+// One quad (two indexed triangles) per Gaussian. The element buffer lists, in draw order,
+// 4 * gaussian + corner for corners (0, 1, 2, 2, 1, 3), so gl_VertexID carries both and a
+// vertex cache shades each corner once; one plain draw call instead of N instances keeps
+// software GL (llvmpipe) from paying its per-instance pipeline cost. The quad is the
+// footprint box computed by the preprocess pass.
 uniform sampler2D splats;      // SPLAT_TEXELS texels per Gaussian (see splat_preprocess.vert)
 uniform int splat_count;
 uniform vec4 pixel_to_ndc;     // ndc = pixel * xy + zw
 uniform vec2 image_size;
-
-in uint splat_index;
 
 flat out vec2 f_mean;
 flat out vec3 f_conic;
@@ -13,7 +14,8 @@ flat out float f_opacity;
 flat out vec3 f_value;
 
 void main() {
-    int index = int(splat_index);
+    int index = gl_VertexID >> 2;
+    int corner_id = gl_VertexID & 3;
     vec4 conic = index < splat_count ? fetch_texel(splats, SPLAT_TEXELS * index + 1) : vec4(0.0);
     if (conic.w <= 0.0) {
         // Culled: a zero-area triangle outside the clip volume, rasterises nothing.
@@ -23,7 +25,7 @@ void main() {
     vec4 screen = fetch_texel(splats, SPLAT_TEXELS * index);
     vec2 major = screen.zw;
     vec2 minor = fetch_texel(splats, SPLAT_TEXELS * index + 3).xy;
-    vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+    vec2 corner = vec2(float(corner_id & 1), float(corner_id >> 1)) * 2.0 - 1.0;
     vec2 pixel;
     if (max(abs(major.x), abs(major.y)) < QUAD_AXIS_MAX) {
         pixel = screen.xy + corner.x * major + corner.y * minor;  // oriented footprint box
