@@ -130,31 +130,52 @@ def read_ply(path: str | Path) -> Gaussians:
     if file_size < needed:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices "
                          f"({needed} bytes) but the file has {file_size} bytes")
-    data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
-
-    def column(name: str) -> np.ndarray:
-        values = data[name].astype(np.float32, copy=False)
-        bad = ~np.isfinite(values)
-        if bad.any():
-            raise InputError(f"{path}: field {name} has {int(bad.sum())} NaN/Inf value(s) "
-                             f"(first at vertex {int(np.argmax(bad))})")
-        return values
-
-    def stack(names_: list[str]) -> np.ndarray:
-        return np.stack([column(n) for n in names_], axis=1) if names_ else np.zeros((count, 0), np.float32)
-
     k_rest = rest_count // 3
-    f_dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])                              # [N, 3]
-    f_rest = stack([f"f_rest_{i}" for i in range(rest_count)])               # [N, 3 * k_rest]
-    sh = np.concatenate([f_dc[:, None, :], f_rest.reshape(count, 3, k_rest).transpose(0, 2, 1)], axis=1)
+    if all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
+        # The usual case, every property a little-endian float32: the vertices are one
+        # [N, F] float32 matrix, and each model array is a (mostly contiguous) column slice,
+        # so the file is read once instead of once per field.
+        # Mapped rather than read: the column slices below are the only copies made.
+        matrix = (np.memmap(path, dtype="<f4", mode="r", offset=offset, shape=(count, len(dtype.names)))
+                  if count else np.zeros((0, len(dtype.names)), np.float32))
+        column_of = {name: i for i, name in enumerate(dtype.names)}
+    else:
+        data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
+        used = required + [f"f_rest_{i}" for i in range(rest_count)]
+        matrix = np.stack([data[name].astype(np.float32) for name in used], axis=1) if count else \
+            np.zeros((0, len(used)), np.float32)
+        column_of = {name: i for i, name in enumerate(used)}
+
+    def take(field_names: list[str]) -> np.ndarray:
+        """[N, len(field_names)] float32 columns, checked to be finite."""
+        index = [column_of[name] for name in field_names]
+        contiguous = index == list(range(index[0], index[0] + len(index))) if index else True
+        block = matrix[:, index[0]:index[0] + len(index)] if contiguous and index else matrix[:, index]
+        finite = np.isfinite(block)
+        if not finite.all():
+            rows, cols = np.nonzero(~finite)
+            bad = int(cols[0])
+            raise InputError(f"{path}: field {field_names[bad]} has {int((~finite[:, bad]).sum())} "
+                             f"NaN/Inf value(s) (first at vertex {int(rows[0])})")
+        return block
+
+    sh = np.empty((count, 1 + k_rest, 3), np.float32)
+    sh[:, 0, :] = take(["f_dc_0", "f_dc_1", "f_dc_2"])
+    if k_rest:
+        # f_rest is channel-major: [N, 3, k_rest] in the file -> [N, k_rest, 3] in the model.
+        rest = take([f"f_rest_{i}" for i in range(rest_count)])
+        sh[:, 1:, :] = rest.reshape(count, 3, k_rest).transpose(0, 2, 1)
     arrays = {
-        "means": stack(["x", "y", "z"]),
-        "log_scales": stack(["scale_0", "scale_1", "scale_2"]),
-        "quats": stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
-        "opacity_logits": np.ascontiguousarray(column("opacity")),
-        "sh": np.ascontiguousarray(sh),
+        "means": take(["x", "y", "z"]),
+        "log_scales": take(["scale_0", "scale_1", "scale_2"]),
+        "quats": take(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        "opacity_logits": take(["opacity"])[:, 0],
+        "sh": sh,
     }
-    return Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(a)) for name, a in arrays.items()})
+    # Copies make the arrays writable, contiguous and detached from the memory map; ``sh``
+    # was assembled into fresh memory already.
+    return Gaussians(**{name: torch.from_numpy(a if name == "sh" else np.array(a, np.float32, order="C"))
+                        for name, a in arrays.items()})
 
 
 def ply_field_names(sh_degree: int) -> list[str]:
@@ -174,21 +195,14 @@ def write_ply(gaussians: Gaussians, path: str | Path) -> None:
     n = len(gaussians)
     k = arrays["sh"].shape[1]
     names = ply_field_names(gaussians.sh_degree)
-    record = np.zeros(n, dtype=np.dtype([(name, "<f4") for name in names]))
-    for axis, name in enumerate("xyz"):
-        record[name] = arrays["means"][:, axis]
-    for c in range(3):
-        record[f"f_dc_{c}"] = arrays["sh"][:, 0, c]
     rest = arrays["sh"][:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # channel-major
-    for i in range(rest.shape[1]):
-        record[f"f_rest_{i}"] = rest[:, i]
-    record["opacity"] = arrays["opacity_logits"]
-    for i in range(3):
-        record[f"scale_{i}"] = arrays["log_scales"][:, i]
-    for i in range(4):
-        record[f"rot_{i}"] = arrays["quats"][:, i]
+    # One [N, F] float32 matrix in file order, written in a single call.
+    matrix = np.concatenate([arrays["means"], np.zeros((n, 3), np.float32), arrays["sh"][:, 0, :], rest,
+                             arrays["opacity_logits"][:, None], arrays["log_scales"], arrays["quats"]],
+                            axis=1).astype("<f4", copy=False)
+    assert matrix.shape[1] == len(names)
     header = "".join(["ply\n", "format binary_little_endian 1.0\n", f"element vertex {n}\n",
                       *[f"property float {name}\n" for name in names], "end_header\n"])
     with atomic_open(path, "wb") as handle:
         handle.write(header.encode("ascii"))
-        handle.write(record.tobytes())
+        handle.write(np.ascontiguousarray(matrix).data)
