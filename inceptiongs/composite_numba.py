@@ -72,11 +72,13 @@ def _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y):
     """Counting sort of (tile, Gaussian) pairs by tile, Gaussians already in depth order.
 
     params: [M, 7] float64 (rows in depth order); extents_sorted: [M, 2].
-    Returns tile_offsets [tiles + 1] int64 and entries [E] int64 (row of params); the
-    entries of tile t are entries[tile_offsets[t]:tile_offsets[t + 1]], front to back."""
+    Returns
+      pixel_rects [M, 4] int64: inclusive pixel box x0, x1, y0, y1 of each row (x0 > x1: none),
+      tile_offsets [tiles + 1] int64 and entries [E] int64 (rows of params): the entries of
+      tile t are entries[tile_offsets[t]:tile_offsets[t + 1]], front to back."""
     m = params.shape[0]
     n_tiles = tiles_x * tiles_y
-    rects = np.empty((m, 4), np.int64)  # tile x0, x1, y0, y1 (inclusive); x0 > x1 = none
+    rects = np.empty((m, 4), np.int64)
     counts = np.zeros(n_tiles + 1, np.int64)
     for r in range(m):
         rects[r, 0] = 1
@@ -93,93 +95,153 @@ def _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y):
         py0, py1 = _pixel_range(my, extents_sorted[r, 1], height)
         if px0 > px1 or py0 > py1:
             continue
-        rects[r, 0] = px0 // TILE_SIZE
-        rects[r, 1] = px1 // TILE_SIZE
-        rects[r, 2] = py0 // TILE_SIZE
-        rects[r, 3] = py1 // TILE_SIZE
-        for ty in range(rects[r, 2], rects[r, 3] + 1):
-            for tx in range(rects[r, 0], rects[r, 1] + 1):
+        rects[r, 0] = px0
+        rects[r, 1] = px1
+        rects[r, 2] = py0
+        rects[r, 3] = py1
+        for ty in range(py0 // TILE_SIZE, py1 // TILE_SIZE + 1):
+            for tx in range(px0 // TILE_SIZE, px1 // TILE_SIZE + 1):
                 counts[ty * tiles_x + tx + 1] += 1
     offsets = np.cumsum(counts)
     cursor = offsets[:-1].copy()
     entries = np.empty(offsets[-1], np.int64)
     for r in range(m):  # rows ascend in depth order, so each tile's list is front to back
-        for ty in range(rects[r, 2], rects[r, 3] + 1):
-            for tx in range(rects[r, 0], rects[r, 1] + 1):
+        if rects[r, 0] > rects[r, 1]:
+            continue
+        for ty in range(rects[r, 2] // TILE_SIZE, rects[r, 3] // TILE_SIZE + 1):
+            for tx in range(rects[r, 0] // TILE_SIZE, rects[r, 1] // TILE_SIZE + 1):
                 t = ty * tiles_x + tx
                 entries[cursor[t]] = r
                 cursor[t] += 1
-    return offsets, entries
+    return rects, offsets, entries
 
 
 # --------------------------------------------------------------------------------------
 # per-pixel kernels
+#
+# Both kernels run Gaussian-major inside a tile: for each of the tile's Gaussians, front to
+# back (forward) or back to front (backward), visit only the pixels of its box within the
+# tile, keeping each pixel's running state in tile-local arrays. Neighbouring pixels take
+# the same branches, and pixels outside the box are never evaluated. The per-pixel order of
+# operations is exactly the sequential contract, so forward and backward take identical
+# decisions (same expressions, same float64 arithmetic).
 
 
 @njit(cache=True, inline="always")
-def _power(params, r, px, py):
-    """Gaussian exponent at pixel centre (px, py) and the offsets dx, dy."""
-    dx = px - params[r, _MX]
-    dy = py - params[r, _MY]
-    power = 0.5 * (params[r, _CA] * dx * dx + params[r, _CC] * dy * dy) + params[r, _CB] * dx * dy
-    return power, dx, dy
+def _tile_box(rects, r, x0, x1, y0, y1):
+    """Pixel box of row r clipped to the tile [x0, x1) x [y0, y1): inclusive bounds."""
+    return max(rects[r, 0], x0), min(rects[r, 1], x1 - 1), max(rects[r, 2], y0), min(rects[r, 3], y1 - 1)
+
+
+@njit(cache=True, inline="always")
+def _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1):
+    """Inclusive pixel columns of one row that may satisfy power <= cut, within [bx0, bx1].
+
+    For a fixed row, power(dx) = 0.5 a dx^2 + b dy dx + 0.5 c dy^2 is a parabola in dx when
+    a > 0, below the cut between the roots dx = (-b dy +- sqrt(D)) / a with
+    D = 2 a cut - (a c - b^2) dy^2. The span is only a shortcut: every pixel in it still takes
+    the exact test, so it is made conservative -- D is raised by a bound far above its
+    rounding error and the span is widened by one pixel each side. Rows where the parabola
+    form does not apply (a <= 0, non-finite terms) keep the whole box row."""
+    if not (ca > 0.0 and cut < math.inf):
+        return bx0, bx1
+    dy2 = dy * dy
+    disc = 2.0 * ca * cut - (ca * cc - cb * cb) * dy2
+    disc += 1e-12 * ((abs(ca * cc) + cb * cb) * dy2 + abs(2.0 * ca * cut))
+    if disc != disc:
+        return bx0, bx1  # NaN terms: let the exact per-pixel test decide, as the contract does
+    if disc < 0.0:
+        return 1, 0  # the row lies wholly beyond the cut
+    half = math.sqrt(disc) / ca
+    centre = mx - cb * dy / ca
+    lo = centre - half - 0.5  # pixel index i has its centre at i + 0.5
+    hi = centre + half - 0.5
+    if not (lo < math.inf and hi > -math.inf):
+        return bx0, bx1
+    if lo > bx1 or hi < bx0:
+        return 1, 0
+    return max(bx0, int(math.floor(max(lo, bx0 - 1.0))) - 1), min(bx1, int(math.ceil(min(hi, bx1 + 1.0))) + 1)
 
 
 @njit(parallel=True, fastmath=False, cache=True)
-def _forward_kernel(params, values, offsets, entries, width, height, tiles_x, image, final_t, walk):
+def _forward_kernel(params, values, rects, offsets, entries, width, height, tiles_x, image, final_t, walk):
     """Front-to-back blend per pixel.
 
-    params [M, 7], values [M, C] (rows in depth order). Writes image [H, W, C],
-    final_t [H, W] (transmittance after the last Gaussian added) and walk [H, W] (entries of
-    the tile list to replay in the backward: up to and including the last one added)."""
+    params [M, 7], values [M, C] (rows in depth order), rects [M, 4]. Writes image [H, W, C],
+    final_t [H, W] (transmittance after the last Gaussian added) and walk [H, W] (how many
+    entries of the tile list the backward must replay: up to the last one added)."""
     n_tiles = offsets.shape[0] - 1
     channels = values.shape[1]
     for t in prange(n_tiles):
         start = offsets[t]
-        end = offsets[t + 1]
+        n = offsets[t + 1] - start
+        if n == 0:
+            continue  # image, final_t and walk already hold the empty-pixel values
         ty = t // tiles_x
         tx = t - ty * tiles_x
         x0 = tx * TILE_SIZE
         y0 = ty * TILE_SIZE
         x1 = min(x0 + TILE_SIZE, width)
         y1 = min(y0 + TILE_SIZE, height)
-        acc = np.empty(channels)
-        for y in range(y0, y1):
-            py = y + 0.5
-            for x in range(x0, x1):
-                px = x + 0.5
-                trans = 1.0
-                acc[:] = 0.0
-                count = 0
-                for e in range(start, end):
-                    r = entries[e]
-                    power, dx, dy = _power(params, r, px, py)
-                    if power < 0.0 or power > params[r, _POWER_CUT]:
+        tile_pixels = (x1 - x0) * (y1 - y0)
+        trans = np.ones((TILE_SIZE, TILE_SIZE))
+        acc = np.zeros((TILE_SIZE, TILE_SIZE, channels))
+        count = np.zeros((TILE_SIZE, TILE_SIZE), np.int64)
+        finished = np.zeros((TILE_SIZE, TILE_SIZE), np.bool_)
+        n_finished = 0
+        for k in range(n):
+            r = entries[start + k]
+            bx0, bx1, by0, by1 = _tile_box(rects, r, x0, x1, y0, y1)
+            mx = params[r, _MX]
+            my = params[r, _MY]
+            ca = params[r, _CA]
+            cb = params[r, _CB]
+            cc = params[r, _CC]
+            opacity = params[r, _OPACITY]
+            cut = params[r, _POWER_CUT]
+            for y in range(by0, by1 + 1):
+                dy = (y + 0.5) - my
+                ly = y - y0
+                sx0, sx1 = _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
+                for x in range(sx0, sx1 + 1):
+                    lx = x - x0
+                    if finished[ly, lx]:
                         continue
-                    alpha = min(ALPHA_MAX, params[r, _OPACITY] * math.exp(-power))
+                    dx = (x + 0.5) - mx
+                    power = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    if power < 0.0 or power > cut:
+                        continue
+                    alpha = min(ALPHA_MAX, opacity * math.exp(-power))
                     if alpha < ALPHA_MIN:
                         continue
-                    after = trans * (1.0 - alpha)
+                    before = trans[ly, lx]
+                    after = before * (1.0 - alpha)
                     if after < TRANSMITTANCE_MIN:
-                        break
-                    weight = trans * alpha
+                        finished[ly, lx] = True
+                        n_finished += 1
+                        continue
+                    weight = before * alpha
                     for ch in range(channels):
-                        acc[ch] += weight * values[r, ch]
-                    trans = after
-                    count = e - start + 1
+                        acc[ly, lx, ch] += weight * values[r, ch]
+                    trans[ly, lx] = after
+                    count[ly, lx] = k + 1
+            if n_finished == tile_pixels:
+                break
+        for y in range(y0, y1):
+            for x in range(x0, x1):
                 for ch in range(channels):
-                    image[y, x, ch] = acc[ch]
-                final_t[y, x] = trans
-                walk[y, x] = count
+                    image[y, x, ch] = acc[y - y0, x - x0, ch]
+                final_t[y, x] = trans[y - y0, x - x0]
+                walk[y, x] = count[y - y0, x - x0]
 
 
 @njit(parallel=True, fastmath=False, cache=True)
-def _backward_kernel(params, values, offsets, entries, width, height, tiles_x, final_t, walk,
+def _backward_kernel(params, values, rects, offsets, entries, width, height, tiles_x, final_t, walk,
                      grad_image, grad_alpha, entry_grads):
-    """Back-to-front replay per pixel, accumulating d loss / d parameters per tile entry.
+    """Back-to-front replay per pixel, writing d loss / d parameters per tile entry.
 
-    grad_image [H, W, C], grad_alpha [H, W]; entry_grads [E, 6 + C] (zeroed by the caller)
-    gets, per entry: d mean x, d mean y, d conic a, b, c, d opacity, d values[C].
+    grad_image [H, W, C], grad_alpha [H, W]; entry_grads [E, 6 + C] gets, per entry: d mean x,
+    d mean y, d conic a, b, c, d opacity, d values[C] (summed over the tile's pixels).
 
     With T_i the transmittance before Gaussian i and S_i the colour blended behind it:
         d image / d alpha_i = T_i v_i - S_i / (1 - alpha_i)
@@ -189,58 +251,88 @@ def _backward_kernel(params, values, offsets, entries, width, height, tiles_x, f
     channels = values.shape[1]
     for t in prange(n_tiles):
         start = offsets[t]
+        n = offsets[t + 1] - start
+        if n == 0:
+            continue
         ty = t // tiles_x
         tx = t - ty * tiles_x
         x0 = tx * TILE_SIZE
         y0 = ty * TILE_SIZE
         x1 = min(x0 + TILE_SIZE, width)
         y1 = min(y0 + TILE_SIZE, height)
-        behind = np.empty(channels)
+        trans = np.empty((TILE_SIZE, TILE_SIZE))
+        behind = np.zeros((TILE_SIZE, TILE_SIZE, channels))
+        replay = 0
         for y in range(y0, y1):
-            py = y + 0.5
             for x in range(x0, x1):
-                count = walk[y, x]
-                if count == 0:
-                    continue
-                px = x + 0.5
-                t_final = final_t[y, x]
-                g_alpha = grad_alpha[y, x]
-                trans = t_final
-                behind[:] = 0.0
-                for e in range(start + count - 1, start - 1, -1):
-                    r = entries[e]
-                    power, dx, dy = _power(params, r, px, py)
-                    if power < 0.0 or power > params[r, _POWER_CUT]:
+                trans[y - y0, x - x0] = final_t[y, x]
+                replay = max(replay, walk[y, x])
+        grad_values = np.empty(channels)
+        for k in range(replay - 1, -1, -1):
+            r = entries[start + k]
+            bx0, bx1, by0, by1 = _tile_box(rects, r, x0, x1, y0, y1)
+            mx = params[r, _MX]
+            my = params[r, _MY]
+            ca = params[r, _CA]
+            cb = params[r, _CB]
+            cc = params[r, _CC]
+            opacity = params[r, _OPACITY]
+            cut = params[r, _POWER_CUT]
+            g_mx = 0.0
+            g_my = 0.0
+            g_a = 0.0
+            g_b = 0.0
+            g_c = 0.0
+            g_opacity = 0.0
+            grad_values[:] = 0.0
+            for y in range(by0, by1 + 1):
+                dy = (y + 0.5) - my
+                ly = y - y0
+                sx0, sx1 = _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
+                for x in range(sx0, sx1 + 1):
+                    if k >= walk[y, x]:
+                        continue  # this pixel was finished before entry k
+                    lx = x - x0
+                    dx = (x + 0.5) - mx
+                    power = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    if power < 0.0 or power > cut:
                         continue
                     gauss = math.exp(-power)
-                    raw = params[r, _OPACITY] * gauss
+                    raw = opacity * gauss
                     alpha = min(ALPHA_MAX, raw)
                     if alpha < ALPHA_MIN:
                         continue
                     keep = 1.0 - alpha
-                    trans = trans / keep  # transmittance in front of this Gaussian
-                    weight = trans * alpha
-                    d_alpha = g_alpha * t_final / keep
+                    before = trans[ly, lx] / keep  # transmittance in front of this Gaussian
+                    trans[ly, lx] = before
+                    weight = before * alpha
+                    d_alpha = grad_alpha[y, x] * final_t[y, x] / keep
                     for ch in range(channels):
                         g = grad_image[y, x, ch]
                         v = values[r, ch]
-                        entry_grads[e, _GRAD_GEOMETRY_COLUMNS + ch] += weight * g
-                        d_alpha += g * (trans * v - behind[ch] / keep)
-                        behind[ch] += weight * v
+                        grad_values[ch] += weight * g
+                        d_alpha += g * (before * v - behind[ly, lx, ch] / keep)
+                        behind[ly, lx, ch] += weight * v
                     # min(ALPHA_MAX, raw) passes no gradient where it clamps (as torch.clamp).
                     if raw > ALPHA_MAX:
                         continue
-                    entry_grads[e, 5] += d_alpha * gauss
+                    g_opacity += d_alpha * gauss
                     d_power = -d_alpha * raw
-                    ca = params[r, _CA]
-                    cb = params[r, _CB]
-                    cc = params[r, _CC]
                     # power depends on the mean through dx = px - mx, dy = py - my.
-                    entry_grads[e, 0] -= d_power * (ca * dx + cb * dy)
-                    entry_grads[e, 1] -= d_power * (cc * dy + cb * dx)
-                    entry_grads[e, 2] += d_power * 0.5 * dx * dx
-                    entry_grads[e, 3] += d_power * dx * dy
-                    entry_grads[e, 4] += d_power * 0.5 * dy * dy
+                    g_mx -= d_power * (ca * dx + cb * dy)
+                    g_my -= d_power * (cc * dy + cb * dx)
+                    g_a += d_power * 0.5 * dx * dx
+                    g_b += d_power * dx * dy
+                    g_c += d_power * 0.5 * dy * dy
+            e = start + k
+            entry_grads[e, 0] = g_mx
+            entry_grads[e, 1] = g_my
+            entry_grads[e, 2] = g_a
+            entry_grads[e, 3] = g_b
+            entry_grads[e, 4] = g_c
+            entry_grads[e, 5] = g_opacity
+            for ch in range(channels):
+                entry_grads[e, _GRAD_GEOMETRY_COLUMNS + ch] = grad_values[ch]
 
 
 @njit(parallel=True, cache=True)
@@ -314,16 +406,16 @@ class _CompositeFunction(torch.autograd.Function):
         extents_sorted = _as_f64(extents)[order]
         tiles_x = -(-width // TILE_SIZE)
         tiles_y = -(-height // TILE_SIZE)
-        offsets, entries = _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
+        rects, offsets, entries = _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
 
         image = np.zeros((height, width, channels), np.float64)
         final_t = np.ones((height, width), np.float64)
         walk = np.zeros((height, width), np.int64)
         if entries.shape[0] > 0:
-            _forward_kernel(params, values_sorted, offsets, entries, width, height, tiles_x,
+            _forward_kernel(params, values_sorted, rects, offsets, entries, width, height, tiles_x,
                             image, final_t, walk)
 
-        ctx.state = (order, params, values_sorted, offsets, entries, width, height, tiles_x, final_t, walk)
+        ctx.state = (order, params, values_sorted, rects, offsets, entries, width, height, tiles_x, final_t, walk)
         ctx.input_dtypes = (means2d.dtype, conics.dtype, opacities.dtype, values.dtype)
         image_t = torch.from_numpy(image).to(device=device, dtype=dtype)
         alpha_t = torch.from_numpy(1.0 - final_t).unsqueeze(-1).to(device=device, dtype=dtype)
@@ -332,7 +424,7 @@ class _CompositeFunction(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_image, grad_alpha):
-        order, params, values_sorted, offsets, entries, width, height, tiles_x, final_t, walk = ctx.state
+        order, params, values_sorted, rects, offsets, entries, width, height, tiles_x, final_t, walk = ctx.state
         m = params.shape[0]
         channels = values_sorted.shape[1]
         device = grad_image.device if grad_image is not None else grad_alpha.device
@@ -341,7 +433,7 @@ class _CompositeFunction(torch.autograd.Function):
 
         entry_grads = np.zeros((entries.shape[0], _GRAD_GEOMETRY_COLUMNS + channels), np.float64)
         if entries.shape[0] > 0:
-            _backward_kernel(params, values_sorted, offsets, entries, width, height, tiles_x,
+            _backward_kernel(params, values_sorted, rects, offsets, entries, width, height, tiles_x,
                              final_t, walk, g_image, g_alpha, entry_grads)
         per_row = _reduce_entry_grads(entries, entry_grads, m)
         # Rows are in depth order; scatter back to the caller's Gaussian order.

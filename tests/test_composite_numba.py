@@ -178,6 +178,25 @@ def test_result_does_not_depend_on_extents_beyond_the_footprint():
         assert torch.equal(alpha, tight_alpha), huge
 
 
+def test_thin_rotated_ellipses():
+    # Needle-like footprints (sigma ratios beyond 30:1): their boxes are mostly empty, and the
+    # kernels' per-row spans must still keep every pixel of the ellipse.
+    width, height = 40, 36
+    scene = random_gaussians(60, width, height, seed=15, radius_px=(0.05, 12.0), opacity=(0.2, 0.99))
+    ratio = torch.linalg.eigvalsh(torch.stack([
+        torch.stack([scene["conics"][:, 0], scene["conics"][:, 1]], 1),
+        torch.stack([scene["conics"][:, 1], scene["conics"][:, 2]], 1)], 1))
+    assert (ratio[:, 1] / ratio[:, 0]).max() > 1e3
+    image, alpha = run_numba(scene, width, height)
+    ref_image, ref_alpha, _ = run_reference(scene, width, height)
+    assert_matches(image, ref_image, rtol=1e-5)
+    assert_matches(alpha, ref_alpha, rtol=1e-5)
+    got = grads_of(run_numba, scene, width, height, seed=15)
+    want = grads_of(run_reference, scene, width, height, seed=15)
+    for key in DIFFERENTIABLE:
+        assert_matches(got[key], want[key], rtol=1e-5, atol=1e-8)
+
+
 def test_gaussians_partly_and_fully_outside_the_image():
     width, height = 24, 20
     scene = random_gaussians(50, width, height, seed=7, radius_px=(2.0, 9.0), margin=25.0)
