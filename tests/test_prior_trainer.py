@@ -1,0 +1,142 @@
+"""Prior training: the diffusion loss goes down, the hash grid learns, checkpoints round-trip."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from inceptiongs.camera import Camera, look_at
+from inceptiongs.errors import InputError
+from inceptiongs.gaussians import Gaussians
+from inceptiongs.prior.hashgrid import HashGridConfig
+from inceptiongs.prior.model import Prior, PriorConfig, fit_bound
+from inceptiongs.prior.trainer import (PriorTrainer, load_prior, prior_dir, resume_trainer, save_prior)
+from inceptiongs.prior.unet import UNetConfig
+from inceptiongs.rasterize import render
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # These models are tiny: per-op threading overhead dominates, and on a busy 2-core
+    # machine two spinning OpenMP threads make each step ~15x slower than one.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+TINY = PriorConfig(patch_size=16, batch_size=4, learning_rate=2e-3, num_timesteps=200,
+                   unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16),
+                   grid=HashGridConfig(levels=2, features_per_level=2, table_size=512,
+                                       base_resolution=4, max_resolution=16))
+
+
+def _scene(n=60, seed=0):
+    """Gaussians around the origin, three 32x32 cameras and the photos they render."""
+    g = torch.Generator().manual_seed(seed)
+    gaussians = Gaussians(
+        means=(torch.rand(n, 3, generator=g) * 2 - 1) * 0.8,
+        log_scales=torch.full((n, 3), -2.2) + 0.5 * torch.rand(n, 3, generator=g),
+        quats=torch.randn(n, 4, generator=g),
+        opacity_logits=torch.full((n,), 2.0),
+        sh=torch.rand(n, 1, 3, generator=g) * 2 - 0.5,
+    )
+    cameras = [Camera(f"c{i}", 32, 32, 32.0, 32.0, 16.0, 16.0,
+                      look_at(np.array([3 * np.sin(a), 0.3, -3 * np.cos(a)]), np.zeros(3)))
+               for i, a in enumerate((0.0, 0.6, 1.2))]
+    with torch.no_grad():
+        photos = [render(gaussians, c, background=[0.5, 0.5, 0.5])["rgb"].numpy() for c in cameras]
+    return gaussians, cameras, photos
+
+
+def test_fit_bound_ignores_a_far_floater():
+    means = torch.rand(1000, 3) * 2 - 1
+    means[0] = torch.tensor([500.0, 0.0, 0.0])
+    assert 0.9 < fit_bound(means) < 1.1
+
+
+def test_diffusion_training_lowers_the_loss_on_a_synthetic_dataset():
+    # Patches whose colour is a function of the condition: a few hundred steps of the
+    # conditional denoiser alone (no rendering) must lower the seeded diffusion loss.
+    torch.manual_seed(0)
+    prior = Prior(TINY)
+    g = torch.Generator().manual_seed(1)
+    optimizer = torch.optim.Adam(prior.parameters(), lr=2e-3)
+    losses = []
+    for _ in range(300):
+        cond = torch.zeros(8, 8, 8, 8)
+        split = torch.randint(2, 7, (8,), generator=g)
+        columns = torch.arange(8)[None, :] < split[:, None]  # [B, 8]: left part is "surface"
+        cond[:, 3] = columns[:, None, :].float()            # alpha channel
+        images = torch.where(columns[:, None, None, :], 0.6, -0.6).expand(8, 3, 8, 8).clone()
+        images[:, 1] *= -1.0
+        loss = prior.diffusion_loss(images, cond, generator=g)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    first, last = np.mean(losses[:50]), np.mean(losses[-50:])
+    assert last < 0.6 * first, (first, last)
+
+
+@pytest.mark.slow
+def test_trainer_on_rendered_patches_lowers_the_loss_and_trains_the_hash_grid():
+    gaussians, cameras, photos = _scene()
+    prior = Prior.for_gaussians(replace(TINY, patch_size=8), gaussians)
+    tables_before = [t.detach().clone() for t in prior.hash_grid.tables]
+    trainer = PriorTrainer(prior, gaussians, cameras, lambda i: photos[i])
+    losses = trainer.train(steps=30, progress=False)
+    assert len(losses) == 30 and trainer.step_count == 30
+    assert np.mean(losses[-10:]) < np.mean(losses[:10]), losses
+    changed = [not torch.equal(a, b) for a, b in zip(tables_before, prior.hash_grid.tables)]
+    assert all(changed)
+
+
+def test_checkpoint_resumes_exactly_and_generates_the_same_image(tmp_path):
+    gaussians, cameras, photos = _scene()
+    trainer = PriorTrainer(Prior.for_gaussians(replace(TINY, patch_size=8), gaussians), gaussians, cameras,
+                           lambda i: photos[i])
+    trainer.train(steps=3, run_dir=tmp_path, checkpoint_every=2, progress=False)
+    assert (prior_dir(tmp_path) / "prior.pt").is_file()
+    assert not [p for p in prior_dir(tmp_path).iterdir() if p.name != "prior.pt"]  # no temp files left
+
+    resumed = resume_trainer(tmp_path, gaussians, cameras, lambda i: photos[i])
+    assert resumed.step_count == 3 and resumed.losses == trainer.losses
+    assert resumed.step() == pytest.approx(trainer.step(), rel=1e-5, abs=1e-7)
+
+    save_prior(tmp_path, trainer)
+    loaded = load_prior(tmp_path)
+    camera = cameras[0].scaled(32 / 20)  # 20x20: not a multiple of the window
+    image_a, cond_a = trainer.prior.generate(gaussians, camera, steps=3, seed=5)
+    image_b, cond_b = loaded.generate(gaussians, camera, steps=3, seed=5)
+    assert image_a.shape == (20, 20, 3) and cond_a.shape == (8, 20, 20)
+    assert float(image_a.min()) >= 0.0 and float(image_a.max()) <= 1.0
+    torch.testing.assert_close(image_a, image_b, rtol=0, atol=1e-5)
+
+
+def test_bad_inputs_raise_input_errors(tmp_path):
+    gaussians, cameras, photos = _scene(n=5)
+    with pytest.raises(InputError, match="prior.pt"):
+        load_prior(tmp_path)
+    (tmp_path / "prior").mkdir()
+    (tmp_path / "prior" / "prior.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not a readable prior checkpoint"):
+        load_prior(tmp_path)
+    trainer = PriorTrainer(Prior(TINY), gaussians, cameras, lambda i: photos[i][:10])
+    with pytest.raises(InputError, match="c"):
+        trainer.step()
+    tiny_cameras = [c.scaled(32) for c in cameras]  # 1x1 images
+    with pytest.raises(InputError, match="too small"):
+        PriorTrainer(Prior(TINY), gaussians, tiny_cameras, lambda i: photos[i])
+
+
+def test_patch_size_shrinks_to_small_images():
+    gaussians, cameras, photos = _scene(n=5)
+    small = [c.scaled(32 / 13) for c in cameras]  # 13x13 -> patches of 12 (multiple of 2)
+    trainer = PriorTrainer(Prior(TINY), gaussians, small, lambda i: np.zeros((13, 13, 3), np.float32))
+    assert trainer.patch_size == 12
+    photos_batch, conds = trainer.sample_batch()
+    assert photos_batch.shape == (4, 3, 12, 12) and conds.shape == (4, 8, 12, 12)
