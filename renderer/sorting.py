@@ -57,6 +57,7 @@ class GpuDepthSort:
         self.elements_shader = ctx.compute_shader(build_source(430, ["sort_indices.comp"]))
         self.pairs: moderngl.Buffer | None = None
         self.elements: moderngl.Buffer | None = None
+        self.generation = 0  # bumped whenever the element buffer is reallocated
 
     def ensure_capacity(self, count: int) -> moderngl.Buffer:
         """The pair buffer (8 bytes per padded element); reallocated only when it grows."""
@@ -92,6 +93,7 @@ class GpuDepthSort:
             if self.elements is not None:
                 self.elements.release()
             self.elements = self.ctx.buffer(reserve=24 * count)
+            self.generation += 1
         self.elements.bind_to_storage_buffer(2)
         self.elements_shader["splat_count"] = count
         self.elements_shader.run(group_x=(count + 255) // 256)

@@ -52,7 +52,8 @@ def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarra
     """
     means = np.asarray(arrays["means"], np.float64).reshape(-1, 3)
     n = means.shape[0]
-    sh = np.asarray(arrays["sh"], np.float32).reshape(n, -1, 3)
+    sh = np.asarray(arrays["sh"], np.float32)
+    sh = sh.reshape(n, sh.shape[1] if sh.ndim == 3 else -1, 3)
     degree = sh_degree_from_count(sh.shape[1])
     anchor = means.mean(axis=0) if n else np.zeros(3)
     if not np.all(np.isfinite(anchor)):
@@ -64,7 +65,7 @@ def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarra
     texels[:, 1, :3] = np.asarray(arrays["log_scales"], np.float32).reshape(n, 3)
     texels[:, 2, :] = np.asarray(arrays["quats"], np.float32).reshape(n, 4)
     flat_sh = texels[:, _BASE_TEXELS:, :].reshape(n, sh_texels * 4)
-    flat_sh[:, : 3 * sh.shape[1]] = sh.reshape(n, -1)
+    flat_sh[:, : 3 * sh.shape[1]] = sh.reshape(n, 3 * sh.shape[1])
     texels[:, _BASE_TEXELS:, :] = flat_sh.reshape(n, sh_texels, 4)
     return texels, anchor, degree
 
@@ -119,6 +120,7 @@ class SplatRenderer:
         self._splat_texture: moderngl.Texture | None = None
         self._index_buffer: moderngl.Buffer | None = None
         self._draw_vaos: dict[tuple, moderngl.VertexArray] = {}
+        self._element_generation = 0
         self._preprocess_vao: moderngl.VertexArray | None = None
         self._offscreen: moderngl.Framebuffer | None = None
 
@@ -287,6 +289,7 @@ class SplatRenderer:
             if sorter is None:
                 sorter = self._gpu_sorts[front_to_back] = GpuDepthSort(ctx, SPLAT_TEXELS, front_to_back)
             element_buffer = sorter.sort(self._splat_buffer, self._count)
+            generation = ("gpu", front_to_back, sorter.generation)
             element_count = 6 * self._count
         else:
             # Culled Gaussians (opacity 0 in the preprocess output) are left out of the draw.
@@ -300,15 +303,19 @@ class SplatRenderer:
                 if self._index_buffer is not None:
                     self._index_buffer.release()
                 self._index_buffer = ctx.buffer(reserve=max(elements.nbytes, 4))
+                self._element_generation += 1
             if elements.size:
                 self._index_buffer.write(elements.tobytes())
             element_buffer = self._index_buffer
+            generation = ("cpu", self._element_generation)
         self._splat_texture.write(self._splat_buffer)
         ctx.finish()
         sort_done = time.perf_counter()
 
         draw = self._draw_programs[front_to_back]
-        key = (front_to_back, id(element_buffer), element_buffer.size)
+        # Keyed by allocation generation, not id(): a released buffer's id (and GL name) can
+        # be reused by its replacement while an old array still holds the old storage.
+        key = (front_to_back, generation)
         vao = self._draw_vaos.get(key)
         if vao is None:
             # A new element buffer (or program) invalidates the old arrays; they are cheap.
