@@ -150,7 +150,13 @@ class Scene:
         if dist is None and (camera.width, camera.height) == (source.width, source.height):
             return _to_float_rgb(_read_image(path), path)
         cache_name = camera.name.replace("/", "__").replace("\\", "__")
-        cache = self.work_dir / "images" / f"{camera.width}x{camera.height}" / f"{cache_name}.png"
+        key = f"{camera.width}x{camera.height}"
+        if dist is not None:
+            # Undistorted images depend on the lens model too: a re-calibrated model must not
+            # reuse images undistorted with the old one.
+            lens = np.concatenate([[source.fx, source.fy, source.cx, source.cy], dist])
+            key += "-" + hashlib.sha1(lens.astype("<f8").tobytes()).hexdigest()[:10]
+        cache = self.work_dir / "images" / key / f"{cache_name}.png"
         if cache.is_file() and cache.stat().st_mtime >= path.stat().st_mtime:
             return _to_float_rgb(_read_image(cache), cache)
         image = _read_image(path)
@@ -294,3 +300,16 @@ def load_scene(path: str | Path, downscale: int = 1, max_width: int | None = Non
                  points=points, point_colors=raw.point_colors, normalization=normalization,
                  camera_models=list(raw.camera_models), warnings=warnings,
                  source_cameras=list(raw.cameras), distortion=list(raw.distortion))
+
+
+def add_scene_arguments(parser) -> None:
+    """The scene-resolution options every command that loads a scene shares."""
+    parser.add_argument("--downscale", type=int, choices=(1, 2, 4, 8), default=1,
+                        help="load images this many times smaller (default 1)")
+    parser.add_argument("--max-width", type=int, default=None, metavar="PIXELS",
+                        help="further downscale so no image is wider than this")
+
+
+def load_scene_from_args(path: str | Path, args) -> Scene:
+    """load_scene with the options added by :func:`add_scene_arguments`."""
+    return load_scene(path, downscale=args.downscale, max_width=args.max_width)

@@ -217,3 +217,28 @@ def test_camera_by_name(tmp_path):
     from inceptiongs.errors import InputError
     with pytest.raises(InputError, match="no camera named"):
         scene.camera_by_name("elsewhere")
+
+
+def test_recalibrated_lens_does_not_reuse_cached_undistortion(tmp_path):
+    params_for, coefficients = _DISTORTED["OPENCV"]
+    cameras = known_cameras()
+    _write_colmap_scene(tmp_path, "OPENCV", params_for, [np.array(coefficients)] * len(cameras), cameras=cameras)
+    before = load_scene(tmp_path).load_image(0)
+    weaker = lambda c: [c.fx, c.fy, c.cx, c.cy, -0.05, 0.0, 0.0, 0.0]  # noqa: E731
+    write_colmap_binary(tmp_path / "sparse" / "0", [(c, "OPENCV", weaker(c)) for c in cameras], known_points())
+    after = load_scene(tmp_path).load_image(0)
+    assert np.abs(after - before).max() > 0.1
+
+
+def test_scene_arguments_for_commands(tmp_path):
+    import argparse
+
+    from inceptiongs.scene import add_scene_arguments, load_scene_from_args
+
+    _write_colmap_scene(tmp_path, "PINHOLE", lambda c: [c.fx, c.fy, c.cx, c.cy], [None] * 4)
+    parser = argparse.ArgumentParser()
+    add_scene_arguments(parser)
+    scene = load_scene_from_args(tmp_path, parser.parse_args(["--downscale", "2", "--max-width", "40"]))
+    assert {c.width for c in scene.cameras} == {40}
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--downscale", "3"])
