@@ -2,6 +2,7 @@
 
 Intrinsics are shared (top level) or per frame: ``fl_x``/``fl_y`` or ``camera_angle_x``/
 ``camera_angle_y``, ``cx``, ``cy``, ``w``, ``h`` and optional ``k1 k2 p1 p2`` (plus ``k3``).
+``ply_file_path`` (nerfstudio) names a point cloud PLY of sparse points.
 ``transform_matrix`` is camera-to-world with OpenGL camera axes (x right, y up, z backward);
 flipping the camera's y and z axes gives OpenCV's (x right, y down, z forward).
 """
@@ -122,5 +123,10 @@ def load_transforms(root: Path) -> RawScene:
         paths.append(path)
         models.append("PINHOLE" if dist is None else "OPENCV")
         distortion.append(dist)
+    points, colors = np.zeros((0, 3)), None
+    if data.get("ply_file_path"):
+        # nerfstudio: sparse points in the same world frame as the transform matrices.
+        from .ply import read_point_cloud_ply
+        points, colors = read_point_cloud_ply(base / str(data["ply_file_path"]))
     return RawScene(root if root.is_dir() else base, "transforms", cameras, paths, models, distortion,
-                    warnings=warnings)
+                    points, colors, warnings=warnings)

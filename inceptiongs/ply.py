@@ -206,3 +206,37 @@ def write_ply(gaussians: Gaussians, path: str | Path) -> None:
     with atomic_open(path, "wb") as handle:
         handle.write(header.encode("ascii"))
         handle.write(np.ascontiguousarray(matrix).data)
+
+
+def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """A coloured point cloud PLY (x y z [red green blue], binary): ([P, 3] float64,
+    [P, 3] uint8 or None). Used for the sparse points of nerfstudio scenes."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: point cloud file does not exist")
+    with open(path, "rb") as handle:
+        head = handle.read(_MAX_HEADER_BYTES)
+    header_len, byte_order, elements = _parse_header(head, path)
+    offset = header_len
+    for name, count, props in elements:
+        dtype = np.dtype([(prop, byte_order + code) for prop, code in props])
+        if name == "vertex":
+            break
+        offset += count * dtype.itemsize
+    else:
+        raise InputError(f"{path}: PLY has no 'vertex' element")
+    if not {"x", "y", "z"} <= set(dtype.names or ()):
+        raise InputError(f"{path}: point cloud PLY lacks x, y, z")
+    if path.stat().st_size < offset + count * dtype.itemsize:
+        raise InputError(f"{path}: truncated PLY: header declares {count} vertices")
+    data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
+    points = np.stack([data[axis].astype(np.float64) for axis in "xyz"], axis=1)
+    if not np.all(np.isfinite(points)):
+        raise InputError(f"{path}: point coordinates contain NaN or Inf")
+    colors = None
+    if {"red", "green", "blue"} <= set(dtype.names):
+        colors = np.stack([data[c] for c in ("red", "green", "blue")], axis=1)
+        if colors.dtype != np.uint8:  # float colours in [0, 1]
+            colors = np.round(np.clip(colors.astype(np.float64), 0, 1) * 255)
+        colors = colors.astype(np.uint8)
+    return points, colors

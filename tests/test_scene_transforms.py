@@ -112,3 +112,28 @@ def test_bad_transforms(tmp_path, change, match):
     with pytest.raises(InputError, match=match) as info:
         load_scene(tmp_path)
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_nerfstudio_point_cloud_is_loaded(tmp_path):
+    cameras = known_cameras(count=2)
+    write_images(tmp_path / "images", cameras, [None] * 2)
+    points = known_points()
+    record = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                    ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for axis, name in enumerate("xyz"):
+        record[name] = points[:, axis]
+    record["red"] = np.arange(len(points))
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(points)}\n"
+              + "".join(f"property {t} {n}\n" for t, n in [("float", "x"), ("float", "y"), ("float", "z"),
+                                                            ("uchar", "red"), ("uchar", "green"), ("uchar", "blue")])
+              + "end_header\n")
+    (tmp_path / "sparse_pc.ply").write_bytes(header.encode() + record.tobytes())
+    data = {"fl_x": 60.0, "w": WIDTH, "h": HEIGHT, "ply_file_path": "sparse_pc.ply",
+            "frames": [{"file_path": f"images/{c.name}", "transform_matrix": _opengl_camera_to_world(c)}
+                       for c in cameras]}
+    (tmp_path / "transforms.json").write_text(json.dumps(data))
+    scene = load_scene(tmp_path)
+    assert scene.points.shape == points.shape
+    # float32 in the file: the original frame is recovered to float32 precision.
+    assert np.allclose(scene.normalization.to_original(scene.points), points, atol=1e-3)
+    assert np.array_equal(scene.point_colors[:, 0], np.arange(len(points)))
