@@ -229,7 +229,9 @@ class SplatRenderer:
 
     def pick_depth(self, camera: Camera, x: int, y: int) -> float | None:
         """Expected camera z at pixel (x, y) (column, row from the top), None where nothing was
-        drawn (alpha < ALPHA_EPS) or outside the image. Renders only that one pixel."""
+        drawn (alpha < ALPHA_EPS) or outside the image. Renders only a 1x1 window of the
+        camera; the EWA Jacobian clamp depends on the image extent, so the value can differ
+        from the full frame's depth by ~1e-4 relative where Gaussians lie outside the window."""
         if not (0 <= x < camera.width and 0 <= y < camera.height):
             return None
         depth = self.render(camera.cropped(int(x), int(y), 1, 1), mode="depth")

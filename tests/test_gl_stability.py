@@ -126,22 +126,21 @@ def test_mean_at_the_camera_centre_with_sh(renderer):
 @pytest.mark.parametrize("offset", [1e6, -1e6])
 def test_scene_translated_one_million_units(renderer, offset):
     rng = np.random.default_rng(2)
-    means = rng.uniform(-1, 1, (300, 3))
     shift = np.array([offset, -offset, offset])
-    base = gaussians(means, rng.uniform(-4, -2, (300, 3)), logits=rng.normal(1, 1, 300))
-    eye, target = np.array([0.3, -0.2, -3.0]), np.zeros(3)
-    cam = front_camera(eye=eye, target=target)
+    # Float32 spacing at 1e6 is 0.0625: a scene 400 units wide keeps its shape there.
+    far_means = torch.as_tensor(rng.uniform(-200, 200, (300, 3)) + shift, dtype=torch.float32)
+    far = gaussians(far_means, rng.uniform(1.5, 2.7, (300, 3)), logits=rng.normal(1, 1, 300))
+    eye, target = np.array([60.0, -40.0, -600.0]), np.zeros(3)
     far_cam = front_camera(eye=eye + shift, target=target + shift)
-    far = gaussians(means + shift, base.log_scales, base.quats, base.opacity_logits, base.sh)
-    # Without normalisation: GL on float32 means 1e6 away vs torch in float64.
-    far64 = gaussians(means + shift, base.log_scales, base.quats, base.opacity_logits, base.sh, torch.float64)
-    rgb, alpha, ref_rgb, ref_alpha = gl_and_torch(renderer, far, far_cam, far64)
+    # Without normalisation: GL on the float32 model 1e6 away vs torch on the same values in
+    # float64 (the reference's own float32 path keeps t in float64 too).
+    rgb, alpha, ref_rgb, ref_alpha = gl_and_torch(renderer, far, far_cam, far.to(dtype=torch.float64))
     assert_matches(rgb, alpha, ref_rgb, ref_alpha, 0.2)
-    # With normalisation (the scene at the origin): the same picture. float32 spacing at 1e6
-    # is 0.0625, so the far model's means are rounded; compare at a matching tolerance.
-    rgb0, alpha0, ref_rgb0, ref_alpha0 = gl_and_torch(renderer, base, cam)
+    # With normalisation (the same model moved to the origin, exactly, in float64 first).
+    base = gaussians(far.means.double().numpy() - shift, far.log_scales, far.quats, far.opacity_logits, far.sh)
+    rgb0, alpha0, ref_rgb0, ref_alpha0 = gl_and_torch(renderer, base, front_camera(eye=eye, target=target))
     assert_matches(rgb0, alpha0, ref_rgb0, ref_alpha0, 0.2)
-    assert np.mean(np.abs(alpha - alpha0)) < 0.05
+    assert_matches(rgb, alpha, rgb0, alpha0)
 
 
 def test_one_by_one_image(renderer):
