@@ -20,8 +20,10 @@ binned (it contributes nothing) instead of spreading NaN over the whole image.
 
 from __future__ import annotations
 
+import contextlib
 import math
 
+import numba
 import numpy as np
 import torch
 from numba import njit, prange
@@ -164,15 +166,16 @@ def _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1):
 
 
 @njit(parallel=True, fastmath=False, cache=True)
-def _forward_kernel(params, values, rects, offsets, entries, width, height, tiles_x, image, final_t, walk):
+def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, height, tiles_x,
+                    image, final_t, walk):
     """Front-to-back blend per pixel.
 
     params [M, 7], values [M, C] (rows in depth order), rects [M, 4]. Writes image [H, W, C],
     final_t [H, W] (transmittance after the last Gaussian added) and walk [H, W] (how many
     entries of the tile list the backward must replay: up to the last one added)."""
-    n_tiles = offsets.shape[0] - 1
     channels = values.shape[1]
-    for t in prange(n_tiles):
+    for i in prange(tile_order.shape[0]):
+        t = tile_order[i]
         start = offsets[t]
         n = offsets[t + 1] - start
         if n == 0:
@@ -236,7 +239,7 @@ def _forward_kernel(params, values, rects, offsets, entries, width, height, tile
 
 
 @njit(parallel=True, fastmath=False, cache=True)
-def _backward_kernel(params, values, rects, offsets, entries, width, height, tiles_x, final_t, walk,
+def _backward_kernel(params, values, rects, offsets, entries, tile_order, width, height, tiles_x, final_t, walk,
                      grad_image, grad_alpha, entry_grads):
     """Back-to-front replay per pixel, writing d loss / d parameters per tile entry.
 
@@ -247,9 +250,9 @@ def _backward_kernel(params, values, rects, offsets, entries, width, height, til
         d image / d alpha_i = T_i v_i - S_i / (1 - alpha_i)
         d (1 - T_final) / d alpha_i = T_final / (1 - alpha_i)
     T_i is rebuilt from T_final by dividing by (1 - alpha), safe as alpha <= ALPHA_MAX < 1."""
-    n_tiles = offsets.shape[0] - 1
     channels = values.shape[1]
-    for t in prange(n_tiles):
+    for i in prange(tile_order.shape[0]):
+        t = tile_order[i]
         start = offsets[t]
         n = offsets[t + 1] - start
         if n == 0:
@@ -302,16 +305,16 @@ def _backward_kernel(params, values, rects, offsets, entries, width, height, til
                     alpha = min(ALPHA_MAX, raw)
                     if alpha < ALPHA_MIN:
                         continue
-                    keep = 1.0 - alpha
-                    before = trans[ly, lx] / keep  # transmittance in front of this Gaussian
+                    inv_keep = 1.0 / (1.0 - alpha)  # <= 1 / (1 - ALPHA_MAX) = 100
+                    before = trans[ly, lx] * inv_keep  # transmittance in front of this Gaussian
                     trans[ly, lx] = before
                     weight = before * alpha
-                    d_alpha = grad_alpha[y, x] * final_t[y, x] / keep
+                    d_alpha = grad_alpha[y, x] * final_t[y, x] * inv_keep
                     for ch in range(channels):
                         g = grad_image[y, x, ch]
                         v = values[r, ch]
                         grad_values[ch] += weight * g
-                        d_alpha += g * (before * v - behind[ly, lx, ch] / keep)
+                        d_alpha += g * (before * v - behind[ly, lx, ch] * inv_keep)
                         behind[ly, lx, ch] += weight * v
                     # min(ALPHA_MAX, raw) passes no gradient where it clamps (as torch.clamp).
                     if raw > ALPHA_MAX:
@@ -349,6 +352,28 @@ def _reduce_entry_grads(entries, entry_grads, n_rows):
 
 # --------------------------------------------------------------------------------------
 # torch glue
+
+
+def _busy_tiles_heaviest_first(offsets: np.ndarray) -> np.ndarray:
+    """Tiles holding at least one entry, most entries first (stable): [busy] int64.
+
+    With the dynamic chunks of _tile_scheduling this is longest-job-first scheduling, so a
+    scene whose Gaussians crowd one part of the image still keeps every thread busy (numba's
+    default hands each thread one contiguous block of tiles)."""
+    counts = np.diff(offsets)
+    order = np.argsort(-counts, kind="stable")
+    return np.ascontiguousarray(order[counts[order] > 0], dtype=np.int64)
+
+
+@contextlib.contextmanager
+def _tile_scheduling():
+    """Hand tiles to threads one at a time as they free up (a tile is ~1e4-1e6 operations,
+    far above the cost of taking the next one)."""
+    previous = numba.set_parallel_chunksize(1)
+    try:
+        yield
+    finally:
+        numba.set_parallel_chunksize(previous)
 
 
 def _as_f64(tensor: torch.Tensor) -> np.ndarray:
@@ -407,15 +432,18 @@ class _CompositeFunction(torch.autograd.Function):
         tiles_x = -(-width // TILE_SIZE)
         tiles_y = -(-height // TILE_SIZE)
         rects, offsets, entries = _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
+        tile_order = _busy_tiles_heaviest_first(offsets)
 
         image = np.zeros((height, width, channels), np.float64)
         final_t = np.ones((height, width), np.float64)
         walk = np.zeros((height, width), np.int64)
         if entries.shape[0] > 0:
-            _forward_kernel(params, values_sorted, rects, offsets, entries, width, height, tiles_x,
-                            image, final_t, walk)
+            with _tile_scheduling():
+                _forward_kernel(params, values_sorted, rects, offsets, entries, tile_order, width, height,
+                                tiles_x, image, final_t, walk)
 
-        ctx.state = (order, params, values_sorted, rects, offsets, entries, width, height, tiles_x, final_t, walk)
+        ctx.state = (order, params, values_sorted, rects, offsets, entries, tile_order, width, height, tiles_x,
+                     final_t, walk)
         ctx.input_dtypes = (means2d.dtype, conics.dtype, opacities.dtype, values.dtype)
         image_t = torch.from_numpy(image).to(device=device, dtype=dtype)
         alpha_t = torch.from_numpy(1.0 - final_t).unsqueeze(-1).to(device=device, dtype=dtype)
@@ -424,7 +452,8 @@ class _CompositeFunction(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_image, grad_alpha):
-        order, params, values_sorted, rects, offsets, entries, width, height, tiles_x, final_t, walk = ctx.state
+        (order, params, values_sorted, rects, offsets, entries, tile_order, width, height, tiles_x, final_t,
+         walk) = ctx.state
         m = params.shape[0]
         channels = values_sorted.shape[1]
         device = grad_image.device if grad_image is not None else grad_alpha.device
@@ -433,8 +462,9 @@ class _CompositeFunction(torch.autograd.Function):
 
         entry_grads = np.zeros((entries.shape[0], _GRAD_GEOMETRY_COLUMNS + channels), np.float64)
         if entries.shape[0] > 0:
-            _backward_kernel(params, values_sorted, rects, offsets, entries, width, height, tiles_x,
-                             final_t, walk, g_image, g_alpha, entry_grads)
+            with _tile_scheduling():
+                _backward_kernel(params, values_sorted, rects, offsets, entries, tile_order, width, height,
+                                 tiles_x, final_t, walk, g_image, g_alpha, entry_grads)
         per_row = _reduce_entry_grads(entries, entry_grads, m)
         # Rows are in depth order; scatter back to the caller's Gaussian order.
         grads = np.empty_like(per_row)

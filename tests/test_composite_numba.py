@@ -411,3 +411,14 @@ def test_matches_composite_torch_float32():
     assert image.dtype == ref_image.dtype == torch.float32
     assert_matches(image, ref_image, rtol=1e-4, atol=1e-5)
     assert_matches(alpha, ref_alpha, rtol=1e-4, atol=1e-5)
+
+
+def test_leaves_numba_chunk_size_as_it_was():
+    # The kernels schedule tiles dynamically; the caller's numba setting must survive a call.
+    previous = numba.set_parallel_chunksize(7)
+    try:
+        scene = random_gaussians(20, 20, 20, seed=40)
+        grads_of(run_numba, scene, 20, 20, seed=40)
+        assert numba.get_parallel_chunksize() == 7
+    finally:
+        numba.set_parallel_chunksize(previous)
