@@ -19,6 +19,8 @@ COMMANDS = {
     "demo-scene": "demo_scene",
     "render": "render",
     "train": "train",
+    "prior": "prior",
+    "generate": "generate",
     "eval": "evaluate",
     "report": "report",
     "demo": "demo",

@@ -1,0 +1,72 @@
+"""`inceptiongs prior` and `inceptiongs generate` end to end on a demo scene with a stand-in run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from inceptiongs.cli import main
+from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.gaussians import Gaussians
+from inceptiongs.ply import write_ply
+from inceptiongs.scene import load_scene
+from inceptiongs.train.config import TrainConfig
+from inceptiongs.train.run_folder import to_original_frame
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # Tiny workloads: on a busy 2-core machine two spinning OpenMP threads are much slower.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A run folder as stage I leaves it (config.json + model.ply), with Gaussians standing in
+    for a trained model: the demo scene's points as small isotropic splats."""
+    root = tmp_path_factory.mktemp("prior_cli")
+    scene_dir = write_demo_scene(root / "scene", progress=False)
+    config = TrainConfig(scene=str(scene_dir), downscale=4)
+    run = root / "run"
+    run.mkdir()
+    config.save(run / "config.json")
+    scene = load_scene(scene_dir, downscale=4)
+    points = torch.as_tensor(scene.points[::4], dtype=torch.float32)
+    n = points.shape[0]
+    colors = torch.as_tensor(scene.point_colors[::4], dtype=torch.float32) / 255.0
+    gaussians = Gaussians(points, torch.full((n, 3), -3.5), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).clone(),
+                          torch.full((n,), 2.0), ((colors - 0.5) / 0.28209479177387814)[:, None, :])
+    write_ply(to_original_frame(gaussians, scene.normalization), run / "model.ply")
+    return run
+
+
+@pytest.mark.slow
+def test_prior_then_generate(run_dir, tmp_path, capsys):
+    assert main(["prior", str(run_dir), "--steps", "2", "--patch-size", "16", "--batch-size", "2"]) == 0
+    assert (run_dir / "prior" / "prior.pt").is_file()
+    assert main(["prior", str(run_dir), "--steps", "1"]) == 0  # resumes
+    assert "resuming" in capsys.readouterr().out
+
+    scene = load_scene(TrainConfig.load(run_dir / "config.json").scene, downscale=4)
+    view = scene.cameras[0]
+    outputs = []
+    for name in ("a", "b"):
+        out = tmp_path / f"{name}.png"
+        assert main(["generate", str(run_dir), "--view", view.name, "--out", str(out), "--steps", "2",
+                     "--seed", "3", "--gbuffer-out", str(tmp_path / f"{name}.npy")]) == 0
+        import cv2
+        outputs.append(cv2.imread(str(out)))
+    assert outputs[0].shape == (view.height, view.width, 3)
+    assert np.array_equal(outputs[0], outputs[1])  # same seed, same image
+    gbuffer = np.load(tmp_path / "a.npy")
+    assert gbuffer.shape == (view.height, view.width, 12) and gbuffer[..., 3].max() > 0
+
+
+def test_generate_bad_inputs_exit_2(run_dir, tmp_path):
+    assert main(["generate", str(tmp_path), "--view", "x", "--out", str(tmp_path / "o.png")]) == 2
+    assert main(["generate", str(run_dir), "--view", "x", "--out", str(tmp_path / "o.jpg")]) == 2
+    assert main(["prior", str(run_dir), "--steps", "0"]) == 2
