@@ -171,8 +171,8 @@ def _multiview_terms(render_fn, gaussians: Gaussians, out: dict, view: int, data
     """Geometric and NCC terms against one random neighbour of ``view`` (may be empty)."""
     neighbours = data.neighbours.get(view, [])
     if not neighbours:
-        _log_once(state, f"no-neighbours-{view}",
-                  f"multi-view terms skipped for view {data.cameras[view].name}: no neighbour views", log)
+        _log_once(state, "no-neighbours", "multi-view terms skipped for views without neighbours "
+                  f"(first: {data.cameras[view].name})", log)
         return {}
     nb = neighbours[int(state.view_rng.integers(len(neighbours)))]
     ref_cam, nb_cam = data.cameras[view], data.cameras[nb]
@@ -255,6 +255,11 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     else:
         state = _new_state(scene, data, config, sh_max, log)
         (run_dir / "metrics.jsonl").unlink(missing_ok=True)
+        # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
+        initial_eval = evaluate(gaussians_from_params(state.params).detach(), scene, split, data)
+        if initial_eval:
+            append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
+                                     "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
     if config.pgsr and not any(data.neighbours.values()):
         _log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
 
