@@ -8,11 +8,16 @@ skip rules and stop rule read from :mod:`inceptiongs.constants`. Forward and bac
 
 Precision: whatever the input dtype, every kernel computes in float64 (inputs are cast once,
 O(M)); outputs and gradients are cast back to the input dtype. So float32 inputs give the
-float64 result rounded to float32, and the two dtypes take the same skip/stop decisions.
+float64 result of those (float32-rounded) inputs, rounded to float32: within 1e-4 of the float64
+reference in the tests, and unlike a float32 evaluation it does not lose needle-thin footprints
+whose power a*dx^2 + c*dy^2 + 2b*dx*dy cancels catastrophically in float32.
 
 Determinism: the backward writes one gradient row per (tile, Gaussian) entry, each owned by
 the single thread that handles the tile, and reduces the rows in a fixed order. Results do
-not depend on the number of threads.
+not depend on the number of threads or on which thread took which tile.
+
+Memory: O(pixels) per-pixel state plus O(entries) for the (tile, Gaussian) list and its
+gradient rows ((6 + C) float64 each); never pixels x Gaussians.
 
 Difference from the torch reference, by design: a Gaussian whose mean is not finite is never
 binned (it contributes nothing) instead of spreading NaN over the whole image.
