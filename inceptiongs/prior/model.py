@@ -85,9 +85,10 @@ class Prior(nn.Module):
     def device(self) -> torch.device:
         return self.hash_grid.tables[0].device
 
-    def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None) -> torch.Tensor:
-        """[4 + Z, H, W] (see gbuffer.render_gbuffer)."""
-        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop)
+    def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None,
+                features: torch.Tensor | None = None) -> torch.Tensor:
+        """[4 + Z, H, W] (see gbuffer.render_gbuffer; features from gaussian_features may be shared)."""
+        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features)
 
     def diffusion_loss(self, images: torch.Tensor, cond: torch.Tensor,
                        generator: torch.Generator | None = None) -> torch.Tensor:

@@ -22,6 +22,7 @@ from ..atomic import atomic_write_bytes
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
+from .gbuffer import gaussian_features
 from .model import Prior, PriorConfig
 
 CHECKPOINT_NAME = "prior.pt"
@@ -84,6 +85,8 @@ class PriorTrainer:
     def sample_batch(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""
         s = self.patch_size
+        gaussians = self.gaussians.to(self.prior.device).detach()
+        features = gaussian_features(gaussians, self.prior.hash_grid)  # once per step, shared by the patches
         photos, conds = [], []
         for _ in range(self.prior.config.batch_size):
             index = int(torch.randint(len(self.cameras), (1,), generator=self.generator))
@@ -91,7 +94,7 @@ class PriorTrainer:
             x0 = int(torch.randint(camera.width - s + 1, (1,), generator=self.generator))
             y0 = int(torch.randint(camera.height - s + 1, (1,), generator=self.generator))
             photos.append(self._image(index)[:, y0:y0 + s, x0:x0 + s])
-            conds.append(self.prior.gbuffer(self.gaussians, camera, crop=(x0, y0, s, s)))
+            conds.append(self.prior.gbuffer(gaussians, camera, crop=(x0, y0, s, s), features=features))
         device = self.prior.device
         return torch.stack(photos).to(device), torch.stack(conds)
 
