@@ -8,9 +8,11 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -80,6 +82,7 @@ class _StopAt:
             self.control.stop.set()
 
 
+@pytest.mark.slow
 def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path):
     config = _config(demo_scene)
     straight = train(config, tmp_path / "straight", progress=False)
@@ -102,6 +105,7 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path):
     assert evaluated == [0, 8, 16]
 
 
+@pytest.mark.slow
 def test_job_publishes_snapshots_and_stops_with_a_checkpoint(demo_scene, tmp_path):
     box = SnapshotBox()
     control = JobControl()
@@ -119,14 +123,13 @@ def test_job_publishes_snapshots_and_stops_with_a_checkpoint(demo_scene, tmp_pat
                     return
             time.sleep(0.01)
 
-    import threading
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
     job.run(box, control)
     watcher.join(5)
     with_model = [s for s in seen if s.gaussians is not None]
     assert with_model and set(with_model[0].gaussians) == {"means", "log_scales", "quats", "opacity_logits", "sh"}
-    assert isinstance(with_model[0].gaussians["means"], __import__("numpy").ndarray)
+    assert isinstance(with_model[0].gaussians["means"], np.ndarray)
     final = box.latest(0)
     assert "stopped" in final.message
     assert list_checkpoints(tmp_path / "job")[-1][0] == final.iteration < 1000
