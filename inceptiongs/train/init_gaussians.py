@@ -45,9 +45,16 @@ def mean_neighbour_distance(points: torch.Tensor, k: int = 3) -> torch.Tensor:
 
 
 def random_points_in_view(cameras: list[Camera], count: int, near: float, far: float,
-                          generator: np.random.Generator) -> np.ndarray:
-    """Points uniformly over random cameras' pixels at depths uniform in [near, far]: [count, 3]."""
+                          generator: np.random.Generator, pixel_sigma: float = 2.0
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Random points on random cameras' pixels, depth log-uniform in [near, far] (0 < near < far).
+
+    Returns (points [count, 3], scales [count]): each scale spans ``pixel_sigma`` pixels at
+    its depth in the camera it was drawn from, so the cloud covers the images without
+    Gaussians the size of the screen (which would also make every step slow).
+    """
     out = np.empty((count, 3))
+    scales = np.empty(count)
     which = generator.integers(0, len(cameras), size=count)
     for index, cam in enumerate(cameras):
         rows = np.nonzero(which == index)[0]
@@ -55,18 +62,22 @@ def random_points_in_view(cameras: list[Camera], count: int, near: float, far: f
             continue
         u = generator.uniform(0, cam.width, rows.size)
         v = generator.uniform(0, cam.height, rows.size)
-        z = generator.uniform(near, far, rows.size)
+        # Log-uniform: the unknown scene depth is equally likely at every order of magnitude.
+        z = np.exp(generator.uniform(math.log(near), math.log(far), rows.size))
         camera_points = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)
         c2w = cam.camera_to_world
         out[rows] = camera_points @ c2w[:3, :3].T + c2w[:3, 3]
-    return out
+        scales[rows] = pixel_sigma * z / max(cam.fx, cam.fy)
+    return out, scales
 
 
 def gaussians_from_points(points: np.ndarray, colors: np.ndarray | None, sh_degree: int,
-                          dtype=torch.float32) -> Gaussians:
-    """points: [P, 3]; colors: [P, 3] uint8 or None (grey) -> isotropic Gaussians.
+                          dtype=torch.float32, scales: np.ndarray | None = None) -> Gaussians:
+    """points: [P, 3]; colors: [P, 3] uint8 or None (grey); scales: [P] or None -> isotropic
+    Gaussians.
 
-    Scale = mean distance to the 3 nearest points (so the cloud starts hole-free), opacity
+    Scale = ``scales`` or the mean distance to the 3 nearest points (so the cloud starts
+    hole-free), opacity
     0.1, identity rotation, SH with all ``sh_degree`` bands allocated and the higher bands 0.
     """
     means = torch.as_tensor(np.asarray(points, np.float64), dtype=dtype)
@@ -75,7 +86,9 @@ def gaussians_from_points(points: np.ndarray, colors: np.ndarray | None, sh_degr
            else torch.as_tensor(np.asarray(colors), dtype=dtype) / 255.0)
     sh = torch.zeros(p, sh_coeff_count(sh_degree), 3, dtype=dtype)
     sh[:, 0] = (rgb - SH_OFFSET) / SH_C0
-    log_scales = torch.log(mean_neighbour_distance(means)).unsqueeze(1).repeat(1, 3)
+    distance = (mean_neighbour_distance(means) if scales is None
+                else torch.as_tensor(scales, dtype=means.dtype).clamp_min(_MIN_NEIGHBOUR_DISTANCE))
+    log_scales = torch.log(distance).unsqueeze(1).repeat(1, 3)
     quats = torch.zeros(p, 4, dtype=dtype)
     quats[:, 0] = 1.0
     opacity_logits = torch.full((p,), math.log(INITIAL_OPACITY / (1 - INITIAL_OPACITY)), dtype=dtype)
@@ -93,8 +106,8 @@ def initial_gaussians(cameras: list[Camera], points: np.ndarray, colors: np.ndar
                 f"initialised {len(points)} Gaussians from the sparse points")
     extent = scene_extent(cameras)
     rng = np.random.default_rng(seed)
-    # Without points the depth range is unknown: span from near the cameras to a few
-    # extents away, which covers a normalised scene centred in front of the cameras.
-    random_points = random_points_in_view(cameras, random_count, 0.1 * extent, 3.0 * extent, rng)
-    return (gaussians_from_points(random_points, None, sh_degree),
+    # Without points the depth range is unknown: forward-facing captures (LLFF) sit many
+    # camera-spreads away, object captures about one; cover both orders of magnitude.
+    random_points, scales = random_points_in_view(cameras, random_count, 0.3 * extent, 30.0 * extent, rng)
+    return (gaussians_from_points(random_points, None, sh_degree, scales=scales),
             f"scene has no sparse points: initialised {random_count} random Gaussians in the view volume")
