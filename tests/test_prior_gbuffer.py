@@ -7,7 +7,8 @@ import torch
 
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.prior.gbuffer import ALPHA_CHANNEL, FEATURES_START, NORMAL_CHANNELS, render_gbuffer
+from inceptiongs.prior.gbuffer import (ALPHA_CHANNEL, FEATURES_START, NORMAL_CHANNELS, crop_candidates,
+                                        gaussian_features, render_gbuffer)
 from inceptiongs.prior.hashgrid import HashGrid, HashGridConfig
 from inceptiongs.rasterize import render
 import pytest
@@ -85,3 +86,30 @@ def test_gradients_reach_the_hash_grid_not_the_gaussians():
     (gbuffer[FEATURES_START:] * torch.randn_like(gbuffer[FEATURES_START:])).sum().backward()
     assert all(float(table.grad.abs().sum()) > 0 for table in grid.tables)
     assert gaussians.means.grad is None
+
+
+def test_pre_cull_keeps_every_gaussian_that_touches_the_patch():
+    # A wide scene (centres behind, beside and in front of the camera, some large splats):
+    # the pre-culled G-buffer of a patch equals rendering every Gaussian into that patch.
+    g = torch.Generator().manual_seed(7)
+    n = 400
+    gaussians = Gaussians(
+        means=(torch.rand(n, 3, generator=g) * 2 - 1) * 3.0,
+        log_scales=torch.log(torch.rand(n, 3, generator=g) * 0.4 + 0.01),
+        quats=torch.randn(n, 4, generator=g),
+        opacity_logits=torch.randn(n, generator=g) * 3.0,
+        sh=torch.rand(n, 1, 3, generator=g),
+    )
+    camera = Camera("cam", 64, 48, 50.0, 50.0, 30.0, 26.0, look_at(np.array([0.0, 0.0, -3.5]), np.zeros(3)))
+    grid = HashGrid(GRID)
+    features = gaussian_features(gaussians, grid)
+    for crop in [(0, 0, 16, 16), (40, 30, 24, 18), (20, 10, 12, 20)]:
+        patch = camera.cropped(*crop)
+        kept = crop_candidates(gaussians, patch)
+        assert 0 < kept.numel() < n
+        culled = render_gbuffer(gaussians, camera, grid, crop=crop, features=features)
+        reference = render(gaussians, patch, outputs=("normal", "alpha", "features"), features=features)
+        visible = torch.nonzero(reference["radii"] > 0).squeeze(-1)
+        assert set(visible.tolist()) <= set(kept.tolist())
+        expected = torch.cat([reference["normal"], reference["alpha"], reference["features"]], -1).permute(2, 0, 1)
+        torch.testing.assert_close(culled, expected, rtol=1e-5, atol=1e-6)

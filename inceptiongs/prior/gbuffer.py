@@ -8,9 +8,13 @@ grid's tables; the Gaussians are detached by default so the prior does not move 
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..camera import Camera
+from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN, LOG_SCALE_MAX, LOG_SCALE_MIN,
+                         NEAR_PLANE)
 from ..gaussians import Gaussians
 from ..rasterize import render
 from .hashgrid import HashGrid
@@ -23,6 +27,43 @@ FEATURES_START = 4
 def gbuffer_channels(hash_grid: HashGrid) -> int:
     """3 (normal) + 1 (alpha) + Z (hash features)."""
     return FEATURES_START + hash_grid.num_features
+
+
+# Slack of the conservative pre-cull: a pixel of footprint and half the near plane, so float32
+# rounding inside the rasterizer can never keep a Gaussian that the pre-cull dropped.
+_CULL_SLACK_PX = 1.0
+_CULL_NEAR_FACTOR = 0.5
+
+
+def crop_candidates(gaussians: Gaussians, camera: Camera) -> torch.Tensor:
+    """Indices [M] of the Gaussians that can touch ``camera``'s image (a superset of those the
+    rasterizer keeps), so a small patch does not pay for projecting the whole scene.
+
+    Bound (the shared projection rules): the footprint half-extent along x is
+    sqrt(2 log(opacity / ALPHA_MIN) cov_xx) with cov_xx = |J_x W R S|^2 + DILATION_PX and
+    |J_x W R S| <= (fx / z) sqrt(1 + L_x^2) max(scale), L_x the frustum clamp limit on x / z;
+    opacity <= 1 bounds the log. Same along y.
+    """
+    means = gaussians.means.detach().to(torch.float64)
+    pose = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=means.device)
+    t = means @ pose[:3, :3].T + pose[:3, 3]
+    z = t[:, 2]
+    in_range = (z >= _CULL_NEAR_FACTOR * NEAR_PLANE) & (z <= FAR_PLANE)
+    z = torch.where(in_range, z, torch.ones_like(z))  # out-of-range rows are dropped; keep them finite
+    fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
+    limit_x = max(abs(cx / fx), abs((width - cx) / fx)) + (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
+    limit_y = max(abs(cy / fy), abs((height - cy) / fy)) + (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
+    max_scale = torch.exp(gaussians.log_scales.detach().to(torch.float64).clamp(LOG_SCALE_MIN, LOG_SCALE_MAX)
+                          .amax(dim=-1))
+    level = 2.0 * math.log(1.0 / ALPHA_MIN)
+    extent_x = torch.sqrt(level * ((fx / z) ** 2 * (1.0 + limit_x ** 2) * max_scale ** 2 + DILATION_PX))
+    extent_y = torch.sqrt(level * ((fy / z) ** 2 * (1.0 + limit_y ** 2) * max_scale ** 2 + DILATION_PX))
+    u = fx * t[:, 0] / z + cx
+    v = fy * t[:, 1] / z + cy
+    keep = in_range & torch.isfinite(u) & torch.isfinite(v)
+    keep &= (u + extent_x + _CULL_SLACK_PX > 0) & (u - extent_x - _CULL_SLACK_PX < width)
+    keep &= (v + extent_y + _CULL_SLACK_PX > 0) & (v - extent_y - _CULL_SLACK_PX < height)
+    return torch.nonzero(keep).squeeze(-1)
 
 
 def gaussian_features(gaussians: Gaussians, hash_grid: HashGrid) -> torch.Tensor:
@@ -50,6 +91,8 @@ def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
         gaussians = gaussians.detach()
     if features is None:
         features = gaussian_features(gaussians, hash_grid)
+    keep = crop_candidates(gaussians, camera)
+    gaussians, features = gaussians.subset(keep), features[keep]
     out = render(gaussians, camera, outputs=("normal", "alpha", "features"), features=features,
                  backend=backend)
     image = torch.cat([out["normal"], out["alpha"], out["features"]], dim=-1)  # [H, W, 4 + Z]
