@@ -343,15 +343,18 @@ def _backward_kernel(params, values, rects, offsets, entries, tile_order, width,
                 entry_grads[e, _GRAD_GEOMETRY_COLUMNS + ch] = grad_values[ch]
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def _reduce_entry_grads(entries, entry_grads, n_rows):
-    """Sum entry rows per Gaussian row: [E, K] -> [n_rows, K]. One thread per column, so no
-    two threads write the same cell, and the order of additions is fixed."""
+    """Sum entry rows per Gaussian row: [E, K] -> [n_rows, K], in entry order (deterministic).
+
+    One sequential pass reading whole rows: the sum is memory-bound, and a column-parallel
+    pass would stream the [E, K] table once per column."""
     columns = entry_grads.shape[1]
     out = np.zeros((n_rows, columns))
-    for k in prange(columns):
-        for e in range(entries.shape[0]):
-            out[entries[e], k] += entry_grads[e, k]
+    for e in range(entries.shape[0]):
+        r = entries[e]
+        for k in range(columns):
+            out[r, k] += entry_grads[e, k]
     return out
 
 
