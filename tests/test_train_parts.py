@@ -35,7 +35,8 @@ def test_config_round_trip_and_bad_files(tmp_path):
 
 def test_short_schedule_keeps_milestone_fractions():
     config = short_run_schedule(TrainConfig(iterations=3000))
-    assert config.densify_until == 1500 and config.normal_from == 700 and config.opacity_reset_every == 300
+    assert config.densify_until == 1500 and config.normal_from == 700 and config.opacity_reset_every == 750
+    assert config.densify_from == 100 and config.densify_every == 25
     assert short_run_schedule(TrainConfig(iterations=30_000)) == TrainConfig(iterations=30_000)
 
 

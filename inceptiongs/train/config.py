@@ -132,10 +132,15 @@ def short_run_schedule(config: TrainConfig) -> TrainConfig:
     scaled = lambda value, floor: max(floor, int(round(value * fraction)))  # noqa: E731
     return dataclasses.replace(
         config,
-        densify_from=scaled(config.densify_from, 1 if config.iterations < 50 else 20),
+        # Densifying before the first photometric fit has settled clones nearly everything
+        # (every gradient is large at the start): wait a tenth of the run, at most 100 steps,
+        # and average the gradients over at least 25 views.
+        densify_from=scaled(config.densify_from, min(100, config.iterations // 10)),
         densify_until=scaled(config.densify_until, 2),
-        densify_every=scaled(config.densify_every, 10),
-        opacity_reset_every=scaled(config.opacity_reset_every, 50),
+        densify_every=scaled(config.densify_every, min(25, max(1, config.iterations // 20))),
+        # Opacities need tens of steps to recover from a reset: never reset more than
+        # about once within the densification window of a short run.
+        opacity_reset_every=scaled(config.opacity_reset_every, max(50, config.iterations // 4)),
         sh_increase_every=scaled(config.sh_increase_every, 10),
         normal_from=scaled(config.normal_from, 1),
         multiview_from=scaled(config.multiview_from, 1),
