@@ -50,7 +50,7 @@ class TrainConfig:
     densify_grad_threshold: float = 2e-4   # |d loss / d mean2d| in NDC units, averaged over views
     percent_dense: float = 0.01            # clone below, split above this fraction of the extent
     prune_opacity: float = 0.005
-    prune_screen_radius: float = 20.0 * 4  # pixels (after the first opacity reset)
+    prune_screen_radius: float = 20.0      # pixels (after the first opacity reset)
     prune_world_fraction: float = 0.1      # of the extent
     opacity_reset_every: int = 3_000
     max_gaussians: int = 2_000_000

@@ -30,17 +30,19 @@ class TrainJob:
     def run(self, box: SnapshotBox, control: JobControl) -> None:
         from .trainer import train
 
-        def publish(iteration, gaussians, metrics) -> None:
+        latest_iteration = 0
+
+        def publish(iteration: int, gaussians, metrics: dict) -> None:
+            nonlocal latest_iteration
+            latest_iteration = iteration
             # numpy() copies on this thread, so the viewer never sees tensors being updated.
             box.publish(iteration, gaussians.numpy(), metrics)
 
         def log(message: str) -> None:
-            box.publish(box_iteration[0], None, {}, message)
+            box.publish(latest_iteration, None, {}, message)
 
-        box_iteration = [0]
         result = train(self.config, self.run_dir, resume=self.resume, progress=False, control=control,
-                       on_snapshot=lambda i, g, m: (box_iteration.__setitem__(0, i), publish(i, g, m)),
-                       snapshot_every=self.snapshot_every, log=log)
+                       on_snapshot=publish, snapshot_every=self.snapshot_every, log=log)
         state = "finished" if result.finished else "stopped (checkpoint written)"
-        box.publish(result.iteration, None, dict(result.last_eval), f"training {state} at iteration "
-                    f"{result.iteration}")
+        box.publish(result.iteration, None, dict(result.last_eval),
+                    f"training {state} at iteration {result.iteration}")

@@ -10,7 +10,6 @@ multi-view terms, steps Adam, and densifies on schedule.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import sys
 import time
