@@ -167,6 +167,7 @@ def test_render_cli_gl_matches_torch_and_writes_png(tmp_path):
     assert main(["render", str(model_path), "--view", "anything", "--out", str(png)]) == 2
 
 
+@pytest.mark.slow
 def test_render_cli_view_from_a_scene(tmp_path):
     from inceptiongs.cli import main
     from inceptiongs.demo_scene import write_demo_scene

@@ -148,6 +148,7 @@ def test_one_by_one_image(renderer):
     assert_matches(*gl_and_torch(renderer, model, front_camera(1, 1)), 1.0)
 
 
+@pytest.mark.slow
 def test_4096_squared_image_matches_torch_on_a_window(renderer):
     from inceptiongs.rasterize import render
     rng = np.random.default_rng(4)
