@@ -1,5 +1,5 @@
 // One vertex per Gaussian, run with transform feedback (rasterizer discarded): EWA projection,
-// footprint, SH colour / depth / normal. Writes three vec4 per Gaussian that the draw pass
+// footprint, SH colour / depth / normal. Writes four vec4 per Gaussian that the draw pass
 // reads. Rules and constants are those of the torch rasterizer (inceptiongs/constants.py,
 // injected as #defines); a culled Gaussian gets opacity 0 and the draw pass collapses it.
 
