@@ -22,7 +22,7 @@ from ..atomic import atomic_write_bytes
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
-from .gbuffer import gaussian_features
+from .gbuffer import crop_candidates, gaussian_features, render_gbuffer
 from .model import Prior, PriorConfig
 
 CHECKPOINT_NAME = "prior.pt"
@@ -86,17 +86,23 @@ class PriorTrainer:
         """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""
         s = self.patch_size
         gaussians = self.gaussians.to(self.prior.device).detach()
-        features = gaussian_features(gaussians, self.prior.hash_grid)  # once per step, shared by the patches
-        photos, conds = [], []
+        photos, patch_cameras = [], []
         for _ in range(self.prior.config.batch_size):
             index = int(torch.randint(len(self.cameras), (1,), generator=self.generator))
             camera = self.cameras[index]
             x0 = int(torch.randint(camera.width - s + 1, (1,), generator=self.generator))
             y0 = int(torch.randint(camera.height - s + 1, (1,), generator=self.generator))
             photos.append(self._image(index)[:, y0:y0 + s, x0:x0 + s])
-            conds.append(self.prior.gbuffer(gaussians, camera, crop=(x0, y0, s, s), features=features))
-        device = self.prior.device
-        return torch.stack(photos).to(device), torch.stack(conds)
+            patch_cameras.append(camera.cropped(x0, y0, s, s))
+        # The hash lookup is the costly part for big scenes: do it once per step, only for the
+        # Gaussians some patch can see, and share it between the patches.
+        candidates = [crop_candidates(gaussians, patch) for patch in patch_cameras]
+        union = torch.unique(torch.cat(candidates))  # sorted
+        features = gaussian_features(gaussians.subset(union), self.prior.hash_grid)
+        conds = [render_gbuffer(gaussians.subset(keep), patch, self.prior.hash_grid,
+                                features=features[torch.searchsorted(union, keep)])
+                 for keep, patch in zip(candidates, patch_cameras)]
+        return torch.stack(photos).to(self.prior.device), torch.stack(conds)
 
     def step(self) -> float:
         """One Adam step; returns the batch's diffusion loss."""
