@@ -58,7 +58,7 @@ def _pixel_range(mean: float, extent: float, size: int) -> tuple[int, int]:
     mean +- extent, clamped to [0, size - 1]; lo > hi when it misses the image.
 
     Widened by one pixel on each side so float rounding can never drop a covered pixel
-    (extra pixels are harmless: the per-pixel alpha test decides). A non-finite extent
+    (extra pixels are harmless: the per-pixel alpha test decides). A NaN, infinite or negative extent
     covers the whole axis, which is always correct."""
     if not (extent >= 0.0 and extent < math.inf):
         return 0, size - 1
