@@ -169,7 +169,7 @@ def test_result_does_not_depend_on_extents_beyond_the_footprint():
     width, height = 40, 35
     scene = random_gaussians(60, width, height, seed=6)
     tight_image, tight_alpha = run_numba(scene, width, height)
-    for huge in (1e6, 1e30, math.inf, math.nan):
+    for huge in (1e6, 1e30, math.inf, math.nan, -1.0):  # invalid ones cover the whole image
         loose = dict(scene, extents=torch.full_like(scene["extents"], huge))
         image, alpha = run_numba(loose, width, height)
         # Same per-tile lists in the same depth order over the covered pixels: bit-identical.
