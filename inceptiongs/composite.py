@@ -8,28 +8,38 @@ Implements the composite contract of docs/design.md exactly:
     TRANSMITTANCE_MIN the pixel is finished; image = sum T_i alpha_i values_i, alpha = 1 - T.
 
 How it is vectorised: every (tile, Gaussian) pair the footprint boxes touch is listed and
-sorted by (tile, depth rank). Tiles are ordered by how many Gaussians they hold, most first,
-so in "round" r (the r-th chunk of CHUNK Gaussians of every tile) the tiles still busy are a
-prefix of that order. A round evaluates [tiles, TILE_SIZE^2 pixels, CHUNK] alphas, turns them
-into transmittances with a cumulative product and carries T and a "finished" flag into the
-next round. The stop rule is a mask on the cumulative product: T after a Gaussian only
-decreases, so "T (1 - alpha) >= TRANSMITTANCE_MIN" holds on a prefix, exactly the Gaussians
-the sequential loop would add. Memory is bounded by PIXEL_PAIR_BUDGET per step, and under
-autograd each step is checkpointed (recomputed in the backward pass) so saved activations
-do not grow with the number of pairs. Gradients are plain autograd: exact.
+sorted by (tile, depth rank). Each tile's list is consumed in rounds of ROUND_GAUSSIANS.
+Within a round, the tiles (ordered by how many Gaussians they hold, most first) are
+processed in steps, each padded to its first tile's count, so a step evaluates a
+[tiles, TILE_SIZE^2 pixels, K] block of alphas with at most PIXEL_PAIR_BUDGET entries.
+Alphas become transmittances through a cumulative product. The stop rule is a mask on that
+product: T after a Gaussian only decreases, so "T (1 - alpha) >= TRANSMITTANCE_MIN" holds
+on a prefix, exactly the Gaussians the sequential loop would add. T and a per-pixel
+"finished" flag carry from round to round, and a tile whose pixels are all finished drops
+out. Under autograd, large images checkpoint each step (recompute it in the backward pass)
+so saved activations do not grow with the number of pairs. Gradients are plain autograd:
+exact.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch.utils.checkpoint import checkpoint
 
 from .constants import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
 
-# Gaussians per tile evaluated in one step; more per tile are handled in further rounds.
-CHUNK = 64
 # Upper bound on (pixel, Gaussian) evaluations held at once (~ tens of MB per saved tensor).
+# A tile with more than PIXEL_PAIR_BUDGET / TILE_SIZE^2 Gaussians is handled in rounds.
 PIXEL_PAIR_BUDGET = 1 << 21
+# Gaussians per tile handled in one round; after each round, tiles whose pixels have all
+# reached the stop rule drop out (dense scenes saturate long before their lists end).
+ROUND_GAUSSIANS = 128
+# Above this many (pixel, Gaussian) evaluations per image, steps are checkpointed.
+CHECKPOINT_ABOVE = 1 << 23
+# min(ALPHA_MAX, x) applied in log space.
+LOG_ALPHA_MAX = math.log(ALPHA_MAX)
 
 
 def composite(means2d, conics, opacities, values, depths, extents, width: int, height: int,
@@ -128,42 +138,48 @@ def _composite_busy_tiles(tile_ids, gaussian_ids, tile_counts, tiles_x, means2d,
     busy_tiles = busy_order[:busy_count]  # [B], most crowded first
     counts = tile_counts[busy_tiles]
     starts = torch.cumsum(tile_counts, 0)[busy_tiles] - counts  # first pair of each busy tile
-
-    # Pixel centres of each busy tile: [B, pixels, 2].
-    local = torch.arange(pixels, device=device)
-    offsets = torch.stack([local % TILE_SIZE, local // TILE_SIZE], -1).to(dtype) + 0.5
     corners = torch.stack([busy_tiles % tiles_x, busy_tiles // tiles_x], -1).to(dtype) * TILE_SIZE
-    pixel_xy = corners[:, None, :] + offsets[None]
 
-    # Row M of the padded parameter table is a dummy with opacity 0: padding slots never add.
+    # Row M of the parameter tables pads short rows: opacity below ALPHA_MIN, so its alpha
+    # (<= opacity) is always skipped, and its log is finite (no NaN in any gradient).
     table_means = torch.cat([means2d, means2d.new_zeros(1, 2)])
     table_conics = torch.cat([conics, conics.new_zeros(1, 3)])
-    table_opacities = torch.cat([opacities, opacities.new_zeros(1)])
+    table_opacities = torch.cat([opacities, opacities.new_full((1,), 0.5 * ALPHA_MIN)])
     table_values = torch.cat([values, values.new_zeros(1, values.shape[1])])
     pad_id = means2d.shape[0]
+    last_pair = gaussian_ids.numel() - 1
 
     counts_host = counts.tolist()
-    n_rounds = -(-counts_host[0] // CHUNK)
+    per_round = max(1, min(ROUND_GAUSSIANS, PIXEL_PAIR_BUDGET // pixels))  # per tile and round
+    total_work = sum(counts_host) * pixels
+    # Recomputing in the backward pass costs a second forward; only worth it when keeping
+    # every step's activations would take real memory.
+    use_checkpoint = total_work > CHECKPOINT_ABOVE and torch.is_grad_enabled() and any(
+        t.requires_grad for t in (means2d, conics, opacities, values))
     transmittance = torch.ones(busy_count, pixels, dtype=dtype, device=device)
     finished = torch.zeros(busy_count, pixels, dtype=torch.bool, device=device)
-    round_images, round_trans, round_active = [], [], []
-    chunk_slots = torch.arange(CHUNK, device=device)
-    use_checkpoint = torch.is_grad_enabled() and any(
-        t.requires_grad for t in (means2d, conics, opacities, values))
-    rows_per_step = max(1, PIXEL_PAIR_BUDGET // (pixels * CHUNK))
-    for r in range(n_rounds):
-        # Tiles still holding Gaussians at this round: a prefix, since counts are descending.
-        active = _count_greater(counts_host, r * CHUNK)
-        slot = r * CHUNK + chunk_slots  # [CHUNK]
-        valid = slot[None, :] < counts[:active, None]
-        pair = torch.where(valid, starts[:active, None] + slot[None, :], torch.zeros_like(valid, dtype=torch.int64))
-        ids = torch.where(valid, gaussian_ids[pair], torch.full_like(pair, pad_id))  # [active, CHUNK]
-
+    image = torch.zeros(busy_count, pixels, values.shape[1], dtype=dtype, device=device)
+    for first in range(0, counts_host[0], per_round):
+        # Tiles with Gaussians left in this round (a prefix: counts are descending) whose
+        # pixels are not all finished; a finished tile skips the rest of its list.
+        candidates = _count_greater(counts_host, first)
+        alive = torch.nonzero(~finished[:candidates].all(-1)).squeeze(-1)  # ascending
+        if alive.numel() == 0:
+            break
+        alive_counts = counts[alive].tolist()
         images, trans_list, finished_list = [], [], []
-        for row0 in range(0, active, rows_per_step):
-            row1 = min(active, row0 + rows_per_step)
-            args = (pixel_xy[row0:row1], ids[row0:row1], transmittance[row0:row1],
-                    finished[row0:row1], table_means, table_conics, table_opacities, table_values)
+        row0 = 0
+        while row0 < len(alive_counts):
+            # Rows are padded to the first (largest) row's count, so each step's padding is small.
+            k = min(per_round, alive_counts[row0] - first)
+            row1 = min(len(alive_counts), row0 + max(1, PIXEL_PAIR_BUDGET // (pixels * k)))
+            rows = alive[row0:row1]
+            slot = first + torch.arange(k, device=device)  # [k]
+            valid = slot[None, :] < counts[rows, None]
+            pair = torch.clamp_max(starts[rows, None] + slot[None, :], last_pair)
+            ids = torch.where(valid, gaussian_ids[pair], torch.full_like(pair, pad_id))  # [rows, k]
+            args = (corners[rows], ids, transmittance[rows], finished[rows],
+                    table_means, table_conics, table_opacities, table_values)
             if use_checkpoint:
                 out = checkpoint(_composite_chunk, *args, use_reentrant=False)
             else:
@@ -171,20 +187,11 @@ def _composite_busy_tiles(tile_ids, gaussian_ids, tile_counts, tiles_x, means2d,
             images.append(out[0])
             trans_list.append(out[1])
             finished_list.append(out[2])
-        round_images.append(torch.cat(images))
-        transmittance = torch.cat(trans_list)
-        finished = torch.cat(finished_list)
-        round_trans.append(transmittance)
-        round_active.append(active)
-
-    # Sum each tile's rounds, last round first: round r covers tiles [0, active_r).
-    image = round_images[-1]
-    trans_final = round_trans[-1]
-    for r in range(n_rounds - 2, -1, -1):
-        done_here = round_active[r + 1]
-        image = torch.cat([round_images[r][:done_here] + image, round_images[r][done_here:]])
-        trans_final = torch.cat([trans_final, round_trans[r][done_here:]])
-    return busy_tiles, image, trans_final
+            row0 = row1
+        image = image.index_add(0, alive, torch.cat(images))
+        transmittance = transmittance.index_put((alive,), torch.cat(trans_list))
+        finished = finished.index_put((alive,), torch.cat(finished_list))
+    return busy_tiles, image, transmittance
 
 
 def _count_greater(descending: list[int], threshold: int) -> int:
@@ -199,32 +206,41 @@ def _count_greater(descending: list[int], threshold: int) -> int:
     return lo
 
 
-def _composite_chunk(pixel_xy, ids, transmittance, finished, table_means, table_conics,
+def _composite_chunk(corners, ids, transmittance, finished, table_means, table_conics,
                      table_opacities, table_values):
-    """One step: rows of up to CHUNK depth-sorted Gaussians over their tile's pixels.
+    """One step: rows of K depth-sorted Gaussians over their tile's pixels.
 
-    pixel_xy [R, P, 2], ids [R, K] (rows into the tables), transmittance [R, P] and
-    finished [R, P] on entry -> (image [R, P, C], transmittance [R, P], finished [R, P]).
+    corners [R, 2] (tile's top-left pixel corner), ids [R, K] (rows into the tables),
+    transmittance [R, P] and finished [R, P] on entry (P = TILE_SIZE^2, row-major)
+    -> (image [R, P, C], transmittance [R, P], finished [R, P]).
+
+    The power is separable over the tile's pixel grid: 0.5 a dx^2 depends on the column only
+    and 0.5 c dy^2 on the row only, so only the cross term b dx dy needs a full
+    [R, rows, cols, K] product; this keeps the number of full-size passes low.
     """
+    rows, k = ids.shape
     mean = table_means[ids]  # [R, K, 2]
     conic = table_conics[ids]  # [R, K, 3]
-    dx = pixel_xy[:, :, None, 0] - mean[:, None, :, 0]  # [R, P, K]
-    dy = pixel_xy[:, :, None, 1] - mean[:, None, :, 1]
-    a, b, c = conic[:, None, :, 0], conic[:, None, :, 1], conic[:, None, :, 2]
-    power = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
-    negative = power < 0
-    # exp(-power) of a negative power can overflow; those pixels are skipped anyway and the
-    # zeroed power keeps the discarded branch (and its gradient) finite.
-    power = torch.where(negative, torch.zeros_like(power), power)
-    alpha = torch.clamp_max(table_opacities[ids][:, None, :] * torch.exp(-power), ALPHA_MAX)
-    skip = negative | (alpha < ALPHA_MIN)
-    alpha = torch.where(skip, torch.zeros_like(alpha), alpha)
+    centres = torch.arange(TILE_SIZE, dtype=mean.dtype, device=mean.device) + 0.5  # [S]
+    dx = corners[:, 0, None, None] + centres[None, :, None] - mean[:, None, :, 0]  # [R, S cols, K]
+    dy = corners[:, 1, None, None] + centres[None, :, None] - mean[:, None, :, 1]  # [R, S rows, K]
+    half_a_dx2 = 0.5 * conic[:, None, :, 0] * dx * dx
+    half_c_dy2 = 0.5 * conic[:, None, :, 2] * dy * dy
+    b_dy = conic[:, None, :, 1] * dy
+    power = torch.addcmul(half_c_dy2[:, :, None, :] + half_a_dx2[:, None, :, :],
+                          b_dy[:, :, None, :], dx[:, None, :, :]).reshape(rows, -1, k)  # [R, P, K]
+
+    # alpha = min(ALPHA_MAX, opacity exp(-power)) as one exp of a clamped log; the clamp also
+    # keeps a (skipped) negative power from overflowing exp.
+    log_opacity = torch.log(table_opacities[ids])[:, None, :]  # opacities > 0
+    alpha = torch.exp(torch.clamp_max(log_opacity - power, LOG_ALPHA_MAX))
+    alpha = torch.where((alpha >= ALPHA_MIN) & (power >= 0), alpha, 0.0)  # the skip rule
 
     # T after each Gaussian; 1 - alpha >= 1 - ALPHA_MAX > 0, so the product never hits 0 early.
     after = transmittance[:, :, None] * torch.cumprod(1.0 - alpha, dim=-1)
     added = (after >= TRANSMITTANCE_MIN) & ~finished[:, :, None]
     before = torch.cat([transmittance[:, :, None], after[:, :, :-1]], dim=-1)
-    weights = torch.where(added, before * alpha, torch.zeros_like(alpha))  # [R, P, K]
+    weights = torch.where(added, before * alpha, 0.0)  # [R, P, K]
     image = torch.bmm(weights, table_values[ids])  # [R, P, C]
 
     # The prefix property makes "number added" index the last added Gaussian's T.

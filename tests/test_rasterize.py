@@ -134,16 +134,62 @@ def test_result_does_not_depend_on_generous_extents():
 
 
 def test_many_gaussians_per_tile_and_small_memory_budget(monkeypatch):
-    """More Gaussians per tile than one chunk (several rounds) and a budget of one tile row per
-    step give the same image as the brute force."""
-    monkeypatch.setattr(composite_module, "CHUNK", 8)
+    """Rounds of 5 Gaussians per tile and steps of one tile (T and the finished flag carried
+    between rounds) give the brute-force image."""
     monkeypatch.setattr(composite_module, "PIXEL_PAIR_BUDGET", 16 * 16 * 8)
+    monkeypatch.setattr(composite_module, "ROUND_GAUSSIANS", 5)
     g = _with_opaque_stack(random_gaussians(n=60, degree=0, seed=7, log_scale=-1.8))
     camera = make_camera(36, 20)
     out = render(g, camera, outputs=("rgb", "alpha"), backend="torch")
     ref = brute_force_render(g, camera)
     for name in ("rgb", "alpha"):
         np.testing.assert_allclose(out[name].numpy(), ref[name], atol=1e-5, err_msg=name)
+
+
+def test_saturated_tiles_drop_out_without_changing_the_image(monkeypatch):
+    """An opaque wall in front of many small Gaussians: every pixel reaches the stop rule in
+    the first rounds, tiles drop out, and the result still equals the brute force (which
+    never sees the hidden Gaussians either)."""
+    monkeypatch.setattr(composite_module, "ROUND_GAUSSIANS", 4)
+    camera = make_camera(32, 32)
+    wall = Gaussians(
+        means=torch.tensor([[0.0, 0.0, -1.8 + 0.05 * i] for i in range(4)], dtype=torch.float64),
+        log_scales=torch.full((4, 3), 1.5, dtype=torch.float64),
+        quats=torch.tensor([[1.0, 0, 0, 0]] * 4, dtype=torch.float64),
+        opacity_logits=torch.full((4,), 10.0, dtype=torch.float64),
+        sh=0.3 * torch.ones(4, 1, 3, dtype=torch.float64),
+    )
+    hidden = random_gaussians(n=40, degree=0, seed=15, log_scale=-1.5)
+    g = Gaussians(**{k: torch.cat([getattr(wall, k), getattr(hidden, k)]) for k in wall.tensors()})
+    out = render(g, camera, outputs=("rgb", "alpha", "depth"), backend="torch")
+    ref = brute_force_render(g, camera)
+    for name in ("rgb", "alpha", "depth"):
+        np.testing.assert_allclose(out[name].numpy(), ref[name], atol=1e-5, err_msg=name)
+    # Every pixel stopped inside the wall: the hidden Gaussians add nothing anywhere.
+    wall_only = render(wall, camera, outputs=("rgb", "alpha"), backend="torch")
+    for name in ("rgb", "alpha"):
+        np.testing.assert_allclose(out[name].numpy(), wall_only[name].numpy(), atol=1e-12, err_msg=name)
+
+
+def test_checkpointed_steps_give_the_same_gradients(monkeypatch):
+    """Large images recompute steps in the backward pass; gradients must not change."""
+    g = _with_opaque_stack(random_gaussians(n=30, degree=1, seed=8))
+    camera = make_camera(40, 30)
+
+    def gradients():
+        params = {k: v.clone().requires_grad_(True) for k, v in g.tensors().items()}
+        out = render(Gaussians(**params), camera, outputs=("rgb", "depth", "alpha"), backend="torch")
+        (out["rgb"].sum() + out["depth"].sum() + out["alpha"].square().sum()).backward()
+        return {k: p.grad for k, p in params.items()}
+
+    monkeypatch.setattr(composite_module, "PIXEL_PAIR_BUDGET", 16 * 16 * 16)
+    monkeypatch.setattr(composite_module, "CHECKPOINT_ABOVE", 1 << 40)
+    plain = gradients()
+    monkeypatch.setattr(composite_module, "CHECKPOINT_ABOVE", 0)
+    checkpointed = gradients()
+    for name in plain:
+        assert float(plain[name].abs().max()) > 0, name
+        np.testing.assert_allclose(checkpointed[name].numpy(), plain[name].numpy(), atol=1e-12, err_msg=name)
 
 
 def test_equal_depths_blend_in_index_order():
