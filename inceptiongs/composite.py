@@ -2,7 +2,8 @@
 
 Implements the composite contract of docs/design.md exactly:
 
-    power = 0.5 (a dx^2 + c dy^2) + b dx dy at pixel centres (i + 0.5, j + 0.5);
+    power = 0.5 (a dx^2 + c dy^2) + b dx dy at pixel centres (i + 0.5, j + 0.5) (evaluated
+    in a square-completed form that cannot round below zero: see _composite_chunk);
     alpha = min(ALPHA_MAX, opacity exp(-power)), skipped when power < 0 or alpha < ALPHA_MIN;
     Gaussians in ascending depth (ties by index); before adding one, if T (1 - alpha) <
     TRANSMITTANCE_MIN the pixel is finished; image = sum T_i alpha_i values_i, alpha = 1 - T.
@@ -143,7 +144,7 @@ def _composite_busy_tiles(tile_ids, gaussian_ids, tile_counts, tiles_x, means2d,
     # Row M of the parameter tables pads short rows: opacity below ALPHA_MIN, so its alpha
     # (<= opacity) is always skipped, and its log is finite (no NaN in any gradient).
     table_means = torch.cat([means2d, means2d.new_zeros(1, 2)])
-    table_conics = torch.cat([conics, conics.new_zeros(1, 3)])
+    table_conics = torch.cat([conics, conics.new_tensor([[1.0, 0.0, 1.0]])])
     table_opacities = torch.cat([opacities, opacities.new_full((1,), 0.5 * ALPHA_MIN)])
     table_values = torch.cat([values, values.new_zeros(1, values.shape[1])])
     pad_id = means2d.shape[0]
@@ -214,27 +215,48 @@ def _composite_chunk(corners, ids, transmittance, finished, table_means, table_c
     transmittance [R, P] and finished [R, P] on entry (P = TILE_SIZE^2, row-major)
     -> (image [R, P, C], transmittance [R, P], finished [R, P]).
 
-    The power is separable over the tile's pixel grid: 0.5 a dx^2 depends on the column only
-    and 0.5 c dy^2 on the row only, so only the cross term b dx dy needs a full
-    [R, rows, cols, K] product; this keeps the number of full-size passes low.
+    The power is evaluated with the square completed on the larger diagonal entry of the
+    conic (here a >= c; otherwise x and y swap roles):
+
+        power = 0.5 a (dx + (b / a) dy)^2 + 0.5 max(c - b^2 / a, 0) dy^2.
+
+    Mathematically this equals 0.5 (a dx^2 + c dy^2) + b dx dy; numerically it cannot go
+    negative. The expanded form cancels catastrophically in float32 for needle-like
+    Gaussians (a nearly singular conic) and turns slightly negative along the needle, where
+    the contract's "power < 0 -> skip" rule would then drop the Gaussian exactly where it is
+    densest. For the positive-definite conics the projection produces, the two forms differ
+    only by rounding; a conic with no positive diagonal entry is skipped. Since |b / pivot| <= 1
+    for a positive-definite conic, the form is also well conditioned for gradients.
+
+    The tile's pixel grid makes everything except two [R, rows, cols, K] passes depend on the
+    row or the column only, which keeps the number of full-size passes low.
     """
     rows, k = ids.shape
     mean = table_means[ids]  # [R, K, 2]
-    conic = table_conics[ids]  # [R, K, 3]
+    a, b, c = table_conics[ids].unbind(-1)  # [R, K] each
+    x_pivot = a >= c
+    pivot = torch.where(x_pivot, a, c)
+    valid = pivot > 0
+    safe_pivot = torch.where(valid, pivot, torch.ones_like(pivot))
+    ratio = b / safe_pivot  # |ratio| <= 1 for positive-definite conics
+    remainder = torch.clamp_min(torch.where(x_pivot, c, a) - b * ratio, 0.0)
+    ones, zeros = torch.ones_like(ratio), torch.zeros_like(ratio)
+    # u = p_x dx + p_y dy with (p_x, p_y) = (1, ratio) or (ratio, 1); the remainder multiplies
+    # dy^2 (x pivot) or dx^2 (y pivot).
+    p_x, p_y = torch.where(x_pivot, ones, ratio), torch.where(x_pivot, ratio, ones)
+    rem_x, rem_y = torch.where(x_pivot, zeros, remainder), torch.where(x_pivot, remainder, zeros)
+
     centres = torch.arange(TILE_SIZE, dtype=mean.dtype, device=mean.device) + 0.5  # [S]
     dx = corners[:, 0, None, None] + centres[None, :, None] - mean[:, None, :, 0]  # [R, S cols, K]
     dy = corners[:, 1, None, None] + centres[None, :, None] - mean[:, None, :, 1]  # [R, S rows, K]
-    half_a_dx2 = 0.5 * conic[:, None, :, 0] * dx * dx
-    half_c_dy2 = 0.5 * conic[:, None, :, 2] * dy * dy
-    b_dy = conic[:, None, :, 1] * dy
-    power = torch.addcmul(half_c_dy2[:, :, None, :] + half_a_dx2[:, None, :, :],
-                          b_dy[:, :, None, :], dx[:, None, :, :]).reshape(rows, -1, k)  # [R, P, K]
+    u = (p_x[:, None] * dx)[:, None, :, :] + (p_y[:, None] * dy)[:, :, None, :]  # [R, rows, cols, K]
+    rest = (0.5 * rem_x[:, None] * dx * dx)[:, None, :, :] + (0.5 * rem_y[:, None] * dy * dy)[:, :, None, :]
+    power = torch.addcmul(rest, (0.5 * safe_pivot)[:, None, None, :], u * u).reshape(rows, -1, k)  # [R, P, K]
 
-    # alpha = min(ALPHA_MAX, opacity exp(-power)) as one exp of a clamped log; the clamp also
-    # keeps a (skipped) negative power from overflowing exp.
+    # alpha = min(ALPHA_MAX, opacity exp(-power)) as one exp of a clamped log.
     log_opacity = torch.log(table_opacities[ids])[:, None, :]  # opacities > 0
     alpha = torch.exp(torch.clamp_max(log_opacity - power, LOG_ALPHA_MAX))
-    alpha = torch.where((alpha >= ALPHA_MIN) & (power >= 0), alpha, 0.0)  # the skip rule
+    alpha = torch.where((alpha >= ALPHA_MIN) & valid[:, None, :], alpha, 0.0)  # the skip rule
 
     # T after each Gaussian; 1 - alpha >= 1 - ALPHA_MAX > 0, so the product never hits 0 early.
     after = transmittance[:, :, None] * torch.cumprod(1.0 - alpha, dim=-1)
