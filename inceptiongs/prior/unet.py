@@ -102,7 +102,8 @@ class UNetEncoder(nn.Module):
 
 
 class UNetDecoder(nn.Module):
-    """Coarse-to-fine: concat the level's skip, ResBlock, nearest upsample + conv. -> [B, C, H, W]."""
+    """Coarse-to-fine: concat the level's skip, ResBlock, nearest upsample + conv to the finer
+    level's width. -> [B, C, H, W]."""
 
     def __init__(self, config: UNetConfig):
         super().__init__()
@@ -113,7 +114,10 @@ class UNetDecoder(nn.Module):
             blocks.append(ResBlock(channels + widths[level], widths[level], config.time_dim))
             channels = widths[level]
             if level > 0:
-                ups.append(nn.Conv2d(channels, channels, 3, padding=1))
+                # The up conv already narrows to the finer level's width: at the finest
+                # resolution every channel costs the most.
+                ups.append(nn.Conv2d(channels, widths[level - 1], 3, padding=1))
+                channels = widths[level - 1]
         self.blocks = nn.ModuleList(blocks)
         self.ups = nn.ModuleList(ups)
         self.norm_out = nn.GroupNorm(group_count(channels), channels)
