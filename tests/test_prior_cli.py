@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
+from inceptiongs.camera import write_camera_json
 from inceptiongs.cli import main
 from inceptiongs.demo_scene import write_demo_scene
 from inceptiongs.gaussians import Gaussians
@@ -58,10 +60,14 @@ def test_prior_then_generate(run_dir, tmp_path, capsys):
         out = tmp_path / f"{name}.png"
         assert main(["generate", str(run_dir), "--view", view.name, "--out", str(out), "--steps", "2",
                      "--seed", "3", "--gbuffer-out", str(tmp_path / f"{name}.npy")]) == 0
-        import cv2
         outputs.append(cv2.imread(str(out)))
     assert outputs[0].shape == (view.height, view.width, 3)
     assert np.array_equal(outputs[0], outputs[1])  # same seed, same image
+    # The same view given as a camera JSON in the original frame generates the same image.
+    write_camera_json(scene.normalization.camera_to_original(view), tmp_path / "cam.json")
+    assert main(["generate", str(run_dir), "--camera", str(tmp_path / "cam.json"), "--out",
+                 str(tmp_path / "c.png"), "--steps", "2", "--seed", "3"]) == 0
+    assert np.abs(cv2.imread(str(tmp_path / "c.png")).astype(int) - outputs[0]).max() <= 1
     gbuffer = np.load(tmp_path / "a.npy")
     assert gbuffer.shape == (view.height, view.width, 12) and gbuffer[..., 3].max() > 0
 
