@@ -278,3 +278,14 @@ def test_auto_backend_agrees_with_torch():
     ref = render(g, camera, outputs=("rgb", "alpha", "depth"), backend="torch")
     for name in ("rgb", "alpha", "depth"):
         np.testing.assert_allclose(fast[name].numpy(), ref[name].numpy(), atol=1e-4, err_msg=name)
+
+
+def test_composite_rejects_unknown_backend():
+    from inceptiongs.composite import composite
+    z = torch.zeros(0, 2)
+    with pytest.raises(ValueError):
+        composite(z, torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3), torch.zeros(0), z, 4, 4, backend="cuda")
+    image, alpha = composite(z, torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3), torch.zeros(0), z, 5, 3,
+                             backend="torch")
+    assert image.shape == (3, 5, 3) and alpha.shape == (3, 5, 1)
+    assert torch.all(image == 0) and torch.all(alpha == 0)
