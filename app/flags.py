@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from inceptiongs.atomic import atomic_write_text
-from inceptiongs.camera import Camera, camera_from_json_dict
+from inceptiongs.camera import Camera, camera_from_json_dict, look_at
 
-from .navigation import look_at_upright
 from inceptiongs.errors import InputError
 
 FLAGS_FILE_NAME = "flags.json"
@@ -99,5 +98,5 @@ def flag_aimed_at(camera: Camera, target: np.ndarray, name: str) -> Flag:
     """A flag at ``camera``'s position and intrinsics, turned to look straight at ``target``
     [3] (keeping the camera's own up direction so the horizon does not jump)."""
     up = -camera.rotation[1]
-    pose = look_at_upright(camera.center, target, up)
+    pose = look_at(camera.center, target, up)
     return Flag(name, camera.with_pose(pose, name=name), now_iso())

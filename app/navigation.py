@@ -49,18 +49,6 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
     return out
 
 
-def look_at_upright(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """World-to-camera [4, 4] at ``eye`` looking at ``target`` with world ``up`` [3] shown up
-    in the image. Wraps camera.look_at and rolls by 180 degrees when its result has ``up``
-    pointing down (look_at's own up convention is inverted relative to its docstring at the
-    time of writing; this stays right whichever way it resolves)."""
-    pose = look_at(np.asarray(eye, np.float64), np.asarray(target, np.float64), np.asarray(up, np.float64))
-    image_up = -pose[1, :3]
-    if image_up @ np.asarray(up, np.float64) < 0:
-        pose[:2] *= -1.0  # rotate 180 degrees about the viewing axis: x and y flip, z stays
-    return pose
-
-
 def estimate_up(cameras: list[Camera]) -> np.ndarray:
     """World up [3] as the mean of the cameras' up directions (-y camera axis); -y of the
     world when there are no cameras or they cancel out."""
@@ -192,6 +180,6 @@ def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 
         forward = np.array([1.0, 0.0, 0.0]) - up[0] * up
     forward /= np.linalg.norm(forward)
     eye = center_of_interest - forward * distance
-    pose = look_at_upright(eye, center_of_interest, up)
+    pose = look_at(eye, center_of_interest, up)
     return NavigationState(eye, pose[:3, :3], up / np.linalg.norm(up), center_of_interest,
                            fov_y_deg, speed=max(extent * 0.3, 1e-3))

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from inceptiongs.camera import Camera, read_camera_json
+from inceptiongs.camera import Camera, look_at, read_camera_json
 from inceptiongs.errors import InputError
 from inceptiongs.live import SnapshotBox
 from inceptiongs.app import editing, flags, frustums, navigation, reference
@@ -19,7 +19,7 @@ from inceptiongs.app.live_training import LiveTraining
 
 
 def _camera(eye=(0.0, 0.0, -4.0), target=(0.0, 0.0, 0.0), width=64, height=48, f=50.0):
-    pose = navigation.look_at_upright(np.array(eye), np.array(target), np.array([0.0, -1.0, 0.0]))
+    pose = look_at(np.array(eye), np.array(target), np.array([0.0, -1.0, 0.0]))
     return Camera("c", width, height, f, f, width / 2, height / 2, pose)
 
 
@@ -79,9 +79,9 @@ def test_default_view_sees_all_points():
     assert inside.mean() > 0.9
 
 
-def test_look_at_upright_shows_up_up():
+def test_look_at_shows_world_up_as_image_up():
     up = np.array([0.0, 0.0, 1.0])
-    pose = navigation.look_at_upright(np.array([3.0, 1.0, 0.5]), np.zeros(3), up)
+    pose = look_at(np.array([3.0, 1.0, 0.5]), np.zeros(3), up)
     assert -pose[1, :3] @ up > 0.9
     assert np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3)) and np.linalg.det(pose[:3, :3]) > 0
     pixels, _ = editing.project_means(np.zeros((1, 3)), Camera("c", 10, 10, 5, 5, 5, 5, pose))

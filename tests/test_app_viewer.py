@@ -22,7 +22,7 @@ import pytest
 
 from inceptiongs.camera import Camera, write_camera_json
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.app.navigation import look_at_upright
+from inceptiongs.camera import look_at
 
 GOLDEN = Path(__file__).parent / "golden"
 REGENERATE = os.environ.get("INCEPTIONGS_REGEN_GOLDEN") == "1"
@@ -87,7 +87,7 @@ def synthetic_gaussians(shift: float = 0.0) -> dict:
 
 
 def front_camera(width=160, height=120) -> Camera:
-    pose = look_at_upright(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
+    pose = look_at(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
     focal = 0.9 * width
     return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
 
