@@ -217,12 +217,15 @@ def evaluate(gaussians: Gaussians, scene, split, data: _Data) -> dict[str, float
 
 def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
           control=None, on_snapshot: Callable[[int, Gaussians, dict], None] | None = None,
-          snapshot_every: int = 0, render_fn=None, log: Callable[[str], None] | None = None) -> TrainResult:
+          snapshot_every: int = 0, render_fn=None, log: Callable[[str], None] | None = None,
+          after_step: Callable[[int, Gaussians, bool], None] | None = None) -> TrainResult:
     """Train stage I into ``run_dir``; see docs/training.md.
 
     control: object with ``stop`` / ``pause`` threading.Events (JobControl) or None.
     on_snapshot(iteration, detached Gaussians, metrics) every ``snapshot_every`` steps.
     render_fn defaults to inceptiongs.rasterize.render (backend "auto").
+    after_step(iteration, detached Gaussians, checkpointed) after every step (e.g. one
+    diffusion-prior step, `inceptiongs train --prior`); its time counts as training time.
     """
     from ..protocols import make_split
     from ..scene import load_scene
@@ -313,6 +316,9 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 on_snapshot(step, gaussians_from_params(state.params).detach(), record)
             if step % config.checkpoint_every == 0:
                 checkpoint_now()
+            if after_step is not None:
+                after_step(step, gaussians_from_params(state.params).detach(),
+                           step % config.checkpoint_every == 0)
     finally:
         bar.close()
 
