@@ -42,3 +42,13 @@ def require_data(relative: str) -> Path:
     if not path.exists():
         pytest.skip(f"real data item missing: {path}")
     return path
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Run a test with one torch thread: for tiny models the per-op threading overhead
+    dominates, and on a busy 2-core machine two spinning OpenMP threads are many times slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -17,13 +17,7 @@ from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.run_folder import to_original_frame
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # Tiny workloads: on a busy 2-core machine two spinning OpenMP threads are much slower.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -9,14 +9,7 @@ from inceptiongs.prior.controlnet import ConditionalDenoiser
 from inceptiongs.prior.unet import UNet, UNetConfig, timestep_embedding
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # These models are tiny: per-op threading overhead dominates, and on a busy 2-core
-    # machine two spinning OpenMP threads make each step ~15x slower than one.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 TINY = UNetConfig(image_channels=3, base_width=8, channel_mults=(1, 2, 2), time_dim=16)

@@ -8,14 +8,7 @@ from inceptiongs.prior.hashgrid import HashGrid, HashGridConfig, vertex_index
 import pytest
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # These models are tiny: per-op threading overhead dominates, and on a busy 2-core
-    # machine two spinning OpenMP threads make each step ~15x slower than one.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

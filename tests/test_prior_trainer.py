@@ -18,14 +18,7 @@ from inceptiongs.prior.unet import UNetConfig
 from inceptiongs.rasterize import render
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # These models are tiny: per-op threading overhead dominates, and on a busy 2-core
-    # machine two spinning OpenMP threads make each step ~15x slower than one.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 TINY = PriorConfig(patch_size=16, batch_size=4, learning_rate=2e-3, num_timesteps=200,
