@@ -381,14 +381,25 @@ def _train_step(step: int, state: _State, data: _Data, config: TrainConfig, sh_m
             loss = loss + config.lambda_ncc * mv["ncc"]
     terms["loss"] = loss
 
+    record = {name: float(value.detach()) for name, value in terms.items()}
+    record["sh_degree"] = sh_degree
+    record.update(optimizer_step(step, loss, out, camera, state, data, config))
+    return record
+
+
+def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, state: _State, data: _Data,
+                   config: TrainConfig) -> dict:
+    """Backward ``loss`` of the render ``out`` of ``camera``, one Adam step, then densification
+    and the opacity reset on schedule. Shared with the stage-II refinement (inceptiongs.bootstrap),
+    whose virtual-view steps feed the same statistics. Returns densification counts and
+    ``num_gaussians``."""
     loss.backward()
     if step < config.densify_until and out["means2d"].grad is not None:
         accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
 
-    record = {name: float(value.detach()) for name, value in terms.items()}
-    record["sh_degree"] = sh_degree
+    record: dict = {}
     if config.densify_from <= step < config.densify_until and step % config.densify_every == 0:
         counts = densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
                                    prune_large=step > config.opacity_reset_every, generator=state.generator)
