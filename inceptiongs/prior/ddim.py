@@ -39,13 +39,18 @@ def ddim_timesteps(schedule: NoiseSchedule, steps: int) -> list[int]:
     return sorted(set(values), reverse=True)
 
 
-def ddim_step(schedule: NoiseSchedule, x: torch.Tensor, eps: torch.Tensor, t: int, t_prev: int | None) -> torch.Tensor:
-    """One deterministic step from t to t_prev (None = to the clean image). x, eps: [B,C,H,W]."""
+def ddim_step(schedule: NoiseSchedule, x: torch.Tensor, eps: torch.Tensor, t: int, t_prev: int | None,
+              clip_sample: bool = True) -> torch.Tensor:
+    """One deterministic step from t to t_prev (None = to the clean image). x, eps: [B,C,H,W].
+    clip_sample: clip x0 to the image range [-1, 1] (off for VAE latents, which have no fixed range)."""
     ab = schedule.alphas_cumprod[t].item()
     ab_prev = 1.0 if t_prev is None else schedule.alphas_cumprod[t_prev].item()
     sqrt_ab = max(ab ** 0.5, SQRT_ALPHA_BAR_MIN)
     sqrt_one_minus_ab = max((1.0 - ab) ** 0.5, SQRT_ONE_MINUS_ALPHA_BAR_MIN)
-    x0 = ((x - sqrt_one_minus_ab * eps) / sqrt_ab).clamp(-1.0, 1.0)
+    x0 = (x - sqrt_one_minus_ab * eps) / sqrt_ab
+    if not clip_sample:
+        return ab_prev ** 0.5 * x0 + (1.0 - ab_prev) ** 0.5 * eps
+    x0 = x0.clamp(-1.0, 1.0)
     eps = (x - sqrt_ab * x0) / sqrt_one_minus_ab
     return ab_prev ** 0.5 * x0 + (1.0 - ab_prev) ** 0.5 * eps
 

@@ -61,7 +61,13 @@ def fit_bound(means: torch.Tensor) -> float:
 
 
 class Prior(nn.Module):
-    """denoiser: ConditionalDenoiser; hash_grid: HashGrid; schedule: NoiseSchedule."""
+    """denoiser: ConditionalDenoiser; hash_grid: HashGrid; schedule: NoiseSchedule.
+
+    The interface the trainer, the checkpoints and generation use (shared with the sd backend,
+    sd_backend.SDPrior): backend, config, patch_multiple, parameter_groups(), checkpoint_state(),
+    load_checkpoint_state(), gbuffer(), diffusion_loss(), generate()."""
+
+    backend = "tiny"
 
     def __init__(self, config: PriorConfig):
         super().__init__()
@@ -84,6 +90,24 @@ class Prior(nn.Module):
     @property
     def device(self) -> torch.device:
         return self.hash_grid.tables[0].device
+
+    @property
+    def patch_multiple(self) -> int:
+        """Training patches and generation windows must be multiples of this (pixels)."""
+        return self.config.unet.downsample_factor
+
+    def parameter_groups(self) -> list[dict]:
+        """Adam groups: the denoiser, and the hash tables (marked "hash": their own lr and eps)."""
+        return [{"params": list(self.denoiser.parameters()), "lr": self.config.learning_rate},
+                {"params": list(self.hash_grid.parameters()), "lr": self.config.hash_learning_rate,
+                 "hash": True}]
+
+    def checkpoint_state(self) -> dict:
+        """What a checkpoint stores: every weight (the tiny backend trains all of them)."""
+        return self.state_dict()
+
+    def load_checkpoint_state(self, state: dict) -> None:
+        self.load_state_dict(state)
 
     def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None,
                 features: torch.Tensor | None = None) -> torch.Tensor:

@@ -55,19 +55,26 @@ def coverage(height: int, width: int, window: int, stride: int) -> torch.Tensor:
 def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: int, width: int,
                           cond: torch.Tensor | None = None, channels: int = 3, window: int = 64,
                           stride: int = 48, steps: int = 20, seed: int = 0, batch_windows: int = 16,
-                          device=None, dtype=torch.float32, progress: bool = False) -> torch.Tensor:
-    """Sample one image [1, channels, height, width] in [-1, 1].
+                          device=None, dtype=torch.float32, progress: bool = False, cond_scale: int = 1,
+                          clip_sample: bool = True) -> torch.Tensor:
+    """Sample one image [1, channels, height, width] in [-1, 1] (clip_sample=False: unclipped, for latents).
 
-    cond: [1, Cc, height, width] G-buffer or None. Deterministic for a given seed (the initial
-    noise comes from a CPU generator; the rest is a fixed sequence of network evaluations).
+    cond: [1, Cc, height * cond_scale, width * cond_scale] G-buffer or None; cond_scale > 1 when
+    the sample is a latent image cond_scale times smaller than the G-buffer (the sd backend's
+    VAE), so a window (y0, x0, window) takes the condition's window scaled by cond_scale.
+    Deterministic for a given seed (the initial noise comes from a CPU generator; the rest is a
+    fixed sequence of network evaluations).
     """
     if height < 1 or width < 1:
         raise ValueError(f"image size must be positive, got {width}x{height}")
     canvas_h, canvas_w = max(height, window), max(width, window)
+    scale = int(cond_scale)
+    if scale < 1:
+        raise ValueError(f"cond_scale must be >= 1, got {cond_scale}")
     if cond is not None:
-        if cond.ndim != 4 or cond.shape[0] != 1 or tuple(cond.shape[-2:]) != (height, width):
-            raise ValueError(f"condition must be [1, Cc, {height}, {width}], got {tuple(cond.shape)}")
-        cond = torch.nn.functional.pad(cond.to(device, dtype), (0, canvas_w - width, 0, canvas_h - height))
+        if cond.ndim != 4 or cond.shape[0] != 1 or tuple(cond.shape[-2:]) != (height * scale, width * scale):
+            raise ValueError(f"condition must be [1, Cc, {height * scale}, {width * scale}], got {tuple(cond.shape)}")
+        cond = torch.nn.functional.pad(cond.to(device, dtype), (0, (canvas_w - width) * scale, 0, (canvas_h - height) * scale))
     boxes = window_boxes(canvas_h, canvas_w, window, stride)
     count = torch.zeros(1, 1, canvas_h, canvas_w, device=device, dtype=dtype)
     for y0, x0 in boxes:
@@ -85,10 +92,10 @@ def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: i
             chunk = boxes[first:first + batch_windows]
             x_windows = torch.cat([x[..., y0:y0 + window, x0:x0 + window] for y0, x0 in chunk])
             cond_windows = None if cond is None else torch.cat(
-                [cond[..., y0:y0 + window, x0:x0 + window] for y0, x0 in chunk])
+                [cond[..., y0 * scale:(y0 + window) * scale, x0 * scale:(x0 + window) * scale] for y0, x0 in chunk])
             t_batch = torch.full((len(chunk),), t, dtype=torch.long, device=x.device)
             eps = denoiser(x_windows, t_batch, cond_windows)
             for k, (y0, x0) in enumerate(chunk):
                 eps_sum[..., y0:y0 + window, x0:x0 + window] += eps[k:k + 1]
-        x = ddim_step(schedule, x, eps_sum / count, t, t_prev)
+        x = ddim_step(schedule, x, eps_sum / count, t, t_prev, clip_sample=clip_sample)
     return x[..., :height, :width]

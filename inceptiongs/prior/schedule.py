@@ -47,16 +47,28 @@ def cosine_betas(num_timesteps: int) -> torch.Tensor:
     return betas.clamp(0.0, COSINE_MAX_BETA)
 
 
-def make_schedule(kind: str = "cosine", num_timesteps: int = 1000) -> NoiseSchedule:
-    """kind: "linear" | "cosine"."""
+def scaled_linear_betas(num_timesteps: int, beta_start: float = 0.00085, beta_end: float = 0.012) -> torch.Tensor:
+    """[T] float64, linear in sqrt(beta) (Stable Diffusion's "scaled_linear" schedule; a frozen SD
+    UNet only denoises correctly under the schedule it was trained with)."""
+    return torch.linspace(beta_start ** 0.5, beta_end ** 0.5, num_timesteps, dtype=torch.float64) ** 2
+
+
+def make_schedule(kind: str = "cosine", num_timesteps: int = 1000, beta_start: float | None = None,
+                  beta_end: float | None = None) -> NoiseSchedule:
+    """kind: "linear" | "cosine" | "scaled_linear"; beta_start/beta_end override the linear kinds' ends."""
     if num_timesteps < 1:
         raise ValueError(f"num_timesteps must be >= 1, got {num_timesteps}")
+    ends = {k: v for k, v in (("beta_start", beta_start), ("beta_end", beta_end)) if v is not None}
+    if any(not 0.0 < v < 1.0 for v in ends.values()):
+        raise ValueError(f"beta_start/beta_end must be in (0, 1), got {ends}")
     if kind == "linear":
-        betas = linear_betas(num_timesteps)
+        betas = linear_betas(num_timesteps, **ends)
+    elif kind == "scaled_linear":
+        betas = scaled_linear_betas(num_timesteps, **ends)
     elif kind == "cosine":
         betas = cosine_betas(num_timesteps)
     else:
-        raise ValueError(f"unknown beta schedule {kind!r} (linear | cosine)")
+        raise ValueError(f"unknown beta schedule {kind!r} (linear | cosine | scaled_linear)")
     alphas_cumprod = torch.cumprod(1.0 - betas, dim=0)
     if not bool(alphas_cumprod[-1] > 0.0):
         raise ValueError(f"{kind} schedule with T={num_timesteps} drives alpha_bar to 0")

@@ -3,12 +3,19 @@
 Each step draws ``batch_size`` (view, patch) pairs, renders the matching G-buffer patches from
 the *current* Gaussians on the fly (only the patch: Camera.cropped), and takes one Adam step
 on the epsilon-prediction loss; the hash grid is trained through that loss (its own, larger
-learning rate, as hash tables need). Checkpoints go atomically to RUN/prior/prior.pt.
+learning rate, as hash tables need). Checkpoints go atomically to RUN/prior/prior.pt; with a
+run_dir, RUN/prior/metrics.jsonl logs the loss against prior training seconds (and, when an
+evaluation function is given, generated-image quality at intervals) for `inceptiongs report`.
+
+Backends: the trainer only uses the prior interface of model.Prior (the tiny backend) and
+sd_backend.SDPrior (Stable Diffusion + ControlNet): parameter_groups(), patch_multiple,
+diffusion_loss(), checkpoint_state().
 """
 
 from __future__ import annotations
 
 import io
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +33,8 @@ from .gbuffer import crop_candidates, gaussian_features, render_gbuffer
 from .model import Prior, PriorConfig
 
 CHECKPOINT_NAME = "prior.pt"
+METRICS_NAME = "metrics.jsonl"
+BACKENDS = ("tiny", "sd")
 # Adam's epsilon for the hash tables: most slots see no gradient in a step, and a large epsilon
 # would damp the rare updates of the finest levels (Instant-NGP uses 1e-15).
 HASH_ADAM_EPS = 1e-15
@@ -35,12 +44,12 @@ def prior_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "prior"
 
 
-def patch_size_for(config: PriorConfig, cameras: list[Camera]) -> int:
-    """The patch edge: config.patch_size, shrunk to fit the smallest image (a multiple of the
-    UNet's downsample factor)."""
-    factor = config.unet.downsample_factor
+def patch_size_for(prior, cameras: list[Camera]) -> int:
+    """The patch edge: prior.config.patch_size, shrunk to fit the smallest image (a multiple of
+    prior.patch_multiple: the UNet's, and for sd the VAE's, downsample factor)."""
+    factor = prior.patch_multiple
     smallest = min(min(c.width, c.height) for c in cameras)
-    size = min(config.patch_size, smallest) // factor * factor
+    size = min(prior.config.patch_size, smallest) // factor * factor
     if size < factor:
         raise InputError(f"{cameras[0].name}: images of {smallest} px are too small for prior patches")
     return size
@@ -48,8 +57,9 @@ def patch_size_for(config: PriorConfig, cameras: list[Camera]) -> int:
 
 @dataclass
 class PriorTrainer:
-    """prior: Prior; gaussians: the current model (re-assign it when the geometry changes);
-    cameras: training cameras; load_image(i) -> [H, W, 3] float in [0, 1] of camera i."""
+    """prior: Prior or SDPrior; gaussians: the current model (re-assign it when the geometry
+    changes); cameras: training cameras; load_image(i) -> [H, W, 3] float in [0, 1] of camera i.
+    train_s: seconds spent in step() over the prior's whole life (kept across resumes)."""
 
     prior: Prior
     gaussians: Gaussians
@@ -57,18 +67,16 @@ class PriorTrainer:
     load_image: Callable[[int], np.ndarray]
     step_count: int = 0
     losses: list[float] = field(default_factory=list)
+    train_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.cameras:
             raise InputError("prior training: no training cameras")
-        config = self.prior.config
-        self.patch_size = patch_size_for(config, self.cameras)
-        self.generator = torch.Generator().manual_seed(config.seed)
-        self.optimizer = torch.optim.Adam([
-            {"params": list(self.prior.denoiser.parameters()), "lr": config.learning_rate},
-            {"params": list(self.prior.hash_grid.parameters()), "lr": config.hash_learning_rate,
-             "eps": HASH_ADAM_EPS},
-        ])
+        self.patch_size = patch_size_for(self.prior, self.cameras)
+        self.generator = torch.Generator().manual_seed(self.prior.config.seed)
+        groups = [{**group, "eps": HASH_ADAM_EPS} if group.get("hash") else group
+                  for group in self.prior.parameter_groups()]
+        self.optimizer = torch.optim.Adam(groups)
         self._images: dict[int, torch.Tensor] = {}
 
     def _image(self, index: int) -> torch.Tensor:
@@ -106,6 +114,7 @@ class PriorTrainer:
 
     def step(self) -> float:
         """One Adam step; returns the batch's diffusion loss."""
+        start = time.perf_counter()
         photos, conds = self.sample_batch()
         loss = self.prior.diffusion_loss(photos, conds, generator=self.generator)
         self.optimizer.zero_grad(set_to_none=True)
@@ -114,41 +123,103 @@ class PriorTrainer:
         self.step_count += 1
         value = float(loss.detach())
         self.losses.append(value)
+        self.train_s += time.perf_counter() - start
         return value
+
+    def log(self, run_dir: str | Path, record: dict | None = None, last: int = 1) -> None:
+        """Append {"step", "train_s" (prior training seconds), "loss" (mean of the ``last``
+        losses), **record} to RUN/prior/metrics.jsonl."""
+        window = self.losses[-max(1, last):]
+        entry = {"step": self.step_count, "train_s": self.train_s,
+                 **({"loss": sum(window) / len(window)} if window else {}), **(record or {})}
+        append_prior_metrics(run_dir, entry)
 
     def train(self, steps: int | None = None, minutes: float | None = None,
               run_dir: str | Path | None = None, checkpoint_every: int = 200,
-              progress: bool = True) -> list[float]:
-        """Train for ``steps`` steps and/or ``minutes`` minutes (whichever ends first), checkpointing
-        into RUN/prior/ every ``checkpoint_every`` steps and at the end when run_dir is given."""
+              progress: bool = True, log_every: int = 20,
+              evaluate: Callable[["Prior"], dict] | None = None,
+              evaluate_every_s: float | None = None) -> list[float]:
+        """Train for ``steps`` steps and/or ``minutes`` minutes of training time (whichever ends
+        first), checkpointing into RUN/prior/ every ``checkpoint_every`` steps and at the end when
+        run_dir is given, logging to RUN/prior/metrics.jsonl every ``log_every`` steps.
+        evaluate(prior) -> scores ({"generated": {"scarce": {"psnr": .., "ssim": ..}, ..}}) runs
+        at the start, every ``evaluate_every_s`` training seconds and at the end; its time is
+        not training time (it does not count against ``minutes``)."""
         if steps is None and minutes is None:
             raise ValueError("give steps or minutes")
-        deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
+        budget_s = None if minutes is None else 60.0 * minutes
+        start_s = self.train_s
+        next_eval = self.train_s
+
+        def maybe_evaluate(force: bool = False) -> None:
+            nonlocal next_eval
+            if evaluate is None or run_dir is None or not (force or self.train_s >= next_eval):
+                return
+            self.log(run_dir, evaluate(self.prior), last=log_every)
+            next_eval = self.train_s + (evaluate_every_s or float("inf"))
+
         bar = tqdm(total=steps, desc="prior", disable=not progress, unit="step")
         done = 0
         try:
-            while (steps is None or done < steps) and (deadline is None or time.monotonic() < deadline):
+            maybe_evaluate()
+            while (steps is None or done < steps) and (budget_s is None or self.train_s - start_s < budget_s):
                 loss = self.step()
                 done += 1
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss:.4f}")
+                if run_dir is not None and log_every and self.step_count % log_every == 0:
+                    self.log(run_dir, last=log_every)
                 if run_dir is not None and checkpoint_every and self.step_count % checkpoint_every == 0:
                     save_prior(run_dir, self)
+                maybe_evaluate()
         finally:
             bar.close()
         if run_dir is not None:
+            if done and evaluate is not None:
+                maybe_evaluate(force=True)
             save_prior(run_dir, self)
         return self.losses[-done:] if done else []
+
+
+def append_prior_metrics(run_dir: str | Path, record: dict) -> None:
+    """One JSON line in RUN/prior/metrics.jsonl (appended and flushed; a torn last line, from a
+    kill mid-write, is dropped by the reader)."""
+    path = prior_dir(run_dir) / METRICS_NAME
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(record) + "\n")
+        handle.flush()
+
+
+def build_prior(backend: str, config, device=None):
+    """A new prior of ``backend`` from its config object (PriorConfig or SDPriorConfig)."""
+    if backend == "tiny":
+        return Prior(config).to(device)
+    if backend == "sd":
+        from .sd_backend import SDPrior
+        return SDPrior(config, device=device)
+    raise InputError(f"unknown prior backend {backend!r} ({' | '.join(BACKENDS)})")
+
+
+def config_from_dict(backend: str, data: dict):
+    if backend == "sd":
+        from .sd_backend import SDPriorConfig
+        return SDPriorConfig.from_dict(data)
+    return PriorConfig.from_dict(data)
 
 
 def save_prior(run_dir: str | Path, trainer: PriorTrainer) -> Path:
     """Write RUN/prior/prior.pt atomically: config, weights, optimiser state, step, losses."""
     payload = {
+        "backend": trainer.prior.backend,
         "config": trainer.prior.config.to_dict(),
-        "model": trainer.prior.state_dict(),
+        # The sd backend stores only what it trains (ControlNet, hash grid, null prompt): the
+        # frozen base stays in the user's Stable Diffusion folder.
+        "model": trainer.prior.checkpoint_state(),
         "optimizer": trainer.optimizer.state_dict(),
         "step": trainer.step_count,
         "losses": list(trainer.losses),
+        "train_s": trainer.train_s,
         "generator": trainer.generator.get_state(),
     }
     buffer = io.BytesIO()
@@ -164,16 +235,17 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
         raise InputError(f"{path}: no prior checkpoint (train one with `inceptiongs prior RUN`)")
     try:
         payload = torch.load(path, map_location=device, weights_only=True)
-        return {**payload, "config": PriorConfig.from_dict(payload["config"])}
+        backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
+        return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"])}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
         raise InputError(f"{path}: not a readable prior checkpoint ({type(exc).__name__}: {exc})") from None
 
 
 def load_prior(run_dir: str | Path, device=None) -> Prior:
-    """The trained Prior of a run (for generation)."""
+    """The trained prior of a run (for generation): a Prior, or an SDPrior for the sd backend."""
     payload = read_prior_checkpoint(run_dir, device)
-    prior = Prior(payload["config"]).to(device)
-    prior.load_state_dict(payload["model"])
+    prior = build_prior(payload["backend"], payload["config"], device)
+    prior.load_checkpoint_state(payload["model"])
     return prior
 
 
@@ -181,10 +253,10 @@ def resume_trainer(run_dir: str | Path, gaussians: Gaussians, cameras: list[Came
                    load_image: Callable[[int], np.ndarray], device=None) -> PriorTrainer:
     """A trainer continuing exactly where RUN/prior/prior.pt left off."""
     payload = read_prior_checkpoint(run_dir, device)
-    prior = Prior(payload["config"]).to(device)
-    prior.load_state_dict(payload["model"])
+    prior = build_prior(payload["backend"], payload["config"], device)
+    prior.load_checkpoint_state(payload["model"])
     trainer = PriorTrainer(prior, gaussians, cameras, load_image, step_count=int(payload["step"]),
-                           losses=list(payload["losses"]))
+                           losses=list(payload["losses"]), train_s=float(payload.get("train_s", 0.0)))
     trainer.optimizer.load_state_dict(payload["optimizer"])
     trainer.generator.set_state(payload["generator"])
     return trainer
