@@ -21,6 +21,7 @@ COMMANDS = {
     "train": "train",
     "prior": "prior",
     "generate": "generate",
+    "bootstrap": "bootstrap",
     "eval": "evaluate",
     "report": "report",
     "demo": "demo",

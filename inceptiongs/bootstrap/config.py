@@ -1,0 +1,110 @@
+"""Stage-II hyper-parameters: one dataclass, written to RUN2/bootstrap/config.json.
+
+The stage-I TrainConfig of the input run is kept as it is in RUN2/config.json (so the output
+is a run folder every reader understands); everything that belongs to the bootstrap loop lives
+here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..atomic import atomic_write_text
+from ..errors import InputError
+
+SAMPLING = ("langevin", "uniform")
+
+
+@dataclass
+class BootstrapConfig:
+    seed: int = 0
+    rounds: int = 1
+    iterations: int = 300               # refinement steps per round (real + virtual)
+    minutes: float | None = None        # wall budget for the whole bootstrap (prior + generation + refinement)
+
+    # --- virtual views (engineer A's defaults when None) -------------------------------------
+    k: int | None = None                # nearest training views per target
+    l: int | None = None                # interpolated poses per (target, training view) pair
+    # Virtual views are generated and rendered at the training resolution: a flagged view made
+    # in a large viewer window is scaled so its width matches the training photos'.
+    max_virtual_views: int = 64
+
+    # --- generation --------------------------------------------------------------------------
+    prior: str = "trained"              # "trained" (the run's, else a short one) | "untrained" (ablation)
+    prior_minutes: float = 2.0          # budget of the short prior training when the run has none
+    prior_steps: int | None = None      # ... or this many steps (whichever ends first)
+    ddim_steps: int = 10
+
+    # --- blending ----------------------------------------------------------------------------
+    blending: bool = True
+    delta: float | None = None          # relative depth tolerance of the warp (A's default when None)
+    save_views: int = 4                 # PNGs (I*, mask, generated) for this many virtual views
+
+    # --- refinement --------------------------------------------------------------------------
+    virtual_every: int = 2              # every n-th step is a virtual view (2: alternate)
+    lambda_virtual: float = 0.5         # weight of a virtual view's loss against a photo's
+    tau: float = 0.2                    # perceptual loss when the view's SSIM loss (1 - SSIM) <= tau
+    densify: bool = True                # densify during refinement (new Gaussians where views are scarce)
+    lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
+
+    # --- view-adaptive sampling (Algorithm 1) --------------------------------------------------
+    sampling: str = "langevin"          # "langevin" | "uniform" (ablation)
+    langevin_step: float = 0.05         # step size on the 7-D pose (centre in scene units, quaternion)
+    langevin_noise: float = 0.5         # exploration noise scale (times sqrt(2 * step))
+
+    # --- bookkeeping -------------------------------------------------------------------------
+    log_every: int = 10
+    eval_every: int = 0                 # 0: evaluate only at the start and after each round
+    checkpoint_every: int = 200
+
+    def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
+        positive = ("rounds", "iterations", "ddim_steps", "virtual_every", "log_every",
+                    "checkpoint_every", "max_virtual_views")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise InputError(f"{source}: {name} must be >= 1, got {getattr(self, name)}")
+        for name in ("k", "l", "prior_steps"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise InputError(f"{source}: {name} must be >= 1, got {value}")
+        for name in ("minutes", "prior_minutes"):
+            value = getattr(self, name)
+            if value is not None and value <= 0:
+                raise InputError(f"{source}: {name} must be > 0, got {value}")
+        if self.sampling not in SAMPLING:
+            raise InputError(f"{source}: sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
+        if self.prior not in ("trained", "untrained"):
+            raise InputError(f"{source}: prior must be 'trained' or 'untrained', got {self.prior!r}")
+        if self.delta is not None and not self.delta > 0:
+            raise InputError(f"{source}: delta must be > 0, got {self.delta}")
+        if not 0 <= self.tau <= 2:
+            raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
+        if self.lambda_virtual < 0 or self.langevin_step <= 0 or self.langevin_noise < 0:
+            raise InputError(f"{source}: lambda_virtual >= 0, langevin_step > 0, langevin_noise >= 0 required")
+        if self.eval_every < 0 or self.save_views < 0:
+            raise InputError(f"{source}: eval_every and save_views must be >= 0")
+        return self
+
+    def to_json_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def save(self, path: str | Path) -> None:
+        atomic_write_text(path, json.dumps(self.to_json_dict(), indent=2, sort_keys=True) + "\n")
+
+    @staticmethod
+    def load(path: str | Path) -> "BootstrapConfig":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: not a readable bootstrap config ({exc})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{path}: bootstrap config must be a JSON object")
+        known = {f.name for f in dataclasses.fields(BootstrapConfig)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise InputError(f"{path}: unknown bootstrap config keys {', '.join(unknown)}")
+        return BootstrapConfig(**data).validate(str(path))

@@ -1,0 +1,48 @@
+"""Bootstrapping as a job the viewer runs on a thread (same interface as train.job.TrainJob)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..live import SnapshotBox
+from .config import BootstrapConfig
+
+
+@dataclass
+class BootstrapJob:
+    """Stage II on ``run_dir`` into ``out_dir`` for the views flagged in ``targets_file`` (None:
+    the scene's flags.json, else the split's j*), publishing a snapshot (numpy copies) every
+    ``snapshot_every`` refinement steps."""
+
+    run_dir: Path
+    out_dir: Path | None = None
+    targets_file: Path | None = None
+    config: BootstrapConfig = field(default_factory=BootstrapConfig)
+    snapshot_every: int = 5
+
+    def run(self, box: SnapshotBox, control) -> None:
+        from ..train.run_folder import load_run  # noqa: F401  (fails early, in the UI, on a bad run)
+        from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
+
+        latest_iteration = 0
+
+        def publish(iteration: int, gaussians, metrics: dict) -> None:
+            nonlocal latest_iteration
+            latest_iteration = iteration
+            box.publish(iteration, gaussians.numpy(), metrics)
+
+        def log(message: str) -> None:
+            box.publish(latest_iteration, None, {}, message)
+
+        out_dir = Path(self.out_dir) if self.out_dir is not None else default_out_dir(self.run_dir)
+        _, scene, split, _, _ = load_stage1(Path(self.run_dir))
+        targets = resolve_targets(scene, split, self.targets_file, None, self.config.rounds)
+        log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
+        result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
+                               on_snapshot=publish, snapshot_every=self.snapshot_every, log=log,
+                               progress=False)
+        state = "finished" if result.finished else "stopped (checkpoint written)"
+        box.publish(result.iteration, None, dict(result.last_eval),
+                    f"bootstrap {state} at iteration {result.iteration}: {result.virtual_views} virtual views, "
+                    f"{out_dir}")

@@ -1,0 +1,164 @@
+"""Refinement: the stage-I optimiser continued on the real photos plus the virtual views.
+
+Real-photo steps are the stage-I trainer's own step (photometric + PGSR terms); virtual-view
+steps render the virtual camera and compare it with I*: a perceptual distance when the view's
+SSIM loss (1 - SSIM) is at most tau (the render already has the right structure, so only the
+appearance is pulled towards I*), else L1 + D-SSIM. Both kinds of step go through the trainer's
+``optimizer_step`` (Adam, densification statistics and schedule), so nothing is duplicated.
+
+Which virtual view comes next is chosen by :class:`ViewSampler`: Langevin steps on the 7-D pose
+(the paper's Algorithm 1; engineer A's inceptiongs.bootstrap.langevin) or uniformly (ablation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from ..metrics import ssim
+from ..train import losses
+from ..train.config import TrainConfig
+from ..train.optim import gaussians_from_params, position_learning_rate, set_learning_rate
+from ..train.trainer import optimizer_step, sh_degree_at
+from .config import BootstrapConfig
+from .generation import VirtualTarget
+
+# Opacity resets wipe every Gaussian's opacity; in a refinement of a few hundred steps the
+# covered regions would not recover, so the continuation never resets (a step count no run reaches).
+NO_RESET = 10**12
+# Densification during refinement: after this fraction of the refinement steps (the virtual
+# views' gradients first need to accumulate), until this fraction (the last steps settle).
+DENSIFY_START_FRACTION = 0.1
+DENSIFY_END_FRACTION = 0.7
+# P = exp(L1) with L1 of images in [0, 1] is in [1, e]: exp never overflows and 1/P is in
+# [1/e, 1]. The clamp guards renders outside [0, 1] (black background, SH overshoot).
+L1_MAX_FOR_P = 10.0
+
+
+def continuation_config(stage1: TrainConfig, start: int, steps: int, densify: bool) -> TrainConfig:
+    """The stage-I config extended by ``steps`` iterations after ``start`` (stage I's last).
+
+    The learning-rate decay is re-spread over the longer run (both the bootstrap and the
+    same-time baseline use this, so the comparison isolates the virtual views), opacity resets
+    are off, and with ``densify`` the densification window covers the middle of the extension.
+    """
+    steps = max(int(steps), 1)
+    config = dataclasses.replace(stage1, iterations=start + steps, minutes=None,
+                                 opacity_reset_every=NO_RESET)
+    if densify:
+        every = max(1, min(stage1.densify_every, steps // 6))
+        config = dataclasses.replace(
+            config, densify_every=every,
+            densify_from=start + max(1, int(steps * DENSIFY_START_FRACTION)),
+            densify_until=start + max(2, int(steps * DENSIFY_END_FRACTION)))
+    else:
+        config = dataclasses.replace(config, densify_until=min(config.densify_until, start))
+    return config
+
+
+def probability(l1: float) -> float:
+    """P = exp(L1(render, I*)) (the paper's sampling density; log P = L1)."""
+    return math.exp(min(max(l1, 0.0), L1_MAX_FOR_P))
+
+
+@dataclass
+class ViewChoice:
+    index: int          # into the pool of virtual views
+    weight: float       # multiplies the view's loss: 1/P (Langevin), 1 (uniform)
+    p: float            # P at the chosen view before the step (1 for uniform)
+
+
+class ViewSampler:
+    """Chooses the next virtual view: Langevin on the 7-D pose snapped to the pool, or uniform.
+
+    The pose state starts at the first view of the pool; after each Langevin step it is
+    snapped to the nearest virtual view and continues from that view's pose (the state stays
+    on the pool, so it cannot drift away from the views that have an I*).
+    """
+
+    def __init__(self, config: BootstrapConfig, seed: int) -> None:
+        self.config = config
+        self.rng = np.random.default_rng(seed)
+        self.pose: np.ndarray | None = None
+        self._poses: np.ndarray | None = None
+        self._pool_size = -1
+
+    def _pool_poses(self, pool: Sequence[VirtualTarget]) -> np.ndarray:
+        from .langevin import pose_to_vector
+
+        if self._pool_size != len(pool):
+            self._poses = np.stack([pose_to_vector(v.camera.world_to_camera) for v in pool])
+            self._pool_size = len(pool)
+        return self._poses
+
+    def choose(self, pool: Sequence[VirtualTarget], loss_at: Callable[[int, torch.Tensor], torch.Tensor]
+               ) -> ViewChoice:
+        """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index])."""
+        if self.config.sampling == "uniform":
+            return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
+        from .langevin import langevin_step, pose_gradient, snap_to_nearest
+
+        poses = self._pool_poses(pool)
+        if self.pose is None:
+            self.pose = poses[0].copy()
+        current = int(snap_to_nearest(self.pose, poses))
+        camera = pool[current].camera
+        # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
+        # pose through the differentiable rasterizer, chained to the 7-D pose by A's module).
+        grad = pose_gradient(lambda w2c: loss_at(current, w2c), camera.world_to_camera)
+        moved = langevin_step(self.pose, np.asarray(grad, np.float64), self.config.langevin_step,
+                              self.config.langevin_noise, self.rng)
+        chosen = int(snap_to_nearest(moved, poses))
+        self.pose = poses[chosen].copy()
+        with torch.no_grad():
+            l1 = float(loss_at(chosen, torch.as_tensor(pool[chosen].camera.world_to_camera)))
+        p = probability(l1)
+        return ViewChoice(chosen, 1.0 / p, p)  # p >= 1: the division is safe
+
+
+def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: BootstrapConfig,
+                      lambda_dssim: float, lpips=None) -> tuple[torch.Tensor, dict]:
+    """rgb, target: [H, W, 3] -> (loss, record). Perceptual when 1 - SSIM <= tau, else L1 + D-SSIM."""
+    from .perceptual import perceptual_distance
+
+    l1 = (rgb - target).abs().mean()
+    ssim_loss = 1.0 - ssim(rgb, target)
+    record = {"virtual_l1": float(l1.detach()), "virtual_ssim_loss": float(ssim_loss.detach())}
+    if float(ssim_loss.detach()) <= config.tau:
+        loss = perceptual_distance(rgb, target, lpips=lpips)
+        record["virtual_branch"] = "perceptual"
+    else:
+        loss = (1.0 - lambda_dssim) * l1 + lambda_dssim * ssim_loss
+        record["virtual_branch"] = "l1_ssim"
+    record["virtual_loss"] = float(loss.detach())
+    return loss, record
+
+
+def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
+                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None) -> dict:
+    """One optimisation step on a virtual view (weighted by choice.weight); the log record."""
+    set_learning_rate(state.optimizer, "means", position_learning_rate(step, train_config, data.extent))
+    sh_degree = sh_degree_at(step, train_config, sh_max)
+    gaussians = gaussians_from_params(state.params)
+    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree)
+    loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips)
+    total = config.lambda_virtual * choice.weight * loss
+    if train_config.pgsr:
+        total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
+    record.update(kind="virtual", view=view.name, weight=choice.weight, p=choice.p,
+                  loss=float(total.detach()), sh_degree=sh_degree)
+    record.update(optimizer_step(step, total, out, view.camera, state, data, train_config))
+    return record
+
+
+def render_l1(render_fn, gaussians, view: VirtualTarget, sh_degree: int,
+              world_to_camera: torch.Tensor) -> torch.Tensor:
+    """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose)."""
+    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
+                    world_to_camera=world_to_camera)
+    return (out["rgb"] - view.target).abs().mean()

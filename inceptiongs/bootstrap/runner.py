@@ -1,0 +1,382 @@
+"""The bootstrap loop: a stage-I run folder in, a repaired run folder out.
+
+Per round: virtual views around the round's targets (A's virtual_views), I* at each (the prior's
+image, cached, blended with warped real photos), then refinement steps alternating real photos
+and virtual views (Langevin-chosen). Round r+1 starts from round r's Gaussians and keeps round
+r's virtual views in the pool, so what round r repaired stays supervised.
+
+RUN2 is a run folder (docs/training.md): config.json (the stage-I config, extended schedule),
+split.json (copied, so evaluations are comparable), checkpoints/, model.ply, metrics.jsonl
+(wall_s counted from the start of the bootstrap); plus RUN2/bootstrap/ (config.json,
+summary.json, cache/, views/*.png) and RUN2/prior/ when a prior was trained here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..atomic import atomic_write_text
+from ..errors import InputError
+from ..gaussians import Gaussians
+from .config import BootstrapConfig
+from .generation import GenerationCache, VirtualTarget, blend_target, gaussians_version, generate_cached, \
+    obtain_prior, prior_version
+from .targets import FLAGS_FILE_NAME, Target, flag_targets, named_target, round_targets, split_targets
+
+BOOTSTRAP_DIR = "bootstrap"
+
+
+@dataclass
+class BootstrapResult:
+    out_dir: Path
+    start_iteration: int
+    iteration: int
+    finished: bool                  # False: stopped by request or out of time before the last round ended
+    rounds_done: int
+    num_gaussians: int
+    virtual_views: int
+    cache_hits: int
+    cache_misses: int
+    wall_s: float
+    prior: str
+    initial_eval: dict = field(default_factory=dict)
+    last_eval: dict = field(default_factory=dict)
+
+
+def default_out_dir(run_dir: str | Path) -> Path:
+    run_dir = Path(run_dir)
+    return run_dir.with_name(run_dir.name + "_bootstrap")
+
+
+# --- inputs ----------------------------------------------------------------------------------------
+def load_stage1(run_dir: Path):
+    """RUN -> (TrainConfig, Scene, Split, checkpoint payload or None, Gaussians (normalised frame))."""
+    from ..protocols import Split
+    from ..train.checkpoint import latest_checkpoint, load_checkpoint
+    from ..train.run_folder import load_run
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: run folder does not exist")
+    gaussians, scene, config = load_run(run_dir)
+    split_path = run_dir / "split.json"
+    if not split_path.is_file():
+        raise InputError(f"{split_path}: the run has no split (was it trained by `inceptiongs train`?)")
+    split = Split.load(split_path, scene.cameras)
+    if not split.train:
+        raise InputError(f"{split_path}: no training views")
+    checkpoint = latest_checkpoint(run_dir)
+    payload = load_checkpoint(checkpoint) if checkpoint is not None else None
+    return config, scene, split, payload, gaussians
+
+
+def resolve_targets(scene, split, targets_file: str | Path | None, target_view: str | None,
+                    rounds: int) -> list[Target]:
+    """--targets FILE, else --target-view NAME, else the scene's flags.json when it exists, else j*."""
+    train_cameras = [scene.cameras[i] for i in split.train]
+    if targets_file is not None and target_view is not None:
+        raise InputError("give either --targets or --target-view, not both")
+    if targets_file is not None:
+        return flag_targets(Path(targets_file), train_cameras)
+    if target_view is not None:
+        return [named_target(scene, target_view)]
+    default_flags = Path(scene.work_dir) / FLAGS_FILE_NAME
+    if default_flags.is_file():
+        return flag_targets(default_flags, train_cameras)
+    return split_targets(split, scene, rounds)
+
+
+# --- small pieces ------------------------------------------------------------------------------------
+def _state_from_gaussians(gaussians: Gaussians, data, config):
+    """A trainer state for a run that has model.ply but no checkpoint (fresh Adam moments)."""
+    from ..train.densify import DensifyStats
+    from ..train.optim import make_optimizer, params_from_gaussians
+    from ..train.trainer import _State
+
+    params = params_from_gaussians(gaussians)
+    optimizer = make_optimizer(params, config, data.extent)
+    return _State(params, optimizer, DensifyStats.zeros(len(gaussians)), config.iterations, 0.0, 0.0,
+                  np.random.default_rng(config.seed), torch.Generator().manual_seed(config.seed), [], 0, set())
+
+
+def _view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor, render: torch.Tensor) -> np.ndarray:
+    """generated | mask | I* | stage-I render, side by side: [H, 4W, 3]."""
+    panels = [generated, mask.expand(-1, -1, 3), target, render]
+    return torch.cat([p.detach().float().clamp(0, 1).cpu() for p in panels], dim=1).numpy()
+
+
+def _write_summary(path: Path, summary: dict) -> None:
+    from ..evaluate import json_safe
+
+    atomic_write_text(path, json.dumps(json_safe(summary), indent=1) + "\n")
+
+
+# --- the loop --------------------------------------------------------------------------------------
+def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Target] | None,
+                  config: BootstrapConfig, control=None,
+                  on_snapshot: Callable[[int, Gaussians, dict], None] | None = None, snapshot_every: int = 0,
+                  log: Callable[[str], None] | None = None, progress: bool = True,
+                  render_fn=None) -> BootstrapResult:
+    """Bootstrap RUN into RUN2 (see the module doc). ``targets=None`` with an empty pool is the
+    same-time baseline: the stage-I loop continued on the photos alone (``baseline_run``)."""
+    from ..evaluate import write_png
+    from ..ply import write_ply
+    from ..train.checkpoint import save_checkpoint
+    from ..train.optim import gaussians_from_params
+    from ..train.run_folder import append_metrics, to_original_frame
+    from ..train.trainer import _prepare_data, _restore_state, _train_step, _trim_sh, evaluate, \
+        sh_degree_at, supported_sh_degree
+    from .refine import ViewSampler, continuation_config, render_l1, virtual_step
+
+    if render_fn is None:
+        from ..rasterize import render as render_fn
+    log = log or (lambda message: tqdm.write(message, file=sys.stderr))
+    config.validate()
+    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    clock_start = time.perf_counter()
+    deadline = None if config.minutes is None else clock_start + 60.0 * config.minutes
+    run_dir, out_dir = Path(run_dir), Path(out_dir)
+    if out_dir.resolve() == run_dir.resolve():
+        raise InputError(f"{out_dir}: the output folder must differ from the input run")
+    stage1, scene, split, payload, gaussians0 = load_stage1(run_dir)
+    baseline = targets is None
+    rounds = round_targets(targets, config.rounds) if not baseline else [[] for _ in range(config.rounds)]
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    boot_dir = out_dir / BOOTSTRAP_DIR
+    boot_dir.mkdir(exist_ok=True)
+    config.save(boot_dir / "config.json")
+    shutil.copyfile(run_dir / "split.json", out_dir / "split.json")
+    start = int(payload["iteration"]) if payload is not None else stage1.iterations
+    train_config = continuation_config(stage1, start, config.rounds * config.iterations, config.densify)
+    train_config.save(out_dir / "config.json")
+    (out_dir / "metrics.jsonl").unlink(missing_ok=True)
+    (out_dir / "model.ply").unlink(missing_ok=True)  # a stale model must not pass for this run's
+    if (out_dir / "checkpoints").is_dir():
+        shutil.rmtree(out_dir / "checkpoints")
+
+    data = _prepare_data(scene, split, train_config, log)
+    sh_max = supported_sh_degree(len(data.train), train_config.sh_degree_max)
+    state = (_restore_state(payload, data, train_config) if payload is not None
+             else _state_from_gaussians(gaussians0, data, train_config))
+    state.iteration = start
+    cameras = list(scene.cameras)
+
+    def now() -> float:
+        return time.perf_counter() - clock_start
+
+    eval_s = 0.0
+
+    def evaluate_now(extra: dict) -> dict:
+        nonlocal eval_s
+        began = time.perf_counter()
+        scores = evaluate(gaussians_from_params(state.params).detach(), scene, split, data)
+        eval_s += time.perf_counter() - began
+        append_metrics(out_dir, {"iteration": state.iteration, "wall_s": now(), "train_s": now() - eval_s,
+                                 "num_gaussians": int(state.params["means"].shape[0]), **extra, **scores})
+        return scores
+
+    initial_eval = evaluate_now({"phase": "input", "round": 0})
+    summary: dict = {"run": str(run_dir.resolve()), "baseline": baseline, "start_iteration": start,
+                     "targets": [{"name": t.name, "origin": t.origin} for r in rounds for t in r],
+                     "rounds": [], "initial_eval": initial_eval}
+
+    prior, prior_text, prior_hash = None, "none (baseline: no virtual views)", ""
+    if not baseline:
+        began = time.perf_counter()
+        train_cams = [cameras[i] for i in split.train]
+        prior, prior_text = obtain_prior(
+            run_dir, out_dir, gaussians0, train_cams, lambda k: data.images[split.train[k]].numpy(),
+            config.prior, config.seed, config.prior_minutes, config.prior_steps, log)
+        prior.eval()
+        prior_hash = prior_version(prior)
+        summary["prior"] = {"description": prior_text, "version": prior_hash,
+                            "seconds": time.perf_counter() - began}
+        log(prior_text)
+    lpips = None
+    if config.lpips_weights:
+        from ..evaluate import load_torchscript
+        lpips = load_torchscript(config.lpips_weights, "LPIPS")
+    try:
+        from .perceptual import PERCEPTUAL_NAME
+    except ImportError:
+        PERCEPTUAL_NAME = "unavailable"
+    summary["perceptual"] = "LPIPS (" + str(config.lpips_weights) + ")" if lpips is not None else str(
+        PERCEPTUAL_NAME() if callable(PERCEPTUAL_NAME) else PERCEPTUAL_NAME)
+
+    cache = GenerationCache(boot_dir / "cache")
+    pool: list[VirtualTarget] = []
+    sampler = ViewSampler(config, config.seed)
+    step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0}   # what each refinement step was
+    view_use: dict[str, int] = {}                               # how often each virtual view was chosen
+    finished = True
+    last_eval = initial_eval
+    rounds_done = 0
+    bar = tqdm(total=config.rounds * config.iterations, desc="bootstrap", file=sys.stderr,
+               dynamic_ncols=True, disable=not progress, unit="it")
+
+    def out_of_time() -> bool:
+        return deadline is not None and time.perf_counter() >= deadline
+
+    def wait_or_stop() -> bool:
+        """Honour pause; True when asked to stop."""
+        nonlocal clock_start
+        if control is None:
+            return False
+        while control.pause.is_set() and not control.stop.is_set():
+            paused_at = time.perf_counter()
+            time.sleep(0.05)
+            clock_start += time.perf_counter() - paused_at  # paused time is nobody's time
+        return control.stop.is_set()
+
+    def checkpoint_now(round_index: int) -> None:
+        state.wall_s, state.train_s = now(), now() - eval_s
+        body = state.payload(train_config)
+        body["bootstrap"] = {"round": round_index, "config": config.to_json_dict(),
+                             "pose": None if sampler.pose is None else sampler.pose.tolist()}
+        save_checkpoint(out_dir, state.iteration, body, train_config.keep_checkpoints)
+
+    try:
+        for round_index, round_goal in enumerate(rounds):
+            if wait_or_stop() or out_of_time():
+                finished = False
+                break
+            round_info = {"round": round_index + 1, "targets": [t.name for t in round_goal], "views": []}
+            # --- virtual views and their I* (from this round's starting Gaussians) ---------------
+            began = time.perf_counter()
+            current = gaussians_from_params(state.params).detach()
+            new_views = _round_virtual_views(round_goal, cameras, split.train, config)
+            if new_views:
+                gaussians_hash = gaussians_version(current)
+                depth_cache: dict[str, torch.Tensor] = {}
+
+                def render_depth(camera) -> torch.Tensor:
+                    key = camera.name + str(camera.world_to_camera.tobytes())
+                    if key not in depth_cache:
+                        with torch.no_grad():
+                            depth_cache[key] = render_fn(current, camera, outputs=("depth",))["depth"]
+                    return depth_cache[key]
+
+                for number, (target_index, view) in enumerate(new_views):
+                    if wait_or_stop() or out_of_time():
+                        break
+                    generated, hit = generate_cached(prior, current, view.camera, config.seed, config.ddim_steps,
+                                                     cache, prior_hash, gaussians_hash)
+                    sources = _blend_sources(view.camera, cameras, split.train, config)
+                    image, mask = blend_target(generated, view.camera, sources, cameras, data.images,
+                                               render_depth, config.blending, config.delta)
+                    name = f"r{round_index + 1}_t{target_index}_{view.name}"
+                    entry = VirtualTarget(name, view.camera.with_pose(view.camera.world_to_camera, name=name),
+                                          image, mask, torch.as_tensor(generated), hit, round_index + 1)
+                    pool.append(entry)
+                    round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
+                                                "cache_hit": hit, "mask_fraction": float(mask.mean()),
+                                                "blend_sources": [int(s) for s in sources]})
+                    if number < config.save_views:
+                        with torch.no_grad():
+                            stage_render = render_fn(current, view.camera, outputs=("rgb",))["rgb"]
+                        write_png(boot_dir / "views" / f"{name}.png",
+                                  _view_png(entry.generated, mask, image, stage_render))
+                round_info["generation_s"] = time.perf_counter() - began
+                log(f"round {round_index + 1}: {len(round_info['views'])} virtual views "
+                    f"({sum(v['cache_hit'] for v in round_info['views'])} from the cache) in "
+                    f"{round_info['generation_s']:.1f} s")
+            # --- refinement ------------------------------------------------------------------
+            began = time.perf_counter()
+            stopped = False
+            for _ in range(config.iterations):
+                if wait_or_stop() or out_of_time():
+                    stopped = True
+                    break
+                step = state.iteration + 1
+                if pool and step % config.virtual_every == 0:
+                    sh_degree = sh_degree_at(step, train_config, sh_max)
+                    frozen = gaussians_from_params(state.params).detach()
+                    choice = sampler.choose(pool, lambda i, w2c: render_l1(render_fn, frozen, pool[i], sh_degree, w2c))
+                    record = virtual_step(step, state, data, train_config, sh_max, pool[choice.index], choice,
+                                          config, render_fn, lpips)
+                    step_counts[record["virtual_branch"]] += 1
+                    view_use[pool[choice.index].name] = view_use.get(pool[choice.index].name, 0) + 1
+                else:
+                    record = _train_step(step, state, data, train_config, sh_max, render_fn, None, log)
+                    record["kind"] = "real"
+                    step_counts["real"] += 1
+                state.iteration = step
+                bar.update(1)
+                if step % config.log_every == 0:
+                    record.update(iteration=step, wall_s=now(), train_s=now() - eval_s, round=round_index + 1)
+                    if config.eval_every and step % config.eval_every == 0:
+                        record.update(evaluate(gaussians_from_params(state.params).detach(), scene, split, data))
+                    append_metrics(out_dir, record)
+                if on_snapshot is not None and snapshot_every > 0 and step % snapshot_every == 0:
+                    on_snapshot(step, gaussians_from_params(state.params).detach(), record)
+                if (step - start) % config.checkpoint_every == 0:
+                    checkpoint_now(round_index + 1)
+            round_info["refine_s"] = time.perf_counter() - began
+            last_eval = evaluate_now({"phase": "round", "round": round_index + 1})
+            round_info["eval"] = last_eval
+            summary["rounds"].append(round_info)
+            checkpoint_now(round_index + 1)
+            if stopped:
+                finished = False
+                break
+            rounds_done += 1
+    finally:
+        bar.close()
+
+    gaussians = gaussians_from_params(state.params).detach()
+    # Like stage I, a run that stopped early leaves its checkpoint; model.ply marks the end of the
+    # run (load_run reads the checkpoint otherwise). A time budget that ran out is an end too.
+    stopped_by_user = control is not None and control.stop.is_set()
+    if not stopped_by_user:
+        write_ply(to_original_frame(_trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), train_config, sh_max)),
+                                    scene.normalization), out_dir / "model.ply")
+    train_config = dataclasses.replace(train_config, iterations=max(state.iteration, start + 1))
+    train_config.save(out_dir / "config.json")
+    summary.update(iteration=state.iteration, finished=finished, rounds_done=rounds_done,
+                   wall_s=now(), cache_hits=cache.hits, cache_misses=cache.misses,
+                   virtual_views=len(pool), last_eval=last_eval, steps=step_counts,
+                   view_use=view_use)
+    _write_summary(boot_dir / "summary.json", summary)
+    return BootstrapResult(out_dir, start, state.iteration, finished, rounds_done, len(gaussians), len(pool),
+                           cache.hits, cache.misses, now(), prior_text, initial_eval, last_eval)
+
+
+def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
+    """[(target index, VirtualView)] for the round's targets, at most config.max_virtual_views."""
+    from .virtual_views import virtual_views
+
+    kwargs = {name: getattr(config, name) for name in ("k", "l") if getattr(config, name) is not None}
+    views = []
+    for index, target in enumerate(goal):
+        views.extend((index, view) for view in virtual_views(target.camera, cameras, list(train), **kwargs))
+    return views[:config.max_virtual_views]
+
+
+def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfig) -> list[int]:
+    """The K training photos nearest the virtual view (warped into it for blending)."""
+    from .virtual_views import DEFAULT_K, nearest_training_views
+
+    if not config.blending:
+        return []
+    return nearest_training_views(camera, cameras, list(train), config.k or DEFAULT_K)
+
+
+def baseline_run(run_dir: str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
+                 seed: int = 0, progress: bool = True, log=None) -> BootstrapResult:
+    """Stage I continued on the photos alone, with the same continuation schedule the bootstrap
+    uses, for ``minutes`` (the bootstrap's total time) or ``iterations``: the comparison baseline."""
+    config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1)
+    return run_bootstrap(run_dir, out_dir, None, config, progress=progress, log=log)

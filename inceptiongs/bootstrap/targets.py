@@ -1,0 +1,102 @@
+"""Which views stage II repairs: flagged views, a named view, or the split's j*.
+
+Targets are poses only (no photo is used): a flag is the viewer's camera in the scene's
+normalised frame (docs/viewer.md), a named view is a scene camera (held-out views allowed,
+their photos stay unseen), j* is the unstructured protocol's target view.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..camera import Camera, camera_from_json_dict, pose_distance
+from ..errors import InputError
+
+FLAGS_FILE_NAME = "flags.json"     # in the scene's work folder, as the viewer saves it
+FLAGS_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    camera: Camera          # normalised frame, training resolution
+    origin: str             # "flag" | "view" | "j*"
+
+
+def at_training_resolution(camera: Camera, train_cameras: Sequence[Camera]) -> Camera:
+    """A flag made in a viewer window of any size, rescaled (same field of view and aspect) so
+    its width is the training photos' median width: generation and rendering then cost what
+    a training view costs."""
+    width = float(np.median([c.width for c in train_cameras]))
+    if width <= 0 or camera.width <= 0:
+        raise InputError(f"{camera.name}: camera has no pixels")
+    return camera.scaled(camera.width / width)
+
+
+def read_flag_cameras(flags_file: Path) -> list[Camera]:
+    """The cameras of the viewer's flags.json (format in docs/viewer.md, written by
+    inceptiongs.app.flags.save_flags). Read here because the library never imports the app;
+    tests/test_bootstrap_run.py checks both readers agree on a file the app wrote."""
+    flags_file = Path(flags_file)
+    if not flags_file.is_file():
+        raise InputError(f"{flags_file}: flags file does not exist")
+    try:
+        data = json.loads(flags_file.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{flags_file}: not a readable flags file ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("flags"), list):
+        raise InputError(f"{flags_file}: flags file must be an object with a 'flags' list")
+    if data.get("version") != FLAGS_FORMAT_VERSION:
+        raise InputError(f"{flags_file}: unsupported flags file version {data.get('version')!r} "
+                         f"(expected {FLAGS_FORMAT_VERSION})")
+    cameras = []
+    for index, entry in enumerate(data["flags"]):
+        if not isinstance(entry, dict) or not isinstance(entry.get("camera"), dict):
+            raise InputError(f"{flags_file}: flag {index} must be an object with a 'camera' object")
+        name = str(entry.get("name", f"flag {index + 1}"))
+        cameras.append(camera_from_json_dict({**entry["camera"], "name": name}, f"{flags_file} (flag {index})"))
+    return cameras
+
+
+def flag_targets(flags_file: Path, train_cameras: Sequence[Camera]) -> list[Target]:
+    cameras = read_flag_cameras(flags_file)
+    if not cameras:
+        raise InputError(f"{flags_file}: no flagged views in the file")
+    return [Target(c.name, at_training_resolution(c, train_cameras), "flag") for c in cameras]
+
+
+def named_target(scene, name: str) -> Target:
+    matches = [i for i, c in enumerate(scene.cameras) if c.name == name or Path(c.name).stem == name]
+    if not matches:
+        raise InputError(f"--target-view {name!r}: no such view in {scene.root} "
+                         f"(views are named like {scene.cameras[0].name!r})")
+    return Target(scene.cameras[matches[0]].name, scene.cameras[matches[0]], "view")
+
+
+def split_targets(split, scene, rounds: int) -> list[Target]:
+    """j* for one round; with more rounds the other scarce held-out views follow, nearest first
+    (each round gets new targets in the same badly observed region)."""
+    if split.target_view is None:
+        raise InputError(f"the run's split (protocol {split.protocol!r}) has no target view j*: "
+                         "give --targets FLAGS.json or --target-view NAME")
+    target = scene.cameras[split.target_view]
+    others = sorted((i for i in split.scarce_test if i != split.target_view),
+                    key=lambda i: (pose_distance(target.world_to_camera, scene.cameras[i].world_to_camera), i))
+    chosen = [split.target_view] + (others[:max(rounds - 1, 0)] if rounds > 1 else [])
+    return [Target(scene.cameras[i].name, scene.cameras[i], "j*" if i == split.target_view else "view")
+            for i in chosen]
+
+
+def round_targets(targets: Sequence[Target], rounds: int) -> list[list[Target]]:
+    """Targets per round: dealt round-robin when there are at least as many as rounds, else
+    every round repairs all of them again (from the previous round's Gaussians)."""
+    if not targets:
+        raise InputError("no target views")
+    if len(targets) >= rounds:
+        return [list(targets[r::rounds]) for r in range(rounds)]
+    return [list(targets) for _ in range(rounds)]

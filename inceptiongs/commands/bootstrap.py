@@ -1,0 +1,80 @@
+"""`inceptiongs bootstrap RUN`: stage II, repair the flagged (or j*) views of a stage-I run.
+
+Writes RUN2 (default RUN_bootstrap), a run folder that eval/report/render/the viewer read;
+see docs/bootstrap.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import InputError
+
+HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..bootstrap.config import BootstrapConfig
+
+    d = BootstrapConfig()
+    parser.add_argument("run", help="a stage-I run folder (inceptiongs train)")
+    target = parser.add_mutually_exclusive_group()
+    target.add_argument("--targets", metavar="FLAGS.json", default=None,
+                        help="the viewer's flags file (default: the scene's flags.json when it exists, "
+                             "else the split's target view j*)")
+    target.add_argument("--target-view", metavar="NAME", default=None, help="repair this scene view's pose")
+    parser.add_argument("--out", default=None, help="output run folder (default RUN_bootstrap)")
+    parser.add_argument("--rounds", type=int, default=d.rounds, help=f"bootstrap rounds (default {d.rounds})")
+    parser.add_argument("--minutes", type=float, default=None,
+                        help="wall budget for the whole bootstrap (prior, generation, refinement)")
+    parser.add_argument("--iterations", type=int, default=d.iterations,
+                        help=f"refinement steps per round (default {d.iterations})")
+    parser.add_argument("--seed", type=int, default=d.seed, help="generation and sampling seed")
+    parser.add_argument("--k", type=int, default=None, help="nearest training views per target")
+    parser.add_argument("--l", type=int, default=None, help="interpolated poses per training view")
+    parser.add_argument("--ddim-steps", type=int, default=d.ddim_steps, help="DDIM steps per generated image")
+    parser.add_argument("--prior-minutes", type=float, default=d.prior_minutes,
+                        help="budget of the short prior training when the run has no prior")
+    parser.add_argument("--no-blending", action="store_true", help="ablation: I* = generated image only")
+    parser.add_argument("--uniform-sampling", action="store_true",
+                        help="ablation: uniform virtual-view sampling instead of Langevin")
+    parser.add_argument("--untrained-prior", action="store_true", help="ablation: randomly initialised prior")
+    parser.add_argument("--lpips-weights", metavar="FILE", default=None,
+                        help="TorchScript LPIPS for the perceptual loss (default: a weight-free distance)")
+
+
+def config_from_args(args):
+    from ..bootstrap.config import BootstrapConfig
+
+    if args.lpips_weights is not None and not Path(args.lpips_weights).is_file():
+        raise InputError(f"{args.lpips_weights}: LPIPS weights file does not exist")
+    return BootstrapConfig(
+        seed=args.seed, rounds=args.rounds, iterations=args.iterations, minutes=args.minutes,
+        k=args.k, l=args.l, ddim_steps=args.ddim_steps, prior_minutes=args.prior_minutes,
+        blending=not args.no_blending, sampling="uniform" if args.uniform_sampling else "langevin",
+        prior="untrained" if args.untrained_prior else "trained", lpips_weights=args.lpips_weights,
+    ).validate("arguments")
+
+
+def run(args) -> int:
+    from ..bootstrap.runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
+
+    config = config_from_args(args)
+    run_dir = Path(args.run)
+    out_dir = Path(args.out) if args.out else default_out_dir(run_dir)
+    _, scene, split, _, _ = load_stage1(run_dir)
+    targets = resolve_targets(scene, split, args.targets, args.target_view, config.rounds)
+    print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
+    result = run_bootstrap(run_dir, out_dir, targets, config)
+    print(f"prior: {result.prior}")
+    print(f"{result.virtual_views} virtual views ({result.cache_hits} from the cache), "
+          f"iterations {result.start_iteration}..{result.iteration}, {result.wall_s:.1f} s, "
+          f"{result.num_gaussians} Gaussians")
+    for group in ("scarce", "covered", "all"):
+        before, after = result.initial_eval.get(f"{group}_psnr"), result.last_eval.get(f"{group}_psnr")
+        if before is not None and after is not None:
+            print(f"{group:>8} PSNR {before:6.2f} -> {after:6.2f} dB   SSIM "
+                  f"{result.initial_eval[f'{group}_ssim']:.4f} -> {result.last_eval[f'{group}_ssim']:.4f}")
+    print(f"wrote {out_dir}")
+    return 0
