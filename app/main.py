@@ -21,14 +21,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def default_job_factory(source):
-    """The stage-I trainer's job for a scene (None when the trainer's job is not installed)."""
-    try:
-        from inceptiongs.train.job import TrainJob  # noqa: PLC0415
-    except ImportError:
+    """The job the "start training" button runs: stage-I training for a scene, stage II
+    (bootstrap) for a run when views are flagged (app/jobs.py). None when the source has
+    neither a scene nor a run (a bare PLY)."""
+    from .flags import flags_path  # noqa: PLC0415
+    from .jobs import default_job, run_dir_of  # noqa: PLC0415
+
+    if source.scene is None and run_dir_of(source) is None:
         return None
-    if source.scene is None:
-        return None
-    return lambda src: TrainJob.for_scene(src.scene.root)  # noqa: E731
+    return lambda src: default_job(src, flags_path(src.work_dir))  # noqa: E731
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -121,6 +121,11 @@ def _training(viewer) -> None:
     if run is None or not run.alive:
         if imgui.button("start training"):
             viewer.start_training()
+        imgui.same_line()
+        if imgui.button("Bootstrap flagged views"):
+            from .jobs import start_bootstrap  # noqa: PLC0415
+
+            start_bootstrap(viewer)
     else:
         if run.control.pause.is_set():
             if imgui.button("resume"):

@@ -1,0 +1,233 @@
+"""Stage II end to end on the demo scene (tiny sizes, few steps) and its CLI guards."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from inceptiongs.bootstrap.config import BootstrapConfig
+from inceptiongs.bootstrap.generation import cache_key
+from inceptiongs.bootstrap.refine import continuation_config, probability
+from inceptiongs.bootstrap.runner import resolve_targets, run_bootstrap
+from inceptiongs.bootstrap.targets import Target, read_flag_cameras, round_targets
+from inceptiongs.cli import main
+from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.errors import InputError
+from inceptiongs.evaluate import evaluate_run
+from inceptiongs.live import SnapshotBox
+from inceptiongs.protocols import Split
+from inceptiongs.train.config import TrainConfig
+from inceptiongs.train.run_folder import load_run
+from inceptiongs.train.trainer import train
+
+# The bootstrap may cost a little on covered views within a handful of steps (one virtual view
+# in two is a generated image); more than this is a regression. The issue's benchmark target
+# (-0.2 dB) is for full runs: docs/bootstrap.md.
+COVERED_PSNR_TOLERANCE_DB = 0.5
+
+
+@pytest.fixture(scope="module")
+def stage1(tmp_path_factory) -> Path:
+    """A short stage-I run on the demo scene at 48x36 (unstructured protocol: j* exists)."""
+    root = tmp_path_factory.mktemp("bootstrap")
+    scene = write_demo_scene(root / "scene", progress=False)
+    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=30,
+                         densify_from=10, densify_every=10, densify_until=25, opacity_reset_every=1000,
+                         sh_increase_every=10, normal_from=1, multiview_from=1000, log_every=10,
+                         eval_every=30, checkpoint_every=30)
+    train(config, root / "run", progress=False)
+    return root / "run"
+
+
+def _config(**overrides) -> BootstrapConfig:
+    base = BootstrapConfig(seed=2, iterations=12, k=2, l=2, ddim_steps=2, prior_steps=3, prior_minutes=1.0,
+                           log_every=1, save_views=2, checkpoint_every=6)
+    return dataclasses.replace(base, **overrides)
+
+
+def _targets(run: Path):
+    _, scene, _ = load_run(run)
+    split = Split.load(run / "split.json", scene.cameras)
+    return resolve_targets(scene, split, None, None, 1)
+
+
+def _records(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def boot(stage1, tmp_path_factory):
+    out = tmp_path_factory.mktemp("boot") / "run_bootstrap"
+    result = run_bootstrap(stage1, out, _targets(stage1), _config(), progress=False)
+    return out, result
+
+
+@pytest.mark.slow
+def test_bootstrap_writes_a_run_folder_and_keeps_covered_views(stage1, boot):
+    out, result = boot
+    for name in ("config.json", "split.json", "model.ply", "metrics.jsonl", "bootstrap/summary.json",
+                 "bootstrap/config.json", "prior/prior.pt"):
+        assert (out / name).is_file(), name
+    assert (out / "split.json").read_text() == (stage1 / "split.json").read_text()
+    assert list((out / "checkpoints").glob("step_*.pt"))
+    assert len(list((out / "bootstrap" / "views").glob("*.png"))) == 2
+    assert result.finished and result.iteration == result.start_iteration + 12
+    assert result.virtual_views == 4 and result.cache_misses == 4  # K * L = 2 * 2, all new
+
+    records = _records(out)
+    steps = [r for r in records if "kind" in r]
+    assert [r["iteration"] for r in steps] == list(range(result.start_iteration + 1, result.iteration + 1))
+    assert {r["kind"] for r in steps} == {"real", "virtual"}
+    virtual = [r for r in steps if r["kind"] == "virtual"]
+    # Langevin: each update is divided by P = exp(L1) >= 1.
+    assert all(0 < r["weight"] <= 1 and abs(r["weight"] * r["p"] - 1) < 1e-9 for r in virtual)
+    assert all(isinstance(r["wall_s"], float) for r in records)
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    views = summary["rounds"][0]["views"]
+    assert any(v["mask_fraction"] > 0 for v in views), "blending trusted no warped pixel at all"
+
+    # Readable by every run reader; scores comparable with the input run's.
+    gaussians, _, config = load_run(out)
+    assert len(gaussians) == result.num_gaussians and config.iterations == result.iteration
+    before, after = evaluate_run(stage1, progress=False), evaluate_run(out, progress=False)
+    assert before["groups"]["covered"]["views"] == after["groups"]["covered"]["views"] > 0
+    drop = before["groups"]["covered"]["psnr"] - after["groups"]["covered"]["psnr"]
+    assert drop <= COVERED_PSNR_TOLERANCE_DB, f"covered views lost {drop:.2f} dB"
+
+
+@pytest.mark.slow
+def test_rerun_reads_generated_images_from_the_cache(stage1, boot):
+    out, first = boot
+    again = run_bootstrap(stage1, out, _targets(stage1), _config(iterations=2), progress=False)
+    assert again.cache_hits == first.virtual_views and again.cache_misses == 0
+    # Another seed is another key: nothing hits.
+    other = run_bootstrap(stage1, out, _targets(stage1), _config(iterations=2, seed=5), progress=False)
+    assert other.cache_hits == 0 and other.cache_misses == other.virtual_views
+
+
+@pytest.mark.slow
+def test_ablations_change_what_runs(stage1, tmp_path):
+    from inceptiongs.bootstrap.job import BootstrapJob
+    from inceptiongs.train.job import JobControl
+
+    box = SnapshotBox()
+    config = _config(blending=False, sampling="uniform", prior="untrained", iterations=6, rounds=2)
+    job = BootstrapJob(run_dir=stage1, out_dir=tmp_path / "ablation", config=config, snapshot_every=2)
+    job.run(box, JobControl())
+    out = tmp_path / "ablation"
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    views = [v for r in summary["rounds"] for v in r["views"]]
+    assert views and all(v["mask_fraction"] == 0 and not v["blend_sources"] for v in views)
+    assert "untrained" in summary["prior"]["description"] and not (out / "prior").exists()
+    virtual = [r for r in _records(out) if r.get("kind") == "virtual"]
+    assert virtual and all(r["weight"] == 1.0 and r["p"] == 1.0 for r in virtual)  # uniform: no 1/P
+    # Two rounds: the second starts from the first's Gaussians and keeps its views in the pool.
+    assert [r["round"] for r in summary["rounds"]] == [1, 2] and summary["rounds_done"] == 2
+    assert summary["virtual_views"] == len(views) == 2 * len(summary["rounds"][0]["views"])
+    last = box.latest()
+    assert last is not None and "finished" in last.message
+
+
+def test_continuation_schedule_and_sampling_weight():
+    stage1 = TrainConfig(iterations=100, densify_until=50, densify_every=10, opacity_reset_every=30)
+    extended = continuation_config(stage1, 100, 60, densify=True)
+    assert extended.iterations == 160 and 100 < extended.densify_from < extended.densify_until <= 160
+    assert extended.opacity_reset_every > 10**9  # no opacity reset in a refinement
+    frozen = continuation_config(stage1, 100, 60, densify=False)
+    assert frozen.densify_until <= 100
+    assert probability(0.0) == 1.0 and probability(0.5) == pytest.approx(np.exp(0.5))
+    assert probability(1e9) < np.inf
+
+
+def test_round_targets_and_cache_keys():
+    cameras = [Target(str(i), None, "view") for i in range(3)]
+    assert round_targets(cameras, 1) == [cameras]
+    assert round_targets(cameras, 2) == [[cameras[0], cameras[2]], [cameras[1]]]
+    assert round_targets(cameras[:1], 2) == [cameras[:1], cameras[:1]]
+    with pytest.raises(InputError):
+        round_targets([], 1)
+    from inceptiongs.camera import Camera
+    cam = Camera("v", 8, 6, 10.0, 10.0, 4.0, 3.0, np.eye(4))
+    key = cache_key(cam, 0, "p", "g", 10)
+    assert key == cache_key(cam, 0, "p", "g", 10)
+    moved = np.eye(4)
+    moved[0, 3] = 1e-6
+    for other in (cache_key(cam.with_pose(moved), 0, "p", "g", 10), cache_key(cam, 1, "p", "g", 10),
+                  cache_key(cam, 0, "q", "g", 10), cache_key(cam, 0, "p", "h", 10), cache_key(cam, 0, "p", "g", 5)):
+        assert other != key
+
+
+def test_flags_reader_agrees_with_the_viewer(tmp_path):
+    from inceptiongs.app.flags import Flag, load_flags, save_flags
+    from inceptiongs.camera import Camera, look_at
+
+    pose = look_at(np.array([1.0, 2.0, 3.0]), np.zeros(3))
+    flags = [Flag("flag 1", Camera("x", 640, 360, 500.0, 500.0, 320.0, 180.0, pose), "2026-01-01T00:00:00+00:00")]
+    path = tmp_path / "flags.json"
+    save_flags(path, flags)
+    ours, theirs = read_flag_cameras(path), [f.camera for f in load_flags(path)]
+    assert [c.to_json_dict() for c in ours] == [c.to_json_dict() for c in theirs]
+    path.write_text(json.dumps({"version": 7, "flags": []}))
+    with pytest.raises(InputError, match="version"):
+        read_flag_cameras(path)
+
+
+@pytest.mark.slow
+def test_cli_errors(stage1, tmp_path, capsys):
+    assert main(["bootstrap", str(tmp_path / "missing")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    bad = tmp_path / "flags.json"
+    bad.write_text("{not json")
+    assert main(["bootstrap", str(stage1), "--targets", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "flags.json" in capsys.readouterr().err
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps({"version": 1, "flags": []}))
+    assert main(["bootstrap", str(stage1), "--targets", str(empty), "--out", str(tmp_path / "o")]) == 2
+    assert "no flagged views" in capsys.readouterr().err
+    assert main(["bootstrap", str(stage1), "--target-view", "nope", "--out", str(tmp_path / "o")]) == 2
+    assert "nope" in capsys.readouterr().err
+    assert main(["bootstrap", str(stage1), "--rounds", "0", "--out", str(tmp_path / "o")]) == 2
+    # A run without a target view (protocol none) and no flags: told how to give targets.
+    config = TrainConfig.load(stage1 / "config.json")
+    none_run = tmp_path / "none_run"
+    train(dataclasses.replace(config, protocol="none", iterations=1, eval_every=1, checkpoint_every=1,
+                              log_every=1), none_run, progress=False)
+    assert main(["bootstrap", str(none_run), "--out", str(tmp_path / "o")]) == 2
+    assert "--target-view" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_viewer_jobs_pick_training_or_bootstrap(tmp_path):
+    from types import SimpleNamespace
+
+    from inceptiongs.app.flags import Flag, save_flags
+    from inceptiongs.app.jobs import default_job, start_bootstrap
+    from inceptiongs.app.main import default_job_factory
+    from inceptiongs.bootstrap.job import BootstrapJob
+    from inceptiongs.camera import Camera
+    from inceptiongs.train.job import TrainJob
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    scene = SimpleNamespace(root=tmp_path / "scene")
+    source = SimpleNamespace(kind="run", path=run, model_path=None, scene=scene, work_dir=tmp_path)
+    flags_file = tmp_path / "flags.json"
+    # No flags yet: the button trains stage I (a CPU-sized schedule, in the scene's work folder).
+    job = default_job_factory(source)(source)
+    assert isinstance(job, TrainJob) and job.run_dir.parent == tmp_path / "runs"
+    assert job.config.densify_until < 15_000  # short_run_schedule applied
+    viewer = SimpleNamespace(training=None, source=source, flags_file=flags_file, flags=[], status="")
+    start_bootstrap(viewer)
+    assert viewer.training is None and "no flagged views" in viewer.status
+    save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
+    job = default_job(source, flags_file)
+    assert isinstance(job, BootstrapJob) and job.run_dir == run and job.targets_file == flags_file
+    bare = SimpleNamespace(kind="ply", path=tmp_path / "m.ply", model_path=tmp_path / "m.ply", scene=None,
+                           work_dir=tmp_path)
+    assert default_job_factory(bare) is None
