@@ -20,17 +20,19 @@ from inceptiongs.train.run_folder import to_original_frame
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    """A run folder as stage I leaves it (config.json + model.ply), with Gaussians standing in
-    for a trained model: the demo scene's points as small isotropic splats."""
-    root = tmp_path_factory.mktemp("prior_cli")
+def make_stand_in_run(root, protocol: str | None = None):
+    """A run folder as stage I leaves it (config.json + model.ply, and split.json when a
+    protocol is given), with Gaussians standing in for a trained model: the demo scene's points
+    as small isotropic splats."""
     scene_dir = write_demo_scene(root / "scene", progress=False)
-    config = TrainConfig(scene=str(scene_dir), downscale=4)
+    config = TrainConfig(scene=str(scene_dir), downscale=4, protocol=protocol or "none")
     run = root / "run"
     run.mkdir()
     config.save(run / "config.json")
     scene = load_scene(scene_dir, downscale=4)
+    if protocol is not None:
+        from inceptiongs.protocols import make_split
+        make_split(scene, protocol, 0).save(run / "split.json")
     points = torch.as_tensor(scene.points[::4], dtype=torch.float32)
     n = points.shape[0]
     colors = torch.as_tensor(scene.point_colors[::4], dtype=torch.float32) / 255.0
@@ -38,6 +40,11 @@ def run_dir(tmp_path_factory):
                           torch.full((n,), 2.0), ((colors - 0.5) / 0.28209479177387814)[:, None, :])
     write_ply(to_original_frame(gaussians, scene.normalization), run / "model.ply")
     return run
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    return make_stand_in_run(tmp_path_factory.mktemp("prior_cli"))
 
 
 @pytest.mark.slow

@@ -56,7 +56,7 @@ def run(args) -> int:
         camera = scene.normalization.camera_to_normalized(read_camera_json(args.camera))
     else:
         camera = scene.camera_by_name(args.view)
-    factor = prior.config.unet.downsample_factor
+    factor = prior.patch_multiple
     window = prior.config.patch_size if args.window is None else args.window
     if window < factor or window % factor:
         raise InputError(f"--window: must be a positive multiple of {factor}, got {window}")

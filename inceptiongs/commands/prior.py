@@ -1,8 +1,11 @@
-"""`inceptiongs prior RUN [--minutes M | --steps N]`: train the tiny diffusion prior on a finished run.
+"""`inceptiongs prior RUN [--minutes M | --steps N] [--backend tiny|sd --sd-path DIR]`: train the
+diffusion prior on a finished run.
 
 Patches come from the run's training views only (RUN/split.json; every view when the run has
 no split), so held-out views stay unseen. Checkpoints go to RUN/prior/prior.pt; an existing
-checkpoint is resumed unless --restart is given.
+checkpoint is resumed unless --restart is given. --eval-every-minutes M also scores generated
+images on the held-out views every M minutes of training (RUN/prior/metrics.jsonl, for
+`inceptiongs report`).
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-HELP = "train the scene-adaptive diffusion prior on a run's training photos (tiny backend)"
+HELP = "train the scene-adaptive diffusion prior on a run's training photos (tiny or sd backend)"
 DEFAULT_MINUTES = 15.0
 
 
@@ -28,6 +31,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
+    add_backend_arguments(parser)
+    parser.add_argument("--eval-every-minutes", type=float, default=None,
+                        help="score generated images on the held-out views every M training minutes")
+    parser.add_argument("--eval-steps", type=int, default=20, help="DDIM steps of those evaluations")
+
+
+def add_backend_arguments(parser: argparse.ArgumentParser, prefix: str = "") -> None:
+    """--[prefix]backend and --sd-path (shared with `inceptiongs train --prior`)."""
+    parser.add_argument(f"--{prefix}backend", choices=("tiny", "sd"), default=None,
+                        help="tiny: trained from scratch (default); sd: Stable Diffusion 1.5 + ControlNet "
+                             "from --sd-path (needs the diffusers extra)")
+    parser.add_argument("--sd-path", default=None,
+                        help="local diffusers folder with unet/ and vae/ (see docs/prior.md)")
+
+
+def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path, **overrides):
+    """A fresh prior of ``backend`` fitted to ``gaussians``; overrides: config fields (None = default)."""
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        if (backend or "tiny") == "sd":
+            from ..prior.sd_backend import SDPrior, SDPriorConfig
+            if not sd_path:
+                raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
+            config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
+            return SDPrior.for_gaussians(config, gaussians, device)
+        from ..prior.model import Prior, PriorConfig
+        return Prior.for_gaussians(replace(PriorConfig(), **overrides), gaussians).to(device)
+    except ValueError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def training_views(run_dir: Path, scene) -> list[int]:
@@ -42,12 +74,12 @@ def training_views(run_dir: Path, scene) -> list[int]:
 def run(args) -> int:
     import torch
 
-    from ..prior.model import Prior, PriorConfig
-    from ..prior.trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir, resume_trainer
+    from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
     from ..train.run_folder import load_run
 
     run_dir = Path(args.run)
-    for name in ("minutes", "steps", "patch_size", "batch_size", "checkpoint_every"):
+    for name in ("minutes", "steps", "patch_size", "batch_size", "checkpoint_every", "eval_every_minutes",
+                 "eval_steps"):
         value = getattr(args, name)
         if value is not None and value <= 0:
             raise InputError(f"--{name.replace('_', '-')}: must be positive, got {value}")
@@ -63,19 +95,23 @@ def run(args) -> int:
     checkpoint = prior_dir(run_dir) / CHECKPOINT_NAME
     if checkpoint.is_file() and not args.restart:
         trainer = resume_trainer(run_dir, gaussians, cameras, load_image, device=device)
+        if args.backend and args.backend != trainer.prior.backend:
+            raise InputError(f"{checkpoint}: holds a {trainer.prior.backend} prior, not {args.backend} "
+                             "(use --restart to replace it)")
         print(f"resuming {checkpoint} at step {trainer.step_count}")
     else:
-        config = PriorConfig()
-        overrides = {"patch_size": args.patch_size, "batch_size": args.batch_size, "seed": args.seed}
-        config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
-        try:
-            prior = Prior.for_gaussians(config, gaussians).to(device)
-        except ValueError as exc:
-            raise InputError(f"{run_dir}: {exc}") from None
+        prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
+                          batch_size=args.batch_size, seed=args.seed)
+        (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
+    evaluate = None
+    if args.eval_every_minutes is not None:
+        from ..evaluate_generated import generated_scores_fn
+        evaluate = generated_scores_fn(run_dir, gaussians, scene, steps=args.eval_steps)
     first = trainer.step_count
     losses = trainer.train(steps=args.steps, minutes=minutes, run_dir=run_dir,
-                           checkpoint_every=args.checkpoint_every)
+                           checkpoint_every=args.checkpoint_every, evaluate=evaluate,
+                           evaluate_every_s=None if args.eval_every_minutes is None else 60.0 * args.eval_every_minutes)
     if losses:
         window = max(1, min(50, len(losses) // 4))
         print(f"prior: steps {first}..{trainer.step_count} on {len(cameras)} training views, "

@@ -177,6 +177,8 @@ class PriorTrainer:
         if run_dir is not None:
             if done and evaluate is not None:
                 maybe_evaluate(force=True)
+            elif done and (not log_every or self.step_count % log_every):
+                self.log(run_dir, last=min(done, log_every or done))  # the last steps' record
             save_prior(run_dir, self)
         return self.losses[-done:] if done else []
 
