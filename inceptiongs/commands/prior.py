@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval-every-minutes", type=float, default=None,
                         help="score generated images on the held-out views every M training minutes")
     parser.add_argument("--eval-steps", type=int, default=20, help="DDIM steps of those evaluations")
+    parser.add_argument("--eval-views", type=int, default=None,
+                        help="score at most this many held-out views per group in those evaluations")
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser, prefix: str = "") -> None:
@@ -79,7 +81,7 @@ def run(args) -> int:
 
     run_dir = Path(args.run)
     for name in ("minutes", "steps", "patch_size", "batch_size", "checkpoint_every", "eval_every_minutes",
-                 "eval_steps"):
+                 "eval_steps", "eval_views"):
         value = getattr(args, name)
         if value is not None and value <= 0:
             raise InputError(f"--{name.replace('_', '-')}: must be positive, got {value}")
@@ -107,7 +109,7 @@ def run(args) -> int:
     evaluate = None
     if args.eval_every_minutes is not None:
         from ..evaluate_generated import generated_scores_fn
-        evaluate = generated_scores_fn(run_dir, gaussians, scene, steps=args.eval_steps)
+        evaluate = generated_scores_fn(run_dir, gaussians, scene, steps=args.eval_steps, max_views=args.eval_views)
     first = trainer.step_count
     losses = trainer.train(steps=args.steps, minutes=minutes, run_dir=run_dir,
                            checkpoint_every=args.checkpoint_every, evaluate=evaluate,
