@@ -80,7 +80,8 @@ def _tensor(x, name: str, dtype=None, device=None) -> torch.Tensor:
     t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
     if not (t.is_floating_point()):
         raise ValueError(f"{name} must be a float array, got {t.dtype}")
-    return t.to(dtype=dtype or t.dtype, device=device)
+    # Warps build targets; nothing is differentiated through them, so no graph is kept.
+    return t.detach().to(dtype=dtype or t.dtype, device=device)
 
 
 def _check_shape(t: torch.Tensor, shape: tuple, name: str) -> None:
