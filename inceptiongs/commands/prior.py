@@ -64,18 +64,10 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
         raise InputError(f"{where}: {exc}") from None
 
 
-def training_views(run_dir: Path, scene) -> list[int]:
-    from ..protocols import Split
-
-    split_path = run_dir / "split.json"
-    if not split_path.is_file():
-        return list(range(len(scene.cameras)))
-    return list(Split.load(split_path, scene.cameras).train)
-
-
 def run(args) -> int:
     import torch
 
+    from ..prior.joint import training_views
     from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
     from ..train.run_folder import load_run
 

@@ -24,6 +24,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
     parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
+    from .prior import add_backend_arguments
+    prior = parser.add_argument_group("joint diffusion-prior training")
+    prior.add_argument("--prior", action="store_true",
+                       help="also train the diffusion prior: one prior step every --prior-every steps "
+                            "(checkpointed with the run in RUN/prior/)")
+    prior.add_argument("--prior-every", type=int, default=10, help="trainer steps per prior step (default 10)")
+    add_backend_arguments(prior, prefix="prior-")
 
 
 def build_config(args) -> "TrainConfig":
@@ -54,8 +61,32 @@ def run(args) -> int:
         config = resumed
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
-    result = train(config, out, resume=args.resume)
+    joint = joint_prior(args, out, config) if args.prior else None
+    result = train(config, out, resume=args.resume, after_step=joint)
+    if joint is not None:
+        saved = joint.finish()
+        if saved is not None:
+            print(f"{saved}: prior at step {joint.trainer.step_count} ({joint.trainer.train_s:.0f} s of prior training)")
     summary = ", ".join(f"{k} {v:.3f}" for k, v in result.last_eval.items())
     print(f"{out}: {result.iteration} iterations, {result.num_gaussians} Gaussians"
           + (f"; {summary}" if summary else ""))
     return 0
+
+
+def joint_prior(args, out: Path, config):
+    """The stage-I trainer's after_step hook that trains the prior alongside (--prior)."""
+    import torch
+
+    from ..prior.joint import JointPrior
+    from ..scene import load_scene
+    from .prior import new_prior
+
+    if args.prior_every < 1:
+        raise InputError(f"--prior-every: must be >= 1, got {args.prior_every}")
+    if (args.prior_backend or "tiny") == "sd" and not args.sd_path:
+        raise InputError("--prior-backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+    return JointPrior(out, scene, lambda gaussians: new_prior(args.prior_backend, args.sd_path, gaussians.to(device),
+                                                              device, out, seed=config.seed),
+                      every=args.prior_every, restart=not args.resume, device=device)
