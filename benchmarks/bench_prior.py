@@ -5,6 +5,15 @@ Timings do not depend on the weights, so an untrained prior is used; the Gaussia
 synthetic blob (--gaussians N) or a finished run's model (--run RUN).
 
     python benchmarks/bench_prior.py [--steps 20] [--gaussians 20000] [--run RUN] [--device cpu]
+
+Quality targets (--quality RUN, a stage-I run of statuette at downscale 4, unstructured
+protocol): trains the prior for --minutes (default 15) with an evaluation every
+--eval-every minutes, scores generated images on the held-out views with 20 and 5 DDIM
+steps (`inceptiongs eval --generated`), writes RUN_prior-report figure, and checks: scarce
+mean SSIM generated >= render; covered PSNR generated >= render - 2 dB; 20 DDIM steps per
+image < 20 s.
+
+    python benchmarks/bench_prior.py --quality RUN [--minutes 15] [--eval-every 5]
 """
 
 from __future__ import annotations
@@ -42,9 +51,15 @@ def main() -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--train-steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    parser.add_argument("--quality", metavar="RUN", default=None, help="run the quality-target benchmark on RUN")
+    parser.add_argument("--minutes", type=float, default=15.0, help="prior training time for --quality")
+    parser.add_argument("--eval-every", type=float, default=5.0, help="minutes between evaluations for --quality")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.quality:
+        quality(args.quality, args.minutes, args.eval_every)
+        return
 
     if args.run:
         from inceptiongs.train.run_folder import load_run
@@ -82,6 +97,33 @@ def main() -> None:
     cpu = (time.process_time() - cpu) / args.train_steps
     print(f"training step (batch {prior.config.batch_size} x {trainer.patch_size}^2 patches, G-buffers "
           f"rendered on the fly): wall {wall:.2f} s, cpu {cpu:.2f} s -> {60 / wall:.0f} steps/min (wall)")
+
+
+def quality(run: str, minutes: float, eval_every: float) -> None:
+    """The issue's quality targets through the same commands a user runs."""
+    import json
+    from pathlib import Path
+
+    from inceptiongs.cli import main as cli
+
+    assert cli(["prior", run, "--minutes", f"{minutes:g}", "--restart", "--eval-every-minutes", f"{eval_every:g}",
+                "--eval-views", "1", "--eval-steps", "10"]) == 0
+    assert cli(["eval", run, "--generated", "--ddim-steps", "20,5"]) == 0
+    assert cli(["report", run, "--prior", "--out", str(Path(run).with_name(Path(run).name + "_prior-report.png"))]) == 0
+    summary = json.loads((Path(run) / "eval" / "generated.json").read_text())
+    at20 = next(e for e in summary["by_steps"] if e["ddim_steps"] == 20)
+    scarce, covered = at20["groups"]["scarce"], at20["groups"]["covered"]
+    checks = {
+        "scarce SSIM generated >= render": (scarce["generated"]["ssim"], scarce["render"]["ssim"],
+                                            scarce["generated"]["ssim"] >= scarce["render"]["ssim"]),
+        "covered PSNR generated >= render - 2 dB": (covered["generated"]["psnr"], covered["render"]["psnr"],
+                                                    covered["generated"]["psnr"] >= covered["render"]["psnr"] - 2.0),
+    }
+    for name, (generated, render, ok) in checks.items():
+        print(f"{name}: generated {generated:.4f}, render {render:.4f} -> {'met' if ok else 'NOT met'}")
+    seconds = at20["seconds_per_image"]
+    print(f"20 DDIM steps: {seconds:.1f} s per image (wall, this machine's load) -> "
+          f"{'met' if seconds < 20 else 'NOT met'} (target < 20 s)")
 
 
 if __name__ == "__main__":
