@@ -299,3 +299,50 @@ def test_blend_is_mask_weighted_mean_then_generated_elsewhere():
     assert empty_mask.sum() == 0
     with pytest.raises(ValueError):
         blend_views(generated[:-1], warps)
+
+
+def test_warp_with_rasterized_depth_of_a_splatted_plane():
+    """The rasterizer's depth convention (camera z, 0 = none) fits the warp: a plane tiled with
+    flat Gaussians, rendered in two views, warps one render onto the other."""
+    from inceptiongs.gaussians import Gaussians
+    from inceptiongs.rasterize import render
+
+    # A 24 x 24 grid of flat (log-scale -8 across) Gaussians on the plane z = 0.3 - 0.15 x.
+    u, v = np.meshgrid(np.linspace(-1.2, 1.2, 24), np.linspace(-1.0, 1.0, 24))
+    means = np.stack([u.ravel(), v.ravel(), 0.3 - 0.15 * u.ravel()], -1)
+    tangent = np.array([1.0, 0.0, -0.15]) / np.linalg.norm([1.0, 0.0, -0.15])
+    # Rotation taking the local x axis to the tangent (about y), local z to the plane normal.
+    angle = math.atan2(0.15, 1.0)
+    quat = np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0])
+    assert np.allclose(quat_rotate_x(quat), tangent)
+    # A low-frequency texture (0.4 x the analytic tests'): neighbouring splats then differ
+    # little, so the views' different compositing orders change the renders little.
+    colours = _texture(0.4 * means)
+    n = len(means)
+    sh0 = (colours - 0.5) / 0.28209479177387814
+    g = Gaussians(means=torch.tensor(means), log_scales=torch.tensor([[math.log(0.07), math.log(0.06), -8.0]] * n),
+                  quats=torch.tensor(np.repeat(quat[None], n, 0)), opacity_logits=torch.full((n,), 4.0),
+                  sh=torch.tensor(sh0[:, None, :]))
+    src = _camera((-0.4, 0.15, -3.0))
+    dst = _camera((0.35, -0.2, -2.8))
+    out_src = render(g, src, outputs=("rgb", "depth"), backend="torch")
+    out_dst = render(g, dst, outputs=("rgb", "depth", "alpha"), backend="torch")
+    result = warp_to_view(out_src["rgb"], out_src["depth"], src, out_dst["depth"], dst)
+    mask = result.mask[..., 0].numpy().astype(bool)
+    covered = (out_dst["alpha"][..., 0].numpy() > 0.99) & _interior((H, W), 3)
+    assert covered.sum() > 500
+    assert mask[covered].mean() > 0.9
+    error = (result.image - out_dst["rgb"]).abs().numpy()[mask & covered]
+    # Splat compositing order differs between the views (nearly opaque neighbours overlap),
+    # so the renders are not an exact texture map of each other; still the warp must explain
+    # most of the difference between the two renders.
+    unwarped = (out_src["rgb"] - out_dst["rgb"]).abs().numpy()[mask & covered]
+    # Measured: 0.018 against 0.051 between the unwarped renders (geometry itself is checked
+    # exactly by the analytic tests; here the renders' own order effects dominate).
+    assert error.mean() < 0.03 and error.mean() < 0.5 * unwarped.mean(), (error.mean(), unwarped.mean())
+
+
+def quat_rotate_x(q):
+    """The image of the x axis under the rotation of unit quaternion q (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
