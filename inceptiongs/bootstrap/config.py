@@ -52,8 +52,8 @@ class BootstrapConfig:
 
     # --- view-adaptive sampling (Algorithm 1) --------------------------------------------------
     sampling: str = "langevin"          # "langevin" | "uniform" (ablation)
-    langevin_step: float = 0.05         # step size on the 7-D pose (centre in scene units, quaternion)
-    langevin_noise: float = 0.5         # exploration noise scale (times sqrt(2 * step))
+    langevin_step: float | None = None  # step size on the 7-D pose (A's langevin.DEFAULT_STEP_SIZE when None)
+    langevin_noise: float | None = None # exploration noise scale (A's DEFAULT_NOISE_SCALE when None)
 
     # --- bookkeeping -------------------------------------------------------------------------
     log_every: int = 10
@@ -82,8 +82,11 @@ class BootstrapConfig:
             raise InputError(f"{source}: delta must be > 0, got {self.delta}")
         if not 0 <= self.tau <= 2:
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
-        if self.lambda_virtual < 0 or self.langevin_step <= 0 or self.langevin_noise < 0:
-            raise InputError(f"{source}: lambda_virtual >= 0, langevin_step > 0, langevin_noise >= 0 required")
+        if self.lambda_virtual < 0:
+            raise InputError(f"{source}: lambda_virtual must be >= 0, got {self.lambda_virtual}")
+        if (self.langevin_step is not None and self.langevin_step <= 0) or (
+                self.langevin_noise is not None and self.langevin_noise < 0):
+            raise InputError(f"{source}: langevin_step must be > 0 and langevin_noise >= 0")
         if self.eval_every < 0 or self.save_views < 0:
             raise InputError(f"{source}: eval_every and save_views must be >= 0")
         return self

@@ -101,7 +101,8 @@ class ViewSampler:
         """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index])."""
         if self.config.sampling == "uniform":
             return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
-        from .langevin import langevin_step, pose_gradient, snap_to_nearest
+        from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, \
+            snap_to_nearest
 
         poses = self._pool_poses(pool)
         if self.pose is None:
@@ -111,8 +112,9 @@ class ViewSampler:
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
         # pose through the differentiable rasterizer, chained to the 7-D pose by A's module).
         grad = pose_gradient(lambda w2c: loss_at(current, w2c), camera.world_to_camera)
-        moved = langevin_step(self.pose, np.asarray(grad, np.float64), self.config.langevin_step,
-                              self.config.langevin_noise, self.rng)
+        step = DEFAULT_STEP_SIZE if self.config.langevin_step is None else self.config.langevin_step
+        noise = DEFAULT_NOISE_SCALE if self.config.langevin_noise is None else self.config.langevin_noise
+        moved = langevin_step(self.pose, np.asarray(grad, np.float64), step, noise, self.rng)
         chosen = int(snap_to_nearest(moved, poses))
         self.pose = poses[chosen].copy()
         with torch.no_grad():

@@ -209,12 +209,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     if config.lpips_weights:
         from ..evaluate import load_torchscript
         lpips = load_torchscript(config.lpips_weights, "LPIPS")
-    try:
-        from .perceptual import PERCEPTUAL_NAME
-    except ImportError:
-        PERCEPTUAL_NAME = "unavailable"
-    summary["perceptual"] = "LPIPS (" + str(config.lpips_weights) + ")" if lpips is not None else str(
-        PERCEPTUAL_NAME() if callable(PERCEPTUAL_NAME) else PERCEPTUAL_NAME)
+    from .perceptual import perceptual_name
+    summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
 
     cache = GenerationCache(boot_dir / "cache")
     pool: list[VirtualTarget] = []

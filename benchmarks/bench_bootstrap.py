@@ -1,0 +1,204 @@
+"""Stage II against stage I continued for the same total time, and the paper's ablations.
+
+    python benchmarks/bench_bootstrap.py [--scenes demo statuette] [--out runs/bench_bootstrap]
+        [--stage1-iterations 300] [--stage1-minutes 10] [--bootstrap-iterations 200]
+        [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior]
+
+Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/data/statuette
+or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
+
+1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply);
+2. the prior, trained once into OUT/<scene>/run/prior (shared by every variant but the
+   untrained-prior ablation; its time is counted in every variant's total);
+3. each variant: `run_bootstrap` on j* into OUT/<scene>/<variant> (held-out PSNR/SSIM logged
+   over time: quality against bootstrap time);
+4. the baseline: the same continuation of stage I on the photos alone (`baseline_run`) for the
+   full method's total time (prior + generation + refinement).
+
+Prints the table and writes OUT/bench.json. Targets (issue 7): scarce PSNR >= +1.0 dB over the
+baseline, scarce SSIM up, covered PSNR >= -0.2 dB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+VARIANTS = {
+    "full": {},
+    "no-blending": {"blending": False},
+    "uniform-sampling": {"sampling": "uniform"},
+    "untrained-prior": {"prior": "untrained"},
+}
+
+
+def data_root() -> Path | None:
+    env = os.environ.get("INCEPTIONGS_DATA")
+    for candidate in ([Path(env)] if env else []) + [REPO.parent / "shared" / "data"]:
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int) -> Path:
+    from inceptiongs.demo_scene import write_demo_scene
+    from inceptiongs.train import TrainConfig, train
+    from inceptiongs.train.config import short_run_schedule
+
+    run_dir = out / name / "run"
+    if (run_dir / "model.ply").is_file():
+        print(f"[{name}] reusing stage I {run_dir}", flush=True)
+        return run_dir
+    if name == "demo":
+        scene, downscale = write_demo_scene(out / name / "scene", progress=False), 2
+    else:
+        root = data_root()
+        if root is None or not (root / name).is_dir():
+            raise SystemExit(f"{name}: real data not found (set INCEPTIONGS_DATA or ../shared/data)")
+        scene, downscale = root / name, 4
+    config = short_run_schedule(TrainConfig(scene=str(Path(scene).resolve()), downscale=downscale,
+                                            protocol="unstructured", seed=seed, iterations=iterations,
+                                            minutes=minutes, eval_every=max(iterations // 4, 1)))
+    print(f"[{name}] stage I: {iterations} iterations / {minutes:g} min", flush=True)
+    train(config, run_dir, progress=False)
+    return run_dir
+
+
+def train_prior(run_dir: Path, minutes: float, seed: int) -> float:
+    """The trained prior shared by the variants: RUN/prior/prior.pt -> seconds spent (0 if reused)."""
+    from inceptiongs.prior.model import Prior, PriorConfig
+    from inceptiongs.prior.trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir
+    from inceptiongs.protocols import Split
+    from inceptiongs.train.run_folder import load_run
+
+    seconds_file = prior_dir(run_dir) / "bench_seconds.json"
+    if (prior_dir(run_dir) / CHECKPOINT_NAME).is_file() and seconds_file.is_file():
+        return float(json.loads(seconds_file.read_text())["seconds"])
+    gaussians, scene, _ = load_run(run_dir)
+    split = Split.load(run_dir / "split.json", scene.cameras)
+    began = time.perf_counter()
+    trainer = PriorTrainer(Prior.for_gaussians(PriorConfig(seed=seed), gaussians), gaussians,
+                           [scene.cameras[i] for i in split.train], lambda k: scene.load_image(split.train[k]))
+    trainer.train(minutes=minutes, run_dir=run_dir, progress=False)
+    seconds = time.perf_counter() - began
+    seconds_file.write_text(json.dumps({"seconds": seconds, "steps": trainer.step_count}))
+    return seconds
+
+
+def real_step_seconds(run_dir: Path) -> float:
+    """Median duration of a real-photo step in a bootstrap log (log_every = 1)."""
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    steps = [r for r in records if "kind" in r]
+    gaps = [b["wall_s"] - a["wall_s"] for a, b in zip(steps, steps[1:]) if b["kind"] == "real"]
+    gaps.sort()
+    return gaps[len(gaps) // 2] if gaps else 1.0
+
+
+def eval_curve(run_dir: Path) -> list[dict]:
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return [{"wall_s": r["wall_s"], "iteration": r["iteration"],
+             **{k: r[k] for k in ("scarce_psnr", "scarce_ssim", "covered_psnr", "covered_ssim") if k in r}}
+            for r in records if "scarce_psnr" in r]
+
+
+def scores(run_dir: Path) -> dict:
+    from inceptiongs.evaluate import evaluate_run, flat_scores
+
+    return flat_scores(evaluate_run(run_dir, progress=False)["groups"])
+
+
+def bench_scene(name: str, args) -> dict:
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.runner import baseline_run, load_stage1, resolve_targets, run_bootstrap
+
+    out = Path(args.out)
+    run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed)
+    prior_s = train_prior(run_dir, args.prior_minutes, args.seed)
+    print(f"[{name}] prior: {prior_s:.0f} s", flush=True)
+    _, scene, split, _, _ = load_stage1(run_dir)
+    targets = resolve_targets(scene, split, None, None, 1)
+    base = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations, ddim_steps=args.ddim_steps,
+                           log_every=1, eval_every=max(args.bootstrap_iterations // 4, 1))
+    rows = {"stage I": {"seconds": 0.0, **scores(run_dir)}}
+    curves = {}
+    for variant in args.variants:
+        config = dataclasses.replace(base, **VARIANTS[variant])
+        print(f"[{name}] {variant} ...", flush=True)
+        result = run_bootstrap(run_dir, out / name / variant, targets, config, progress=False)
+        extra = 0.0 if config.prior == "untrained" else prior_s
+        rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
+        curves[variant] = eval_curve(out / name / variant)
+    if "full" in rows:
+        total_s = rows["full"]["seconds"]
+        step_s = real_step_seconds(out / name / "full")
+        iterations = max(1, int(total_s / max(step_s, 1e-3)))
+        print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
+        result = baseline_run(run_dir, out / name / "baseline", total_s / 60.0, iterations, seed=args.seed,
+                              progress=False)
+        rows["baseline (same time)"] = {"seconds": result.wall_s, **scores(out / name / "baseline")}
+        curves["baseline (same time)"] = eval_curve(out / name / "baseline")
+    return {"rows": rows, "curves": curves, "prior_s": prior_s}
+
+
+def table(name: str, result: dict) -> str:
+    rows = result["rows"]
+    baseline = rows.get("baseline (same time)")
+    lines = [f"{name}: held-out PSNR (dB) / SSIM; deltas against the same-time baseline",
+             f"{'variant':<22}{'total s':>9}{'scarce':>9}{'ssim':>8}{'covered':>9}{'ssim':>8}"
+             f"{'d scarce':>10}{'d covered':>11}"]
+    for variant, row in rows.items():
+        delta = lambda key: "" if baseline is None else f"{row[key] - baseline[key]:+.2f}"  # noqa: E731
+        lines.append(f"{variant:<22}{row['seconds']:>9.0f}{row['scarce_psnr']:>9.2f}{row['scarce_ssim']:>8.4f}"
+                     f"{row['covered_psnr']:>9.2f}{row['covered_ssim']:>8.4f}{delta('scarce_psnr'):>10}"
+                     f"{delta('covered_psnr'):>11}")
+    if baseline is not None and "full" in rows:
+        full = rows["full"]
+        checks = [("scarce PSNR >= baseline + 1.0 dB", full["scarce_psnr"] - baseline["scarce_psnr"] >= 1.0),
+                  ("scarce SSIM rises", full["scarce_ssim"] > baseline["scarce_ssim"]),
+                  ("covered PSNR >= baseline - 0.2 dB", full["covered_psnr"] - baseline["covered_psnr"] >= -0.2)]
+        lines += [f"  target {text}: {'met' if ok else 'NOT met'}" for text, ok in checks]
+    for variant, curve in result["curves"].items():
+        points = ", ".join(f"{p['wall_s']:.0f}s {p['scarce_psnr']:.2f}/{p['covered_psnr']:.2f}" for p in curve)
+        lines.append(f"  {variant} scarce/covered PSNR over time: {points}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="+", default=["demo", "statuette"])
+    parser.add_argument("--out", default="runs/bench_bootstrap")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--stage1-iterations", type=int, default=300)
+    parser.add_argument("--stage1-minutes", type=float, default=10.0)
+    parser.add_argument("--bootstrap-iterations", type=int, default=200)
+    parser.add_argument("--prior-minutes", type=float, default=2.0)
+    parser.add_argument("--ddim-steps", type=int, default=10)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"machine: {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
+    results = {}
+    for name in args.scenes:
+        results[name] = bench_scene(name, args)
+        print(table(name, results[name]), flush=True)
+    results["machine"] = {"cpus": os.cpu_count(), "load_start": load,
+                          "load_end": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+                          "args": vars(args)}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench.json").write_text(json.dumps(results, indent=1))
+    print(f"wrote {out / 'bench.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
