@@ -114,3 +114,13 @@ class GpuDepthSort:
             if obj is not None:
                 obj.release()
         self.pairs = self.elements = None
+
+
+def visible_depth_order(relative_means: np.ndarray, visible: np.ndarray, rotation: np.ndarray,
+                        translation: np.ndarray) -> np.ndarray:
+    """Front-to-back order [M] int64 of the visible Gaussians only (visible: [N] bool), camera
+    z in float64, ties by index: depth_order(..., True) with the culled ones dropped, but
+    without computing or sorting z for them."""
+    candidates = np.flatnonzero(visible)
+    z = relative_means[candidates].astype(np.float64) @ rotation[2] + translation[2]
+    return candidates[np.argsort(z, kind="stable")]

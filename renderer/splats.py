@@ -1,14 +1,19 @@
-"""SplatRenderer: Gaussians drawn as instanced, opacity-aware quads, sorted back to front.
+"""SplatRenderer: Gaussians drawn as opacity-aware quads, or composited on the CPU cores.
 
 A frame is three passes:
 1. preprocess (transform feedback, one vertex per Gaussian): EWA projection, footprint box,
    colour/depth/normal -> four vec4 per Gaussian;
 2. depth sort (compute-shader bitonic sort on GL >= 4.3, numpy otherwise);
-3. draw: one quad per Gaussian = the oriented box of the ellipse where alpha >= ALPHA_MIN.
-   render() (offscreen, RGBA32F) composites front to back in the fragment shader through
-   framebuffer fetch, stop rule included, exactly like the torch rasterizer; without that
-   extension, and in draw() (the caller's framebuffer), premultiplied "over" blending back
-   to front, which cannot stop early (the difference is bounded: docs/rendering.md).
+3. compositing, one of (``SplatRenderer.compositing``):
+   - "cpu" (the default on software GL such as llvmpipe, whose "GPU" is the CPU cores):
+     the preprocess output is read back and composited front to back with the stop rule
+     by renderer/cpu_composite.py, exactly like the torch rasterizer; draw() uploads the
+     result and shows it with one full-viewport pass;
+   - "fetch" (hardware GL with GL_EXT_shader_framebuffer_fetch): one quad per Gaussian (the
+     oriented box of the ellipse where alpha >= ALPHA_MIN), composited front to back in the
+     fragment shader, stop rule included; draw() blends back to front;
+   - "blend": premultiplied "over" blending back to front, which cannot stop early (the
+     difference is bounded: docs/rendering.md).
 
 Uploads: set_gaussians with an unchanged version uploads nothing; a camera change only
 sets uniforms and re-runs passes 1-3. Buffers and textures are reused and only grow.
@@ -28,9 +33,10 @@ from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 from .context import RendererError, check_context
 from .gl_camera import pixel_to_ndc_scale, shader_camera
 from .shaders import build_source
-from .sorting import GpuDepthSort, depth_order, quad_elements
+from .sorting import GpuDepthSort, depth_order, quad_elements, visible_depth_order
 
 MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
+COMPOSITING = ("cpu", "fetch", "blend")
 FRAMEBUFFER_FETCH = "GL_EXT_shader_framebuffer_fetch"
 # Width of the packed data textures (texels); height grows with the Gaussian count.
 TEXTURE_WIDTH = 4096
@@ -83,10 +89,14 @@ def _texture_height(texel_count: int) -> int:
 class SplatRenderer:
     """Draws Gaussians with one moderngl context; owns its GL resources (see release())."""
 
-    def __init__(self, ctx: moderngl.Context, sort: str = "auto"):
+    def __init__(self, ctx: moderngl.Context, sort: str = "auto", compositing: str = "auto"):
         """sort: "gpu" (compute shaders, GL >= 4.3), "cpu" (numpy) or "auto": the GPU sort
         where GL >= 4.3 on a hardware driver, numpy on software rasterizers (llvmpipe), where
-        the "GPU" is the same two CPU cores and numpy's sort is several times faster."""
+        the "GPU" is the same two CPU cores and numpy's sort is several times faster.
+        compositing: "cpu", "fetch", "blend" (module docstring) or "auto": "cpu" on software
+        rasterizers, else "fetch" where the extension exists, else "blend". The "cpu" path
+        always orders with numpy; ``sort`` applies to the quad paths. The attribute
+        ``compositing`` may be changed between frames."""
         self.ctx = ctx
         self.has_compute = check_context(ctx)
         if sort not in ("auto", "gpu", "cpu"):
@@ -97,15 +107,21 @@ class SplatRenderer:
             sort = "gpu" if self.has_compute and not is_software_renderer(ctx) else "cpu"
         self.sort = sort
         self.timings: dict[str, float] = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
-        # Exact front-to-back compositing needs the fragment shader to read the pixel.
-        self.exact_compositing = FRAMEBUFFER_FETCH in ctx.extensions
+        has_fetch = FRAMEBUFFER_FETCH in ctx.extensions
+        if compositing == "auto":
+            compositing = "cpu" if is_software_renderer(ctx) else ("fetch" if has_fetch else "blend")
+        if compositing not in COMPOSITING:
+            raise ValueError(f"compositing must be 'auto' or one of {', '.join(COMPOSITING)}, got {compositing!r}")
+        if compositing == "fetch" and not has_fetch:
+            raise RendererError(f"'fetch' compositing needs {FRAMEBUFFER_FETCH}, which this GL lacks")
+        self.compositing = compositing
         self._gpu_sorts: dict[bool, GpuDepthSort] = {}
         vertex = build_source(330, ["splat_common.glsl", "splat_draw.vert"],
                               {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SPLAT_TEXELS": SPLAT_TEXELS,
                                "QUAD_AXIS_MAX": QUAD_AXIS_MAX})
         self._draw_programs = {False: ctx.program(vertex_shader=vertex,
                                                   fragment_shader=build_source(330, ["splat_draw.frag"]))}
-        if self.exact_compositing:
+        if has_fetch:
             self._draw_programs[True] = ctx.program(
                 vertex_shader=vertex,
                 fragment_shader=build_source(330, ["splat_draw.frag"], {"FRONT_TO_BACK": 1}))
@@ -123,6 +139,10 @@ class SplatRenderer:
         self._element_generation = 0
         self._preprocess_vao: moderngl.VertexArray | None = None
         self._offscreen: moderngl.Framebuffer | None = None
+        self._composited: np.ndarray | None = None  # the "cpu" path's frame, reused
+        self._present_texture: moderngl.Texture | None = None
+        self._present_program: moderngl.Program | None = None
+        self._present_vao: moderngl.VertexArray | None = None
 
     # --- model upload ---------------------------------------------------------------------
 
@@ -189,17 +209,20 @@ class SplatRenderer:
         alpha (0 where alpha < ALPHA_EPS); normal [H,W,3] blended, not renormalised; alpha [H,W,1].
         """
         width, height = int(camera.width), int(camera.height)
-        fbo = self._offscreen_target(width, height)
-        exact = self.exact_compositing
-        if exact:
-            # rgb accumulates T * alpha * value, a holds T (negated once the pixel stopped).
-            self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 1.0), sh_degree_cap, splat_scale,
-                        flip_y=False, front_to_back=True)
+        exact = self.compositing in ("cpu", "fetch")
+        if self.compositing == "cpu":
+            raw = self._cpu_frame(camera, mode, sh_degree_cap, splat_scale)
         else:
-            self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 0.0), sh_degree_cap, splat_scale,
-                        flip_y=False, front_to_back=False)
-        raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
-        raw = raw.reshape(height, width, 4)
+            fbo = self._offscreen_target(width, height)
+            if exact:
+                # rgb accumulates T * alpha * value, a holds T (negated once the pixel stopped).
+                self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 1.0), sh_degree_cap, splat_scale,
+                            flip_y=False, front_to_back=True)
+            else:
+                self._frame(camera, mode, fbo, (0.0, 0.0, 0.0, 0.0), sh_degree_cap, splat_scale,
+                            flip_y=False, front_to_back=False)
+            raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
+            raw = raw.reshape(height, width, 4)
         if exact:
             transmittance = np.abs(raw[..., 3:4])
             alpha = 1.0 - transmittance
@@ -221,9 +244,19 @@ class SplatRenderer:
              splat_scale: float = 1.0, clear: bool = True) -> None:
         """Draw upright into ``framebuffer`` (e.g. the app's window). The camera's size should be
         the framebuffer's viewport. rgb and alpha are final; depth is the blended z before the
-        division by alpha that render() does, and normal is the blended normal."""
+        division by alpha that render() does, and normal is the blended normal. With "cpu"
+        compositing the frame is exactly render()'s; otherwise it is blended back to front."""
         # Cleared to (background, 0): "over" blending then leaves colour + T * background.
         clear_colour = (*(float(v) for v in background), 0.0) if clear else None
+        if self.compositing == "cpu":
+            raw = self._cpu_frame(camera, mode, sh_degree_cap, splat_scale)
+            start = time.perf_counter()
+            framebuffer.use()
+            if clear_colour is not None:
+                framebuffer.clear(*clear_colour)
+            self._present(raw, framebuffer)
+            self.timings["draw_ms"] += 1e3 * (time.perf_counter() - start)
+            return
         self._frame(camera, mode, framebuffer, clear_colour, sh_degree_cap, splat_scale,
                     flip_y=True, front_to_back=False)
 
@@ -249,24 +282,17 @@ class SplatRenderer:
             fbo = self._offscreen = self.ctx.framebuffer(color_attachments=[colour])
         return fbo
 
-    def _frame(self, camera: Camera, mode: str, fbo: moderngl.Framebuffer, clear_colour,
-               sh_degree_cap: int | None, splat_scale: float, flip_y: bool,
-               front_to_back: bool) -> None:
+    def _check_frame_arguments(self, mode: str, splat_scale: float) -> None:
         if mode not in MODES:
             raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
         if not (math.isfinite(splat_scale) and splat_scale > 0):
             raise ValueError(f"splat_scale must be a positive finite number, got {splat_scale}")
+
+    def _preprocess_pass(self, camera: Camera, mode: str, sh_degree_cap: int | None, splat_scale: float):
+        """Pass 1 into the splat buffer; returns the anchor-relative ShaderCamera."""
         ctx = self.ctx
-        fbo.use()
-        if clear_colour is not None:
-            fbo.clear(*clear_colour)
-        self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
-        if self._count == 0:
-            return
         cam = shader_camera(camera, self._anchor)
         degree = self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
-
-        start = time.perf_counter()
         program = self._preprocess_program()
         program["rotation"].write(cam.rotation.T.astype(np.float32).tobytes())  # column-major
         program["translation"].value = tuple(map(float, cam.translation))
@@ -284,6 +310,21 @@ class SplatRenderer:
             self._preprocess_vao = ctx.vertex_array(program, [])
         self._preprocess_vao.transform(self._splat_buffer, mode=moderngl.POINTS, vertices=self._count)
         ctx.finish()
+        return cam
+
+    def _frame(self, camera: Camera, mode: str, fbo: moderngl.Framebuffer, clear_colour,
+               sh_degree_cap: int | None, splat_scale: float, flip_y: bool,
+               front_to_back: bool) -> None:
+        self._check_frame_arguments(mode, splat_scale)
+        ctx = self.ctx
+        fbo.use()
+        if clear_colour is not None:
+            fbo.clear(*clear_colour)
+        self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
+        if self._count == 0:
+            return
+        start = time.perf_counter()
+        cam = self._preprocess_pass(camera, mode, sh_degree_cap, splat_scale)
         preprocess_done = time.perf_counter()
 
         if self.sort == "gpu":
@@ -348,6 +389,61 @@ class SplatRenderer:
                         "sort_ms": 1e3 * (sort_done - preprocess_done),
                         "draw_ms": 1e3 * (end - sort_done)}
 
+    def _cpu_frame(self, camera: Camera, mode: str, sh_degree_cap: int | None,
+                   splat_scale: float) -> np.ndarray:
+        """GL preprocess, numpy order, CPU compositing: [H, W, 4] float32 (rgb = sum of
+        T alpha value, a = T, negated once the pixel stopped), row 0 = image top."""
+        from .cpu_composite import composite_splats  # numba: compiled on first use only
+
+        self._check_frame_arguments(mode, splat_scale)
+        width, height = int(camera.width), int(camera.height)
+        self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
+        if self._count == 0:
+            empty = np.zeros((height, width, 4), np.float32)
+            empty[..., 3] = 1.0
+            return empty
+        start = time.perf_counter()
+        # GL refuses draws (transform feedback included) without a complete framebuffer,
+        # and a headless context has no default one.
+        self._offscreen_target(1, 1).use()
+        cam = self._preprocess_pass(camera, mode, sh_degree_cap, splat_scale)
+        splats = np.frombuffer(self._splat_buffer.read(size=self._count * SPLAT_TEXELS * 16),
+                               np.float32).reshape(self._count, SPLAT_TEXELS, 4)
+        preprocess_done = time.perf_counter()
+        order = visible_depth_order(self._relative_means, splats[:, 1, 3] > 0.0, cam.rotation, cam.translation)
+        sort_done = time.perf_counter()
+        self._composited = composite_splats(splats, order, width, height, self._composited)
+        end = time.perf_counter()
+        self.timings = {"preprocess_ms": 1e3 * (preprocess_done - start),
+                        "sort_ms": 1e3 * (sort_done - preprocess_done),
+                        "draw_ms": 1e3 * (end - sort_done)}
+        return self._composited
+
+    def _present(self, raw: np.ndarray, framebuffer: moderngl.Framebuffer) -> None:
+        """Blend a CPU-composited frame [H, W, 4] (row 0 = top) upright over ``framebuffer``."""
+        ctx = self.ctx
+        height, width = raw.shape[:2]
+        texture = self._present_texture
+        if texture is None or texture.size != (width, height):
+            if texture is not None:
+                texture.release()
+            texture = self._present_texture = ctx.texture((width, height), 4, dtype="f4")
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        texture.write(raw)
+        if self._present_program is None:
+            self._present_program = ctx.program(vertex_shader=build_source(330, ["splat_present.vert"]),
+                                                fragment_shader=build_source(330, ["splat_present.frag"]))
+            self._present_vao = ctx.vertex_array(self._present_program, [])
+        self._set_optional(self._present_program, "composited", 0)
+        self._present_program["image_height"].value = height
+        texture.use(0)
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
+        ctx.blend_equation = moderngl.FUNC_ADD
+        self._present_vao.render(mode=moderngl.TRIANGLES, vertices=3)
+        ctx.disable(moderngl.BLEND)
+
     @staticmethod
     def _set_optional(program: moderngl.Program, name: str, value) -> None:
         # The GLSL compiler drops uniforms a specialisation does not use (e.g. camera_center
@@ -359,7 +455,7 @@ class SplatRenderer:
         """Free every GL object this renderer made (the context stays the caller's)."""
         objects = [self._gaussian_texture, self._splat_buffer, self._splat_texture, self._index_buffer,
                    *self._draw_vaos.values(), self._preprocess_vao, *self._draw_programs.values(),
-                   *self._preprocess.values()]
+                   *self._preprocess.values(), self._present_vao, self._present_program, self._present_texture]
         if self._offscreen is not None:
             objects += list(self._offscreen.color_attachments) + [self._offscreen]
         for obj in objects:
@@ -373,5 +469,7 @@ class SplatRenderer:
         self._preprocess.clear()
         self._gaussian_texture = self._splat_buffer = self._splat_texture = None
         self._index_buffer = self._preprocess_vao = self._offscreen = None
+        self._present_vao = self._present_program = self._present_texture = None
+        self._composited = None
         self._count = 0
         self._version = None

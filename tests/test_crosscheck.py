@@ -9,7 +9,10 @@ Remaining sources of difference, all tiny (measured agreement is ~100 dB PSNR):
 - camera-space means: GL subtracts a float64 anchor on the CPU, torch computes t in float64;
 - the GL footprint quad is the oriented box of the same ellipse the torch tiles use; both
   cover every pixel with alpha >= ALPHA_MIN, so coverage is not a source.
-- Only in the back-to-front fallback (no framebuffer fetch, and SplatRenderer.draw()): a
+- Both exact paths are checked: "cpu" compositing (the default on software GL) and "fetch"
+  (fragment shader with framebuffer fetch). Same per-pixel rule and order, so their only
+  difference is float32 (fragment) vs float64 (cpu) evaluation of power and alpha.
+- Only in the back-to-front fallback ("blend", and draw() on the quad paths): a
   pixel cannot stop at TRANSMITTANCE_MIN, so alpha may exceed torch's by up to
   TRANSMITTANCE_MIN / (1 - ALPHA_MAX) = 0.01 where torch stopped; tested below with that bound.
 """
@@ -68,17 +71,32 @@ def torch_render(gaussians: Gaussians, cam: Camera, outputs=("rgb", "alpha"), ba
     return {k: out[k].numpy() for k in outputs}
 
 
-def check_views(renderer: SplatRenderer, gaussians: Gaussians, cameras: list[Camera]) -> list[dict]:
-    renderer.set_gaussians(gaussians.numpy())
+def exact_renderers(ctx) -> dict[str, SplatRenderer]:
+    """Both exact compositing paths this context has: "cpu" always, "fetch" with the
+    framebuffer-fetch extension (render() uses one of them, so both must meet the criteria)."""
+    renderers = {"cpu": SplatRenderer(ctx, compositing="cpu")}
+    if "GL_EXT_shader_framebuffer_fetch" in ctx.extensions:
+        renderers["fetch"] = SplatRenderer(ctx, compositing="fetch")
+    return renderers
+
+
+def check_views(ctx, gaussians: Gaussians, cameras: list[Camera]) -> list[dict]:
+    """One row per (camera, exact compositing path): agreement with the torch reference."""
+    renderers = exact_renderers(ctx)
+    for renderer in renderers.values():
+        renderer.set_gaussians(gaussians.numpy())
     results = []
     for cam in cameras:
         ref = torch_render(gaussians, cam)
-        rgb, alpha = renderer.render(cam, "rgb"), renderer.render(cam, "alpha")
-        assert np.isfinite(rgb).all() and np.isfinite(alpha).all()
-        result = agreement(rgb, alpha, ref["rgb"], ref["alpha"])
-        result["name"] = cam.name
-        result["coverage"] = float(np.mean(ref["alpha"] > 0.01))
-        results.append(result)
+        for compositing, renderer in renderers.items():
+            rgb, alpha = renderer.render(cam, "rgb"), renderer.render(cam, "alpha")
+            assert np.isfinite(rgb).all() and np.isfinite(alpha).all()
+            result = agreement(rgb, alpha, ref["rgb"], ref["alpha"])
+            result["name"] = f"{cam.name} ({compositing})"
+            result["coverage"] = float(np.mean(ref["alpha"] > 0.01))
+            results.append(result)
+    for renderer in renderers.values():
+        renderer.release()
     return results
 
 
@@ -121,10 +139,8 @@ def generated_cameras() -> list[Camera]:
 def test_donut_gl_matches_torch_from_12_views(gl_context):
     from inceptiongs.ply import read_ply
     gaussians = read_ply(require_data("splats/donut.ply"))
-    renderer = SplatRenderer(gl_context)
     cameras = donut_cameras(gaussians.means.numpy())
-    results = check_views(renderer, gaussians, cameras)
-    renderer.release()
+    results = check_views(gl_context, gaussians, cameras)
     assert len(results) >= 12
     # Every view must actually show the model, or the comparison proves nothing.
     assert all(r["coverage"] > 0.02 for r in results), [(r["name"], r["coverage"]) for r in results]
@@ -134,9 +150,7 @@ def test_donut_gl_matches_torch_from_12_views(gl_context):
 
 def test_generated_scene_gl_matches_torch_from_12_views(gl_context):
     gaussians = random_gaussians(1500, seed=3, sh_degree=3)
-    renderer = SplatRenderer(gl_context)
-    results = check_views(renderer, gaussians, generated_cameras())
-    renderer.release()
+    results = check_views(gl_context, gaussians, generated_cameras())
     assert len(results) >= 12
     assert all(r["coverage"] > 0.02 for r in results), [(r["name"], r["coverage"]) for r in results]
     failures = [r for r in results if not r["ok"]]
@@ -159,20 +173,20 @@ def test_lower_sh_degrees_and_cap_match_torch(gl_context, degree):
 
 def test_depth_normal_and_background_match_torch(gl_context):
     gaussians = random_gaussians(800, seed=5, sh_degree=1)
-    renderer = SplatRenderer(gl_context)
-    renderer.set_gaussians(gaussians.numpy())
     cam = camera([2.0, -1.0, -2.0], [0, 0, 0])
     background = (0.2, 0.5, 0.9)
     ref = torch_render(gaussians, cam, ("rgb", "alpha", "depth", "normal"), torch.tensor(background))
-    rgb = renderer.render(cam, "rgb", background=background)
-    depth = renderer.render(cam, "depth")
-    normal = renderer.render(cam, "normal")
-    renderer.release()
-    assert agreement(rgb, ref["alpha"], ref["rgb"], ref["alpha"])["psnr"] >= 45
     solid = ref["alpha"][..., 0] > 0.5
     assert solid.mean() > 0.05
-    assert np.max(np.abs(depth[solid] - ref["depth"][solid]) / ref["depth"][solid]) < 1e-3
-    assert np.max(np.abs(normal - ref["normal"])) < 1e-2
+    for renderer in exact_renderers(gl_context).values():
+        renderer.set_gaussians(gaussians.numpy())
+        rgb = renderer.render(cam, "rgb", background=background)
+        depth = renderer.render(cam, "depth")
+        normal = renderer.render(cam, "normal")
+        renderer.release()
+        assert agreement(rgb, ref["alpha"], ref["rgb"], ref["alpha"])["psnr"] >= 45
+        assert np.max(np.abs(depth[solid] - ref["depth"][solid]) / ref["depth"][solid]) < 1e-3
+        assert np.max(np.abs(normal - ref["normal"])) < 1e-2
 
 
 def test_back_to_front_fallback_differs_only_by_the_stop_rule_bound(gl_context):
@@ -181,8 +195,7 @@ def test_back_to_front_fallback_differs_only_by_the_stop_rule_bound(gl_context):
     TRANSMITTANCE_MIN / (1 - ALPHA_MAX)."""
     gaussians = random_gaussians(3000, seed=8, sh_degree=0)
     gaussians.opacity_logits += 4.0  # dense and opaque: many pixels hit the stop rule
-    renderer = SplatRenderer(gl_context)
-    renderer.exact_compositing = False
+    renderer = SplatRenderer(gl_context, compositing="blend")
     renderer.set_gaussians(gaussians.numpy())
     cam = camera([0.0, 0.0, -3.0], [0, 0, 0])
     ref = torch_render(gaussians, cam)

@@ -73,18 +73,19 @@ def test_numpy_order_and_quad_elements():
     assert quad_elements(np.array([2, 0], np.uint32)).tolist() == [8, 9, 10, 10, 9, 11, 0, 1, 2, 2, 1, 3]
 
 
-@pytest.mark.parametrize("exact", [True, False])
-def test_gpu_bitonic_sort_matches_numpy_sort(ctx, exact):
+@pytest.mark.parametrize("compositing", ["fetch", "blend"])
+def test_gpu_bitonic_sort_matches_numpy_sort(ctx, compositing):
     if ctx.version_code < 430:
         pytest.skip("GPU sort needs GL 4.3")
+    if compositing == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in ctx.extensions:
+        pytest.skip("no framebuffer fetch")
     model = random_model(2500, seed=1)
     # Include exact depth ties (resolved by index in both sorts) and culled Gaussians.
     model.means[:200] = model.means[200:201]
     model.opacity_logits[300:400] = -40.0
     images = []
     for sort in ("gpu", "cpu"):
-        renderer = SplatRenderer(ctx, sort=sort)
-        renderer.exact_compositing = exact and renderer.exact_compositing
+        renderer = SplatRenderer(ctx, sort=sort, compositing=compositing)  # the sort orders quads
         renderer.set_gaussians(model.numpy())
         images.append((renderer.render(view(), "rgb"), renderer.render(view(), "alpha")))
         renderer.release()
@@ -135,7 +136,8 @@ def test_draw_into_a_framebuffer_is_upright_with_background(ctx):
     renderer.draw(cam, "rgb", target, background=background)
     drawn = np.frombuffer(target.read(components=4, dtype="f4"), np.float32).reshape(cam.height, cam.width, 4)
     upright = drawn[::-1, :, :3]  # GL row 0 is the window's bottom
-    renderer.exact_compositing = False  # draw() blends back to front: compare like with like
+    if renderer.compositing != "cpu":
+        renderer.compositing = "blend"  # draw() blends back to front: compare like with like
     reference = renderer.render(cam, "rgb", background=background)
     np.testing.assert_allclose(upright, reference, atol=1e-5)
     target.release()
