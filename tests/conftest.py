@@ -7,7 +7,9 @@ import os
 from pathlib import Path
 
 import pytest
-import torch
+
+import inceptiongs  # noqa: F401  (sets OMP_WAIT_POLICY before torch loads libgomp)
+import torch  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
