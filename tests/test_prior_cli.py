@@ -77,3 +77,30 @@ def test_generate_bad_inputs_exit_2(run_dir, tmp_path):
     assert main(["generate", str(tmp_path), "--view", "x", "--out", str(tmp_path / "o.png")]) == 2
     assert main(["generate", str(run_dir), "--view", "x", "--out", str(tmp_path / "o.jpg")]) == 2
     assert main(["prior", str(run_dir), "--steps", "0"]) == 2
+
+
+def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
+    # The loss at random timesteps is noisy from step to step, so it is compared on one fixed
+    # batch (same patches, timesteps and noise) before and after 15 steps.
+    from inceptiongs.prior.hashgrid import HashGridConfig
+    from inceptiongs.prior.model import Prior, PriorConfig
+    from inceptiongs.prior.trainer import PriorTrainer
+    from inceptiongs.prior.unet import UNetConfig
+    from inceptiongs.train.run_folder import load_run
+
+    gaussians, scene, _ = load_run(run_dir)
+    config = PriorConfig(patch_size=16, batch_size=4, learning_rate=3e-3, num_timesteps=200,
+                         unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16),
+                         grid=HashGridConfig(levels=2, features_per_level=2, table_size=512))
+    trainer = PriorTrainer(Prior.for_gaussians(config, gaussians), gaussians, scene.cameras, scene.load_image)
+    photos, conds = trainer.sample_batch()
+
+    def fixed_loss() -> float:
+        with torch.no_grad():
+            return float(trainer.prior.diffusion_loss(photos, conds, generator=torch.Generator().manual_seed(7)))
+
+    before = fixed_loss()
+    for _ in range(15):
+        trainer.step()
+    after = fixed_loss()
+    assert after < 0.8 * before
