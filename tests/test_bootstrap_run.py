@@ -75,7 +75,11 @@ def test_bootstrap_writes_a_run_folder_and_keeps_covered_views(stage1, boot):
         assert (out / name).is_file(), name
     assert (out / "split.json").read_text() == (stage1 / "split.json").read_text()
     assert list((out / "checkpoints").glob("step_*.pt"))
-    assert len(list((out / "bootstrap" / "views").glob("*.png"))) == 2
+    pngs = sorted((out / "bootstrap" / "views").glob("*.png"))
+    assert len(pngs) == 2
+    import cv2
+    panels = cv2.imread(str(pngs[0]))  # generated | mask | I* | render, 8-bit
+    assert panels.shape[1] == 4 * panels.shape[0] * 4 // 3 and panels.max() > 1
     assert result.finished and result.iteration == result.start_iteration + 8
     assert result.virtual_views == 4 and result.cache_misses == 4  # K * L = 2 * 2, all new
 

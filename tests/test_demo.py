@@ -1,4 +1,4 @@
-"""`inceptiongs demo`: the main job end to end on the demo scene (a few iterations)."""
+"""`inceptiongs demo`: the whole pipeline end to end on the demo scene (a few iterations)."""
 
 from __future__ import annotations
 
@@ -11,31 +11,37 @@ from inceptiongs.protocols import Split
 
 
 @pytest.mark.slow
-def test_demo_writes_scene_run_report_and_summary(tmp_path, capsys):
+def test_demo_runs_stage_one_bootstrap_evaluation_and_report(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", str(out), "--iterations", "4"]) == 0
+    assert main(["demo", str(out), "--iterations", "4", "--downscale", "4", "--bootstrap-iterations", "4",
+                 "--prior-steps", "2", "--ddim-steps", "2"]) == 0
     assert (out / "scene" / "demo_scene.json").is_file()
-    for name in ("config.json", "split.json", "model.ply", "metrics.jsonl", "eval/eval.json"):
-        assert (out / "run" / name).is_file(), name
-    for name in ("report.png", "before_target.png"):
+    for run in ("run", "run_bootstrap"):
+        for name in ("config.json", "split.json", "model.ply", "metrics.jsonl", "eval/eval.json"):
+            assert (out / run / name).is_file(), f"{run}/{name}"
+    for name in ("report.png", "target.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    assert list((out / "run_bootstrap" / "bootstrap" / "views").glob("*.png"))
 
     split = Split.load(out / "run" / "split.json")
     assert split.protocol == "unstructured" and split.target_view in split.scarce_test
-    evaluation = json.loads((out / "run" / "eval" / "eval.json").read_text())
-    summary = (out / "summary.md").read_text()
-    # The summary's table rows are the eval.json numbers.
+    assert Split.load(out / "run_bootstrap" / "split.json").test == split.test
+    stage1 = json.loads((out / "run" / "eval" / "eval.json").read_text())
+    boot = json.loads((out / "run_bootstrap" / "eval" / "eval.json").read_text())
+    report = (out / "report.md").read_text()
+    # The report's table rows are the eval.json numbers of both runs.
     for group in ("scarce", "covered", "all"):
-        entry = evaluation["groups"][group]
-        assert f"| {group} | {entry['views']} | {entry['psnr']:.2f} | {entry['ssim']:.4f} |" in summary
-    target_image = next(v["image"] for v in evaluation["views"] if v["index"] == split.target_view)
-    assert (out / "run" / target_image).is_file() and f"run/{target_image}" in summary
-    assert "unavailable" in summary  # no LPIPS/FID weights were given
-    assert "PSNR" in capsys.readouterr().out
+        a, b = stage1["groups"][group], boot["groups"][group]
+        assert (f"| {group} | {a['views']} | {a['psnr']:.2f} | {a['ssim']:.4f} | {b['psnr']:.2f} | "
+                f"{b['ssim']:.4f} | {b['psnr'] - a['psnr']:+.2f} |") in report
+    assert "target.png" in report and "unavailable" in report  # no LPIPS/FID weights were given
+    printed = capsys.readouterr().out
+    assert "[5/5]" in printed and "PSNR" in printed
 
 
 def test_demo_rejects_bad_arguments(tmp_path, capsys):
     assert main(["demo", str(tmp_path / "x"), "--minutes", "0"]) == 2
+    assert main(["demo", str(tmp_path / "x"), "--bootstrap-iterations", "0"]) == 2
     (tmp_path / "file").write_text("")
     assert main(["demo", str(tmp_path / "file")]) == 2
     assert "file" in capsys.readouterr().err

@@ -112,9 +112,10 @@ def _state_from_gaussians(gaussians: Gaussians, data, config):
 
 
 def _view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor, render: torch.Tensor) -> np.ndarray:
-    """generated | mask | I* | stage-I render, side by side: [H, 4W, 3]."""
+    """generated | mask | I* | stage-I render, side by side: [H, 4W, 3] uint8."""
     panels = [generated, mask.expand(-1, -1, 3), target, render]
-    return torch.cat([p.detach().float().clamp(0, 1).cpu() for p in panels], dim=1).numpy()
+    image = torch.cat([p.detach().float().clamp(0, 1).cpu() for p in panels], dim=1).numpy()
+    return np.round(image * 255.0).astype(np.uint8)
 
 
 def _write_summary(path: Path, summary: dict) -> None:
