@@ -37,8 +37,10 @@ def train_job_for(source):
     return TrainJob(config=config, run_dir=run_dir)
 
 
-def bootstrap_job_for(source, flags_file: Path):
-    """Stage II of the source's run on the views flagged in ``flags_file``."""
+def bootstrap_job_for(source, flags_file: Path, config=None):
+    """Stage II of the source's run on the views flagged in ``flags_file`` (config: a
+    BootstrapConfig, default the command line's defaults)."""
+    from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.job import BootstrapJob
     from inceptiongs.bootstrap.targets import read_flag_cameras
 
@@ -47,7 +49,7 @@ def bootstrap_job_for(source, flags_file: Path):
         raise InputError(f"{source.path}: bootstrapping needs a trained run (train first)")
     if not Path(flags_file).is_file() or not read_flag_cameras(flags_file):
         raise InputError("no flagged views: flag the bad views first (F or right-click)")
-    return BootstrapJob(run_dir=run_dir, targets_file=Path(flags_file))
+    return BootstrapJob(run_dir=run_dir, targets_file=Path(flags_file), config=config or BootstrapConfig())
 
 
 def default_job(source, flags_file: Path):
@@ -66,7 +68,7 @@ def read_flags_count(flags_file: Path) -> int:
         return 0
 
 
-def start_bootstrap(viewer) -> None:
+def start_bootstrap(viewer, config=None) -> None:
     """The viewer's "Bootstrap" action: run stage II on the flagged views as the live job."""
     from .live_training import LiveTraining
 
@@ -74,7 +76,7 @@ def start_bootstrap(viewer) -> None:
         viewer.status = "a job is running: stop it before bootstrapping"
         return
     try:
-        job = bootstrap_job_for(viewer.source, viewer.flags_file)
+        job = bootstrap_job_for(viewer.source, viewer.flags_file, config)
     except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
         viewer.status = f"bootstrap could not start: {exc}"
         return

@@ -142,7 +142,7 @@ def bench_scene(name: str, args) -> dict:
         iterations = max(1, int(total_s / max(step_s, 1e-3)))
         print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
         result = baseline_run(run_dir, out / name / "baseline", total_s / 60.0, iterations, seed=args.seed,
-                              progress=False)
+                              progress=False, eval_every=max(iterations // 4, 1))
         rows["baseline (same time)"] = {"seconds": result.wall_s, **scores(out / name / "baseline")}
         curves["baseline (same time)"] = eval_curve(out / name / "baseline")
     return {"rows": rows, "curves": curves, "prior_s": prior_s}

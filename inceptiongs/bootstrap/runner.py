@@ -198,9 +198,13 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     if not baseline:
         began = time.perf_counter()
         train_cams = [cameras[i] for i in split.train]
+        # A short prior training may take at most half of a time budget: generation and
+        # refinement need the rest.
+        prior_minutes = config.prior_minutes if config.minutes is None else min(config.prior_minutes,
+                                                                               config.minutes / 2)
         prior, prior_text = obtain_prior(
             run_dir, out_dir, gaussians0, train_cams, lambda k: data.images[split.train[k]].numpy(),
-            config.prior, config.seed, config.prior_minutes, config.prior_steps, log)
+            config.prior, config.seed, prior_minutes, config.prior_steps, log)
         prior.eval()
         prior_hash = prior_version(prior)
         summary["prior"] = {"description": prior_text, "version": prior_hash,
@@ -372,8 +376,9 @@ def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfi
 
 
 def baseline_run(run_dir: str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
-                 seed: int = 0, progress: bool = True, log=None) -> BootstrapResult:
+                 seed: int = 0, progress: bool = True, log=None, eval_every: int = 0) -> BootstrapResult:
     """Stage I continued on the photos alone, with the same continuation schedule the bootstrap
     uses, for ``minutes`` (the bootstrap's total time) or ``iterations``: the comparison baseline."""
-    config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1)
+    config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1, log_every=1,
+                             eval_every=eval_every)
     return run_bootstrap(run_dir, out_dir, None, config, progress=progress, log=log)

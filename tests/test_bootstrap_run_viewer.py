@@ -1,0 +1,88 @@
+"""The viewer's Bootstrap action: stage II on the flagged views as the live job (Xvfb)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.gl, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def display():
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (scripts/install.sh --dev installs it)")
+    import os
+
+    number = next(n for n in range(200, 300) if not Path(f"/tmp/.X{n}-lock").exists()
+                  and not Path(f"/tmp/.X11-unix/X{n}").exists())
+    process = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    socket = Path(f"/tmp/.X11-unix/X{number}")
+    deadline = time.time() + 10
+    while not socket.exists() and time.time() < deadline and process.poll() is None:
+        time.sleep(0.05)
+    if not socket.exists():
+        process.kill()
+        pytest.skip(f"Xvfb :{number} did not start")
+    previous = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{number}"
+    yield
+    if previous is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = previous
+    process.terminate()
+    process.wait(10)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    from inceptiongs.demo_scene import write_demo_scene
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.trainer import train
+
+    root = tmp_path_factory.mktemp("viewer_bootstrap")
+    scene = write_demo_scene(root / "scene", progress=False)
+    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=10,
+                         densify_from=1000, normal_from=1000, multiview_from=1000, log_every=5,
+                         eval_every=10, checkpoint_every=10)
+    train(config, root / "run", progress=False)
+    return root / "run"
+
+
+def test_bootstrap_button_runs_the_flagged_views_live(display, run_dir):
+    from inceptiongs.app.jobs import start_bootstrap
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+
+    viewer = Viewer(open_source(run_dir), 320, 240)
+    try:
+        viewer.step()
+        start_bootstrap(viewer)
+        assert viewer.training is None and "no flagged views" in viewer.status
+        viewer.snap_to_camera(0)
+        viewer.flag_current_view()          # a 320x240 flag; the job rescales it to 48x36
+        # The button's action with a tiny configuration (its default is a full bootstrap).
+        start_bootstrap(viewer, BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained",
+                                                log_every=1, save_views=0))
+        job = viewer.training.job
+        assert job.targets_file == viewer.flags_file and job.run_dir == run_dir
+        versions, deadline = set(), time.time() + 120
+        while viewer.training.alive and time.time() < deadline:
+            before = viewer.model_version
+            viewer.step()
+            if viewer.model_version != before:
+                versions.add(viewer.model_version)
+        assert viewer.training.error is None, viewer.training.error
+        viewer.step()
+        assert len(versions) >= 1, "the job's snapshots should reach the renderer"
+        assert "bootstrap finished" in viewer.training.progress.message
+        assert (run_dir.with_name("run_bootstrap") / "model.ply").is_file()
+    finally:
+        viewer.close()
