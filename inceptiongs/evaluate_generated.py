@@ -63,7 +63,8 @@ def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps
                 save_dir: Path | None = None, renders: dict | None = None,
                 progress: bool = False) -> list[dict]:
     """Per held-out view: {"index", "name", "group", "render": scores, "generated": scores,
-    "seconds" (generation wall time)[, "image"]}. renders: {index: render} cache, filled in."""
+    "seconds" (generation wall time), "cpu_seconds" (this process's CPU time: on a shared machine
+    the wall time includes waiting for other jobs)[, "image"]}. renders: {index: render} cache."""
     from tqdm import tqdm
 
     renders = {} if renders is None else renders
@@ -74,13 +75,13 @@ def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps
         photo = photo_of(scene, index)
         if index not in renders:
             renders[index] = render_image(gaussians, camera).cpu()
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         generated, _ = prior.generate(gaussians.to(device), camera, steps=steps, seed=seed)
-        seconds = time.perf_counter() - start
+        seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
         generated = generated.detach().to(torch.float32).cpu()
         view = {"index": index, "name": camera.name, "group": group_of(index, split),
                 "render": score(renders[index], photo), "generated": score(generated, photo),
-                "seconds": seconds}
+                "seconds": seconds, "cpu_seconds": cpu_seconds}
         if save_dir is not None:
             name = f"{view['group']}_{index:04d}_{_safe_name(camera.name)}.png"
             panels = torch.cat([renders[index], generated, photo], dim=1).numpy()
@@ -125,7 +126,7 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
 
     Writes RUN/eval/generated/*.png (render | generated | photo, for the first step count) and
     RUN/eval/generated.json; returns the same dict: {"run", "prior": {"backend", "step",
-    "train_s"}, "seed", "by_steps": [{"ddim_steps", "seconds_per_image", "groups": {group:
+    "train_s"}, "seed", "by_steps": [{"ddim_steps", "seconds_per_image", "cpu_seconds_per_image", "groups": {group:
     {"views", "render": {"psnr", "ssim"}, "generated": {...}}}}], "views": [...first count...]}.
     """
     from .prior.trainer import load_prior, read_prior_checkpoint
@@ -152,6 +153,7 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
         by_steps.append({
             "ddim_steps": steps,
             "seconds_per_image": float(np.mean([v["seconds"] for v in views])),
+            "cpu_seconds_per_image": float(np.mean([v["cpu_seconds"] for v in views])),
             "groups": {g: {"views": render_groups[g]["views"],
                            "render": {k: render_groups[g][k] for k in ("psnr", "ssim")},
                            "generated": {k: generated_groups[g][k] for k in ("psnr", "ssim")}}
@@ -178,11 +180,12 @@ def format_generated_table(summary: dict) -> str:
     prior = summary["prior"]
     lines = [f"prior: {prior['backend']} backend, {prior['step']} steps, {prior['train_s']:.0f} s of training",
              f"{'steps':>5}  {'views':<8}{'n':>3}{'render PSNR':>13}{'gen PSNR':>10}{'render SSIM':>13}"
-             f"{'gen SSIM':>10}{'s/image':>9}"]
+             f"{'gen SSIM':>10}{'s/image':>9}{'cpu s':>7}"]
     for entry in summary["by_steps"]:
         for group in (*GROUPS, "all"):
             g = entry["groups"][group]
             lines.append(f"{entry['ddim_steps']:>5}  {group:<8}{g['views']:>3}{cell(g['render']['psnr'], 2):>13}"
                          f"{cell(g['generated']['psnr'], 2):>10}{cell(g['render']['ssim'], 4):>13}"
-                         f"{cell(g['generated']['ssim'], 4):>10}{entry['seconds_per_image']:>9.1f}")
+                         f"{cell(g['generated']['ssim'], 4):>10}{entry['seconds_per_image']:>9.1f}"
+                         f"{entry.get('cpu_seconds_per_image', float('nan')):>7.1f}")
     return "\n".join(lines)
