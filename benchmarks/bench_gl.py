@@ -2,6 +2,12 @@
 and GL-vs-torch PSNR (at a smaller size, where the torch reference is affordable).
 
     python benchmarks/bench_gl.py [--sizes 10000,100000,1000000] [--frames 5] [--no-torch]
+        [--paths cpu,fetch,fetch-gpu]
+
+Paths: "cpu" = compositing on the CPU cores (the default on software GL), "fetch" = one quad
+per Gaussian composited front to back in the fragment shader (framebuffer fetch) with the
+numpy sort, "fetch-gpu" = the same with the compute-shader bitonic sort, "blend" = back-to-
+front blending (what draw() does on the quad paths).
 
 Scenes: N random Gaussians in a unit cube in front of the camera (scales shrinking with
 N^(-1/3) so density stays scene-like; SH degree 3) and ../shared/data/splats/donut.ply with
@@ -68,8 +74,12 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
 
 
+PATHS = {"cpu": ("cpu", "cpu"), "fetch": ("cpu", "fetch"), "fetch-gpu": ("gpu", "fetch"),
+         "blend": ("cpu", "blend")}
+
+
 def time_frames(renderer: SplatRenderer, cam: Camera, frames: int) -> dict:
-    renderer.render(cam)  # warm-up: shader compilation and buffer growth
+    renderer.render(cam)  # warm-up: shader compilation (numba: first call), buffer growth
     rows = []
     for _ in range(frames):
         wall, cpu = time.perf_counter(), time.process_time()
@@ -92,6 +102,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", default="10000,100000,1000000")
     parser.add_argument("--frames", type=int, default=5)
     parser.add_argument("--no-torch", action="store_true", help="skip the GL-vs-torch PSNR column")
+    parser.add_argument("--paths", default="cpu", help=f"comma-separated, of {', '.join(PATHS)}")
     parser.add_argument("--donut", default=str(REPO.parent / "shared" / "data" / "splats" / "donut.ply"))
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
@@ -108,21 +119,24 @@ def main(argv=None) -> int:
     else:
         print(f"donut.ply not found at {args.donut}: skipped", file=sys.stderr)
 
-    header = (f"{'scene':<20} {'sort':<5} {'prep ms':>8} {'sort ms':>8} {'draw ms':>8} {'frame ms':>9} "
+    header = (f"{'scene':<20} {'path':<9} {'prep ms':>8} {'sort ms':>8} {'draw ms':>8} {'frame ms':>9} "
               f"{'cpu ms':>8} {'peak MB':>8} {'PSNR dB':>8} {'alpha ok':>9}")
     print(f"{WIDTH}x{HEIGHT}, median of {args.frames} frames; PSNR/alpha vs torch at {CHECK_WIDTH}x{CHECK_HEIGHT}")
     print(header)
     for name, model, make_camera in scenes:
-        for sort in ("cpu", "gpu"):
+        for path in args.paths.split(","):
+            sort, compositing = PATHS[path]
             if sort == "gpu" and ctx.version_code < 430:
                 continue
-            renderer = SplatRenderer(ctx, sort=sort)
+            if compositing == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in ctx.extensions:
+                continue
+            renderer = SplatRenderer(ctx, sort=sort, compositing=compositing)
             renderer.set_gaussians(model.numpy())
             t = time_frames(renderer, make_camera(WIDTH, HEIGHT), args.frames)
             check = "" if args.no_torch or sort == "gpu" else torch_psnr(
                 renderer, model, make_camera(CHECK_WIDTH, CHECK_HEIGHT))
             psnr_text = f"{check['psnr']:8.1f} {check['alpha_within']:9.4f}" if check else f"{'':>8} {'':>9}"
-            print(f"{name:<20} {sort:<5} {t['preprocess_ms']:8.1f} {t['sort_ms']:8.1f} {t['draw_ms']:8.1f} "
+            print(f"{name:<20} {path:<9} {t['preprocess_ms']:8.1f} {t['sort_ms']:8.1f} {t['draw_ms']:8.1f} "
                   f"{t['frame_ms']:9.1f} {t['cpu_ms']:8.1f} {peak_rss_mb():8.0f} {psnr_text}", flush=True)
             renderer.release()
     return 0

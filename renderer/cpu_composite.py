@@ -71,16 +71,16 @@ def _next_alive(skip, y, x):
 
 
 @njit(parallel=True, cache=True)
-def _composite(splats, order, width, height, threads, out, skip):
+def _composite(splats, order, width, height, threads, out):
     """splats: [N, 4, 4] float32 preprocess output (screen: mean x, y, major axis; conic a, b,
     c, opacity; value rgb, z; minor axis). order: [M] int64 visible Gaussians front to back.
-    out: [H, W, 4] float32, overwritten (see module docstring); skip: [H, W + 1] int32 scratch."""
+    out: [H, W, 4] float32, overwritten (see module docstring)."""
     m = order.shape[0]
     # Per Gaussian, in draw order so the band walks read memory sequentially: row range and
     # the float64 terms of its row spans and pixel test, and its value.
     y_lo = np.empty(m, np.int32)
     y_hi = np.empty(m, np.int32)
-    terms = np.empty((m, 11))
+    terms = np.empty((m, 12))
     for k in prange(m):
         g = order[k]
         mx = np.float64(splats[g, 0, 0])
@@ -107,13 +107,32 @@ def _composite(splats, order, width, height, threads, out, skip):
         terms[k, 2] = ca
         terms[k, 3] = cb
         terms[k, 4] = cc
-        terms[k, 5] = level
-        terms[k, 6] = det
-        terms[k, 7] = opacity
-        terms[k, 8] = splats[g, 2, 0]
-        terms[k, 9] = splats[g, 2, 1]
-        terms[k, 10] = splats[g, 2, 2]
+        terms[k, 5] = opacity
+        terms[k, 6] = splats[g, 2, 0]
+        terms[k, 7] = splats[g, 2, 1]
+        terms[k, 8] = splats[g, 2, 2]
+        # Row spans (below): centre mx - (cb / ca) dy, half-width sqrt(level / ca -
+        # det / ca^2 dy^2); ca > 0. Overflow to inf gives NaN spans, handled there.
+        terms[k, 9] = cb / ca
+        terms[k, 10] = level / ca
+        terms[k, 11] = det / ca / ca
     bands = (height + BAND_ROWS - 1) // BAND_ROWS
+    # Per-band lists of Gaussians (counting sort by band, draw order kept within a band),
+    # so a band walks only the Gaussians that reach it.
+    band_start = np.zeros(bands + 1, np.int64)
+    for k in range(m):
+        if y_lo[k] <= y_hi[k]:
+            for band in range(y_lo[k] // BAND_ROWS, y_hi[k] // BAND_ROWS + 1):
+                band_start[band + 1] += 1
+    for band in range(bands):
+        band_start[band + 1] += band_start[band]
+    band_fill = band_start[:-1].copy()
+    band_list = np.empty(band_start[bands], np.int64)
+    for k in range(m):
+        if y_lo[k] <= y_hi[k]:
+            for band in range(y_lo[k] // BAND_ROWS, y_hi[k] // BAND_ROWS + 1):
+                band_list[band_fill[band]] = k
+                band_fill[band] += 1
     threads = max(1, min(threads, bands))
     chunk = (bands + threads - 1) // threads
     # prange splits its range into contiguous chunks, one per thread; iteration i takes band
@@ -124,37 +143,42 @@ def _composite(splats, order, width, height, threads, out, skip):
             continue
         row0 = band * BAND_ROWS
         row1 = min(row0 + BAND_ROWS, height)
-        for y in range(row0, row1):
-            for x in range(width):
-                out[y, x, 0] = 0.0
-                out[y, x, 1] = 0.0
-                out[y, x, 2] = 0.0
-                out[y, x, 3] = 1.0
-                skip[y, x] = x
-            skip[y, width] = width  # sentinel: "no live pixel further right"
-        for k in range(m):
-            if y_hi[k] < row0 or y_lo[k] >= row1:
-                continue
+        # Band-local planes (one contiguous row per image row): the running sums and T.
+        red = np.zeros((BAND_ROWS, width), np.float32)
+        green = np.zeros((BAND_ROWS, width), np.float32)
+        blue = np.zeros((BAND_ROWS, width), np.float32)
+        transmittance = np.ones((BAND_ROWS, width), np.float32)
+        skip = np.empty((BAND_ROWS, width + 1), np.int32)
+        for row in range(BAND_ROWS):
+            for x in range(width + 1):
+                skip[row, x] = x  # width: the sentinel "no live pixel further right"
+        for entry in range(band_start[band], band_start[band + 1]):
+            k = band_list[entry]
             mx = terms[k, 0]
             my = terms[k, 1]
             ca = terms[k, 2]
             cb = terms[k, 3]
             cc = terms[k, 4]
-            level = terms[k, 5]
-            det = terms[k, 6]
-            opacity = terms[k, 7]
+            opacity = terms[k, 5]
+            value_r = terms[k, 6]
+            value_g = terms[k, 7]
+            value_b = terms[k, 8]
+            slope = terms[k, 9]
+            half_squared = terms[k, 10]
+            half_shrink = terms[k, 11]
             # The per-pixel recurrence is used where its factors stay far from float64
             # over/underflow; its relative drift over n pixels is ~n^2 * 1e-16.
             step_factor = math.exp(-ca)
             recurrence = ca < RECURRENCE_CONIC_MAX
             for y in range(max(y_lo[k], row0), min(y_hi[k] + 1, row1)):
+                row = y - row0
                 dy = y + 0.5 - my
                 # Row span: ca dx^2 + 2 cb dy dx + cc dy^2 <= level, roots in dx.
-                disc = level * ca - det * dy * dy
+                disc = half_squared - half_shrink * dy * dy
                 if disc < 0.0:
                     continue
-                half = math.sqrt(disc) / ca
-                centre = mx - cb * dy / ca
+                half = math.sqrt(disc)
+                centre = mx - slope * dy
                 lo = centre - half - 0.5  # pixel x has its centre at x + 0.5
                 hi = centre + half - 0.5
                 stepping = recurrence
@@ -170,7 +194,7 @@ def _composite(splats, order, width, height, threads, out, skip):
                     x0 = 0
                     x1 = width - 1
                     stepping = False
-                x = _next_alive(skip, y, x0)
+                x = _next_alive(skip, row, x0)
                 previous = -2
                 gaussian = 0.0
                 ratio = 0.0
@@ -187,7 +211,7 @@ def _composite(splats, order, width, height, threads, out, skip):
                         if not (power >= 0.0):
                             # Negative only by rounding (the conic is positive definite):
                             # skipped, as by the fragment shader and torch; NaN likewise.
-                            x = _next_alive(skip, y, x + 1)
+                            x = _next_alive(skip, row, x + 1)
                             continue
                         gaussian = math.exp(-power)
                         if stepping:
@@ -198,18 +222,24 @@ def _composite(splats, order, width, height, threads, out, skip):
                     alpha = opacity * gaussian
                     if alpha >= ALPHA_MIN:
                         alpha = min(alpha, ALPHA_MAX)
-                        trans = np.float64(out[y, x, 3])
+                        trans = np.float64(transmittance[row, x])
                         following = trans * (1.0 - alpha)
                         if following < TRANSMITTANCE_MIN:
-                            out[y, x, 3] = -trans
-                            skip[y, x] = x + 1  # finished: later spans hop over it
+                            transmittance[row, x] = -trans
+                            skip[row, x] = x + 1  # finished: later spans hop over it
                         else:
                             weight = trans * alpha
-                            out[y, x, 0] += weight * terms[k, 8]
-                            out[y, x, 1] += weight * terms[k, 9]
-                            out[y, x, 2] += weight * terms[k, 10]
-                            out[y, x, 3] = following
-                    x = _next_alive(skip, y, x + 1)
+                            red[row, x] += weight * value_r
+                            green[row, x] += weight * value_g
+                            blue[row, x] += weight * value_b
+                            transmittance[row, x] = following
+                    x = _next_alive(skip, row, x + 1)
+        for y in range(row0, row1):
+            for x in range(width):
+                out[y, x, 0] = red[y - row0, x]
+                out[y, x, 1] = green[y - row0, x]
+                out[y, x, 2] = blue[y - row0, x]
+                out[y, x, 3] = transmittance[y - row0, x]
 
 
 def composite_splats(splats: np.ndarray, order: np.ndarray, width: int, height: int,
@@ -220,7 +250,6 @@ def composite_splats(splats: np.ndarray, order: np.ndarray, width: int, height: 
     its shape fits."""
     if out is None or out.shape != (height, width, 4) or out.dtype != np.float32:
         out = np.empty((height, width, 4), np.float32)
-    skip = np.empty((height, width + 1), np.int32)
     _composite(np.ascontiguousarray(splats, np.float32).reshape(-1, 4, 4),
-               np.ascontiguousarray(order, np.int64), int(width), int(height), get_num_threads(), out, skip)
+               np.ascontiguousarray(order, np.int64), int(width), int(height), get_num_threads(), out)
     return out

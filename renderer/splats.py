@@ -236,7 +236,9 @@ class SplatRenderer:
             return np.where(alpha >= ALPHA_EPS, raw[..., 0:1] / safe, 0.0).astype(np.float32)
         if mode == "rgb":
             background = np.asarray(background, np.float32).reshape(1, 1, 3)
-            return (raw[..., :3] + transmittance * background).astype(np.float32)
+            if not background.any():  # the common case: skip two full-image passes
+                return raw[..., :3].copy()
+            return (raw[..., :3] + transmittance * background).astype(np.float32, copy=False)
         return raw[..., :3].copy()
 
     def draw(self, camera: Camera, mode: str, framebuffer: moderngl.Framebuffer,

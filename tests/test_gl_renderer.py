@@ -16,7 +16,7 @@ moderngl = pytest.importorskip("moderngl")
 from inceptiongs.renderer.context import RendererError, check_context  # noqa: E402
 from inceptiongs.renderer.crosscheck import psnr  # noqa: E402
 from inceptiongs.renderer.gl_camera import gl_view_projection  # noqa: E402
-from inceptiongs.renderer.sorting import depth_order, quad_elements  # noqa: E402
+from inceptiongs.renderer.sorting import depth_order, quad_elements, visible_depth_order  # noqa: E402
 from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 
 
@@ -71,6 +71,20 @@ def test_numpy_order_and_quad_elements():
     assert depth_order(means, rotation, translation, True).tolist() == [1, 0, 2, 3]
     assert depth_order(means, rotation, translation, False).tolist() == [3, 2, 0, 1]
     assert quad_elements(np.array([2, 0], np.uint32)).tolist() == [8, 9, 10, 10, 9, 11, 0, 1, 2, 2, 1, 3]
+
+
+def test_visible_order_is_float32_z_then_index_without_the_culled():
+    rng = np.random.default_rng(0)
+    means = rng.uniform(-1, 1, (5000, 3)).astype(np.float32)
+    means[100:300] = means[50]  # exact ties
+    means[400:410, 2] = np.nextafter(np.float32(0.25), np.float32(1))  # ties only after rounding
+    rotation, translation = np.eye(3), np.array([0.0, 0.0, 3.0])
+    visible = rng.uniform(size=5000) > 0.2
+    order = visible_depth_order(means, visible, rotation, translation)
+    z = (means.astype(np.float64) @ rotation[2] + translation[2]).astype(np.float32)
+    expected = [i for i in sorted(range(5000), key=lambda i: (z[i], i)) if visible[i]]
+    assert order.tolist() == expected
+    assert visible_depth_order(means, np.zeros(5000, bool), rotation, translation).size == 0
 
 
 @pytest.mark.parametrize("compositing", ["fetch", "blend"])
