@@ -137,8 +137,12 @@ def test_ablations_change_what_runs(stage1, tmp_path):
 
 def test_continuation_schedule_and_sampling_weight():
     stage1 = TrainConfig(iterations=100, densify_until=50, densify_every=10, opacity_reset_every=30)
+    from inceptiongs.train.optim import position_learning_rate
+
     extended = continuation_config(stage1, 100, 60, densify=True)
-    assert extended.iterations == 160 and 100 < extended.densify_from < extended.densify_until <= 160
+    assert 100 < extended.densify_from < extended.densify_until <= 160
+    # The position learning rate stays where stage I ended.
+    assert position_learning_rate(130, extended, 1.0) == pytest.approx(stage1.lr_means_final)
     assert extended.opacity_reset_every > 10**9  # no opacity reset in a refinement
     frozen = continuation_config(stage1, 100, 60, densify=False)
     assert frozen.densify_until <= 100
@@ -233,3 +237,25 @@ def test_viewer_jobs_pick_training_or_bootstrap(tmp_path):
     bare = SimpleNamespace(kind="ply", path=tmp_path / "m.ply", model_path=tmp_path / "m.ply", scene=None,
                            work_dir=tmp_path)
     assert default_job_factory(bare) is None
+
+
+def test_generated_pixels_can_be_trusted_less():
+    from inceptiongs.bootstrap.refine import pixel_weights, virtual_view_loss
+
+    target = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0))
+    mask = torch.zeros(16, 16, 1)
+    mask[:, :8] = 1.0                                  # left half trusted (warped photos)
+    render = target.clone()
+    render[:, 8:] = 1.0 - render[:, 8:]                # wrong only where the prior painted
+    config = BootstrapConfig(tau=0.0)
+    assert pixel_weights(mask, 1.0) is None
+    full, _ = virtual_view_loss(render, target, config, 0.2)
+    half, _ = virtual_view_loss(render, target, config, 0.2, weights=pixel_weights(mask, 0.5))
+    none, record = virtual_view_loss(render, target, config, 0.2, weights=pixel_weights(mask, 0.0))
+    assert float(none) == pytest.approx(0.0, abs=1e-6) and record["virtual_l1"] == pytest.approx(0.0, abs=1e-7)
+    assert 0 < float(half) < float(full)
+    # Gradients flow only through the weighted residual.
+    render.requires_grad_(True)
+    loss, _ = virtual_view_loss(render, target, config, 0.2, weights=pixel_weights(mask, 0.25))
+    loss.backward()
+    assert render.grad[:, 8:].abs().sum() > 0

@@ -47,7 +47,10 @@ class BootstrapConfig:
     virtual_every: int = 2              # every n-th step is a virtual view (2: alternate)
     lambda_virtual: float = 0.5         # weight of a virtual view's loss against a photo's
     tau: float = 0.2                    # perceptual loss when the view's SSIM loss (1 - SSIM) <= tau
-    densify: bool = True                # densify during refinement (new Gaussians where views are scarce)
+    densify: bool = False               # densify during refinement (measured: new, unconverged Gaussians cost covered views)
+    # Weight of generated (untrusted) pixels against pixels trusted from warped photos in a
+    # virtual view's loss; 1 is the paper's loss on I*. Lower trusts a weak prior less.
+    generated_weight: float = 1.0
     lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
 
     # --- view-adaptive sampling (Algorithm 1) --------------------------------------------------
@@ -82,6 +85,8 @@ class BootstrapConfig:
             raise InputError(f"{source}: delta must be > 0, got {self.delta}")
         if not 0 <= self.tau <= 2:
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
+        if not 0 <= self.generated_weight <= 1:
+            raise InputError(f"{source}: generated_weight must be in [0, 1], got {self.generated_weight}")
         if self.lambda_virtual < 0:
             raise InputError(f"{source}: lambda_virtual must be >= 0, got {self.lambda_virtual}")
         if (self.langevin_step is not None and self.langevin_step <= 0) or (
