@@ -36,10 +36,21 @@ GL_REQUIRED = (4, 3)
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference")
 # The viewer's mode names -> the GL renderer's.
 GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha"}
-# Resolution factor while the camera moves; the full frame follows once it has been still
-# for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
-MOVING_RENDER_SCALE = 0.5
+# Resolution factors while the camera moves, largest first; the full frame follows once it
+# has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
+# Each moving render picks the next factor from the last one's splat time: a smaller factor
+# when it overran MOVING_BUDGET_MS, a larger one when it took under half of it. A few fixed
+# sizes rather than a continuous factor, so the scene texture is not reallocated every frame.
+MOVING_RENDER_SCALES = (0.5, 0.375, 0.25)
+MOVING_RENDER_SCALE = MOVING_RENDER_SCALES[0]
+MOVING_BUDGET_MS = 40.0
 STILL_SECONDS = 0.15
+# While a job trains, its snapshots replace the model at most this often: each one costs a
+# full re-render, and the job publishes faster than software GL can draw them.
+TRAINING_REFRESH_SECONDS = 0.3
+# run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
+# (no motion, no refine pending, no job): an idle window costs no frames.
+IDLE_WAIT_SECONDS = 0.5
 # The torch reference renders at most this many pixels wide (it runs on the CPU).
 REFERENCE_MAX_WIDTH = 320
 # Two left presses within this time and this many pixels form a double-click.
@@ -160,6 +171,8 @@ class Viewer:
         self.reference_psnr: float | None = None
         self._keys_down: set[int] = set()
         self._last_render_key = None
+        self._moving_level = 0  # index into MOVING_RENDER_SCALES
+        self._last_snapshot_time = -1e9
         self._last_motion = -1e9
         self._last_frame_time = time.perf_counter()
         self._drag_start = None
@@ -502,8 +515,12 @@ class Viewer:
     def _take_snapshot(self) -> None:
         if self.training is None:
             return
+        now = time.perf_counter()
+        if now - self._last_snapshot_time < TRAINING_REFRESH_SECONDS:
+            return
         snapshot = self.training.poll()
         if snapshot is not None and snapshot.gaussians is not None:
+            self._last_snapshot_time = now
             # A new model replaces the edit state: edits are for models at rest.
             self.edit = editing.EditState(snapshot.gaussians)
             self.model_version += 1
@@ -518,7 +535,7 @@ class Viewer:
     def _draw_scene(self, screen: moderngl.Framebuffer) -> None:
         now = time.perf_counter()
         moving = now - self._last_motion < STILL_SECONDS
-        scale = MOVING_RENDER_SCALE if moving else 1.0
+        scale = MOVING_RENDER_SCALES[self._moving_level] if moving else 1.0
         self._upload_model()
         mode = self.settings.mode
         camera = self.current_camera(scale)
@@ -542,6 +559,8 @@ class Viewer:
                 self.scene_texture.upload(visualize(image, mode))
             self.stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
             self.stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
+            if moving:
+                self._moving_level = next_moving_level(self._moving_level, sum(self.renderer.timings.values()))
             self.stats.rendered_scale = scale
             self.stats.splat_renders += 1
             self._last_render_key = key
@@ -633,9 +652,20 @@ class Viewer:
     def should_close(self) -> bool:
         return bool(glfw.window_should_close(self.window))
 
+    def is_idle(self) -> bool:
+        """Nothing will change without an event: no motion or refine pending, no fly key
+        held, no job running, no reference image awaited."""
+        if time.perf_counter() - self._last_motion < STILL_SECONDS + 0.1 or self._keys_down:
+            return False
+        if self.training is not None and self.training.alive:
+            return False
+        return self.settings.mode != "reference"
+
     def run(self) -> None:
         try:
             while not self.should_close():
+                if self.is_idle():
+                    glfw.wait_events_timeout(IDLE_WAIT_SECONDS)  # step() polls what arrived
                 self.step()
         finally:
             self.close()
@@ -655,6 +685,16 @@ class Viewer:
             self.scene_texture.release()
             glfw.destroy_window(self.window)
             self.window = None
+
+
+def next_moving_level(level: int, splat_ms: float) -> int:
+    """The MOVING_RENDER_SCALES index for the next moving frame, from the last one's splat
+    time (preprocess + sort + draw ms): down a size over budget, up one under half of it."""
+    if splat_ms > MOVING_BUDGET_MS:
+        return min(level + 1, len(MOVING_RENDER_SCALES) - 1)
+    if splat_ms < 0.5 * MOVING_BUDGET_MS:
+        return max(level - 1, 0)
+    return level
 
 
 def box_segments(box_min, box_max) -> np.ndarray:

@@ -70,7 +70,7 @@ def _next_alive(skip, y, x):
     return x
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)  # nogil: a training thread keeps running
 def _composite(splats, order, width, height, threads, out):
     """splats: [N, 4, 4] float32 preprocess output (screen: mean x, y, major axis; conic a, b,
     c, opacity; value rgb, z; minor axis). order: [M] int64 visible Gaussians front to back.

@@ -297,3 +297,17 @@ def test_psnr_and_heatmap():
     assert heat.shape == (4, 6, 3) and heat[0, 0].tolist() == [1.0, 1.0, 0.0] and heat[1:].max() == 0
     both = reference.side_by_side(a, np.ones_like(a))
     assert both[:, :3].max() == 0 and both[:, 4:].min() == 1
+
+
+def test_moving_render_scale_adapts_to_the_budget_and_stays_in_range():
+    viewer = pytest.importorskip("inceptiongs.app.viewer")
+    scales, budget = viewer.MOVING_RENDER_SCALES, viewer.MOVING_BUDGET_MS
+    assert list(scales) == sorted(scales, reverse=True) and scales[0] < 1.0
+    level = 0
+    for _ in range(len(scales) + 2):  # keeps overrunning: down to the smallest size, no further
+        level = viewer.next_moving_level(level, 2.0 * budget)
+    assert level == len(scales) - 1
+    assert viewer.next_moving_level(level, 0.75 * budget) == level  # within budget: kept
+    for _ in range(len(scales) + 2):  # far under budget: back up to the largest, no further
+        level = viewer.next_moving_level(level, 0.1 * budget)
+    assert level == 0
