@@ -46,8 +46,11 @@ MOVING_RENDER_SCALE = MOVING_RENDER_SCALES[0]
 MOVING_BUDGET_MS = 40.0
 STILL_SECONDS = 0.15
 # While a job trains, its snapshots replace the model at most this often: each one costs a
-# full re-render, and the job publishes faster than software GL can draw them.
+# re-render, and the job publishes faster than software GL can draw them. A model that
+# changed less than MODEL_STILL_SECONDS ago is drawn at the moving size too (a training view
+# updates at reduced resolution) and refined once the job pauses, stops or goes quiet.
 TRAINING_REFRESH_SECONDS = 0.3
+MODEL_STILL_SECONDS = 1.0
 # run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
 # (no motion, no refine pending, no job): an idle window costs no frames.
 IDLE_WAIT_SECONDS = 0.5
@@ -172,7 +175,7 @@ class Viewer:
         self._keys_down: set[int] = set()
         self._last_render_key = None
         self._moving_level = 0  # index into MOVING_RENDER_SCALES
-        self._last_snapshot_time = -1e9
+        self._last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self._last_motion = -1e9
         self._last_frame_time = time.perf_counter()
         self._drag_start = None
@@ -534,7 +537,8 @@ class Viewer:
 
     def _draw_scene(self, screen: moderngl.Framebuffer) -> None:
         now = time.perf_counter()
-        moving = now - self._last_motion < STILL_SECONDS
+        moving = (now - self._last_motion < STILL_SECONDS
+                  or now - self._last_snapshot_time < MODEL_STILL_SECONDS)
         scale = MOVING_RENDER_SCALES[self._moving_level] if moving else 1.0
         self._upload_model()
         mode = self.settings.mode
@@ -655,8 +659,11 @@ class Viewer:
     def is_idle(self) -> bool:
         """Nothing will change without an event: no motion or refine pending, no fly key
         held, no job running, no reference image awaited."""
-        if time.perf_counter() - self._last_motion < STILL_SECONDS + 0.1 or self._keys_down:
+        now = time.perf_counter()
+        if now - self._last_motion < STILL_SECONDS + 0.1 or self._keys_down:
             return False
+        if now - self._last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
+            return False  # the refine of the last snapshot is still to come
         if self.training is not None and self.training.alive:
             return False
         return self.settings.mode != "reference"

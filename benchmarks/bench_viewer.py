@@ -8,8 +8,9 @@ Logs per-frame totals and the renderer's sort/draw times for these situations:
             picked from the last moving render's time (MOVING_BUDGET_MS)
   training  a job thread publishes new Gaussians ~5 times a second with CPU work in between
             (competing for the 2 cores); the app does what it does live: a new snapshot at
-            most every TRAINING_REFRESH_SECONDS costs a full re-render, frames in between
-            reuse the image ("renders/s" says how often the splats were redrawn)
+            most every TRAINING_REFRESH_SECONDS costs a re-render at the moving size (the model
+            is "moving"), frames in between reuse the image ("renders/s" says how often
+            the splats were redrawn)
 Targets: idle >= 10 FPS, moving >= 20 FPS, training >= 5 FPS.
 
     DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30]
