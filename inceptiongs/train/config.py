@@ -28,6 +28,9 @@ class TrainConfig:
     iterations: int = 30_000
     minutes: float | None = None
     pgsr: bool = True
+    # Scenes without sparse points (LLFF): triangulate some from the training photos with
+    # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
+    triangulate_init: bool = True
 
     # --- Adam learning rates (per parameter) ---------------------------------------------
     # Position lr is multiplied by the scene extent and decays log-linearly to the final value.

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera
-from ..constants import SH_C0, SH_OFFSET, sh_coeff_count
+from ..constants import NEAR_PLANE, SH_C0, SH_OFFSET, sh_coeff_count
 from ..gaussians import Gaussians
 
 INITIAL_OPACITY = 0.1
@@ -111,3 +111,60 @@ def initial_gaussians(cameras: list[Camera], points: np.ndarray, colors: np.ndar
     random_points, scales = random_points_in_view(cameras, random_count, 0.3 * extent, 30.0 * extent, rng)
     return (gaussians_from_points(random_points, None, sh_degree, scales=scales),
             f"scene has no sparse points: initialised {random_count} random Gaussians in the view volume")
+
+
+def sparse_depth_samples(camera: Camera, image: np.ndarray, points: np.ndarray, count: int,
+                         generator: np.random.Generator, neighbours: int = 3, pixel_sigma: float = 2.0
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Photo-coloured points on random pixels of one view, at the depth of the sparse points
+    that project nearest to each pixel.
+
+    A few thousand triangulated points are too sparse to start from on their own (their
+    nearest-neighbour scales span tens of pixels, so every step composites a 30x overdraw),
+    but their depths interpolate well between them: each random pixel takes the median
+    camera depth of the ``neighbours`` nearest projected points (the median ignores a
+    single wrong one at a depth edge). image: [H, W, 3] in [0, 1]; points: [P, 3] world.
+    Returns (points [M, 3], colours [M, 3] uint8, scales [M]) with M = count, or empty
+    arrays when no point projects into the view.
+    """
+    camera_points = points @ camera.rotation.T + camera.world_to_camera[:3, 3]
+    z = camera_points[:, 2]
+    in_front = z > NEAR_PLANE
+    # z > NEAR_PLANE > 0 where used.
+    safe_z = np.where(in_front, z, 1.0)
+    u = camera.fx * camera_points[:, 0] / safe_z + camera.cx
+    v = camera.fy * camera_points[:, 1] / safe_z + camera.cy
+    inside = in_front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    if inside.sum() < neighbours:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0)
+    projected = np.stack([u[inside], v[inside]], 1)
+    depths = z[inside]
+    pixels = np.stack([generator.uniform(0, camera.width, count), generator.uniform(0, camera.height, count)], 1)
+    squared = ((pixels[:, None, :] - projected[None, :, :]) ** 2).sum(-1)          # [M, P]
+    nearest = np.argpartition(squared, neighbours - 1, axis=1)[:, :neighbours]
+    depth = np.median(depths[nearest], axis=1)                                      # > NEAR_PLANE
+    local = np.stack([(pixels[:, 0] - camera.cx) / camera.fx * depth,
+                      (pixels[:, 1] - camera.cy) / camera.fy * depth, depth], 1)
+    c2w = camera.camera_to_world
+    world = local @ c2w[:3, :3].T + c2w[:3, 3]
+    rows = np.minimum(pixels[:, 1].astype(np.int64), camera.height - 1)
+    cols = np.minimum(pixels[:, 0].astype(np.int64), camera.width - 1)
+    colours = np.clip(np.asarray(image)[rows, cols] * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return world, colours, pixel_sigma * depth / max(camera.fx, camera.fy)
+
+
+def gaussians_from_sparse_depth(cameras: list[Camera], images: list[np.ndarray], points: np.ndarray,
+                                sh_degree: int, seed: int, count: int = 30_000) -> tuple[Gaussians, str]:
+    """``count`` pixel-sized, photo-coloured Gaussians spread evenly over the training views
+    at depths interpolated from the sparse ``points`` [P, 3] (see sparse_depth_samples).
+    images[k] belongs to cameras[k]. Falls back to the points themselves when none project."""
+    rng = np.random.default_rng(seed)
+    per_view = max(1, count // max(len(cameras), 1))
+    parts = [sparse_depth_samples(cam, image, points, per_view, rng) for cam, image in zip(cameras, images)]
+    parts = [p for p in parts if len(p[0])]
+    if not parts:
+        return gaussians_from_points(points, None, sh_degree), f"initialised {len(points)} Gaussians from the sparse points"
+    means, colours, scales = (np.concatenate(column) for column in zip(*parts))
+    return (gaussians_from_points(means, colours, sh_degree, scales=scales),
+            f"initialised {len(means)} photo-coloured Gaussians at depths interpolated from "
+            f"{len(points)} sparse points")

@@ -28,7 +28,8 @@ from . import losses
 from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .densify import DensifyStats, accumulate, densify_and_prune, reset_opacity
-from .init_gaussians import initial_gaussians, scene_extent
+from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
+from .triangulate import training_points
 from .neighbours import neighbour_views
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
                     position_learning_rate, set_learning_rate)
@@ -125,8 +126,13 @@ class _State:
 
 
 def _new_state(scene, data: _Data, config: TrainConfig, sh_degree: int, log) -> _State:
-    gaussians, message = initial_gaussians([data.cameras[i] for i in data.train], scene.points,
-                                           scene.point_colors, sh_degree, config.seed)
+    cameras = [data.cameras[i] for i in data.train]
+    points, colors, triangulated = training_points(scene, data.train, data.images, config.triangulate_init, log)
+    if triangulated:
+        gaussians, message = gaussians_from_sparse_depth(cameras, [data.images[i].numpy() for i in data.train],
+                                                         points, sh_degree, config.seed)
+    else:
+        gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
     log(message)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
