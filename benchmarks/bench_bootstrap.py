@@ -37,6 +37,9 @@ VARIANTS = {
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
     "untrained-prior": {"prior": "untrained"},
+    # Not an ablation of the paper: generated pixels weighted 0.2 against photo-trusted ones
+    # (what the demo uses; a weak CPU-trained prior paints noise where no photo is trusted).
+    "generated-weight-0.2": {"generated_weight": 0.2},
 }
 
 

@@ -36,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ddim-steps", type=int, default=d.ddim_steps, help="DDIM steps per generated image")
     parser.add_argument("--prior-minutes", type=float, default=d.prior_minutes,
                         help="budget of the short prior training when the run has no prior")
+    parser.add_argument("--generated-weight", type=float, default=d.generated_weight,
+                        help="loss weight of generated (not photo-trusted) pixels of a virtual view "
+                             f"(default {d.generated_weight:g}: the paper's loss on I*)")
+    parser.add_argument("--densify", action="store_true", help="densify during the refinement")
     parser.add_argument("--no-blending", action="store_true", help="ablation: I* = generated image only")
     parser.add_argument("--uniform-sampling", action="store_true",
                         help="ablation: uniform virtual-view sampling instead of Langevin")
@@ -54,6 +58,7 @@ def config_from_args(args):
         k=args.k, l=args.l, ddim_steps=args.ddim_steps, prior_minutes=args.prior_minutes,
         blending=not args.no_blending, sampling="uniform" if args.uniform_sampling else "langevin",
         prior="untrained" if args.untrained_prior else "trained", lpips_weights=args.lpips_weights,
+        generated_weight=args.generated_weight, densify=args.densify,
     ).validate("arguments")
 
 

@@ -27,6 +27,10 @@ DEFAULT_BOOTSTRAP_MINUTES = 4.0
 DEFAULT_BOOTSTRAP_ITERATIONS = 300
 DEFAULT_PRIOR_MINUTES = 1.5
 DEMO_K, DEMO_L = 2, 3
+# Generated pixels count 0.2 against pixels trusted from warped photos: a prior trained for a
+# minute or two on a CPU paints mostly noise, and at weight 1 it cost the scarce views ~0.4 dB
+# in 180 demo steps (docs/bootstrap.md).
+DEMO_GENERATED_WEIGHT = 0.2
 # Evaluations every this many iterations: a few-minute CPU run makes a few hundred steps, so
 # this gives the report several points without evaluation dominating the run.
 DEMO_EVAL_EVERY = 50
@@ -193,7 +197,8 @@ def run(args) -> int:
     boot_dir = out / "run_bootstrap"
     boot_config = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations,
                                   minutes=args.bootstrap_minutes, prior_minutes=args.prior_minutes,
-                                  prior_steps=args.prior_steps, ddim_steps=args.ddim_steps, k=DEMO_K, l=DEMO_L)
+                                  prior_steps=args.prior_steps, ddim_steps=args.ddim_steps, k=DEMO_K, l=DEMO_L,
+                                  generated_weight=DEMO_GENERATED_WEIGHT)
     boot_result = run_bootstrap(run_dir, boot_dir, split_targets(split, scene, 1), boot_config,
                                 log=lambda message: print(f"      {message}", flush=True))
     timings["bootstrap"] = time.perf_counter() - began
