@@ -146,8 +146,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     log = log or (lambda message: tqdm.write(message, file=sys.stderr))
     config.validate()
     torch.set_num_threads(min(2, os.cpu_count() or 1))
-    clock_start = time.perf_counter()
-    deadline = None if config.minutes is None else clock_start + 60.0 * config.minutes
+    clock_start = time.perf_counter()   # moved forward by pauses: paused time is nobody's time
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     if out_dir.resolve() == run_dir.resolve():
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
@@ -229,7 +228,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                dynamic_ncols=True, disable=not progress, unit="it")
 
     def out_of_time() -> bool:
-        return deadline is not None and time.perf_counter() >= deadline
+        return config.minutes is not None and now() >= 60.0 * config.minutes
 
     def wait_or_stop() -> bool:
         """Honour pause; True when asked to stop."""
@@ -239,7 +238,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         while control.pause.is_set() and not control.stop.is_set():
             paused_at = time.perf_counter()
             time.sleep(0.05)
-            clock_start += time.perf_counter() - paused_at  # paused time is nobody's time
+            clock_start += time.perf_counter() - paused_at
         return control.stop.is_set()
 
     def checkpoint_now(round_index: int) -> None:
