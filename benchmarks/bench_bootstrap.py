@@ -129,7 +129,7 @@ def bench_scene(name: str, args) -> dict:
     _, scene, split, _, _ = load_stage1(run_dir)
     targets = resolve_targets(scene, split, None, None, 1)
     base = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations, ddim_steps=args.ddim_steps,
-                           log_every=1, eval_every=max(args.bootstrap_iterations // 4, 1))
+                           k=args.k, l=args.l, log_every=1, eval_every=max(args.bootstrap_iterations // 4, 1))
     rows = {"stage I": {"seconds": 0.0, **scores(run_dir)}}
     curves = {}
     for variant in args.variants:
@@ -184,6 +184,8 @@ def main(argv=None) -> int:
     parser.add_argument("--bootstrap-iterations", type=int, default=200)
     parser.add_argument("--prior-minutes", type=float, default=2.0)
     parser.add_argument("--ddim-steps", type=int, default=10)
+    parser.add_argument("--k", type=int, default=None, help="nearest training views per target (default A's K)")
+    parser.add_argument("--l", type=int, default=None, help="poses per training view (default A's L)")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     args = parser.parse_args(argv)
     torch.set_num_threads(min(2, os.cpu_count() or 1))
