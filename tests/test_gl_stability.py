@@ -19,14 +19,19 @@ from inceptiongs.renderer.crosscheck import agreement  # noqa: E402
 from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def renderer():
+@pytest.fixture(scope="module", params=["cpu", "fetch"])
+def renderer(request):
+    """Each case runs on both exact compositing paths: "cpu" (the default on software GL)
+    and "fetch" (fragment shader with framebuffer fetch, the default on hardware GL)."""
     from inceptiongs.renderer.context import RendererError, create_offscreen_context
     try:
         ctx = create_offscreen_context()
     except RendererError as exc:
         pytest.skip(f"no usable EGL OpenGL context: {exc}")
-    splats = SplatRenderer(ctx)
+    if request.param == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in ctx.extensions:
+        ctx.release()
+        pytest.skip("no GL_EXT_shader_framebuffer_fetch in this GL")
+    splats = SplatRenderer(ctx, compositing=request.param)
     yield splats
     splats.release()
     ctx.release()
