@@ -35,8 +35,14 @@ def test_config_round_trip_and_bad_files(tmp_path):
 
 def test_short_schedule_keeps_milestone_fractions():
     config = short_run_schedule(TrainConfig(iterations=3000))
-    assert config.densify_until == 1500 and config.normal_from == 700 and config.opacity_reset_every == 750
+    assert config.densify_until == 1500 and config.normal_from == 700
     assert config.densify_from == 100 and config.densify_every == 25
+    # No opacity reset within a run this short; a Gaussian budget that shrinks with the run.
+    assert config.opacity_reset_every > config.iterations
+    assert config.max_gaussians == 200_000
+    assert short_run_schedule(TrainConfig(iterations=500)).max_gaussians == 100_000
+    longer = short_run_schedule(TrainConfig(iterations=12_000))
+    assert longer.opacity_reset_every == 3000 and longer.max_gaussians == 800_000
     assert short_run_schedule(TrainConfig(iterations=30_000)) == TrainConfig(iterations=30_000)
 
 

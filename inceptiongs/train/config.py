@@ -122,6 +122,10 @@ class TrainConfig:
         return TrainConfig(**data).validate(str(path))
 
 
+SHORT_RUN_RESET_MIN = 10_000
+SHORT_RUN_MIN_GAUSSIANS = 100_000
+
+
 def short_run_schedule(config: TrainConfig) -> TrainConfig:
     """Scale the iteration-based schedules to a run of ``config.iterations`` steps.
 
@@ -141,9 +145,17 @@ def short_run_schedule(config: TrainConfig) -> TrainConfig:
         densify_from=scaled(config.densify_from, min(100, config.iterations // 10)),
         densify_until=scaled(config.densify_until, 2),
         densify_every=scaled(config.densify_every, min(25, max(1, config.iterations // 20))),
-        # Opacities need tens of steps to recover from a reset: never reset more than
-        # about once within the densification window of a short run.
-        opacity_reset_every=scaled(config.opacity_reset_every, max(50, config.iterations // 4)),
+        # Opacities need hundreds of steps to recover from a reset (fern: 14.7 -> 5.6 dB
+        # right after one, 13.5 dB 33 steps later), more than a short run can spare; the
+        # floaters a reset removes are few when training starts from triangulated points.
+        # So runs below SHORT_RUN_RESET_MIN steps never reset.
+        opacity_reset_every=(config.iterations + 1 if config.iterations < SHORT_RUN_RESET_MIN
+                             else scaled(config.opacity_reset_every, max(50, config.iterations // 4))),
+        # A short run has no time to optimise millions of Gaussians (every step's cost grows
+        # with them): the budget shrinks with the run, with a floor that still resolves a
+        # photo-sized scene.
+        max_gaussians=min(config.max_gaussians, max(SHORT_RUN_MIN_GAUSSIANS,
+                                                    int(config.max_gaussians * fraction))),
         sh_increase_every=scaled(config.sh_increase_every, 10),
         normal_from=scaled(config.normal_from, 1),
         multiview_from=scaled(config.multiview_from, 1),
