@@ -628,7 +628,9 @@ class Viewer:
         screen.use()
         width, height = self.framebuffer_size
         self.ctx.viewport = (0, 0, width, height)
-        screen.clear(*self.settings.background, 1.0)
+        if self.scene_texture.texture is None:
+            # Later frames skip this full-window pass: the scene blit overwrites every pixel.
+            screen.clear(*self.settings.background, 1.0)
         self._draw_scene(screen)
         self._draw_overlays(screen)
         if self.imgui_impl is not None:
