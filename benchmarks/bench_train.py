@@ -17,6 +17,7 @@ import argparse
 import cProfile
 import dataclasses
 import json
+import os
 import pstats
 import shutil
 import sys
@@ -59,7 +60,10 @@ def main() -> int:
         pstats.Stats(profiler, stream=sys.stdout).sort_stats("cumulative").print_stats(30)
         return 0
 
+    # The machine is shared: the load average says how much of it this run had.
+    load_before = os.getloadavg()
     result = train(config, out)
+    load_after = os.getloadavg()
     print(f"{'train_s':>8} {'iter':>6} {'gaussians':>9} {'test_psnr':>9} {'test_ssim':>9}")
     curve = []
     for line in (out / "metrics.jsonl").read_text().splitlines():
@@ -76,7 +80,9 @@ def main() -> int:
         best = max(reached) if reached else float("nan")
         verdict = "met" if best >= target else "NOT met"
         print(f"target {target:.2f} dB within {minutes} min: best {best:.2f} dB -> {verdict}")
-    print(f"{result.iteration} iterations, {result.num_gaussians} Gaussians (machine shared: figures are noisy)")
+    print(f"{result.iteration} iterations, {result.num_gaussians} Gaussians; load average (1/5/15 min) "
+          f"{'/'.join(f'{v:.1f}' for v in load_before)} before, {'/'.join(f'{v:.1f}' for v in load_after)} "
+          f"after, on {os.cpu_count()} cores (figures are noisy when others run)")
     return 0
 
 
