@@ -22,7 +22,6 @@ class BootstrapJob:
     snapshot_every: int = 5
 
     def run(self, box: SnapshotBox, control) -> None:
-        from ..train.run_folder import load_run  # noqa: F401  (fails early, in the UI, on a bad run)
         from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
 
         latest_iteration = 0
