@@ -1,7 +1,7 @@
 """Stage-I training benchmark: test PSNR against wall-clock time.
 
     python benchmarks/bench_train.py [--scene ../shared/data/fern] [--protocol llff]
-        [--minutes 10] [--iterations 3000] [--eval-every 100] [--out /tmp/bench_train]
+        [--minutes 10] [--iterations 700] [--eval-every 100] [--out /tmp/bench_train]
         [--profile-steps N]
 
 Trains with the CLI's defaults (the iteration count sets the schedule; --minutes stops the
@@ -33,12 +33,16 @@ def main() -> int:
     parser.add_argument("--protocol", default="llff")
     parser.add_argument("--downscale", type=int, default=1)
     parser.add_argument("--minutes", type=float, default=10.0)
-    parser.add_argument("--iterations", type=int, default=3000, help="schedule length")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="schedule length (default 70 per minute: what the 2-core machine "
+                             "does when idle at a 100-200k Gaussian budget)")
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--no-pgsr", action="store_true")
     parser.add_argument("--out", default="/tmp/bench_train")
     parser.add_argument("--profile-steps", type=int, default=0)
     args = parser.parse_args()
+    if args.iterations is None:
+        args.iterations = max(1, round(70 * args.minutes))
 
     from inceptiongs.train.config import TrainConfig, short_run_schedule
     from inceptiongs.train.trainer import train
