@@ -29,11 +29,11 @@ from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .densify import DensifyStats, accumulate, densify_and_prune, reset_opacity
 from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
-from .triangulate import training_points
 from .neighbours import neighbour_views
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
                     position_learning_rate, set_learning_rate)
 from .run_folder import append_metrics, to_original_frame, truncate_metrics
+from .triangulate import training_points
 
 
 @dataclass
