@@ -4,6 +4,10 @@ $INCEPTIONGS_DATA points); tests that need it skip with the reason when it is ab
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -54,3 +58,42 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def _free_display() -> int:
+    for number in range(90, 200):
+        if not (Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists()):
+            return number
+    raise RuntimeError("no free X display number between 90 and 199")
+
+
+@pytest.fixture(scope="session")
+def xvfb():
+    """One Xvfb server for the whole session; DISPLAY points at it while tests run.
+
+    One server, not one per module: GLFW keeps its X connection open until glfw.terminate(),
+    and Xlib ends the process (exit 1, "XIO: fatal IO error") when a server it is connected
+    to goes away. So GLFW is terminated before the server is stopped."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (scripts/install.sh --dev installs it)")
+    number = _free_display()
+    process = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    socket = Path(f"/tmp/.X11-unix/X{number}")
+    deadline = time.time() + 10
+    while not socket.exists() and time.time() < deadline and process.poll() is None:
+        time.sleep(0.05)
+    if not socket.exists():
+        process.kill()
+        pytest.skip(f"Xvfb :{number} did not start")
+    previous = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{number}"
+    yield f":{number}"
+    if "glfw" in sys.modules:
+        sys.modules["glfw"].terminate()
+    if previous is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = previous
+    process.terminate()
+    process.wait(10)

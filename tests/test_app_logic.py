@@ -13,7 +13,6 @@ import pytest
 
 from inceptiongs.camera import Camera, look_at, read_camera_json
 from inceptiongs.errors import InputError
-from inceptiongs.live import SnapshotBox
 from inceptiongs.app import editing, flags, frustums, navigation, reference
 from inceptiongs.app.live_training import LiveTraining
 

@@ -8,10 +8,7 @@ Regenerate the golden images (after an intended rendering change, check them by 
 
 from __future__ import annotations
 
-import json
-import math
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -32,39 +29,6 @@ GOLDEN_MEAN_ABS_MAX = 1.5 / 255
 GOLDEN_P99_ABS_MAX = 24 / 255
 
 pytestmark = pytest.mark.gl
-
-
-def _free_display() -> int:
-    for number in range(90, 200):
-        if not (Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists()):
-            return number
-    raise RuntimeError("no free X display number between 90 and 199")
-
-
-@pytest.fixture(scope="module")
-def xvfb():
-    """An Xvfb server for this module; DISPLAY points at it while the tests run."""
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (scripts/install.sh --dev installs it)")
-    number = _free_display()
-    process = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    socket = Path(f"/tmp/.X11-unix/X{number}")
-    deadline = time.time() + 10
-    while not socket.exists() and time.time() < deadline and process.poll() is None:
-        time.sleep(0.05)
-    if not socket.exists():
-        process.kill()
-        pytest.skip(f"Xvfb :{number} did not start")
-    previous = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{number}"
-    yield f":{number}"
-    if previous is None:
-        os.environ.pop("DISPLAY", None)
-    else:
-        os.environ["DISPLAY"] = previous
-    process.terminate()
-    process.wait(10)
 
 
 def synthetic_gaussians(shift: float = 0.0) -> dict:

@@ -2,42 +2,12 @@
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow]
-
-
-@pytest.fixture(scope="module")
-def display():
-    if shutil.which("Xvfb") is None:
-        pytest.skip("Xvfb is not installed (scripts/install.sh --dev installs it)")
-    import os
-
-    number = next(n for n in range(200, 300) if not Path(f"/tmp/.X{n}-lock").exists()
-                  and not Path(f"/tmp/.X11-unix/X{n}").exists())
-    process = subprocess.Popen(["Xvfb", f":{number}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    socket = Path(f"/tmp/.X11-unix/X{number}")
-    deadline = time.time() + 10
-    while not socket.exists() and time.time() < deadline and process.poll() is None:
-        time.sleep(0.05)
-    if not socket.exists():
-        process.kill()
-        pytest.skip(f"Xvfb :{number} did not start")
-    previous = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{number}"
-    yield
-    if previous is None:
-        os.environ.pop("DISPLAY", None)
-    else:
-        os.environ["DISPLAY"] = previous
-    process.terminate()
-    process.wait(10)
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +25,7 @@ def run_dir(tmp_path_factory) -> Path:
     return root / "run"
 
 
-def test_bootstrap_button_runs_the_flagged_views_live(display, run_dir):
+def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
     from inceptiongs.app.jobs import start_bootstrap
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer

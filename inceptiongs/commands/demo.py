@@ -132,7 +132,7 @@ def report_markdown(scene, split, stage1: dict, boot: dict, stage1_result, boot_
         f"{sum(v['mask_fraction'] for v in views) / max(len(views), 1):.0%} of their pixels from warped photos; "
         f"iterations {boot_result.start_iteration}..{boot_result.iteration}; "
         f"perceptual loss: {boot_summary.get('perceptual', '-')})",
-        f"- times: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
+        "- times: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
         "",
         "## Held-out views: stage I vs bootstrap",
         "",

@@ -10,7 +10,6 @@ into that frame with the scene's normalisation.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 from dataclasses import replace
 from pathlib import Path
