@@ -13,23 +13,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 
-from inceptiongs.live import Snapshot, SnapshotBox
-
-
-def _trainer_control_class():
-    """The trainer's JobControl when it exists (so its jobs get exactly their own type),
-    else the local one with the same two events."""
-    try:
-        from inceptiongs.train.job import JobControl  # noqa: PLC0415 (optional dependency)
-        return JobControl
-    except ImportError:
-        return LocalJobControl
-
-
-@dataclass
-class LocalJobControl:
-    pause: threading.Event = field(default_factory=threading.Event)
-    stop: threading.Event = field(default_factory=threading.Event)
+from inceptiongs.live import JobControl, Snapshot, SnapshotBox
 
 
 @dataclass
@@ -49,7 +33,7 @@ class LiveTraining:
     def __init__(self, job, control=None, box: SnapshotBox | None = None) -> None:
         self.job = job
         self.box = box or SnapshotBox()
-        self.control = control if control is not None else _trainer_control_class()()
+        self.control = control if control is not None else JobControl()
         self.progress = TrainingProgress()
         self.error: str | None = None
         self._thread: threading.Thread | None = None

@@ -22,6 +22,7 @@ from inceptiongs.camera import Camera
 from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
+from inceptiongs.renderer.context import unbind_current_egl
 
 from . import editing, flags as flagging
 from .frustums import segments_for_cameras
@@ -73,6 +74,7 @@ class WindowError(RuntimeError):
 def create_window(width: int, height: int, title: str, visible: bool = True):
     """A GLFW window with a GL 4.3 core context made current. Raises WindowError naming the GL
     version that could be had when 4.3 core cannot."""
+    unbind_current_egl()  # an EGL context left current blocks GLX on this thread
     if not glfw.init():
         raise WindowError("could not initialise GLFW (no display? set DISPLAY or run under Xvfb)")
     glfw.window_hint(glfw.VISIBLE, glfw.TRUE if visible else glfw.FALSE)

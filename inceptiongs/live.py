@@ -11,6 +11,15 @@ import threading
 from dataclasses import dataclass, field
 
 
+@dataclass
+class JobControl:
+    """The viewer's side of a running job: set ``pause`` to pause (clear to continue); set
+    ``stop`` to have the job checkpoint and return."""
+
+    pause: threading.Event = field(default_factory=threading.Event)
+    stop: threading.Event = field(default_factory=threading.Event)
+
+
 @dataclass(frozen=True)
 class Snapshot:
     """What a job shows the world at one moment. ``gaussians`` holds numpy arrays keyed as
@@ -49,3 +58,21 @@ class SnapshotBox:
             if self._snapshot is None or self._snapshot.version <= seen_version:
                 return None
             return self._snapshot
+
+
+@dataclass
+class JobPublisher:
+    """A job's side of the hand-off: Gaussians snapshots and log lines, both through ``box``
+    (a log line carries the iteration of the newest snapshot)."""
+
+    box: SnapshotBox
+    iteration: int = 0
+
+    def snapshot(self, iteration: int, gaussians, metrics: dict) -> None:
+        """gaussians: an :class:`inceptiongs.gaussians.Gaussians`; numpy() copies it on the
+        job's thread, so the viewer never sees tensors that are being updated."""
+        self.iteration = iteration
+        self.box.publish(iteration, gaussians.numpy(), metrics)
+
+    def log(self, message: str) -> None:
+        self.box.publish(self.iteration, None, {}, message)

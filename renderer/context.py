@@ -7,6 +7,9 @@ of context what the renderer can do with it.
 
 from __future__ import annotations
 
+import ctypes
+import sys
+
 import moderngl
 
 # Instanced quads, transform feedback, texelFetch and integer attributes: GL 3.3 core.
@@ -37,3 +40,28 @@ def create_offscreen_context() -> moderngl.Context:
         raise RendererError(f"could not create an EGL OpenGL context ({exc})") from None
     check_context(ctx)
     return ctx
+
+
+def unbind_current_egl() -> bool:
+    """Unbind whatever EGL context is current on this thread; True when one was.
+
+    moderngl's ``release()`` of an EGL context leaves it current, and Mesa then refuses a GLX
+    context on the same thread (``BadAccess`` in ``X_GLXMakeCurrent``, which Xlib answers with
+    ``exit(1)``). A process that rendered headless before opening a GLFW window (the tests, a
+    script) calls this first. libEGL is only consulted when it is already loaded.
+    """
+    if sys.platform != "linux":
+        return False
+    try:
+        # RTLD_NOLOAD: look at a library the process already has; never load one just to ask.
+        egl = ctypes.CDLL("libEGL.so.1", mode=ctypes.RTLD_GLOBAL | getattr(ctypes, "RTLD_NOLOAD", 4))
+    except OSError:
+        return False
+    egl.eglGetCurrentContext.restype = ctypes.c_void_p
+    egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
+    egl.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+    if not egl.eglGetCurrentContext():
+        return False
+    egl.eglMakeCurrent(egl.eglGetCurrentDisplay(), None, None, None)
+    egl.eglReleaseThread()
+    return True

@@ -60,6 +60,24 @@ def one_torch_thread():
     torch.set_num_threads(threads)
 
 
+def offscreen_context_or_skip():
+    """A headless (EGL) moderngl context, or skip the calling test saying why there is none."""
+    pytest.importorskip("moderngl")
+    from inceptiongs.renderer.context import RendererError, create_offscreen_context
+    try:
+        return create_offscreen_context()
+    except RendererError as exc:
+        pytest.skip(f"no usable EGL OpenGL context: {exc}")
+
+
+@pytest.fixture(scope="module")
+def gl_context():
+    """One headless GL context per test module."""
+    ctx = offscreen_context_or_skip()
+    yield ctx
+    ctx.release()
+
+
 def _free_display() -> int:
     for number in range(90, 200):
         if not (Path(f"/tmp/.X{number}-lock").exists() or Path(f"/tmp/.X11-unix/X{number}").exists()):

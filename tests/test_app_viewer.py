@@ -331,3 +331,24 @@ def test_navigation_keys_move_the_camera(xvfb, model):
         np.testing.assert_allclose(viewer.nav.center, start)
     finally:
         viewer.close()
+
+
+def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
+    """moderngl's release() leaves an EGL context current; Mesa then refuses GLX on that thread and
+    Xlib exits the process. create_window must unbind it first. In a child process, because the
+    failure mode is the whole interpreter exiting."""
+    script = (
+        "from inceptiongs.renderer.context import create_offscreen_context\n"
+        "ctx = create_offscreen_context(); ctx.release()\n"
+        "import glfw, moderngl\n"
+        "from inceptiongs.app.viewer import create_window\n"
+        "window = create_window(32, 32, 'egl then glx', visible=False)\n"
+        "print('renderer', moderngl.create_context().info['GL_RENDERER'])\n"
+        "glfw.terminate()\n"
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "DISPLAY": xvfb})
+    if "could not create an EGL" in result.stderr:
+        pytest.skip("no EGL context on this machine")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "renderer" in result.stdout

@@ -35,17 +35,6 @@ from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 WIDTH, HEIGHT, FOCAL = 256, 192, 200.0
 
 
-@pytest.fixture(scope="module")
-def gl_context():
-    from inceptiongs.renderer.context import RendererError, create_offscreen_context
-    try:
-        ctx = create_offscreen_context()
-    except RendererError as exc:
-        pytest.skip(f"no usable EGL OpenGL context: {exc}")
-    yield ctx
-    ctx.release()
-
-
 def random_gaussians(n: int, seed: int, sh_degree: int = 3) -> Gaussians:
     """n Gaussians in [-1, 1]^3: anisotropic, random rotations, opacities and SH."""
     gen = torch.Generator().manual_seed(seed)

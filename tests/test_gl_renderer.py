@@ -20,17 +20,6 @@ from inceptiongs.renderer.sorting import depth_order, quad_elements, visible_dep
 from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from inceptiongs.renderer.context import create_offscreen_context
-    try:
-        context = create_offscreen_context()
-    except RendererError as exc:
-        pytest.skip(f"no usable EGL OpenGL context: {exc}")
-    yield context
-    context.release()
-
-
 def random_model(n: int, seed: int, degree: int = 1) -> Gaussians:
     gen = torch.Generator().manual_seed(seed)
     return Gaussians(torch.rand(n, 3, generator=gen) * 2 - 1, torch.rand(n, 3, generator=gen) * 2 - 4.5,
@@ -88,10 +77,10 @@ def test_visible_order_is_float32_z_then_index_without_the_culled():
 
 
 @pytest.mark.parametrize("compositing", ["fetch", "blend"])
-def test_gpu_bitonic_sort_matches_numpy_sort(ctx, compositing):
-    if ctx.version_code < 430:
+def test_gpu_bitonic_sort_matches_numpy_sort(gl_context, compositing):
+    if gl_context.version_code < 430:
         pytest.skip("GPU sort needs GL 4.3")
-    if compositing == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in ctx.extensions:
+    if compositing == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in gl_context.extensions:
         pytest.skip("no framebuffer fetch")
     model = random_model(2500, seed=1)
     # Include exact depth ties (resolved by index in both sorts) and culled Gaussians.
@@ -99,7 +88,7 @@ def test_gpu_bitonic_sort_matches_numpy_sort(ctx, compositing):
     model.opacity_logits[300:400] = -40.0
     images = []
     for sort in ("gpu", "cpu"):
-        renderer = SplatRenderer(ctx, sort=sort, compositing=compositing)  # the sort orders quads
+        renderer = SplatRenderer(gl_context, sort=sort, compositing=compositing)  # the sort orders quads
         renderer.set_gaussians(model.numpy())
         images.append((renderer.render(view(), "rgb"), renderer.render(view(), "alpha")))
         renderer.release()
@@ -107,8 +96,8 @@ def test_gpu_bitonic_sort_matches_numpy_sort(ctx, compositing):
     np.testing.assert_allclose(images[0][1], images[1][1], atol=1e-6)
 
 
-def test_same_version_uploads_nothing_and_new_version_does(ctx):
-    renderer = SplatRenderer(ctx)
+def test_same_version_uploads_nothing_and_new_version_does(gl_context):
+    renderer = SplatRenderer(gl_context)
     first, second = random_model(300, seed=2), random_model(500, seed=3)
     renderer.set_gaussians(first.numpy(), version=7)
     image_first = renderer.render(view())
@@ -121,8 +110,8 @@ def test_same_version_uploads_nothing_and_new_version_does(ctx):
     renderer.release()
 
 
-def test_pick_depth_is_the_depth_render_at_that_pixel(ctx):
-    renderer = SplatRenderer(ctx)
+def test_pick_depth_is_the_depth_render_at_that_pixel(gl_context):
+    renderer = SplatRenderer(gl_context)
     model = random_model(400, seed=4)
     model.opacity_logits += 3.0
     renderer.set_gaussians(model.numpy())
@@ -141,11 +130,11 @@ def test_pick_depth_is_the_depth_render_at_that_pixel(ctx):
     renderer.release()
 
 
-def test_draw_into_a_framebuffer_is_upright_with_background(ctx):
-    renderer = SplatRenderer(ctx)
+def test_draw_into_a_framebuffer_is_upright_with_background(gl_context):
+    renderer = SplatRenderer(gl_context)
     renderer.set_gaussians(random_model(400, seed=5).numpy())
     cam = view()
-    target = ctx.framebuffer(color_attachments=[ctx.renderbuffer((cam.width, cam.height), 4, dtype="f4")])
+    target = gl_context.framebuffer(color_attachments=[gl_context.renderbuffer((cam.width, cam.height), 4, dtype="f4")])
     background = (0.3, 0.1, 0.6)
     renderer.draw(cam, "rgb", target, background=background)
     drawn = np.frombuffer(target.read(components=4, dtype="f4"), np.float32).reshape(cam.height, cam.width, 4)

@@ -15,6 +15,7 @@ from inceptiongs.constants import NEAR_PLANE
 from inceptiongs.gaussians import Gaussians
 
 moderngl = pytest.importorskip("moderngl")
+from conftest import offscreen_context_or_skip  # noqa: E402
 from inceptiongs.renderer.crosscheck import agreement  # noqa: E402
 from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 
@@ -23,11 +24,7 @@ from inceptiongs.renderer.splats import SplatRenderer  # noqa: E402
 def renderer(request):
     """Each case runs on both exact compositing paths: "cpu" (the default on software GL)
     and "fetch" (fragment shader with framebuffer fetch, the default on hardware GL)."""
-    from inceptiongs.renderer.context import RendererError, create_offscreen_context
-    try:
-        ctx = create_offscreen_context()
-    except RendererError as exc:
-        pytest.skip(f"no usable EGL OpenGL context: {exc}")
+    ctx = offscreen_context_or_skip()
     if request.param == "fetch" and "GL_EXT_shader_framebuffer_fetch" not in ctx.extensions:
         ctx.release()
         pytest.skip("no GL_EXT_shader_framebuffer_fetch in this GL")

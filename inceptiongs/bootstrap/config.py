@@ -8,11 +8,10 @@ here.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..atomic import atomic_write_text
+from ..config_json import load_config, save_config
 from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")
@@ -100,19 +99,8 @@ class BootstrapConfig:
         return dataclasses.asdict(self)
 
     def save(self, path: str | Path) -> None:
-        atomic_write_text(path, json.dumps(self.to_json_dict(), indent=2, sort_keys=True) + "\n")
+        save_config(self, path)
 
     @staticmethod
     def load(path: str | Path) -> "BootstrapConfig":
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path}: not a readable bootstrap config ({exc})") from None
-        if not isinstance(data, dict):
-            raise InputError(f"{path}: bootstrap config must be a JSON object")
-        known = {f.name for f in dataclasses.fields(BootstrapConfig)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise InputError(f"{path}: unknown bootstrap config keys {', '.join(unknown)}")
-        return BootstrapConfig(**data).validate(str(path))
+        return load_config(BootstrapConfig, path, "bootstrap config")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..live import SnapshotBox
+from ..live import JobPublisher, SnapshotBox
 from .config import BootstrapConfig
 
 
@@ -24,22 +24,13 @@ class BootstrapJob:
     def run(self, box: SnapshotBox, control) -> None:
         from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
 
-        latest_iteration = 0
-
-        def publish(iteration: int, gaussians, metrics: dict) -> None:
-            nonlocal latest_iteration
-            latest_iteration = iteration
-            box.publish(iteration, gaussians.numpy(), metrics)
-
-        def log(message: str) -> None:
-            box.publish(latest_iteration, None, {}, message)
-
+        out = JobPublisher(box)
         out_dir = Path(self.out_dir) if self.out_dir is not None else default_out_dir(self.run_dir)
         _, scene, split, _, _ = load_stage1(Path(self.run_dir))
         targets = resolve_targets(scene, split, self.targets_file, None, self.config.rounds)
-        log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
+        out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
         result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
-                               on_snapshot=publish, snapshot_every=self.snapshot_every, log=log,
+                               on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False)
         state = "finished" if result.finished else "stopped (checkpoint written)"
         box.publish(result.iteration, None, dict(result.last_eval),

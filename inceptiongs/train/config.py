@@ -8,11 +8,10 @@ the loop early.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..atomic import atomic_write_text
+from ..config_json import load_config, save_config
 from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
@@ -104,22 +103,11 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
     def save(self, path: str | Path) -> None:
-        atomic_write_text(path, json.dumps(self.to_json_dict(), indent=2, sort_keys=True) + "\n")
+        save_config(self, path)
 
     @staticmethod
     def load(path: str | Path) -> "TrainConfig":
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{path}: not a readable config JSON ({exc})") from None
-        if not isinstance(data, dict):
-            raise InputError(f"{path}: config JSON must be an object")
-        known = {f.name for f in dataclasses.fields(TrainConfig)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise InputError(f"{path}: unknown config keys {', '.join(unknown)}")
-        return TrainConfig(**data).validate(str(path))
+        return load_config(TrainConfig, path, "config")
 
 
 SHORT_RUN_RESET_MIN = 10_000

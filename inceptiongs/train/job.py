@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from ..live import SnapshotBox
+from ..live import JobControl, JobPublisher, SnapshotBox
 from .config import TrainConfig
 
-
-@dataclass
-class JobControl:
-    """Set ``pause`` to pause (clear to continue); set ``stop`` to checkpoint and return."""
-
-    pause: threading.Event = field(default_factory=threading.Event)
-    stop: threading.Event = field(default_factory=threading.Event)
+__all__ = ["JobControl", "TrainJob"]
 
 
 @dataclass
@@ -30,19 +23,9 @@ class TrainJob:
     def run(self, box: SnapshotBox, control: JobControl) -> None:
         from .trainer import train
 
-        latest_iteration = 0
-
-        def publish(iteration: int, gaussians, metrics: dict) -> None:
-            nonlocal latest_iteration
-            latest_iteration = iteration
-            # numpy() copies on this thread, so the viewer never sees tensors being updated.
-            box.publish(iteration, gaussians.numpy(), metrics)
-
-        def log(message: str) -> None:
-            box.publish(latest_iteration, None, {}, message)
-
+        out = JobPublisher(box)
         result = train(self.config, self.run_dir, resume=self.resume, progress=False, control=control,
-                       on_snapshot=publish, snapshot_every=self.snapshot_every, log=log)
+                       on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log)
         state = "finished" if result.finished else "stopped (checkpoint written)"
         box.publish(result.iteration, None, dict(result.last_eval),
                     f"training {state} at iteration {result.iteration}")
