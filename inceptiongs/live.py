@@ -22,14 +22,19 @@ class JobControl:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """What a job shows the world at one moment. ``gaussians`` holds numpy arrays keyed as
-    :meth:`inceptiongs.gaussians.Gaussians.numpy` returns them (or None: nothing new)."""
+    """What a job shows the world at one moment. ``gaussians`` holds the newest model as numpy
+    arrays keyed as :meth:`inceptiongs.gaussians.Gaussians.numpy` returns them (None before the
+    first); it is new to a reader whose last seen ``gaussians_version`` is smaller."""
 
     version: int
     iteration: int
     gaussians: dict | None
     metrics: dict = field(default_factory=dict)
     message: str = ""
+    # The version at which ``gaussians`` was published (0: none yet). A log line published
+    # after a model keeps that model here, so a reader that only sees the newest snapshot (the
+    # box has one slot) never loses Gaussians to a message that overwrote them.
+    gaussians_version: int = 0
 
 
 class SnapshotBox:
@@ -49,7 +54,13 @@ class SnapshotBox:
                 message: str = "") -> int:
         with self._lock:
             self._version += 1
-            self._snapshot = Snapshot(self._version, iteration, gaussians, dict(metrics or {}), message)
+            gaussians_version = self._version
+            if gaussians is None and self._snapshot is not None:
+                gaussians, gaussians_version = self._snapshot.gaussians, self._snapshot.gaussians_version
+            elif gaussians is None:
+                gaussians_version = 0
+            self._snapshot = Snapshot(self._version, iteration, gaussians, dict(metrics or {}), message,
+                                      gaussians_version)
             return self._version
 
     def latest(self, seen_version: int = 0) -> Snapshot | None:

@@ -284,6 +284,26 @@ def test_live_training_exception_is_reported_not_raised():
     assert threading.current_thread().is_alive()
 
 
+
+def test_a_log_line_after_a_model_does_not_hide_the_model():
+    """The box has one slot: a reader that polls after a model and then a message were both
+    published must still get the model (the job's last Gaussians are usually followed by its
+    "finished" line)."""
+    from inceptiongs.live import SnapshotBox
+
+    box = SnapshotBox()
+    assert box.publish(0, None, {}, "starting") == 1
+    assert box.latest(0).gaussians is None and box.latest(0).gaussians_version == 0
+    arrays = _arrays(3)
+    model_version = box.publish(5, arrays, {"loss": 0.5})
+    box.publish(5, None, {}, "finished at iteration 5")
+    newest = box.latest(0)
+    assert newest.message == "finished at iteration 5" and newest.version == model_version + 1
+    assert newest.gaussians is arrays and newest.gaussians_version == model_version
+    replacement = _arrays(4)
+    box.publish(6, replacement, {})
+    assert box.latest(0).gaussians is replacement and box.latest(0).gaussians_version == model_version + 2
+
 # --- reference comparison -------------------------------------------------------------------
 
 def test_psnr_and_heatmap():
