@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_write_text
+from .config_json import read_json_object
 from .errors import InputError
 
 # Below this |sin(angle)| slerp falls back to normalised lerp: the slerp weights
@@ -263,13 +264,7 @@ def read_camera_json(path: str | Path) -> Camera:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: camera file does not exist")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a readable camera JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: camera JSON must be an object")
-    return camera_from_json_dict(data, str(path))
+    return camera_from_json_dict(read_json_object(path, "camera"), str(path))
 
 
 def write_camera_json(camera: Camera, path: str | Path) -> None:

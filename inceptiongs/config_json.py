@@ -14,6 +14,19 @@ from .errors import InputError
 Config = TypeVar("Config")
 
 
+def read_json_object(path: str | Path, what: str) -> dict:
+    """The JSON object in ``path``; an InputError naming the file when it cannot be read, is
+    not JSON or is not an object (``what`` says what it should have been, e.g. "camera")."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not a readable {what} JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: {what} JSON must be an object")
+    return data
+
+
 def save_config(config, path: str | Path) -> None:
     """config: a dataclass instance of JSON-able fields."""
     atomic_write_text(path, json.dumps(dataclasses.asdict(config), indent=2, sort_keys=True) + "\n")
@@ -23,12 +36,7 @@ def load_config(cls: type[Config], path: str | Path, what: str = "config") -> Co
     """An instance of the dataclass ``cls`` from ``path``, validated (``cls.validate(source)``).
     Errors name the file and the problem; ``what`` says which kind of config it should be."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a readable {what} JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: {what} JSON must be an object")
+    data = read_json_object(path, what)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
