@@ -38,6 +38,7 @@ class LiveTraining:
         self.error: str | None = None
         self._thread: threading.Thread | None = None
         self._seen_version = 0
+        self._seen_gaussians_version = 0
         self._rate_anchor: tuple[float, int] | None = None  # (time, iteration) of the last rate sample
 
     # --- lifecycle -------------------------------------------------------------------------
@@ -95,6 +96,15 @@ class LiveTraining:
         self._seen_version = snapshot.version
         self._record(snapshot)
         return snapshot
+
+    def poll_gaussians(self) -> dict | None:
+        """Like :meth:`poll`, but returns the newest Gaussians only when they are new to this
+        reader (a log line carries the last model on; that model is not returned twice)."""
+        snapshot = self.poll()
+        if snapshot is None or snapshot.gaussians_version <= self._seen_gaussians_version:
+            return None
+        self._seen_gaussians_version = snapshot.gaussians_version
+        return snapshot.gaussians
 
     def _record(self, snapshot: Snapshot) -> None:
         progress = self.progress

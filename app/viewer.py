@@ -178,7 +178,6 @@ class Viewer:
         self._last_render_key = None
         self._moving_level = 0  # index into MOVING_RENDER_SCALES
         self._last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
-        self._seen_gaussians_version = 0  # of the current job's box: which model is shown
         self._last_motion = -1e9
         self._last_frame_time = time.perf_counter()
         self._drag_start = None
@@ -516,7 +515,6 @@ class Viewer:
             self.status = f"training could not start: {type(exc).__name__}: {exc}"
             return
         self.training = LiveTraining(job)
-        self._seen_gaussians_version = 0  # a new job has a new box, numbered from 1
         self.training.start()
 
     def _take_snapshot(self) -> None:
@@ -526,12 +524,11 @@ class Viewer:
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self._last_snapshot_time < TRAINING_REFRESH_SECONDS and self.training.alive:
             return
-        snapshot = self.training.poll()
-        if snapshot is not None and snapshot.gaussians_version > self._seen_gaussians_version:
-            self._seen_gaussians_version = snapshot.gaussians_version
+        gaussians = self.training.poll_gaussians()
+        if gaussians is not None:
             self._last_snapshot_time = now
             # A new model replaces the edit state: edits are for models at rest.
-            self.edit = editing.EditState(snapshot.gaussians)
+            self.edit = editing.EditState(gaussians)
             self.model_version += 1
 
     # --- drawing -------------------------------------------------------------------------------

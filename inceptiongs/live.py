@@ -54,10 +54,11 @@ class SnapshotBox:
                 message: str = "") -> int:
         with self._lock:
             self._version += 1
-            gaussians_version = self._version
-            if gaussians is None and self._snapshot is not None:
+            if gaussians is not None:
+                gaussians_version = self._version
+            elif self._snapshot is not None:  # a log line: the newest model stays in the slot
                 gaussians, gaussians_version = self._snapshot.gaussians, self._snapshot.gaussians_version
-            elif gaussians is None:
+            else:
                 gaussians_version = 0
             self._snapshot = Snapshot(self._version, iteration, gaussians, dict(metrics or {}), message,
                                       gaussians_version)

@@ -8,6 +8,7 @@ of context what the renderer can do with it.
 from __future__ import annotations
 
 import ctypes
+import os
 import sys
 
 import moderngl
@@ -54,7 +55,7 @@ def unbind_current_egl() -> bool:
         return False
     try:
         # RTLD_NOLOAD: look at a library the process already has; never load one just to ask.
-        egl = ctypes.CDLL("libEGL.so.1", mode=ctypes.RTLD_GLOBAL | getattr(ctypes, "RTLD_NOLOAD", 4))
+        egl = ctypes.CDLL("libEGL.so.1", mode=os.RTLD_NOLOAD)
     except OSError:
         return False
     egl.eglGetCurrentContext.restype = ctypes.c_void_p

@@ -15,6 +15,7 @@ from inceptiongs.camera import Camera, look_at, read_camera_json
 from inceptiongs.errors import InputError
 from inceptiongs.app import editing, flags, frustums, navigation, reference
 from inceptiongs.app.live_training import LiveTraining
+from inceptiongs.live import SnapshotBox
 
 
 def _camera(eye=(0.0, 0.0, -4.0), target=(0.0, 0.0, 0.0), width=64, height=48, f=50.0):
@@ -284,13 +285,10 @@ def test_live_training_exception_is_reported_not_raised():
     assert threading.current_thread().is_alive()
 
 
-
 def test_a_log_line_after_a_model_does_not_hide_the_model():
     """The box has one slot: a reader that polls after a model and then a message were both
     published must still get the model (the job's last Gaussians are usually followed by its
     "finished" line)."""
-    from inceptiongs.live import SnapshotBox
-
     box = SnapshotBox()
     assert box.publish(0, None, {}, "starting") == 1
     assert box.latest(0).gaussians is None and box.latest(0).gaussians_version == 0
@@ -303,6 +301,19 @@ def test_a_log_line_after_a_model_does_not_hide_the_model():
     replacement = _arrays(4)
     box.publish(6, replacement, {})
     assert box.latest(0).gaussians is replacement and box.latest(0).gaussians_version == model_version + 2
+
+
+
+def test_poll_gaussians_returns_each_model_once():
+    box = SnapshotBox()
+    run = LiveTraining(_CountingJob(), box=box)
+    assert run.poll_gaussians() is None
+    model = _arrays(3)
+    box.publish(1, model, {})
+    box.publish(1, None, {}, "finished")
+    assert run.poll_gaussians() is model and run.progress.message == "finished"
+    box.publish(2, None, {}, "another line")
+    assert run.poll_gaussians() is None and run.progress.message == "another line"
 
 # --- reference comparison -------------------------------------------------------------------
 
