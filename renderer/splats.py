@@ -223,23 +223,22 @@ class SplatRenderer:
                             flip_y=False, front_to_back=False)
             raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
             raw = raw.reshape(height, width, 4)
-        if exact:
-            transmittance = np.abs(raw[..., 3:4])
-            alpha = 1.0 - transmittance
-        else:
-            alpha = raw[..., 3:4].copy()
-            transmittance = 1.0 - alpha
+        if mode in ("rgb", "normal"):
+            background = np.asarray(background, np.float32).reshape(1, 1, 3)
+            if mode == "normal":
+                background = np.zeros_like(background)
+            if self.compositing == "cpu":
+                from .cpu_composite import colour_over_background  # loaded by _cpu_frame already
+                return colour_over_background(raw, background)
+            if not background.any():  # the common case: one copy, no T
+                return raw[..., :3].copy()
+            transmittance = np.abs(raw[..., 3:4]) if exact else 1.0 - raw[..., 3:4]
+            return (raw[..., :3] + transmittance * background).astype(np.float32, copy=False)
+        alpha = 1.0 - np.abs(raw[..., 3:4]) if exact else raw[..., 3:4].copy()
         if mode == "alpha":
             return alpha
-        if mode == "depth":
-            safe = np.maximum(alpha, ALPHA_EPS)  # only used where alpha >= ALPHA_EPS
-            return np.where(alpha >= ALPHA_EPS, raw[..., 0:1] / safe, 0.0).astype(np.float32)
-        if mode == "rgb":
-            background = np.asarray(background, np.float32).reshape(1, 1, 3)
-            if not background.any():  # the common case: skip two full-image passes
-                return raw[..., :3].copy()
-            return (raw[..., :3] + transmittance * background).astype(np.float32, copy=False)
-        return raw[..., :3].copy()
+        safe = np.maximum(alpha, ALPHA_EPS)  # depth; only used where alpha >= ALPHA_EPS
+        return np.where(alpha >= ALPHA_EPS, raw[..., 0:1] / safe, 0.0).astype(np.float32)
 
     def draw(self, camera: Camera, mode: str, framebuffer: moderngl.Framebuffer,
              background=(0.0, 0.0, 0.0), sh_degree_cap: int | None = None,
