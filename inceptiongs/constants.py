@@ -44,6 +44,12 @@ TRANSMITTANCE_MIN = 1e-4
 SIGMA_EXTENT_MAX = math.sqrt(2.0 * math.log(ALPHA_MAX / ALPHA_MIN))
 # Tile edge in pixels for the tile-binned rasterizers.
 TILE_SIZE = 16
+# CPU compositors: up to this conic x-coefficient (1 / px^2) exp(-power) is stepped along a
+# pixel row by two multiplications (power is quadratic in x, so neighbour ratios are
+# geometric with factor exp(-a)); beyond, footprints are a few pixels wide and each pixel
+# takes exp(). Within a footprint's span the stepped factors stay far from float64
+# over/underflow, and the drift over n pixels is ~n^2 * 1e-16 relative.
+RECURRENCE_CONIC_MAX = 4.0
 
 # --- numerical guards ------------------------------------------------------------------
 # Smallest quaternion norm we normalise by; below it the rotation is taken as identity.

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
+from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, RECURRENCE_CONIC_MAX, TRANSMITTANCE_MIN
 
 # Rows per band: small enough that bands balance over threads, large enough that walking
 # the Gaussian list once per band stays cheap (the walk is O(bands x Gaussians)).
@@ -45,9 +45,6 @@ BAND_ROWS = 16
 SPAN_SLACK = 1e-6
 # Columns per block of the per-band live-pixel counts.
 BLOCK_COLS = 16
-# Conic x-coefficients (1 / pixels^2) up to which exp(-power) is stepped along a row by two
-# multiplications instead of one exp() per pixel; beyond, footprints are a few pixels wide.
-RECURRENCE_CONIC_MAX = 4.0
 
 
 @njit(cache=True, inline="always")

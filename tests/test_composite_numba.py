@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from inceptiongs.composite_numba import composite_numba
-from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
+from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, RECURRENCE_CONIC_MAX, TRANSMITTANCE_MIN
 
 
 # --------------------------------------------------------------------------------------
@@ -141,6 +141,24 @@ def test_stop_rule_is_exercised_and_respected():
     assert_matches(alpha, ref_alpha, rtol=1e-5)
     # The stop rule keeps the final transmittance at or above TRANSMITTANCE_MIN.
     assert float((1 - alpha).min()) >= TRANSMITTANCE_MIN
+
+
+def test_wide_footprints_stepped_exp_matches_reference_tightly():
+    # sigma 12-40 px: conic a well below RECURRENCE_CONIC_MAX, so every row span is stepped by
+    # the exp() recurrence (forward and backward); an opaque stack exercises the stop rule,
+    # where the backward must take exactly the forward's decisions.
+    width, height = 45, 38
+    scene = random_gaussians(60, width, height, seed=7, opacity=(0.6, 0.99), radius_px=(12.0, 40.0))
+    assert float(scene["conics"][:, 0].max()) < RECURRENCE_CONIC_MAX
+    image, alpha = run_numba(scene, width, height)
+    ref_image, ref_alpha, stopped = run_reference(scene, width, height)
+    assert stopped.float().mean() > 0.3
+    assert_matches(image, ref_image, rtol=1e-10, atol=1e-12)
+    assert_matches(alpha, ref_alpha, rtol=1e-10, atol=1e-12)
+    got = grads_of(run_numba, scene, width, height, seed=7)
+    want = grads_of(run_reference, scene, width, height, seed=7)
+    for key in DIFFERENTIABLE:
+        assert_matches(got[key], want[key], rtol=1e-8, atol=1e-10)
 
 
 def test_forward_float32_matches_float64_reference():
