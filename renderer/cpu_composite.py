@@ -119,9 +119,9 @@ def _stepped_run(image, skip, live, pixel0, base, x, x1, gaussian, ratio, step_f
 @njit(cache=True, nogil=True, _nrt=False)
 def _composite_row(image, skip, live, pixel0, base, x0, x1, mx, dy, ca, cb, cc, opacity,
                    value_r, value_g, value_b, stepping, step_factor):
-    """One Gaussian over the columns x0..x1 of one row: image[pixel0 + 4 x ...] is the row's
-    pixel x, skip[base + x] its skip pointer."""
-    x = _next_alive(skip, base, x0)
+    """One Gaussian over the columns x0..x1 of one row, x0 live: image[pixel0 + 4 x ...] is
+    the row's pixel x, skip[base + x] its skip pointer."""
+    x = x0
     while x <= x1:
         dx = x + 0.5 - mx
         power = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
@@ -293,7 +293,11 @@ def _composite(splats, order, width, height, threads, out):
                     x0 = 0
                     x1 = width - 1
                     stepping = False
-                _composite_row(acc, skip, live, 4 * width * (y - row0), (y - row0) * (width + 1), x0, x1,
+                base = (y - row0) * (width + 1)
+                x0 = _next_alive(skip, base, x0)
+                if x0 > x1:
+                    continue  # every pixel of the span has finished: no call
+                _composite_row(acc, skip, live, 4 * width * (y - row0), base, x0, x1,
                                mx, dy, ca, cb, cc, terms[k, 5], terms[k, 6], terms[k, 7],
                                terms[k, 8], stepping, step_factor)
         base = 4 * width * row0
