@@ -146,9 +146,15 @@ def _tile_box(rects, r, x0, x1, y0, y1):
 
 
 @njit(cache=True, inline="always")
-def _stepping_start(ca, cb, mx, dy, x, power):
-    """exp(-power) at pixel x and the factor to the next pixel, exp(-(power(x + 1) - power(x)))."""
-    return math.exp(-power), math.exp(-(ca * ((x + 0.5) - mx + 0.5) + cb * dy))
+def _exp_along_span(stepping, first, power, ca, cb, mx, dy, x, gauss, ratio, step_factor):
+    """(exp(-power) at pixel x, factor to the next pixel). Not stepping: exp() directly. At
+    the span's first pixel: exp() and exp(-(power(x + 1) - power(x))). Further on: the
+    previous pixel's value times its factor, the factor times exp(-a)."""
+    if not stepping:
+        return math.exp(-power), ratio
+    if first:
+        return math.exp(-power), math.exp(-(ca * ((x + 0.5) - mx + 0.5) + cb * dy))
+    return gauss * ratio, ratio * step_factor
 
 
 @njit(cache=True, inline="always")
@@ -232,15 +238,10 @@ def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, 
                 for x in range(sx0, sx1 + 1):
                     dx = (x + 0.5) - mx
                     power = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    # exp(-power) is stepped from the span start at every pixel, finished or
-                    # not, so the backward (which steps the same way) sees identical values.
-                    if not stepping:
-                        gauss = math.exp(-power)
-                    elif x == sx0:
-                        gauss, ratio = _stepping_start(ca, cb, mx, dy, x, power)
-                    else:
-                        gauss *= ratio
-                        ratio *= step_factor
+                    # At every pixel, finished or not, so the backward (which steps the same
+                    # way) sees identical values.
+                    gauss, ratio = _exp_along_span(stepping, x == sx0, power, ca, cb, mx, dy, x,
+                                                   gauss, ratio, step_factor)
                     lx = x - x0
                     if finished[ly, lx]:
                         continue
@@ -331,13 +332,8 @@ def _backward_kernel(params, values, rects, offsets, entries, tile_order, width,
                 for x in range(sx0, sx1 + 1):
                     dx = (x + 0.5) - mx
                     power = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    if not stepping:  # exactly the forward's exp(-power), see there
-                        gauss = math.exp(-power)
-                    elif x == sx0:
-                        gauss, ratio = _stepping_start(ca, cb, mx, dy, x, power)
-                    else:
-                        gauss *= ratio
-                        ratio *= step_factor
+                    gauss, ratio = _exp_along_span(stepping, x == sx0, power, ca, cb, mx, dy, x,
+                                                   gauss, ratio, step_factor)  # as the forward
                     if k >= walk[y, x]:
                         continue  # this pixel was finished before entry k
                     lx = x - x0
