@@ -224,9 +224,9 @@ class SplatRenderer:
             raw = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32)
             raw = raw.reshape(height, width, 4)
         if mode in ("rgb", "normal"):
-            background = np.asarray(background, np.float32).reshape(1, 1, 3)
-            if mode == "normal":
-                background = np.zeros_like(background)
+            # Normals are blended vectors: nothing of the background belongs in them.
+            background = np.zeros((1, 1, 3), np.float32) if mode == "normal" else \
+                np.asarray(background, np.float32).reshape(1, 1, 3)
             if self.compositing == "cpu":
                 from .cpu_composite import colour_over_background  # loaded by _cpu_frame already
                 return colour_over_background(raw, background)
