@@ -1,9 +1,19 @@
 """The G-buffer the prior is conditioned on, rendered by the torch rasterizer.
 
 Channels, in order: planar normal (3, camera space, alpha-blended, not renormalised, so its
-length fades with coverage), alpha (1), hash features (Z): the hash grid evaluated at the
-Gaussian centres and splatted as per-Gaussian feature channels. Gradients reach the hash
-grid's tables; the Gaussians are detached by default so the prior does not move geometry.
+length fades with coverage), alpha (1), hash features (Z), computed one of two ways
+(``hash_at``):
+
+- "surface" (default): the hash grid evaluated at each pixel's surface point (the rendered
+  depth unprojected), times the pixel's alpha. The rasterizer only renders geometry (normal,
+  alpha, depth), which does not depend on the hash grid, so with fixed Gaussians it can be
+  rendered once per view and cropped (the prior trainer caches it) and a training step costs
+  one hash lookup per patch pixel instead of a feature splat and its backward.
+- "centres": the hash grid evaluated at the Gaussian centres and splatted as per-Gaussian
+  feature channels (needs the rasterizer's feature pass, forward and backward, every step).
+
+Gradients reach the hash grid's tables; the Gaussians are detached by default so the prior
+does not move geometry.
 """
 
 from __future__ import annotations
@@ -16,8 +26,11 @@ from ..camera import Camera
 from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN, LOG_SCALE_MAX, LOG_SCALE_MIN,
                          NEAR_PLANE)
 from ..gaussians import Gaussians
+from ..bootstrap.warp import unproject
 from ..rasterize import render
 from .hashgrid import HashGrid
+
+HASH_AT = ("surface", "centres")
 
 NORMAL_CHANNELS = slice(0, 3)
 ALPHA_CHANNEL = 3
@@ -72,16 +85,51 @@ def gaussian_features(gaussians: Gaussians, hash_grid: HashGrid) -> torch.Tensor
     return hash_grid(means).to(gaussians.dtype)
 
 
+def render_geometry(gaussians: Gaussians, camera: Camera, backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+    """The hash-free part of the G-buffer: (normal and alpha [4, H, W], depth [H, W]: expected
+    camera z, 0 where nothing covers the pixel). Only the Gaussians that can touch the image
+    are rendered."""
+    keep = crop_candidates(gaussians, camera)
+    out = render(gaussians.subset(keep), camera, outputs=("normal", "alpha", "depth"), backend=backend)
+    geometry = torch.cat([out["normal"], out["alpha"]], dim=-1).permute(2, 0, 1).contiguous()
+    return geometry, out["depth"][..., 0]
+
+
+def world_points(depth: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """depth [H, W] (camera z) -> the pixels' surface points in the world frame [H, W, 3]."""
+    points = unproject(depth, camera)
+    camera_to_world = torch.as_tensor(camera.camera_to_world, dtype=depth.dtype, device=depth.device)
+    return points @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]
+
+
+def surface_features(hash_grid: HashGrid, geometry: torch.Tensor, depth: torch.Tensor,
+                     camera: Camera) -> torch.Tensor:
+    """Hash features at the surface points, times alpha: [Z, H, W] (0 where depth is 0).
+
+    geometry: [4, H, W] normal + alpha and depth [H, W] from render_geometry for ``camera``.
+    Multiplying by alpha makes a constant grid c give alpha x c, as the "centres" splat does,
+    and fades the features out at silhouettes, where the surface point is least certain."""
+    height, width = depth.shape
+    dtype = hash_grid.tables[0].dtype
+    points = world_points(depth.detach(), camera).to(dtype).reshape(-1, 3)
+    features = hash_grid(points).reshape(height, width, -1).permute(2, 0, 1).to(geometry.dtype)
+    alpha = geometry[ALPHA_CHANNEL:ALPHA_CHANNEL + 1].detach()
+    return torch.where(depth[None] > 0.0, features * alpha, torch.zeros_like(features))
+
+
 def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
                    crop: tuple[int, int, int, int] | None = None, detach_gaussians: bool = True,
-                   features: torch.Tensor | None = None, backend: str = "auto") -> torch.Tensor:
+                   features: torch.Tensor | None = None, backend: str = "auto",
+                   hash_at: str = "surface") -> torch.Tensor:
     """G-buffer [4 + Z, H, W] of ``camera``, or only of the window ``crop`` = (x0, y0, width, height)
     of its image (rendered through Camera.cropped: a shifted principal point, so only the
-    patch's pixels are computed).
+    patch's pixels are computed). hash_at: "surface" | "centres" (module docstring).
 
-    features: optional [N, Z] = gaussian_features(gaussians, hash_grid), computed once and
-    shared by several patches of one training step (the hash lookup of every centre costs
-    more than rendering a small patch)."""
+    features ("centres" only): optional [N, Z] = gaussian_features(gaussians, hash_grid),
+    computed once and shared by several patches of one training step (the hash lookup of
+    every centre costs more than rendering a small patch)."""
+    if hash_at not in HASH_AT:
+        raise ValueError(f"hash_at must be one of {HASH_AT}, got {hash_at!r}")
     if crop is not None:
         x0, y0, width, height = crop
         if width < 1 or height < 1:
@@ -89,6 +137,11 @@ def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
         camera = camera.cropped(x0, y0, width, height)
     if detach_gaussians:
         gaussians = gaussians.detach()
+    if hash_at == "surface":
+        if features is not None:
+            raise ValueError("features= are per-Gaussian: only for hash_at='centres'")
+        geometry, depth = render_geometry(gaussians, camera, backend=backend)
+        return torch.cat([geometry, surface_features(hash_grid, geometry, depth, camera)], dim=0)
     if features is None:
         features = gaussian_features(gaussians, hash_grid)
     keep = crop_candidates(gaussians, camera)

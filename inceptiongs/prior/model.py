@@ -14,7 +14,7 @@ from torch import nn
 from ..camera import Camera
 from ..gaussians import Gaussians
 from .controlnet import ConditionalDenoiser
-from .gbuffer import gbuffer_channels, render_gbuffer
+from .gbuffer import HASH_AT, gbuffer_channels, render_gbuffer
 from .hashgrid import HashGrid, HashGridConfig
 from .multidiffusion import multidiffusion_sample
 from .schedule import make_schedule, q_sample
@@ -37,6 +37,7 @@ class PriorConfig:
     schedule: str = "cosine"
     num_timesteps: int = 1000
     seed: int = 0
+    hash_at: str = "surface"     # where the hash grid is evaluated: "surface" | "centres" (gbuffer.py)
     unet: UNetConfig = field(default_factory=UNetConfig)
     grid: HashGridConfig = field(default_factory=HashGridConfig)
 
@@ -46,6 +47,7 @@ class PriorConfig:
     @staticmethod
     def from_dict(data: dict) -> "PriorConfig":
         data = dict(data)
+        data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
         unet = dict(data.pop("unet"))
         unet["channel_mults"] = tuple(unet["channel_mults"])
         grid = HashGridConfig(**data.pop("grid"))
@@ -72,6 +74,8 @@ class Prior(nn.Module):
     def __init__(self, config: PriorConfig):
         super().__init__()
         factor = config.unet.downsample_factor
+        if config.hash_at not in HASH_AT:
+            raise ValueError(f"hash_at must be one of {HASH_AT}, got {config.hash_at!r}")
         if config.patch_size < factor or config.patch_size % factor:
             raise ValueError(f"patch_size {config.patch_size} must be a positive multiple of {factor}")
         self.config = config
@@ -112,7 +116,8 @@ class Prior(nn.Module):
     def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None,
                 features: torch.Tensor | None = None) -> torch.Tensor:
         """[4 + Z, H, W] (see gbuffer.render_gbuffer; features from gaussian_features may be shared)."""
-        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features)
+        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features,
+                              hash_at=self.config.hash_at)
 
     def diffusion_loss(self, images: torch.Tensor, cond: torch.Tensor,
                        generator: torch.Generator | None = None) -> torch.Tensor:

@@ -61,6 +61,7 @@ class SDPriorConfig:
     hash_learning_rate: float = 1e-2
     prompt_learning_rate: float = 1e-3
     seed: int = 0
+    hash_at: str = "surface"          # where the hash grid is evaluated (gbuffer.py)
     grid: HashGridConfig = field(default_factory=HashGridConfig)
 
     def to_dict(self) -> dict:
@@ -69,6 +70,7 @@ class SDPriorConfig:
     @staticmethod
     def from_dict(data: dict) -> "SDPriorConfig":
         data = dict(data)
+        data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
         grid = HashGridConfig(**data.pop("grid"))
         return SDPriorConfig(**data, grid=grid)
 
@@ -221,7 +223,8 @@ class SDPrior(nn.Module):
     def gbuffer(self, gaussians: Gaussians, camera: Camera, crop=None,
                 features: torch.Tensor | None = None) -> torch.Tensor:
         """[4 + Z, H, W] (see gbuffer.render_gbuffer)."""
-        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features)
+        return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features,
+                              hash_at=self.config.hash_at)
 
     def encode(self, images: torch.Tensor) -> torch.Tensor:
         """images [B, 3, H, W] in [-1, 1] -> scaled latents [B, C, H/f, W/f]. The posterior mean

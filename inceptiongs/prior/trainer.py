@@ -29,7 +29,7 @@ from ..atomic import atomic_write_bytes
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
-from .gbuffer import crop_candidates, gaussian_features, render_gbuffer
+from .gbuffer import crop_candidates, gaussian_features, render_gbuffer, render_geometry, surface_features
 from .model import Prior, PriorConfig
 
 CHECKPOINT_NAME = "prior.pt"
@@ -38,6 +38,10 @@ BACKENDS = ("tiny", "sd")
 # Adam's epsilon for the hash tables: most slots see no gradient in a step, and a large epsilon
 # would damp the rare updates of the finest levels (Instant-NGP uses 1e-15).
 HASH_ADAM_EPS = 1e-15
+# With hash_at="surface" and unchanged Gaussians, each training view's geometry (normal, alpha,
+# depth: 5 floats a pixel) is rendered once and cropped for every later patch. Views beyond
+# this many bytes are rendered per patch instead, so a big capture cannot fill the memory.
+GEOMETRY_CACHE_BYTES = 512 * 2 ** 20
 
 
 def prior_dir(run_dir: str | Path) -> Path:
@@ -78,6 +82,9 @@ class PriorTrainer:
                   for group in self.prior.parameter_groups()]
         self.optimizer = torch.optim.Adam(groups)
         self._images: dict[int, torch.Tensor] = {}
+        self._geometry: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._geometry_bytes = 0
+        self._geometry_of: Gaussians | None = None  # the Gaussians object the cache was rendered from
 
     def _image(self, index: int) -> torch.Tensor:
         """Photo i as [3, H, W] in [-1, 1], cached (patches are drawn from it many times)."""
@@ -94,23 +101,58 @@ class PriorTrainer:
         """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""
         s = self.patch_size
         gaussians = self.gaussians.to(self.prior.device).detach()
-        photos, patch_cameras = [], []
+        photos, patches = [], []
         for _ in range(self.prior.config.batch_size):
             index = int(torch.randint(len(self.cameras), (1,), generator=self.generator))
             camera = self.cameras[index]
             x0 = int(torch.randint(camera.width - s + 1, (1,), generator=self.generator))
             y0 = int(torch.randint(camera.height - s + 1, (1,), generator=self.generator))
             photos.append(self._image(index)[:, y0:y0 + s, x0:x0 + s])
-            patch_cameras.append(camera.cropped(x0, y0, s, s))
+            patches.append((index, x0, y0))
+        photos = torch.stack(photos).to(self.prior.device)
+        if getattr(self.prior.config, "hash_at", "centres") == "surface":
+            return photos, self._surface_conds(gaussians, patches)
+        patch_cameras = [self.cameras[index].cropped(x0, y0, s, s) for index, x0, y0 in patches]
         # The hash lookup is the costly part for big scenes: do it once per step, only for the
         # Gaussians some patch can see, and share it between the patches.
         candidates = [crop_candidates(gaussians, patch) for patch in patch_cameras]
         union = torch.unique(torch.cat(candidates))  # sorted
         features = gaussian_features(gaussians.subset(union), self.prior.hash_grid)
         conds = [render_gbuffer(gaussians.subset(keep), patch, self.prior.hash_grid,
-                                features=features[torch.searchsorted(union, keep)])
+                                features=features[torch.searchsorted(union, keep)], hash_at="centres")
                  for keep, patch in zip(candidates, patch_cameras)]
-        return torch.stack(photos).to(self.prior.device), torch.stack(conds)
+        return photos, torch.stack(conds)
+
+    def _surface_conds(self, gaussians: Gaussians, patches: list[tuple[int, int, int]]) -> torch.Tensor:
+        """G-buffer patches [B, 4 + Z, s, s] for (view, x0, y0) with hash_at="surface".
+
+        When self.gaussians is the object of the previous step (a finished run's fixed model),
+        each view's geometry comes from a cache of full-view renders; when it was re-assigned
+        (joint training: new geometry every prior step) the cache is dropped and only the
+        patches are rendered."""
+        s = self.patch_size
+        if self._geometry_of is not self.gaussians:
+            self._geometry.clear()
+            self._geometry_bytes = 0
+            stable = False
+        else:
+            stable = True
+        self._geometry_of = self.gaussians
+        conds = []
+        for index, x0, y0 in patches:
+            camera = self.cameras[index]
+            patch = camera.cropped(x0, y0, s, s)
+            cached = self._geometry.get(index)
+            view_bytes = 5 * 4 * camera.width * camera.height
+            if cached is None and stable and self._geometry_bytes + view_bytes <= GEOMETRY_CACHE_BYTES:
+                cached = self._geometry[index] = render_geometry(gaussians, camera)
+                self._geometry_bytes += view_bytes
+            if cached is None:
+                geometry, depth = render_geometry(gaussians, patch)
+            else:
+                geometry, depth = cached[0][:, y0:y0 + s, x0:x0 + s], cached[1][y0:y0 + s, x0:x0 + s]
+            conds.append(torch.cat([geometry, surface_features(self.prior.hash_grid, geometry, depth, patch)]))
+        return torch.stack(conds)
 
     def step(self) -> float:
         """One Adam step; returns the batch's diffusion loss."""
