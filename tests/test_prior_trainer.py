@@ -133,3 +133,43 @@ def test_patch_size_shrinks_to_small_images():
     assert trainer.patch_size == 12
     photos_batch, conds = trainer.sample_batch()
     assert photos_batch.shape == (4, 3, 12, 12) and conds.shape == (4, 8, 12, 12)
+
+
+def test_v_prediction_with_the_exact_v_gives_the_exact_noise_and_zero_loss():
+    # A stand-in UNet that returns the true v of the batch: eps() must turn it into the exact
+    # noise (so DDIM's x0 is the image) and the v-loss must be 0; a wrong sign or swapped
+    # sqrt(alpha_bar) / sqrt(1 - alpha_bar) in either formula breaks both.
+    prior = Prior(replace(TINY, prediction="v"))
+    g = torch.Generator().manual_seed(4)
+    images = torch.rand(3, 3, 16, 16, generator=g) * 2 - 1
+    t = torch.tensor([0, 97, 199])
+    noise = torch.randn(images.shape, generator=g)
+    alpha_bar = prior.schedule.alphas_cumprod[t].float().view(-1, 1, 1, 1)
+    v = alpha_bar.sqrt() * noise - (1 - alpha_bar).sqrt() * images
+    noisy = alpha_bar.sqrt() * images + (1 - alpha_bar).sqrt() * noise
+
+    class ExactV(torch.nn.Module):
+        def forward(self, x, steps, cond):
+            return v
+
+    prior.denoiser = ExactV()
+    torch.testing.assert_close(prior.eps(noisy, t, None), noise, rtol=0, atol=1e-5)
+    # diffusion_loss draws its own t and noise: replay them to build the matching exact v.
+    generator = torch.Generator().manual_seed(9)
+    t = torch.randint(0, prior.schedule.num_timesteps, (3,), generator=generator)
+    noise = torch.randn(images.shape, generator=generator)
+    alpha_bar = prior.schedule.alphas_cumprod[t].float().view(-1, 1, 1, 1)
+    v = alpha_bar.sqrt() * noise - (1 - alpha_bar).sqrt() * images
+    loss = prior.diffusion_loss(images, None, generator=torch.Generator().manual_seed(9))
+    assert float(loss) < 1e-10
+    with torch.no_grad():  # and a real (untrained) UNet is far from v
+        assert float(Prior(TINY).diffusion_loss(images, None, generator=torch.Generator().manual_seed(9))) > 0.1
+
+
+def test_old_checkpoint_configs_read_as_epsilon_and_centre_splats():
+    data = TINY.to_dict()
+    del data["prediction"], data["hash_at"]
+    config = PriorConfig.from_dict(data)
+    assert (config.prediction, config.hash_at) == ("epsilon", "centres")
+    with pytest.raises(ValueError, match="prediction"):
+        Prior(replace(TINY, prediction="x0"))

@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch-size", type=int, default=None, help="patch edge s (default 64)")
     parser.add_argument("--batch-size", type=int, default=None, help="patches per step (default 4)")
     parser.add_argument("--seed", type=int, default=None, help="initial weights and patch sampling (default 0)")
+    parser.add_argument("--prediction", choices=("epsilon", "v"), default=None,
+                        help="tiny backend: what the UNet is trained to predict (default epsilon; see "
+                             "docs/prior.md for when v samples better); a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
@@ -56,6 +59,8 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
             from ..prior.sd_backend import SDPrior, SDPriorConfig
             if not sd_path:
                 raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
+            if overrides.pop("prediction", "epsilon") != "epsilon":
+                raise InputError("--prediction v is for the tiny backend (SD 1.5 predicts epsilon)")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
         from ..prior.model import Prior, PriorConfig
@@ -89,13 +94,16 @@ def run(args) -> int:
     checkpoint = prior_dir(run_dir) / CHECKPOINT_NAME
     if checkpoint.is_file() and not args.restart:
         trainer = resume_trainer(run_dir, gaussians, cameras, load_image, device=device)
+        if args.prediction and args.prediction != getattr(trainer.prior.config, "prediction", "epsilon"):
+            raise InputError(f"{checkpoint}: its prior predicts {trainer.prior.config.prediction}, not "
+                             f"{args.prediction} (use --restart to replace it)")
         if args.backend and args.backend != trainer.prior.backend:
             raise InputError(f"{checkpoint}: holds a {trainer.prior.backend} prior, not {args.backend} "
                              "(use --restart to replace it)")
         print(f"resuming {checkpoint} at step {trainer.step_count}")
     else:
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
-                          batch_size=args.batch_size, seed=args.seed)
+                          batch_size=args.batch_size, seed=args.seed, prediction=args.prediction)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None

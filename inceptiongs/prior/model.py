@@ -26,6 +26,7 @@ BOUND_QUANTILE = 0.99
 # Margin on the fitted box, and a floor for degenerate (single-point) scenes.
 BOUND_MARGIN = 1.05
 BOUND_MIN = 1e-3
+PREDICTIONS = ("epsilon", "v")
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class PriorConfig:
     num_timesteps: int = 1000
     seed: int = 0
     hash_at: str = "surface"     # where the hash grid is evaluated: "surface" | "centres" (gbuffer.py)
+    prediction: str = "epsilon"  # what the UNet outputs: "epsilon" | "v" (see Prior.eps)
     unet: UNetConfig = field(default_factory=UNetConfig)
     grid: HashGridConfig = field(default_factory=HashGridConfig)
 
@@ -48,6 +50,7 @@ class PriorConfig:
     def from_dict(data: dict) -> "PriorConfig":
         data = dict(data)
         data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
+        data.setdefault("prediction", "epsilon")
         unet = dict(data.pop("unet"))
         unet["channel_mults"] = tuple(unet["channel_mults"])
         grid = HashGridConfig(**data.pop("grid"))
@@ -74,6 +77,8 @@ class Prior(nn.Module):
     def __init__(self, config: PriorConfig):
         super().__init__()
         factor = config.unet.downsample_factor
+        if config.prediction not in PREDICTIONS:
+            raise ValueError(f"prediction must be one of {PREDICTIONS}, got {config.prediction!r}")
         if config.hash_at not in HASH_AT:
             raise ValueError(f"hash_at must be one of {HASH_AT}, got {config.hash_at!r}")
         if config.patch_size < factor or config.patch_size % factor:
@@ -119,16 +124,41 @@ class Prior(nn.Module):
         return render_gbuffer(gaussians.to(self.device), camera, self.hash_grid, crop=crop, features=features,
                               hash_at=self.config.hash_at)
 
+    def _signal_noise_scales(self, t: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(sqrt(alpha_bar_t), sqrt(1 - alpha_bar_t)) as [B, 1, 1, 1] in ``like``'s dtype."""
+        alpha_bar = self.schedule.alphas_cumprod.to(like.device)[t].to(like.dtype).view(-1, 1, 1, 1)
+        return alpha_bar.sqrt(), (1.0 - alpha_bar).sqrt()  # alpha_bar in (0, 1): both real and > 0
+
+    def eps(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None) -> torch.Tensor:
+        """The noise estimate DDIM consumes, [B, 3, h, w], whatever the UNet is trained to output.
+
+        "epsilon": the UNet's output. "v": the UNet predicts v = sqrt(ab) eps - sqrt(1 - ab) x0
+        (Salimans & Ho 2022) and eps = sqrt(1 - ab) x_t + sqrt(ab) v. With epsilon, DDIM's x0
+        estimate (x_t - sqrt(1 - ab) eps) / sqrt(ab) multiplies the network's error by up to
+        1 / sqrt(ab) (2e4 at t = T - 1 of the cosine schedule); with v it is
+        x0 = sqrt(ab) x_t - sqrt(1 - ab) v, whose error is never larger than v's."""
+        out = self.denoiser(x, t, cond)
+        if self.config.prediction == "epsilon":
+            return out
+        signal, noise = self._signal_noise_scales(t, x)
+        return noise * x + signal * out
+
     def diffusion_loss(self, images: torch.Tensor, cond: torch.Tensor,
                        generator: torch.Generator | None = None) -> torch.Tensor:
-        """Epsilon-prediction MSE at uniform random timesteps. images: [B, 3, s, s] in [-1, 1];
-        cond: [B, 4 + Z, s, s]. generator (CPU) makes t and the noise reproducible."""
+        """MSE of the UNet's prediction (epsilon or v, config.prediction) at uniform random
+        timesteps. images: [B, 3, s, s] in [-1, 1]; cond: [B, 4 + Z, s, s]. generator (CPU)
+        makes t and the noise reproducible."""
         batch = images.shape[0]
         t = torch.randint(0, self.schedule.num_timesteps, (batch,), generator=generator)
         noise = torch.randn(images.shape, generator=generator).to(images)
         t = t.to(images.device)
         noisy = q_sample(self.schedule, images, t, noise)
-        return (self.denoiser(noisy, t, cond) - noise).pow(2).mean()
+        if self.config.prediction == "epsilon":
+            target = noise
+        else:
+            signal, noise_scale = self._signal_noise_scales(t, images)
+            target = signal * noise - noise_scale * images
+        return (self.denoiser(noisy, t, cond) - target).pow(2).mean()
 
     @torch.no_grad()
     def generate(self, gaussians: Gaussians, camera: Camera, steps: int = 20, seed: int = 0,
@@ -139,7 +169,7 @@ class Prior(nn.Module):
         window = self.config.patch_size if window is None else window
         stride = max(1, window * 3 // 4) if stride is None else stride
         cond = self.gbuffer(gaussians, camera)
-        image = multidiffusion_sample(self.denoiser, self.schedule, camera.height, camera.width,
+        image = multidiffusion_sample(self.eps, self.schedule, camera.height, camera.width,
                                       cond=cond[None], window=window, stride=stride, steps=steps,
                                       seed=seed, device=self.device, progress=progress)
         return ((image[0].permute(1, 2, 0) + 1.0) * 0.5).clamp(0.0, 1.0), cond
