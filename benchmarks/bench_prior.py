@@ -13,7 +13,7 @@ steps (`inceptiongs eval --generated`), writes RUN_prior-report figure, and chec
 mean SSIM generated >= render; covered PSNR generated >= render - 2 dB; 20 DDIM steps per
 image < 20 s.
 
-    python benchmarks/bench_prior.py --quality RUN [--minutes 15] [--eval-every 5]
+    python benchmarks/bench_prior.py --quality RUN [--minutes 15] [--eval-every 5] [--prediction v]
 """
 
 from __future__ import annotations
@@ -53,12 +53,14 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     parser.add_argument("--quality", metavar="RUN", default=None, help="run the quality-target benchmark on RUN")
     parser.add_argument("--minutes", type=float, default=15.0, help="prior training time for --quality")
+    parser.add_argument("--prediction", choices=("epsilon", "v"), default="epsilon",
+                        help="what the tiny UNet predicts, for --quality")
     parser.add_argument("--eval-every", type=float, default=5.0, help="minutes between evaluations for --quality")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.quality:
-        quality(args.quality, args.minutes, args.eval_every)
+        quality(args.quality, args.minutes, args.eval_every, args.prediction)
         return
 
     if args.run:
@@ -99,7 +101,7 @@ def main() -> None:
           f"rendered on the fly): wall {wall:.2f} s, cpu {cpu:.2f} s -> {60 / wall:.0f} steps/min (wall)")
 
 
-def quality(run: str, minutes: float, eval_every: float) -> None:
+def quality(run: str, minutes: float, eval_every: float, prediction: str = "epsilon") -> None:
     """The issue's quality targets through the same commands a user runs."""
     import json
     from pathlib import Path
@@ -107,7 +109,7 @@ def quality(run: str, minutes: float, eval_every: float) -> None:
     from inceptiongs.cli import main as cli
 
     assert cli(["prior", run, "--minutes", f"{minutes:g}", "--restart", "--eval-every-minutes", f"{eval_every:g}",
-                "--eval-views", "1", "--eval-steps", "10"]) == 0
+                "--eval-views", "1", "--eval-steps", "10", "--prediction", prediction]) == 0
     assert cli(["eval", run, "--generated", "--ddim-steps", "20,5"]) == 0
     assert cli(["report", run, "--prior", "--out", str(Path(run).with_name(Path(run).name + "_prior-report.png"))]) == 0
     summary = json.loads((Path(run) / "eval" / "generated.json").read_text())
