@@ -173,3 +173,18 @@ def test_old_checkpoint_configs_read_as_epsilon_and_centre_splats():
     assert (config.prediction, config.hash_at) == ("epsilon", "centres")
     with pytest.raises(ValueError, match="prediction"):
         Prior(replace(TINY, prediction="x0"))
+
+
+def test_high_noise_share_draws_that_part_of_each_batch_from_high_timesteps():
+    gaussians, cameras, photos = _scene()
+    prior = Prior.for_gaussians(replace(TINY, prediction="v", high_noise_share=0.5, high_noise_t=0.8), gaussians)
+    seen = []
+    prior.denoiser.register_forward_pre_hook(lambda module, args: seen.append(args[1].clone()))
+    trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)
+    for _ in range(8):
+        trainer.step()
+    draws = torch.stack(seen)  # [steps, B = 4]
+    assert int(draws[:, :2].min()) >= 160 and int(draws.max()) < 200  # [0.8 T, T), T = 200
+    assert int(draws[:, 2:].min()) < 160  # the rest of the batch: the whole range (16 draws)
+    with pytest.raises(ValueError, match="high_noise"):
+        Prior(replace(TINY, high_noise_t=1.0))

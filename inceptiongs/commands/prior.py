@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prediction", choices=("epsilon", "v"), default=None,
                         help="tiny backend: what the UNet is trained to predict (default epsilon; see "
                              "docs/prior.md for when v samples better); a new prior only")
+    parser.add_argument("--high-noise-share", type=float, default=None,
+                        help="tiny backend: share of each batch trained at t >= 0.8 T, where only the "
+                             "G-buffer can help (default 0); a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
@@ -61,6 +64,8 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                 raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
             if overrides.pop("prediction", "epsilon") != "epsilon":
                 raise InputError("--prediction v is for the tiny backend (SD 1.5 predicts epsilon)")
+            if overrides.pop("high_noise_share", 0.0):
+                raise InputError("--high-noise-share is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
         from ..prior.model import Prior, PriorConfig
@@ -103,7 +108,8 @@ def run(args) -> int:
         print(f"resuming {checkpoint} at step {trainer.step_count}")
     else:
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
-                          batch_size=args.batch_size, seed=args.seed, prediction=args.prediction)
+                          batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
+                          high_noise_share=args.high_noise_share)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None

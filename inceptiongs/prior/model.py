@@ -40,6 +40,11 @@ class PriorConfig:
     seed: int = 0
     hash_at: str = "surface"     # where the hash grid is evaluated: "surface" | "centres" (gbuffer.py)
     prediction: str = "epsilon"  # what the UNet outputs: "epsilon" | "v" (see Prior.eps)
+    # This share of every batch draws t from [high_noise_t T, T) instead of [0, T): there the
+    # noisy image holds (almost) nothing, so only the G-buffer can lower the loss, which keeps
+    # the condition branch in use (docs/prior.md: uniform t alone let the samples ignore it).
+    high_noise_share: float = 0.0
+    high_noise_t: float = 0.8
     unet: UNetConfig = field(default_factory=UNetConfig)
     grid: HashGridConfig = field(default_factory=HashGridConfig)
 
@@ -51,6 +56,8 @@ class PriorConfig:
         data = dict(data)
         data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
         data.setdefault("prediction", "epsilon")
+        data.setdefault("high_noise_share", 0.0)
+        data.setdefault("high_noise_t", 0.8)
         unet = dict(data.pop("unet"))
         unet["channel_mults"] = tuple(unet["channel_mults"])
         grid = HashGridConfig(**data.pop("grid"))
@@ -79,6 +86,9 @@ class Prior(nn.Module):
         factor = config.unet.downsample_factor
         if config.prediction not in PREDICTIONS:
             raise ValueError(f"prediction must be one of {PREDICTIONS}, got {config.prediction!r}")
+        if not 0.0 <= config.high_noise_share <= 1.0 or not 0.0 <= config.high_noise_t < 1.0:
+            raise ValueError(f"high_noise_share must be in [0, 1] and high_noise_t in [0, 1), got "
+                             f"{config.high_noise_share}, {config.high_noise_t}")
         if config.hash_at not in HASH_AT:
             raise ValueError(f"hash_at must be one of {HASH_AT}, got {config.hash_at!r}")
         if config.patch_size < factor or config.patch_size % factor:
@@ -145,11 +155,17 @@ class Prior(nn.Module):
 
     def diffusion_loss(self, images: torch.Tensor, cond: torch.Tensor,
                        generator: torch.Generator | None = None) -> torch.Tensor:
-        """MSE of the UNet's prediction (epsilon or v, config.prediction) at uniform random
-        timesteps. images: [B, 3, s, s] in [-1, 1]; cond: [B, 4 + Z, s, s]. generator (CPU)
-        makes t and the noise reproducible."""
+        """MSE of the UNet's prediction (epsilon or v, config.prediction) at timesteps uniform
+        in [0, T) (the first round(high_noise_share B) of the batch: in [high_noise_t T, T)).
+        images: [B, 3, s, s] in [-1, 1]; cond: [B, 4 + Z, s, s]. generator (CPU) makes t and
+        the noise reproducible."""
         batch = images.shape[0]
-        t = torch.randint(0, self.schedule.num_timesteps, (batch,), generator=generator)
+        total = self.schedule.num_timesteps
+        t = torch.randint(0, total, (batch,), generator=generator)
+        high = round(self.config.high_noise_share * batch)
+        if high:
+            low = min(int(self.config.high_noise_t * total), total - 1)
+            t[:high] = torch.randint(low, total, (high,), generator=generator)
         noise = torch.randn(images.shape, generator=generator).to(images)
         t = t.to(images.device)
         noisy = q_sample(self.schedule, images, t, noise)
