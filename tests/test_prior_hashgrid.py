@@ -76,3 +76,40 @@ def test_gradients_reach_only_the_touched_vertices():
     # Gradient w.r.t. the table equals the interpolation weights times the upstream weights:
     # summing over slots, each point's trilinear weights sum to 1.
     torch.testing.assert_close(grad.sum(0), weights.sum(0), rtol=1e-5, atol=1e-6)
+
+
+def test_contraction_keeps_the_core_and_squeezes_the_rest_into_twice_its_size():
+    from inceptiongs.prior.hashgrid import contract
+    radius = 0.8
+    g = torch.Generator().manual_seed(3)
+    core = (torch.rand(200, 3, generator=g, dtype=torch.float64) * 2 - 1) * radius
+    assert torch.equal(contract(core, radius), core)
+    directions = torch.randn(300, 3, generator=g, dtype=torch.float64)
+    directions /= directions.abs().amax(-1, keepdim=True)      # ||d||_inf = 1
+    norms = torch.tensor([radius, radius * (1 + 1e-9), 1.0, 3.0, 50.0, 1e6, 1e30], dtype=torch.float64)
+    far = contract(directions[:, None, :] * norms[None, :, None], radius)   # [300, 7, 3]
+    out_norm = far.abs().amax(-1)
+    want = 2 * radius - radius ** 2 / norms                           # the closed form per norm
+    torch.testing.assert_close(out_norm, want.expand_as(out_norm), rtol=1e-12, atol=1e-12)
+    assert bool((out_norm <= 2 * radius).all()) and bool((out_norm[:, 1:] > radius).all())
+    # The direction is kept, the map is continuous at the core's face and monotone outwards.
+    torch.testing.assert_close(far / out_norm[..., None], directions[:, None, :].expand_as(far))
+    assert bool((out_norm[:, 1:] > out_norm[:, :-1]).all())
+    points = (directions[:20] * 5.0).clone().requires_grad_()
+    contract(points, radius).sum().backward()
+    assert torch.isfinite(points.grad).all()
+
+
+def test_a_contracted_grid_spends_its_cells_on_the_core():
+    config = HashGridConfig(bound=2.0, contract_radius=1.0, levels=1, features_per_level=1, table_size=2 ** 15,
+                            base_resolution=16, max_resolution=16)
+    grid = HashGrid(config)
+    with torch.no_grad():
+        grid.tables[0].copy_(torch.arange(grid.tables[0].shape[0], dtype=torch.float32)[:, None])
+    # Inside the core a point moves through cells as without contraction (0.25 = one cell);
+    # a background point 1000 units out lands on the box's last cell row, not off the grid.
+    line = torch.stack([torch.linspace(-0.99, 0.99, 9), torch.zeros(9), torch.zeros(9)], -1)
+    assert len(torch.unique(grid(line))) == 9
+    assert torch.isfinite(grid(torch.tensor([[1000.0, -3e4, 2.0]]))).all()
+    with pytest.raises(ValueError, match="contract_radius"):
+        HashGrid(HashGridConfig(bound=1.5, contract_radius=1.0))

@@ -188,3 +188,32 @@ def test_high_noise_share_draws_that_part_of_each_batch_from_high_timesteps():
     assert int(draws[:, 2:].min()) < 160  # the rest of the batch: the whole range (16 draws)
     with pytest.raises(ValueError, match="high_noise"):
         Prior(replace(TINY, high_noise_t=1.0))
+
+
+def test_the_default_grid_is_contracted_around_the_object_not_the_background():
+    g = torch.Generator().manual_seed(0)
+    obj = (torch.rand(600, 3, generator=g) * 2 - 1) * 0.5          # the object: |x| <= 0.5
+    background = torch.randn(400, 3, generator=g) * 40.0           # a far background shell
+    prior = Prior.for_gaussians(replace(TINY, grid=PriorConfig().grid), _gaussians_at(torch.cat([obj, background])))
+    grid = prior.config.grid
+    assert 0.5 <= grid.contract_radius <= 1.0 and grid.bound == pytest.approx(2 * grid.contract_radius)
+    # Without contraction the box would hold the background, and the object one coarse cell.
+    assert fit_bound(torch.cat([obj, background])) > 40
+
+
+def _gaussians_at(means: torch.Tensor) -> Gaussians:
+    n = means.shape[0]
+    return Gaussians(means=means, log_scales=torch.full((n, 3), -3.0), quats=torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4),
+                     opacity_logits=torch.zeros(n), sh=torch.zeros(n, 1, 3))
+
+
+def test_sampling_from_part_of_T_trains_only_on_that_part():
+    gaussians, cameras, photos = _scene()
+    prior = Prior.for_gaussians(replace(TINY, sample_start=0.3), gaussians)
+    seen = []
+    prior.denoiser.register_forward_pre_hook(lambda module, args: seen.append(args[1].clone()))
+    trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)
+    for _ in range(12):
+        trainer.step()
+    draws = torch.stack(seen)
+    assert int(draws.max()) <= round(0.3 * 199) and int(draws.max()) > 40  # [0, 60], 48 draws

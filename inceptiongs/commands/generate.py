@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same image)")
     parser.add_argument("--window", type=int, default=None, help="MultiDiffusion window (default: patch size)")
     parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
+    parser.add_argument("--start", type=float, default=None,
+                        help="tiny backend: start sampling at this fraction of T from the appearance hint "
+                             "(SDEdit; default: the prior's sample_start, 1 = pure noise)")
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
 
@@ -63,8 +66,16 @@ def run(args) -> int:
     stride = args.stride
     if stride is not None and not 1 <= stride <= window:
         raise InputError(f"--stride: must be in 1..{window}, got {stride}")
+    options = {}
+    if args.start is not None:
+        if prior.backend != "tiny" or getattr(prior, "appearance", None) is None:
+            raise InputError(f"{run_dir}: --start needs a tiny prior with an appearance hint "
+                             "(trained with --appearance-weight > 0)")
+        if not 0.0 < args.start <= 1.0:
+            raise InputError(f"--start: must be in (0, 1], got {args.start}")
+        options["start"] = args.start
     rgb, gbuffer = prior.generate(gaussians.to(device), camera, steps=args.steps, seed=args.seed,
-                                  window=window, stride=stride, progress=True)
+                                  window=window, stride=stride, progress=True, **options)
     write_png(Path(args.out), (rgb.cpu().numpy() * 255.0 + 0.5).astype(np.uint8))
     print(f"wrote {args.out} ({camera.width}x{camera.height}, {args.steps} DDIM steps, seed {args.seed})")
     if args.gbuffer_out:

@@ -34,6 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--high-noise-share", type=float, default=None,
                         help="tiny backend: share of each batch trained at t >= 0.8 T, where only the "
                              "G-buffer can help (default 0); a new prior only")
+    parser.add_argument("--appearance-weight", type=float, default=None,
+                        help="tiny backend: weight of the appearance hint's L1 loss (default 1; 0 = no "
+                             "hint, the bare G-buffer as before); a new prior only")
+    parser.add_argument("--sample-start", type=float, default=None,
+                        help="tiny backend: generation starts at this fraction of T from the appearance "
+                             "hint (SDEdit; 1 = pure noise); a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
@@ -64,8 +70,9 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                 raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
             if overrides.pop("prediction", "epsilon") != "epsilon":
                 raise InputError("--prediction v is for the tiny backend (SD 1.5 predicts epsilon)")
-            if overrides.pop("high_noise_share", 0.0):
-                raise InputError("--high-noise-share is for the tiny backend")
+            for name in ("high_noise_share", "appearance_weight", "sample_start"):
+                if overrides.pop(name, None) is not None:
+                    raise InputError(f"--{name.replace('_', '-')} is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
         from ..prior.model import Prior, PriorConfig
@@ -109,7 +116,8 @@ def run(args) -> int:
     else:
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
-                          high_noise_share=args.high_noise_share)
+                          high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
+                          sample_start=args.sample_start)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None

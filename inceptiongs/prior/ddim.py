@@ -28,14 +28,22 @@ SQRT_ONE_MINUS_ALPHA_BAR_MIN = 1e-6
 EpsFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
-def ddim_timesteps(schedule: NoiseSchedule, steps: int) -> list[int]:
-    """Decreasing timesteps, evenly spaced from T-1 to 0; ``steps`` of them (fewer only if T < steps)."""
+def start_timestep(schedule: NoiseSchedule, start: float = 1.0) -> int:
+    """The timestep sampling starts at for ``start`` in (0, 1], a fraction of T: round(start (T - 1))."""
+    if not 0.0 < start <= 1.0:
+        raise ValueError(f"the sampling start must be in (0, 1], got {start}")
+    return int(round(start * (schedule.num_timesteps - 1)))
+
+
+def ddim_timesteps(schedule: NoiseSchedule, steps: int, start: float = 1.0) -> list[int]:
+    """Decreasing timesteps, evenly spaced from start_timestep(start) (T-1 for start = 1) to 0;
+    ``steps`` of them (fewer only if there are fewer timesteps than steps)."""
     if steps < 1:
         raise ValueError(f"DDIM needs at least 1 step, got {steps}")
-    total = schedule.num_timesteps
+    first = start_timestep(schedule, start)
     if steps == 1:
-        return [total - 1]
-    values = torch.linspace(total - 1, 0, steps, dtype=torch.float64).round().long().tolist()
+        return [first]
+    values = torch.linspace(first, 0, steps, dtype=torch.float64).round().long().tolist()
     return sorted(set(values), reverse=True)
 
 
@@ -59,6 +67,20 @@ def initial_noise(shape: tuple[int, ...], seed: int, device=None, dtype=torch.fl
     """x_T for a seed: drawn on the CPU so a seed gives the same image on every device."""
     generator = torch.Generator().manual_seed(int(seed))
     return torch.randn(shape, generator=generator, dtype=torch.float32).to(device=device, dtype=dtype)
+
+
+def initial_state(schedule: NoiseSchedule, shape: tuple[int, ...], seed: int, start: float = 1.0,
+                  init: torch.Tensor | None = None, device=None, dtype=torch.float32) -> torch.Tensor:
+    """The first x_t of sampling: noise for a seed, or with ``init`` [same shape] (SDEdit) the
+    init noised to the start timestep, sqrt(ab) init + sqrt(1 - ab) noise (the forward process's
+    own marginal, so the denoiser sees what it was trained on)."""
+    noise = initial_noise(shape, seed, device, dtype)
+    if init is None:
+        return noise
+    if tuple(init.shape) != tuple(shape):
+        raise ValueError(f"init {tuple(init.shape)} does not match the sample shape {tuple(shape)}")
+    ab = schedule.alphas_cumprod[start_timestep(schedule, start)].item()  # in (0, 1)
+    return ab ** 0.5 * init.to(device=device, dtype=dtype) + (1.0 - ab) ** 0.5 * noise
 
 
 @torch.no_grad()

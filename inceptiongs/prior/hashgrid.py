@@ -6,6 +6,12 @@ Coarse levels that fit into the table are indexed densely (no collisions); finer
 hashed into ``table_size`` slots (spatial hash with large primes, as in Instant-NGP).
 A point's feature is the trilinear interpolation of its cell's 8 vertices, concatenated over
 levels: Z = levels * features_per_level.
+
+Unbounded captures: with ``contract_radius`` R > 0, points are first contracted (``contract``):
+the cube of half-size R is kept as it is and everything beyond is squeezed into [-2R, 2R]^3
+(the box, bound = 2R). Half of every level's resolution then lies on the core the cameras look
+at. Measured on statuette: 99 % of the Gaussians lie within 47 units but half within 0.77 (the
+object), and a box fitted to all of them gave the object about one cell of the finest level.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ class HashGridConfig:
     table_size: int = 2 ** 14    # slots per level (hashed levels), small so it trains on a CPU
     base_resolution: int = 8
     max_resolution: int = 128
+    contract_radius: float = 0.0  # R > 0: contract space beyond the cube of half-size R (box = 2R)
 
     @property
     def num_features(self) -> int:
@@ -41,6 +48,27 @@ class HashGridConfig:
             return [self.base_resolution]
         growth = (self.max_resolution / self.base_resolution) ** (1.0 / (self.levels - 1))
         return [int(math.floor(self.base_resolution * growth ** level + 1e-9)) for level in range(self.levels)]
+
+
+# The priors' grid (PriorConfig, SDPriorConfig): contracted (R and the box are refitted to the
+# Gaussians by model.fit_grid), 6 levels from 8 to 256 cells per axis (2x a level; 128 of the
+# finest level's cells span the core), 2^17 slots a level. On statuette (2 minutes of the hint
+# alone, held-out views) finest levels of 256 / 512 / 1024 gave hint SSIM 0.37 / 0.32 / 0.26 on
+# covered views at about the same PSNR: finer levels fit the noise of the stage-I surface points.
+def scene_grid() -> HashGridConfig:
+    return HashGridConfig(bound=2.0, contract_radius=1.0, levels=6, features_per_level=2,
+                          table_size=2 ** 17, base_resolution=8, max_resolution=256)
+
+
+def contract(points: torch.Tensor, radius: float) -> torch.Tensor:
+    """points [N, 3] -> [N, 3] inside [-2R, 2R]^3: the identity where ||p||_inf <= R, else
+    p (2R - R^2 / n) / n with n = ||p||_inf (continuous at n = R, -> 2R p / n far away).
+
+    Written as p r (2 - r) with r = R / n: n is floored at R before dividing, so r is in (0, 1],
+    exactly 1 in the core (x / x is exact), and every division is by a number >= R > 0 (no
+    special case, finite gradients everywhere)."""
+    ratio = radius / points.abs().amax(dim=-1, keepdim=True).clamp(min=radius)
+    return points * (ratio * (2.0 - ratio))
 
 
 def _corner_offsets(device) -> torch.Tensor:
@@ -77,6 +105,8 @@ class HashGrid(nn.Module):
         super().__init__()
         if config.bound <= 0 or config.levels < 1 or config.table_size < 8 or config.base_resolution < 1:
             raise ValueError(f"invalid hash grid config {config}")
+        if config.contract_radius < 0 or (config.contract_radius > 0 and config.bound < 2 * config.contract_radius):
+            raise ValueError(f"contract_radius must be >= 0 with bound >= 2 x contract_radius, got {config}")
         self.config = config
         self.resolutions = config.resolutions()
         generator = torch.Generator().manual_seed(seed)
@@ -95,8 +125,11 @@ class HashGrid(nn.Module):
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"HashGrid expects points [N, 3], got {tuple(points.shape)}")
         bound = self.config.bound
+        points = points.to(self.tables[0].dtype)
+        if self.config.contract_radius > 0:
+            points = contract(points, self.config.contract_radius)
         # [0, 1] box coordinates; clamping keeps every vertex index inside [0, R].
-        unit = ((points.to(self.tables[0].dtype) + bound) / (2.0 * bound)).clamp(0.0, 1.0)
+        unit = ((points + bound) / (2.0 * bound)).clamp(0.0, 1.0)
         corners = _corner_offsets(points.device)  # [8, 3]
         out = []
         for table, resolution in zip(self.tables, self.resolutions):

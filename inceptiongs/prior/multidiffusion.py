@@ -18,7 +18,7 @@ from typing import Callable
 import torch
 from tqdm import tqdm
 
-from .ddim import ddim_step, ddim_timesteps, initial_noise
+from .ddim import ddim_step, ddim_timesteps, initial_state
 from .schedule import NoiseSchedule
 
 # denoiser(x_t [B,C,h,w], t [B] int64, cond [B,Cc,h,w] | None) -> eps [B,C,h,w]
@@ -56,14 +56,17 @@ def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: i
                           cond: torch.Tensor | None = None, channels: int = 3, window: int = 64,
                           stride: int = 48, steps: int = 20, seed: int = 0, batch_windows: int = 16,
                           device=None, dtype=torch.float32, progress: bool = False, cond_scale: int = 1,
-                          clip_sample: bool = True) -> torch.Tensor:
+                          clip_sample: bool = True, init: torch.Tensor | None = None,
+                          start: float = 1.0) -> torch.Tensor:
     """Sample one image [1, channels, height, width] in [-1, 1] (clip_sample=False: unclipped, for latents).
 
     cond: [1, Cc, height * cond_scale, width * cond_scale] G-buffer or None; cond_scale > 1 when
     the sample is a latent image cond_scale times smaller than the G-buffer (the sd backend's
     VAE), so a window (y0, x0, window) takes the condition's window scaled by cond_scale.
     Deterministic for a given seed (the initial noise comes from a CPU generator; the rest is a
-    fixed sequence of network evaluations).
+    fixed sequence of network evaluations). init [1, channels, height, width] and start < 1:
+    start from init noised to round(start (T - 1)) instead of pure noise (SDEdit); the canvas
+    padding of a small image starts from a noised zero (grey) image.
     """
     if height < 1 or width < 1:
         raise ValueError(f"image size must be positive, got {width}x{height}")
@@ -83,8 +86,12 @@ def multidiffusion_sample(denoiser: Denoiser, schedule: NoiseSchedule, height: i
     # average below never divides by zero.
     assert bool((count > 0).all())
 
-    x = initial_noise((1, channels, canvas_h, canvas_w), seed, device, dtype)
-    timesteps = ddim_timesteps(schedule, steps)
+    if init is not None:
+        if tuple(init.shape) != (1, channels, height, width):
+            raise ValueError(f"init must be [1, {channels}, {height}, {width}], got {tuple(init.shape)}")
+        init = torch.nn.functional.pad(init.to(device, dtype), (0, canvas_w - width, 0, canvas_h - height))
+    x = initial_state(schedule, (1, channels, canvas_h, canvas_w), seed, start, init, device, dtype)
+    timesteps = ddim_timesteps(schedule, steps, start)
     for i in tqdm(range(len(timesteps)), desc="MultiDiffusion", disable=not progress, leave=False):
         t, t_prev = timesteps[i], (timesteps[i + 1] if i + 1 < len(timesteps) else None)
         eps_sum = torch.zeros_like(x)

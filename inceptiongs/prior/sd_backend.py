@@ -34,8 +34,8 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .gbuffer import gbuffer_channels, render_gbuffer
-from .hashgrid import HashGrid, HashGridConfig
-from .model import fit_bound
+from .hashgrid import HashGrid, HashGridConfig, scene_grid
+from .model import fit_grid
 from .multidiffusion import multidiffusion_sample
 from .schedule import make_schedule, q_sample
 
@@ -62,7 +62,7 @@ class SDPriorConfig:
     prompt_learning_rate: float = 1e-3
     seed: int = 0
     hash_at: str = "surface"          # where the hash grid is evaluated (gbuffer.py)
-    grid: HashGridConfig = field(default_factory=HashGridConfig)
+    grid: HashGridConfig = field(default_factory=scene_grid)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -191,8 +191,8 @@ class SDPrior(nn.Module):
 
     @staticmethod
     def for_gaussians(config: SDPriorConfig, gaussians: Gaussians, device=None) -> "SDPrior":
-        """A new prior whose hash grid box is fitted to ``gaussians``."""
-        return SDPrior(replace(config, grid=replace(config.grid, bound=fit_bound(gaussians.means))), device)
+        """A new prior whose hash grid (contraction core, box) is fitted to ``gaussians``."""
+        return SDPrior(replace(config, grid=fit_grid(config.grid, gaussians.means)), device)
 
     @property
     def device(self) -> torch.device:
