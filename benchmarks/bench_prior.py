@@ -14,6 +14,13 @@ mean SSIM generated >= render; covered PSNR generated >= render - 2 dB; 20 DDIM 
 image < 20 s.
 
     python benchmarks/bench_prior.py --quality RUN [--minutes 15] [--eval-every 5] [--prediction v]
+
+The appearance hint alone (--hint RUN): the hash grid + hint head trained on their L1 loss for
+--minutes (default 2) with the grid's finest resolution and level count from --grid-max-res /
+--grid-levels (0 levels: the old uncontracted box around 99 % of the Gaussians, 4 levels to
+128), scored on the held-out views next to the render (the docs' table of grid sizes).
+
+    python benchmarks/bench_prior.py --hint RUN [--minutes 2] [--grid-max-res 256 --grid-levels 6]
 """
 
 from __future__ import annotations
@@ -52,15 +59,22 @@ def main() -> None:
     parser.add_argument("--train-steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     parser.add_argument("--quality", metavar="RUN", default=None, help="run the quality-target benchmark on RUN")
-    parser.add_argument("--minutes", type=float, default=15.0, help="prior training time for --quality")
+    parser.add_argument("--minutes", type=float, default=None,
+                        help="training time: of the prior for --quality (default 15), of the hint for --hint (default 2)")
     parser.add_argument("--prediction", choices=("epsilon", "v"), default="epsilon",
                         help="what the tiny UNet predicts, for --quality")
     parser.add_argument("--eval-every", type=float, default=5.0, help="minutes between evaluations for --quality")
+    parser.add_argument("--hint", metavar="RUN", default=None, help="train and score the appearance hint alone on RUN")
+    parser.add_argument("--grid-max-res", type=int, default=256, help="finest hash grid level for --hint")
+    parser.add_argument("--grid-levels", type=int, default=6, help="hash grid levels for --hint (0: uncontracted box)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.hint:
+        hint_only(args.hint, 2.0 if args.minutes is None else args.minutes, args.grid_levels, args.grid_max_res)
+        return
     if args.quality:
-        quality(args.quality, args.minutes, args.eval_every, args.prediction)
+        quality(args.quality, 15.0 if args.minutes is None else args.minutes, args.eval_every, args.prediction)
         return
 
     if args.run:
@@ -126,6 +140,51 @@ def quality(run: str, minutes: float, eval_every: float, prediction: str = "epsi
     seconds = at20["seconds_per_image"]
     print(f"20 DDIM steps: {seconds:.1f} s per image (wall, this machine's load) -> "
           f"{'met' if seconds < 20 else 'NOT met'} (target < 20 s)")
+
+
+def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> None:
+    """Train the hash grid + appearance head alone (L1 against photo patches) and score the hint."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from inceptiongs.evaluate import group_of
+    from inceptiongs.evaluate_generated import held_out, photo_of, render_image, score
+    from inceptiongs.prior.hashgrid import HashGridConfig
+    from inceptiongs.prior.joint import training_views
+    from inceptiongs.prior.trainer import HASH_ADAM_EPS
+    from inceptiongs.train.run_folder import load_run
+
+    gaussians, scene, _ = load_run(run)
+    views = training_views(run, scene)
+    grid = HashGridConfig() if levels == 0 else replace(PriorConfig().grid, levels=levels, max_resolution=max_resolution)
+    config = replace(PriorConfig(), grid=grid)
+    prior = Prior.for_gaussians(config, gaussians)
+    trainer = PriorTrainer(prior, gaussians, [scene.cameras[i] for i in views], lambda k: scene.load_image(views[k]))
+    optimizer = torch.optim.Adam([
+        {"params": prior.appearance.parameters(), "lr": config.appearance_learning_rate},
+        {"params": prior.hash_grid.parameters(), "lr": config.hash_learning_rate, "eps": HASH_ADAM_EPS}])
+    for _ in range(4 * len(views)):  # render every view's geometry before the clock starts
+        trainer.sample_batch()
+    start, steps = time.perf_counter(), 0
+    while time.perf_counter() - start < 60.0 * minutes:
+        photos, conds = trainer.sample_batch()
+        loss = (prior.hint(conds) - photos).abs().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        steps += 1
+    print(f"grid {prior.config.grid}: {steps} steps in {minutes:g} min, last L1 {float(loss):.4f}")
+    split, indices = held_out(Path(run), scene)
+    scores = {}
+    for index in indices:
+        camera, photo, group = scene.cameras[index], photo_of(scene, index), group_of(index, split)
+        with torch.no_grad():
+            hint = (prior.hint(prior.gbuffer(gaussians, camera)[None])[0].permute(1, 2, 0) + 1.0) * 0.5
+        scores.setdefault((group, "render"), []).append(score(render_image(gaussians, camera).cpu(), photo))
+        scores.setdefault((group, "hint"), []).append(score(hint.clamp(0.0, 1.0).cpu(), photo))
+    for (group, source), values in sorted(scores.items()):
+        print(f"{group:8s} {source:7s} PSNR {np.mean([v['psnr'] for v in values]):6.2f} "
+              f"SSIM {np.mean([v['ssim'] for v in values]):.4f} ({len(values)} views)")
 
 
 if __name__ == "__main__":

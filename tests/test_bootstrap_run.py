@@ -259,3 +259,21 @@ def test_generated_pixels_can_be_trusted_less():
     loss, _ = virtual_view_loss(render, target, config, 0.2, weights=pixel_weights(mask, 0.25))
     loss.backward()
     assert render.grad[:, 8:].abs().sum() > 0
+
+
+def test_prior_version_covers_the_weights_and_how_the_prior_samples():
+    from dataclasses import replace
+
+    from inceptiongs.bootstrap.generation import prior_version
+    from inceptiongs.prior.model import Prior
+    from test_prior_trainer import TINY
+
+    prior = Prior(TINY)
+    same = Prior(TINY)
+    later_start = Prior(replace(TINY, sample_start=0.6))
+    later_start.load_state_dict(prior.state_dict())  # same weights, another sampling start
+    assert prior_version(prior) == prior_version(same)
+    assert prior_version(later_start) != prior_version(prior)
+    with torch.no_grad():
+        same.appearance.net[0].bias.add_(1e-3)
+    assert prior_version(same) != prior_version(prior)

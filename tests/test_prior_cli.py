@@ -70,7 +70,13 @@ def test_prior_then_generate(run_dir, tmp_path, capsys):
                  str(tmp_path / "c.png"), "--steps", "2", "--seed", "3"]) == 0
     assert np.abs(cv2.imread(str(tmp_path / "c.png")).astype(int) - outputs[0]).max() <= 1
     gbuffer = np.load(tmp_path / "a.npy")
-    assert gbuffer.shape == (view.height, view.width, 12) and gbuffer[..., 3].max() > 0
+    assert gbuffer.shape == (view.height, view.width, 4 + 12) and gbuffer[..., 3].max() > 0
+    # --start 1 samples from pure noise instead of the hint at the default 0.3 T.
+    assert main(["generate", str(run_dir), "--view", view.name, "--out", str(tmp_path / "n.png"), "--steps", "2",
+                 "--seed", "3", "--start", "1"]) == 0
+    assert np.abs(cv2.imread(str(tmp_path / "n.png")).astype(int) - outputs[0]).mean() > 5
+    assert main(["generate", str(run_dir), "--view", view.name, "--out", str(tmp_path / "z.png"),
+                 "--start", "0"]) == 2
 
 
 def test_generate_bad_inputs_exit_2(run_dir, tmp_path):
@@ -81,7 +87,8 @@ def test_generate_bad_inputs_exit_2(run_dir, tmp_path):
 
 def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
     # The loss at random timesteps is noisy from step to step, so it is compared on one fixed
-    # batch (same patches, timesteps and noise) before and after 15 steps.
+    # batch (same patches, timesteps and noise) before and after 30 steps. (It holds the hint's
+    # L1 and draws t from [0, 0.3 T], where epsilon is hardest: 15 steps lowered it by 18 %.)
     from inceptiongs.prior.hashgrid import HashGridConfig
     from inceptiongs.prior.model import Prior, PriorConfig
     from inceptiongs.prior.trainer import PriorTrainer
@@ -100,7 +107,7 @@ def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
             return float(trainer.prior.diffusion_loss(photos, conds, generator=torch.Generator().manual_seed(7)))
 
     before = fixed_loss()
-    for _ in range(15):
+    for _ in range(30):
         trainer.step()
     after = fixed_loss()
     assert after < 0.8 * before

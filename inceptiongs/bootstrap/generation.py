@@ -40,11 +40,14 @@ def tensor_digest(tensors: Sequence[torch.Tensor]) -> str:
 
 
 def prior_version(prior) -> str:
-    """Digest of a prior's weights (the "model version" of the cache key)."""
+    """Digest of a prior's weights and config (the "model version" of the cache key): the config
+    holds how it samples (e.g. sample_start), so the same weights can give another image."""
     # checkpoint_state(): what the prior's checkpoint holds (all weights of the tiny backend,
     # the trained parts of a large pretrained one), so hashing stays cheap for both.
     state = prior.checkpoint_state() if hasattr(prior, "checkpoint_state") else prior.state_dict()
-    return tensor_digest([state[name] for name in sorted(state) if torch.is_tensor(state[name])])
+    weights = tensor_digest([state[name] for name in sorted(state) if torch.is_tensor(state[name])])
+    config = prior.config.to_dict() if hasattr(prior, "config") else {}
+    return hashlib.sha1((weights + json.dumps(config, sort_keys=True, default=str)).encode()).hexdigest()[:24]
 
 
 def gaussians_version(gaussians: Gaussians) -> str:
