@@ -67,7 +67,8 @@ def test_the_hint_gives_the_hash_grid_a_gradient_from_the_first_step(weight, exp
     # Without the hint the only path from the loss to the hash grid runs through the branch's
     # zero-initialised joins, so at step 0 the grid gets exactly no gradient: the dead start
     # the hint exists to break.
-    prior, (photos, conds) = _prior_and_batch(replace(TINY, appearance_weight=weight))
+    start = 1.0 if weight == 0 else TINY.sample_start  # no hint: sampling from pure noise
+    prior, (photos, conds) = _prior_and_batch(replace(TINY, appearance_weight=weight, sample_start=start))
     prior.diffusion_loss(photos, conds, generator=torch.Generator().manual_seed(3)).backward()
     touched = [bool(table.grad.abs().sum() > 0) for table in prior.hash_grid.tables if table.grad is not None]
     assert any(touched) == expect_gradient
@@ -133,7 +134,7 @@ def test_priors_from_before_the_option_have_no_hint():
     config = PriorConfig.from_dict(old)
     assert config.appearance_weight == 0.0 and config.sample_start == 1.0
     gaussians, cameras, _ = _scene()
-    prior = Prior.for_gaussians(replace(TINY, appearance_weight=0.0), gaussians)
+    prior = Prior.for_gaussians(replace(TINY, appearance_weight=0.0, sample_start=1.0), gaussians)
     assert prior.appearance is None and prior.denoiser.cond_channels == 4 + prior.hash_grid.num_features
     with pytest.raises(ValueError, match="no appearance hint"):
         prior.generate(gaussians, cameras[0], steps=2, start=0.5)

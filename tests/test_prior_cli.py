@@ -111,3 +111,15 @@ def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
         trainer.step()
     after = fixed_loss()
     assert after < 0.8 * before
+
+
+def test_a_prior_without_the_hint_samples_from_noise(tmp_path):
+    from inceptiongs.prior.trainer import load_prior
+
+    run = make_stand_in_run(tmp_path)
+    assert main(["prior", str(run), "--steps", "1", "--patch-size", "16", "--batch-size", "1",
+                 "--appearance-weight", "0"]) == 0
+    prior = load_prior(run)
+    assert prior.appearance is None and prior.config.sample_start == 1.0
+    assert main(["prior", str(run), "--steps", "1", "--restart", "--appearance-weight", "0",
+                 "--sample-start", "0.5"]) == 2  # a start below 1 needs the hint it starts from

@@ -12,6 +12,7 @@ from inceptiongs.camera import Camera, look_at
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.prior.hashgrid import HashGridConfig
+from inceptiongs.prior.ddim import start_timestep
 from inceptiongs.prior.model import Prior, PriorConfig, fit_bound
 from inceptiongs.prior.trainer import (PriorTrainer, load_prior, prior_dir, resume_trainer, save_prior)
 from inceptiongs.prior.unet import UNetConfig
@@ -156,7 +157,7 @@ def test_v_prediction_with_the_exact_v_gives_the_exact_noise_and_zero_loss():
     torch.testing.assert_close(prior.eps(noisy, t, None), noise, rtol=0, atol=1e-5)
     # diffusion_loss draws its own t and noise: replay them to build the matching exact v.
     generator = torch.Generator().manual_seed(9)
-    t = torch.randint(0, prior.schedule.num_timesteps, (3,), generator=generator)
+    t = torch.randint(0, start_timestep(prior.schedule, prior.config.sample_start) + 1, (3,), generator=generator)
     noise = torch.randn(images.shape, generator=generator)
     alpha_bar = prior.schedule.alphas_cumprod[t].float().view(-1, 1, 1, 1)
     v = alpha_bar.sqrt() * noise - (1 - alpha_bar).sqrt() * images
@@ -177,7 +178,9 @@ def test_old_checkpoint_configs_read_as_epsilon_and_centre_splats():
 
 def test_high_noise_share_draws_that_part_of_each_batch_from_high_timesteps():
     gaussians, cameras, photos = _scene()
-    prior = Prior.for_gaussians(replace(TINY, prediction="v", high_noise_share=0.5, high_noise_t=0.8), gaussians)
+    # Sampling from pure noise (sample_start 1): the share is taken from the top of all of [0, T).
+    prior = Prior.for_gaussians(replace(TINY, prediction="v", high_noise_share=0.5, high_noise_t=0.8,
+                                        sample_start=1.0), gaussians)
     seen = []
     prior.denoiser.register_forward_pre_hook(lambda module, args: seen.append(args[1].clone()))
     trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)

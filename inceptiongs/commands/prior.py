@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "G-buffer can help (default 0); a new prior only")
     parser.add_argument("--appearance-weight", type=float, default=None,
                         help="tiny backend: weight of the appearance hint's L1 loss (default 1; 0 = no "
-                             "hint, the bare G-buffer as before); a new prior only")
+                             "hint: the bare G-buffer, sampling from pure noise); a new prior only")
     parser.add_argument("--sample-start", type=float, default=None,
                         help="tiny backend: generation starts at this fraction of T from the appearance "
                              "hint (SDEdit; 1 = pure noise); a new prior only")
@@ -114,10 +114,13 @@ def run(args) -> int:
                              "(use --restart to replace it)")
         print(f"resuming {checkpoint} at step {trainer.step_count}")
     else:
+        sample_start = args.sample_start
+        if sample_start is None and args.appearance_weight == 0:
+            sample_start = 1.0  # no hint to start from: sample from pure noise
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
                           high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
-                          sample_start=args.sample_start)
+                          sample_start=sample_start)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None
