@@ -173,7 +173,7 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
         loss.backward()
         optimizer.step()
         steps += 1
-    print(f"grid {prior.config.grid}: {steps} steps in {minutes:g} min, last L1 {float(loss):.4f}")
+    print(f"grid {prior.config.grid}: {steps} steps in {minutes:g} min, last L1 {float(loss.detach()):.4f}")
     split, indices = held_out(Path(run), scene)
     scores = {}
     for index in indices:

@@ -15,9 +15,9 @@ from ..camera import Camera
 from ..gaussians import Gaussians
 from .appearance import HINT_CHANNELS, AppearanceHead
 from .controlnet import ConditionalDenoiser
+from .ddim import start_timestep
 from .gbuffer import HASH_AT, gbuffer_channels, render_gbuffer
 from .hashgrid import HashGrid, HashGridConfig, scene_grid
-from .ddim import start_timestep
 from .multidiffusion import multidiffusion_sample
 from .schedule import make_schedule, q_sample
 from .unet import UNetConfig
