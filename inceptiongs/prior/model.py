@@ -183,12 +183,14 @@ class Prior(nn.Module):
             raise ValueError("this prior has no appearance hint (appearance_weight = 0)")
         return self.appearance(cond)
 
-    def denoiser_condition(self, cond: torch.Tensor | None) -> torch.Tensor | None:
+    def denoiser_condition(self, cond: torch.Tensor | None, hint: torch.Tensor | None = None) -> torch.Tensor | None:
         """What the denoiser's branch sees: the G-buffer, plus the (detached) hint when there is
-        one. Detached: the hint stays the L1 colour guess; the diffusion loss shapes the branch."""
+        one (``hint``: already computed for cond). Detached: the hint stays the L1 colour guess;
+        the diffusion loss shapes the branch."""
         if cond is None or self.appearance is None:
             return cond
-        return torch.cat([cond, self.appearance(cond).detach()], dim=1)
+        hint = self.appearance(cond) if hint is None else hint
+        return torch.cat([cond, hint.detach()], dim=1)
 
     def _signal_noise_scales(self, t: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(sqrt(alpha_bar_t), sqrt(1 - alpha_bar_t)) as [B, 1, 1, 1] in ``like``'s dtype."""
@@ -235,9 +237,10 @@ class Prior(nn.Module):
         else:
             signal, noise_scale = self._signal_noise_scales(t, images)
             target = signal * noise - noise_scale * images
-        loss = (self.denoiser(noisy, t, self.denoiser_condition(cond)) - target).pow(2).mean()
-        if cond is not None and self.appearance is not None:
-            loss = loss + self.config.appearance_weight * (self.appearance(cond) - images).abs().mean()
+        hint = self.appearance(cond) if cond is not None and self.appearance is not None else None
+        loss = (self.denoiser(noisy, t, self.denoiser_condition(cond, hint)) - target).pow(2).mean()
+        if hint is not None:
+            loss = loss + self.config.appearance_weight * (hint - images).abs().mean()
         return loss
 
     @torch.no_grad()
