@@ -135,6 +135,29 @@ def test_ablations_change_what_runs(stage1, tmp_path):
     assert last is not None and "finished" in last.message
 
 
+@pytest.mark.slow
+def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_supervised(stage1, tmp_path):
+    # regenerate_every: I* of every pool view is made again from the refined Gaussians (new
+    # G-buffer, new render to repair, so new cache keys); include_target adds the target pose.
+    out = tmp_path / "regen"
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=6, regenerate_every=3, include_target=True, save_views=0),
+                           progress=False)
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    views = summary["rounds"][0]["views"]
+    assert len(views) == 2 * 2 + 1 and views[0]["t"] == 0.0 and views[0]["name"].endswith("_target")
+    assert [r["iteration"] for r in summary["regenerations"]] == [result.start_iteration + 2,
+                                                                  result.start_iteration + 5]
+    assert all(r["views"] == len(views) for r in summary["regenerations"])
+    # Refinement changed the Gaussians before each regeneration: every image is new.
+    assert result.cache_misses == 3 * len(views) and result.cache_hits == 0
+    # Without the option, a round generates once.
+    again = run_bootstrap(stage1, tmp_path / "once", _targets(stage1), _config(iterations=2, save_views=0),
+                          progress=False)
+    assert again.cache_misses == again.virtual_views == 4
+    assert json.loads((tmp_path / "once" / "bootstrap" / "summary.json").read_text())["regenerations"] == []
+
+
 def test_continuation_schedule_and_sampling_weight():
     stage1 = TrainConfig(iterations=100, densify_until=50, densify_every=10, opacity_reset_every=30)
     from inceptiongs.train.optim import position_learning_rate

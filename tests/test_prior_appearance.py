@@ -101,7 +101,7 @@ def test_the_hint_does_not_change_the_denoiser_at_step_zero():
 
 def test_generation_from_a_low_start_keeps_the_hint_and_is_seeded(tmp_path):
     gaussians, cameras, photos = _scene()
-    prior = Prior.for_gaussians(TINY, gaussians)
+    prior = Prior.for_gaussians(replace(TINY, sample_init="hint"), gaussians)
     trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)
     trainer.train(steps=20, progress=False)
     camera = cameras[1]
@@ -122,6 +122,32 @@ def test_generation_from_a_low_start_keeps_the_hint_and_is_seeded(tmp_path):
     assert torch.equal(loaded.generate(gaussians, camera, steps=3, seed=5)[0], low)
 
 
+def test_generation_from_the_render_repairs_the_render_not_the_hint():
+    # init "render": SDEdit of what the Gaussians show (the bootstrap's repair step). From a low
+    # start the sample stays on the render; the hint, which the render is not, stays far.
+    from inceptiongs.rasterize import render
+
+    gaussians, cameras, photos = _scene()
+    prior = Prior.for_gaussians(TINY, gaussians)
+    PriorTrainer(prior, gaussians, cameras, photos.__getitem__).train(steps=20, progress=False)
+    camera = cameras[1]
+    with torch.no_grad():
+        rendered = render(gaussians, camera, outputs=("rgb",))["rgb"].float().clamp(0, 1)
+        hint = ((prior.hint(prior.gbuffer(gaussians, camera)[None])[0].permute(1, 2, 0) + 1) / 2).clamp(0, 1)
+    from_render, _ = prior.generate(gaussians, camera, steps=3, seed=5, start=0.02, init="render")
+    from_hint, _ = prior.generate(gaussians, camera, steps=3, seed=5, start=0.02, init="hint")
+    assert torch.equal(from_render, prior.generate(gaussians, camera, steps=3, seed=5, start=0.02, init="render")[0])
+    to_render, hint_to_render = float((from_render - rendered).abs().mean()), float((hint - rendered).abs().mean())
+    assert to_render < 0.05 and hint_to_render > 3 * to_render, (to_render, hint_to_render)
+    assert float((from_hint - rendered).abs().mean()) > 3 * to_render
+    with pytest.raises(ValueError, match="init must be one of"):
+        prior.generate(gaussians, camera, steps=2, start=0.5, init="photo")
+    # A prior without a hint can still repair renders (only the hint start needs the head).
+    Prior(replace(TINY, appearance_weight=0.0, sample_start=0.5, sample_init="render"))
+    with pytest.raises(ValueError, match="sample_init"):
+        Prior(replace(TINY, sample_init="photo"))
+
+
 def replace_start(prior: Prior, start: float) -> Prior:
     other = Prior(replace(prior.config, sample_start=start))
     other.load_state_dict(prior.state_dict())
@@ -130,15 +156,16 @@ def replace_start(prior: Prior, start: float) -> Prior:
 
 def test_priors_from_before_the_option_have_no_hint():
     old = PriorConfig().to_dict()
-    del old["appearance_weight"], old["sample_start"]
+    del old["appearance_weight"], old["sample_start"], old["sample_init"]
     config = PriorConfig.from_dict(old)
-    assert config.appearance_weight == 0.0 and config.sample_start == 1.0
+    assert config.appearance_weight == 0.0 and config.sample_start == 1.0 and config.sample_init == "hint"
+    assert PriorConfig().sample_init == "render"
     gaussians, cameras, _ = _scene()
     prior = Prior.for_gaussians(replace(TINY, appearance_weight=0.0, sample_start=1.0), gaussians)
     assert prior.appearance is None and prior.denoiser.cond_channels == 4 + prior.hash_grid.num_features
     with pytest.raises(ValueError, match="no appearance hint"):
-        prior.generate(gaussians, cameras[0], steps=2, start=0.5)
+        prior.generate(gaussians, cameras[0], steps=2, start=0.5, init="hint")
     with pytest.raises(ValueError, match="needs appearance_weight"):
-        Prior(replace(TINY, appearance_weight=0.0, sample_start=0.5))
+        Prior(replace(TINY, appearance_weight=0.0, sample_start=0.5, sample_init="hint"))
     with pytest.raises(ValueError, match="sample_start"):
         Prior(replace(TINY, sample_start=0.0))

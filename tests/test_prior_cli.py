@@ -71,10 +71,14 @@ def test_prior_then_generate(run_dir, tmp_path, capsys):
     assert np.abs(cv2.imread(str(tmp_path / "c.png")).astype(int) - outputs[0]).max() <= 1
     gbuffer = np.load(tmp_path / "a.npy")
     assert gbuffer.shape == (view.height, view.width, 4 + 12) and gbuffer[..., 3].max() > 0
-    # --start 1 samples from pure noise instead of the hint at the default 0.3 T.
+    # --start 1 samples from pure noise instead of the render noised to the default 0.3 T, and
+    # --init hint from the appearance hint: other images.
     assert main(["generate", str(run_dir), "--view", view.name, "--out", str(tmp_path / "n.png"), "--steps", "2",
                  "--seed", "3", "--start", "1"]) == 0
     assert np.abs(cv2.imread(str(tmp_path / "n.png")).astype(int) - outputs[0]).mean() > 5
+    assert main(["generate", str(run_dir), "--view", view.name, "--out", str(tmp_path / "h.png"), "--steps", "2",
+                 "--seed", "3", "--init", "hint"]) == 0
+    assert np.abs(cv2.imread(str(tmp_path / "h.png")).astype(int) - outputs[0]).mean() > 2
     assert main(["generate", str(run_dir), "--view", view.name, "--out", str(tmp_path / "z.png"),
                  "--start", "0"]) == 2
 
@@ -113,13 +117,19 @@ def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
     assert after < 0.8 * before
 
 
-def test_a_prior_without_the_hint_samples_from_noise(tmp_path):
+def test_a_prior_without_the_hint_repairs_renders_or_samples_from_noise(tmp_path):
     from inceptiongs.prior.trainer import load_prior
+    from inceptiongs.train.run_folder import load_run
 
     run = make_stand_in_run(tmp_path)
-    assert main(["prior", str(run), "--steps", "1", "--patch-size", "16", "--batch-size", "1",
-                 "--appearance-weight", "0"]) == 0
-    prior = load_prior(run)
-    assert prior.appearance is None and prior.config.sample_start == 1.0
-    assert main(["prior", str(run), "--steps", "1", "--restart", "--appearance-weight", "0",
-                 "--sample-start", "0.5"]) == 2  # a start below 1 needs the hint it starts from
+    base = ["prior", str(run), "--steps", "1", "--patch-size", "16", "--batch-size", "1", "--restart",
+            "--appearance-weight", "0"]
+    assert main(base) == 0
+    prior = load_prior(run)  # starts from the render: no hint needed
+    assert prior.appearance is None and prior.config.sample_init == "render" and prior.config.sample_start < 1
+    assert main(base + ["--sample-init", "hint"]) == 0
+    assert load_prior(run).config.sample_start == 1.0  # no hint to start from: pure noise
+    assert main(base + ["--sample-init", "hint", "--sample-start", "0.5"]) == 2  # needs the hint it starts from
+    view = load_run(run)[1].cameras[0].name
+    assert main(["generate", str(run), "--view", view, "--out", str(tmp_path / "o.png"), "--steps", "1",
+                 "--init", "hint", "--start", "0.5"]) == 2

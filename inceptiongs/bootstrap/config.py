@@ -30,12 +30,18 @@ class BootstrapConfig:
     # Virtual views are generated and rendered at the training resolution: a flagged view made
     # in a large viewer window is scaled so its width matches the training photos'.
     max_virtual_views: int = 64
+    # Also supervise the target pose itself (t = 0) with the prior's repair of its render: the
+    # view the user flagged is where the repair matters most. Off: |V| = K * L, as the paper.
+    include_target: bool = False
 
     # --- generation --------------------------------------------------------------------------
     prior: str = "trained"              # "trained" (the run's, else a short one) | "untrained" (ablation)
     prior_minutes: float = 2.0          # budget of the short prior training when the run has none
     prior_steps: int | None = None      # ... or this many steps (whichever ends first)
     ddim_steps: int = 10
+    # Every this many refinement steps, I* of all virtual views is generated again from the
+    # current Gaussians (their render is what the prior repairs); 0: once per round.
+    regenerate_every: int = 0
 
     # --- blending ----------------------------------------------------------------------------
     blending: bool = True
@@ -91,8 +97,8 @@ class BootstrapConfig:
         if (self.langevin_step is not None and self.langevin_step <= 0) or (
                 self.langevin_noise is not None and self.langevin_noise < 0):
             raise InputError(f"{source}: langevin_step must be > 0 and langevin_noise >= 0")
-        if self.eval_every < 0 or self.save_views < 0:
-            raise InputError(f"{source}: eval_every and save_views must be >= 0")
+        if self.eval_every < 0 or self.save_views < 0 or self.regenerate_every < 0:
+            raise InputError(f"{source}: eval_every, save_views and regenerate_every must be >= 0")
         return self
 
     def to_json_dict(self) -> dict:

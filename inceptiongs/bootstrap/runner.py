@@ -248,6 +248,47 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                              "pose": None if sampler.pose is None else sampler.pose.tolist()}
         save_checkpoint(out_dir, state.iteration, body, train_config.keep_checkpoints)
 
+    def target_maker(current: Gaussians):
+        """-> make(camera, round, save) -> (VirtualTarget, blend sources): I* at a virtual view
+        from ``current`` (its G-buffer, its render for the prior's start, its depth for warping)."""
+        gaussians_hash = gaussians_version(current)
+        depth_cache: dict[str, torch.Tensor] = {}
+
+        def render_depth(camera) -> torch.Tensor:
+            key = camera.name + str(camera.world_to_camera.tobytes())
+            if key not in depth_cache:
+                with torch.no_grad():
+                    depth_cache[key] = render_fn(current, camera, outputs=("depth",))["depth"]
+            return depth_cache[key]
+
+        def make(camera, round_number: int, save: bool):
+            generated, hit = generate_cached(prior, current, camera, config.seed, config.ddim_steps,
+                                             cache, prior_hash, gaussians_hash)
+            sources = _blend_sources(camera, cameras, split.train, config)
+            image, mask = blend_target(generated, camera, sources, cameras, data.images,
+                                       render_depth, config.blending, config.delta)
+            entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
+            if save:
+                with torch.no_grad():
+                    stage_render = render_fn(current, camera, outputs=("rgb",))["rgb"]
+                write_png(boot_dir / "views" / f"{camera.name}.png",
+                          _view_png(entry.generated, mask, image, stage_render))
+            return entry, sources
+
+        return make
+
+    def regenerate_pool() -> None:
+        """I* of every pool view again, from the Gaussians as they are now: the prior then repairs
+        the refined render rather than the stage-I one (the bootstrap's feedback loop)."""
+        began = time.perf_counter()
+        make_target = target_maker(gaussians_from_params(state.params).detach())
+        for number, entry in enumerate(pool):
+            pool[number], _ = make_target(entry.camera, entry.round, save=False)
+        regenerations.append({"iteration": state.iteration, "views": len(pool),
+                              "seconds": time.perf_counter() - began})
+        log(f"step {state.iteration}: regenerated {len(pool)} virtual views in {regenerations[-1]['seconds']:.1f} s")
+
+    regenerations: list[dict] = []
     try:
         for round_index, round_goal in enumerate(rounds):
             if wait_or_stop() or out_of_time():
@@ -256,39 +297,20 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             round_info = {"round": round_index + 1, "targets": [t.name for t in round_goal], "views": []}
             # --- virtual views and their I* (from this round's starting Gaussians) ---------------
             began = time.perf_counter()
-            current = gaussians_from_params(state.params).detach()
             new_views = _round_virtual_views(round_goal, cameras, split.train, config)
             if new_views:
-                gaussians_hash = gaussians_version(current)
-                depth_cache: dict[str, torch.Tensor] = {}
-
-                def render_depth(camera) -> torch.Tensor:
-                    key = camera.name + str(camera.world_to_camera.tobytes())
-                    if key not in depth_cache:
-                        with torch.no_grad():
-                            depth_cache[key] = render_fn(current, camera, outputs=("depth",))["depth"]
-                    return depth_cache[key]
-
+                make_target = target_maker(gaussians_from_params(state.params).detach())
                 for number, (target_index, view) in enumerate(new_views):
                     if wait_or_stop() or out_of_time():
                         break
-                    generated, hit = generate_cached(prior, current, view.camera, config.seed, config.ddim_steps,
-                                                     cache, prior_hash, gaussians_hash)
-                    sources = _blend_sources(view.camera, cameras, split.train, config)
-                    image, mask = blend_target(generated, view.camera, sources, cameras, data.images,
-                                               render_depth, config.blending, config.delta)
                     name = f"r{round_index + 1}_t{target_index}_{view.name}"
-                    entry = VirtualTarget(name, view.camera.with_pose(view.camera.world_to_camera, name=name),
-                                          image, mask, torch.as_tensor(generated), hit, round_index + 1)
+                    entry, sources = make_target(view.camera.with_pose(view.camera.world_to_camera, name=name),
+                                                 round_index + 1, save=number < config.save_views)
                     pool.append(entry)
                     round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
-                                                "cache_hit": hit, "mask_fraction": float(mask.mean()),
+                                                "cache_hit": entry.cache_hit,
+                                                "mask_fraction": float(entry.mask.mean()),
                                                 "blend_sources": [int(s) for s in sources]})
-                    if number < config.save_views:
-                        with torch.no_grad():
-                            stage_render = render_fn(current, view.camera, outputs=("rgb",))["rgb"]
-                        write_png(boot_dir / "views" / f"{name}.png",
-                                  _view_png(entry.generated, mask, image, stage_render))
                 round_info["generation_s"] = time.perf_counter() - began
                 log(f"round {round_index + 1}: {len(round_info['views'])} virtual views "
                     f"({sum(v['cache_hit'] for v in round_info['views'])} from the cache) in "
@@ -301,6 +323,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     stopped = True
                     break
                 step = state.iteration + 1
+                if pool and config.regenerate_every and (step - start) % config.regenerate_every == 0:
+                    regenerate_pool()
                 if pool and step % config.virtual_every == 0:
                     sh_degree = sh_degree_at(step, train_config, sh_max)
                     frozen = gaussians_from_params(state.params).detach()
@@ -348,7 +372,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     summary.update(iteration=state.iteration, finished=finished, rounds_done=rounds_done,
                    wall_s=now(), cache_hits=cache.hits, cache_misses=cache.misses,
                    virtual_views=len(pool), last_eval=last_eval, steps=step_counts,
-                   view_use=view_use)
+                   view_use=view_use, regenerations=regenerations)
     _write_summary(boot_dir / "summary.json", summary)
     return BootstrapResult(out_dir, start, state.iteration, finished, rounds_done, len(gaussians), len(pool),
                            cache.hits, cache.misses, now(), prior_text, initial_eval, last_eval)
@@ -356,11 +380,14 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
 
 def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
     """[(target index, VirtualView)] for the round's targets, at most config.max_virtual_views."""
-    from .virtual_views import virtual_views
+    from .virtual_views import VirtualView, virtual_views
 
     kwargs = {name: getattr(config, name) for name in ("k", "l") if getattr(config, name) is not None}
     views = []
     for index, target in enumerate(goal):
+        if config.include_target:
+            views.append((index, VirtualView(target.camera.with_pose(target.camera.world_to_camera, name="target"),
+                                             -1, 0.0, "target")))
         views.extend((index, view) for view in virtual_views(target.camera, cameras, list(train), **kwargs))
     return views[:config.max_virtual_views]
 

@@ -30,8 +30,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=int, default=None, help="MultiDiffusion window (default: patch size)")
     parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
     parser.add_argument("--start", type=float, default=None,
-                        help="tiny backend: start sampling at this fraction of T from the appearance hint "
+                        help="tiny backend: start sampling at this fraction of T from a noised image "
                              "(SDEdit; default: the prior's sample_start, 1 = pure noise)")
+    parser.add_argument("--init", choices=("render", "hint"), default=None,
+                        help="tiny backend: the image --start noises: the run's render of the view (the "
+                             "prior repairs it) or the appearance hint (default: the prior's sample_init)")
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
 
@@ -67,13 +70,19 @@ def run(args) -> int:
     if stride is not None and not 1 <= stride <= window:
         raise InputError(f"--stride: must be in 1..{window}, got {stride}")
     options = {}
+    if (args.start is not None or args.init is not None) and prior.backend != "tiny":
+        raise InputError(f"{run_dir}: --start and --init are for the tiny backend")
+    if args.init is not None:
+        options["init"] = args.init
     if args.start is not None:
-        if prior.backend != "tiny" or getattr(prior, "appearance", None) is None:
-            raise InputError(f"{run_dir}: --start needs a tiny prior with an appearance hint "
-                             "(trained with --appearance-weight > 0)")
         if not 0.0 < args.start <= 1.0:
             raise InputError(f"--start: must be in (0, 1], got {args.start}")
         options["start"] = args.start
+    init = options.get("init", getattr(prior.config, "sample_init", "hint"))
+    start = options.get("start", getattr(prior.config, "sample_start", 1.0))
+    if start < 1.0 and init == "hint" and getattr(prior, "appearance", None) is None:
+        raise InputError(f"{run_dir}: starting from the hint needs a prior with an appearance hint "
+                         "(trained with --appearance-weight > 0); use --init render")
     rgb, gbuffer = prior.generate(gaussians.to(device), camera, steps=args.steps, seed=args.seed,
                                   window=window, stride=stride, progress=True, **options)
     write_png(Path(args.out), (rgb.cpu().numpy() * 255.0 + 0.5).astype(np.uint8))

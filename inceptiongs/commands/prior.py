@@ -38,8 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tiny backend: weight of the appearance hint's L1 loss (default 1; 0 = no "
                              "hint: the bare G-buffer, sampling from pure noise); a new prior only")
     parser.add_argument("--sample-start", type=float, default=None,
-                        help="tiny backend: generation starts at this fraction of T from the appearance "
-                             "hint (SDEdit; 1 = pure noise); a new prior only")
+                        help="tiny backend: generation starts at this fraction of T from an image "
+                             "noised to it (SDEdit; 1 = pure noise); a new prior only")
+    parser.add_argument("--sample-init", choices=("render", "hint"), default=None,
+                        help="tiny backend: the image a start below 1 noises: the Gaussians' render "
+                             "(default: the prior repairs it) or the appearance hint; a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
@@ -70,7 +73,7 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                 raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
             if overrides.pop("prediction", "epsilon") != "epsilon":
                 raise InputError("--prediction v is for the tiny backend (SD 1.5 predicts epsilon)")
-            for name in ("high_noise_share", "appearance_weight", "sample_start"):
+            for name in ("high_noise_share", "appearance_weight", "sample_start", "sample_init"):
                 if overrides.pop(name, None) is not None:
                     raise InputError(f"--{name.replace('_', '-')} is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
@@ -115,12 +118,12 @@ def run(args) -> int:
         print(f"resuming {checkpoint} at step {trainer.step_count}")
     else:
         sample_start = args.sample_start
-        if sample_start is None and args.appearance_weight == 0:
+        if sample_start is None and args.appearance_weight == 0 and args.sample_init == "hint":
             sample_start = 1.0  # no hint to start from: sample from pure noise
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
                           high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
-                          sample_start=sample_start)
+                          sample_start=sample_start, sample_init=args.sample_init)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None
