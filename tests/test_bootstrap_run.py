@@ -81,7 +81,7 @@ def test_bootstrap_writes_a_run_folder_and_keeps_covered_views(stage1, boot):
     panels = cv2.imread(str(pngs[0]))  # generated | mask | I* | render, 8-bit
     assert panels.shape[1] == 4 * panels.shape[0] * 4 // 3 and panels.max() > 1
     assert result.finished and result.iteration == result.start_iteration + 8
-    assert result.virtual_views == 4 and result.cache_misses == 4  # K * L = 2 * 2, all new
+    assert result.virtual_views == 5 and result.cache_misses == 5  # K * L = 2 * 2 + the target, all new
 
     records = _records(out)
     steps = [r for r in records if "kind" in r]
@@ -140,8 +140,7 @@ def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_superv
     # regenerate_every: I* of every pool view is made again from the refined Gaussians (new
     # G-buffer, new render to repair, so new cache keys); include_target adds the target pose.
     out = tmp_path / "regen"
-    result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=6, regenerate_every=3, include_target=True, save_views=0),
+    result = run_bootstrap(stage1, out, _targets(stage1), _config(iterations=6, regenerate_every=3, save_views=0),
                            progress=False)
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     views = summary["rounds"][0]["views"]
@@ -151,8 +150,9 @@ def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_superv
     assert all(r["views"] == len(views) for r in summary["regenerations"])
     # Refinement changed the Gaussians before each regeneration: every image is new.
     assert result.cache_misses == 3 * len(views) and result.cache_hits == 0
-    # Without the option, a round generates once.
-    again = run_bootstrap(stage1, tmp_path / "once", _targets(stage1), _config(iterations=2, save_views=0),
+    # Without the options, a round generates once, at K * L views.
+    again = run_bootstrap(stage1, tmp_path / "once", _targets(stage1),
+                          _config(iterations=6, save_views=0, regenerate_every=0, include_target=False),
                           progress=False)
     assert again.cache_misses == again.virtual_views == 4
     assert json.loads((tmp_path / "once" / "bootstrap" / "summary.json").read_text())["regenerations"] == []

@@ -31,8 +31,9 @@ class BootstrapConfig:
     # in a large viewer window is scaled so its width matches the training photos'.
     max_virtual_views: int = 64
     # Also supervise the target pose itself (t = 0) with the prior's repair of its render: the
-    # view the user flagged is where the repair matters most. Off: |V| = K * L, as the paper.
-    include_target: bool = False
+    # view the user flagged is where the repair matters most (statuette, 400 steps: scarce views
+    # +0.05 dB over K * L views alone). Off: |V| = K * L exactly.
+    include_target: bool = True
 
     # --- generation --------------------------------------------------------------------------
     prior: str = "trained"              # "trained" (the run's, else a short one) | "untrained" (ablation)
@@ -40,8 +41,10 @@ class BootstrapConfig:
     prior_steps: int | None = None      # ... or this many steps (whichever ends first)
     ddim_steps: int = 10
     # Every this many refinement steps, I* of all virtual views is generated again from the
-    # current Gaussians (their render is what the prior repairs); 0: once per round.
-    regenerate_every: int = 0
+    # current Gaussians (their render is what the prior repairs); 0: once per round. Statuette,
+    # 400 steps: scarce views 15.93 -> 16.26 dB with 50, where a fixed I* stayed at ~16.0 dB;
+    # one regeneration of 13 views costs about 20 refinement steps.
+    regenerate_every: int = 50
 
     # --- blending ----------------------------------------------------------------------------
     blending: bool = True

@@ -39,6 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--generated-weight", type=float, default=d.generated_weight,
                         help="loss weight of generated (not photo-trusted) pixels of a virtual view "
                              f"(default {d.generated_weight:g}: the paper's loss on I*)")
+    parser.add_argument("--regenerate-every", type=int, default=d.regenerate_every, metavar="N",
+                        help="generate every virtual view's I* again from the refined Gaussians every N "
+                             f"refinement steps (default {d.regenerate_every}; 0: once per round)")
+    parser.add_argument("--include-target", action=argparse.BooleanOptionalAction, default=d.include_target,
+                        help="also supervise the target pose itself with the prior's repair of its render "
+                             f"(default {'on' if d.include_target else 'off'})")
     parser.add_argument("--densify", action="store_true", help="densify during the refinement")
     parser.add_argument("--no-blending", action="store_true", help="ablation: I* = generated image only")
     parser.add_argument("--uniform-sampling", action="store_true",
@@ -59,6 +65,7 @@ def config_from_args(args):
         blending=not args.no_blending, sampling="uniform" if args.uniform_sampling else "langevin",
         prior="untrained" if args.untrained_prior else "trained", lpips_weights=args.lpips_weights,
         generated_weight=args.generated_weight, densify=args.densify,
+        regenerate_every=args.regenerate_every, include_target=args.include_target,
     ).validate("arguments")
 
 
