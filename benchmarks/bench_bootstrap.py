@@ -2,7 +2,7 @@
 
     python benchmarks/bench_bootstrap.py [--scenes demo statuette] [--out runs/bench_bootstrap]
         [--stage1-iterations 300] [--stage1-minutes 10] [--bootstrap-iterations 200]
-        [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior]
+        [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior no-regeneration]
 
 Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/data/statuette
 or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
@@ -37,6 +37,9 @@ VARIANTS = {
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
     "untrained-prior": {"prior": "untrained"},
+    # Not an ablation of the paper: I* generated once per round from stage I's render, never
+    # regenerated from the refined Gaussians (what the loop did before regenerate_every).
+    "no-regeneration": {"regenerate_every": 0},
     # Not an ablation of the paper: generated pixels weighted 0.2 against photo-trusted ones
     # (what the demo uses; a weak CPU-trained prior paints noise where no photo is trusted).
     "generated-weight-0.2": {"generated_weight": 0.2},

@@ -61,7 +61,7 @@ def group_means(views: list[dict], source: str) -> dict[str, dict]:
 
 def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps: int, seed: int = 0,
                 save_dir: Path | None = None, renders: dict | None = None,
-                progress: bool = False) -> list[dict]:
+                progress: bool = False, sampling: dict | None = None) -> list[dict]:
     """Per held-out view: {"index", "name", "group", "render": scores, "generated": scores,
     "seconds" (generation wall time), "cpu_seconds" (this process's CPU time: on a shared machine
     the wall time includes waiting for other jobs)[, "image"]}. renders: {index: render} cache."""
@@ -76,7 +76,7 @@ def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps
         if index not in renders:
             renders[index] = render_image(gaussians, camera).cpu()
         start, cpu_start = time.perf_counter(), time.process_time()
-        generated, _ = prior.generate(gaussians.to(device), camera, steps=steps, seed=seed)
+        generated, _ = prior.generate(gaussians.to(device), camera, steps=steps, seed=seed, **(sampling or {}))
         seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
         generated = generated.detach().to(torch.float32).cpu()
         view = {"index": index, "name": camera.name, "group": group_of(index, split),
@@ -121,15 +121,16 @@ def generated_scores_fn(run_dir: str | Path, gaussians, scene, steps: int = 20, 
 
 
 def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (20,), seed: int = 0,
-                           device=None, progress: bool = True) -> dict:
+                           device=None, progress: bool = True, start: float | None = None,
+                           init: str | None = None) -> dict:
     """Score the run's prior on its held-out views for every DDIM step count in ``ddim_steps``.
 
     Writes RUN/eval/generated/*.png (render | generated | photo, for the first step count) and
     RUN/eval/generated.json; returns the same dict: {"run", "prior": {"backend", "step",
-    "train_s"}, "seed", "by_steps": [{"ddim_steps", "seconds_per_image", "cpu_seconds_per_image", "groups": {group:
+    "train_s"}, "seed", "sampling" (the tiny prior's start and init, given or its config's), "by_steps": [{"ddim_steps", "seconds_per_image", "cpu_seconds_per_image", "groups": {group:
     {"views", "render": {"psnr", "ssim"}, "generated": {...}}}}], "views": [...first count...]}.
     """
-    from .prior.trainer import load_prior, read_prior_checkpoint
+    from .prior.trainer import load_prior, read_prior_checkpoint, sampling_options
     from .train import load_run
 
     run_dir = Path(run_dir)
@@ -139,6 +140,7 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
         raise InputError(f"DDIM steps must be >= 1, got {list(ddim_steps)}")
     payload = read_prior_checkpoint(run_dir, device)
     prior = load_prior(run_dir, device)
+    sampling = sampling_options(prior, start, init, run_dir)
     gaussians, scene, _ = load_run(run_dir)
     gaussians = gaussians.to(prior.device)
     split, indices = held_out(run_dir, scene)
@@ -148,7 +150,7 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
     for steps in ddim_steps:
         views = score_views(prior, gaussians, scene, indices, split, steps, seed,
                             save_dir=save_dir if first_views is None else None, renders=renders,
-                            progress=progress)
+                            progress=progress, sampling=sampling)
         render_groups, generated_groups = group_means(views, "render"), group_means(views, "generated")
         by_steps.append({
             "ddim_steps": steps,
@@ -167,6 +169,8 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
     summary = {"run": str(run_dir.resolve()), "protocol": split.protocol, "seed": seed,
                "prior": {"backend": payload["backend"], "step": int(payload["step"]),
                          "train_s": float(payload.get("train_s", 0.0))},
+               "sampling": {"start": sampling.get("start", getattr(prior.config, "sample_start", None)),
+                            "init": sampling.get("init", getattr(prior.config, "sample_init", None))},
                "by_steps": by_steps, "views": first_views}
     atomic_write_text(run_dir / "eval" / GENERATED_JSON, json.dumps(json_safe(summary), indent=1) + "\n")
     return summary

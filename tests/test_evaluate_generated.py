@@ -75,6 +75,18 @@ def test_eval_generated_scores_and_side_by_side_images(run_with_prior, capsys):
     assert main(["eval", str(run_with_prior), "--generated", "--ddim-steps", "x"]) == 2
 
 
+def test_eval_generated_takes_the_sampling_start(run_with_prior):
+    # The default samples as the prior's config says (from its render, noised to 0.3 T); --init
+    # and --start score another start with the same weights, and say so in generated.json.
+    default = evaluate_generated_run(run_with_prior, (1,), progress=False)
+    assert default["sampling"] == {"start": 0.3, "init": "render"}
+    hint = evaluate_generated_run(run_with_prior, (1,), progress=False, start=0.5, init="hint")
+    assert hint["sampling"] == {"start": 0.5, "init": "hint"}
+    assert hint["views"][0]["generated"] != default["views"][0]["generated"]
+    assert hint["views"][0]["render"] == default["views"][0]["render"]
+    assert main(["eval", str(run_with_prior), "--generated", "--ddim-steps", "1", "--start", "0"]) == 2
+
+
 def test_eval_generated_without_a_prior_is_an_input_error(run_with_prior, tmp_path):
     import shutil
 

@@ -283,6 +283,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         began = time.perf_counter()
         make_target = target_maker(gaussians_from_params(state.params).detach())
         for number, entry in enumerate(pool):
+            if wait_or_stop() or out_of_time():
+                break  # the views not reached keep their I*
             pool[number], _ = make_target(entry.camera, entry.round, save=False)
         regenerations.append({"iteration": state.iteration, "views": len(pool),
                               "seconds": time.perf_counter() - began})
@@ -318,12 +320,15 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             # --- refinement ------------------------------------------------------------------
             began = time.perf_counter()
             stopped = False
+            round_end = state.iteration + config.iterations
             for _ in range(config.iterations):
                 if wait_or_stop() or out_of_time():
                     stopped = True
                     break
                 step = state.iteration + 1
-                if pool and config.regenerate_every and (step - start) % config.regenerate_every == 0:
+                # A regeneration pays off over the steps after it: none for a round's last few.
+                if (pool and config.regenerate_every and (step - start) % config.regenerate_every == 0
+                        and round_end - step + 1 >= max(1, config.regenerate_every // 2)):
                     regenerate_pool()
                 if pool and step % config.virtual_every == 0:
                     sh_degree = sh_degree_at(step, train_config, sh_max)

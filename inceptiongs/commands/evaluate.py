@@ -24,6 +24,10 @@ def add_arguments(parser) -> None:
                         help="DDIM step counts for --generated (default 20; several give the quality-"
                              "against-steps curve of `inceptiongs report`)")
     parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
+    parser.add_argument("--start", type=float, default=None,
+                        help="--generated, tiny backend: sampling start as a fraction of T (default: the prior's)")
+    parser.add_argument("--init", choices=("render", "hint"), default=None,
+                        help="--generated, tiny backend: what --start noises (default: the prior's sample_init)")
     parser.add_argument("--device", default=None, help="torch device for --generated (default: cuda when available)")
 
 
@@ -48,7 +52,8 @@ def run(args) -> int:
 
         from ..evaluate_generated import evaluate_generated_run, format_generated_table
         device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device)
+        generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device, start=args.start,
+                                           init=args.init)
     if args.json:
         print(json.dumps(json_safe({**summary, **({"generated": generated} if generated else {})}), indent=1))
     else:

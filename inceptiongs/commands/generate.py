@@ -45,7 +45,7 @@ def run(args) -> int:
     from ..atomic import atomic_write_bytes
     from ..camera import read_camera_json
     from ..evaluate import write_png
-    from ..prior.trainer import load_prior
+    from ..prior.trainer import load_prior, sampling_options
     from ..train.run_folder import load_run
 
     if Path(args.out).suffix.lower() != ".png":
@@ -69,20 +69,7 @@ def run(args) -> int:
     stride = args.stride
     if stride is not None and not 1 <= stride <= window:
         raise InputError(f"--stride: must be in 1..{window}, got {stride}")
-    options = {}
-    if (args.start is not None or args.init is not None) and prior.backend != "tiny":
-        raise InputError(f"{run_dir}: --start and --init are for the tiny backend")
-    if args.init is not None:
-        options["init"] = args.init
-    if args.start is not None:
-        if not 0.0 < args.start <= 1.0:
-            raise InputError(f"--start: must be in (0, 1], got {args.start}")
-        options["start"] = args.start
-    init = options.get("init", getattr(prior.config, "sample_init", "hint"))
-    start = options.get("start", getattr(prior.config, "sample_start", 1.0))
-    if start < 1.0 and init == "hint" and getattr(prior, "appearance", None) is None:
-        raise InputError(f"{run_dir}: starting from the hint needs a prior with an appearance hint "
-                         "(trained with --appearance-weight > 0); use --init render")
+    options = sampling_options(prior, args.start, args.init, run_dir)
     rgb, gbuffer = prior.generate(gaussians.to(device), camera, steps=args.steps, seed=args.seed,
                                   window=window, stride=stride, progress=True, **options)
     write_png(Path(args.out), (rgb.cpu().numpy() * 255.0 + 0.5).astype(np.uint8))

@@ -304,3 +304,22 @@ def resume_trainer(run_dir: str | Path, gaussians: Gaussians, cameras: list[Came
     trainer.optimizer.load_state_dict(payload["optimizer"])
     trainer.generator.set_state(payload["generator"])
     return trainer
+
+
+def sampling_options(prior, start: float | None, init: str | None, where) -> dict:
+    """--start / --init checked against the prior -> keyword arguments for prior.generate."""
+    options = {}
+    if (start is not None or init is not None) and prior.backend != "tiny":
+        raise InputError(f"{where}: --start and --init are for the tiny backend")
+    if init is not None:
+        options["init"] = init
+    if start is not None:
+        if not 0.0 < start <= 1.0:
+            raise InputError(f"--start: must be in (0, 1], got {start}")
+        options["start"] = start
+    init = options.get("init", getattr(prior.config, "sample_init", "hint"))
+    start = options.get("start", getattr(prior.config, "sample_start", 1.0))
+    if start < 1.0 and init == "hint" and getattr(prior, "appearance", None) is None:
+        raise InputError(f"{where}: starting from the hint needs a prior with an appearance hint "
+                         "(trained with --appearance-weight > 0); use --init render")
+    return options
