@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "G-buffer can help (default 0); a new prior only")
     parser.add_argument("--appearance-weight", type=float, default=None,
                         help="tiny backend: weight of the appearance hint's L1 loss (default 1; 0 = no "
-                             "hint: the bare G-buffer, sampling from pure noise); a new prior only")
+                             "hint: the denoiser sees the bare G-buffer); a new prior only")
     parser.add_argument("--sample-start", type=float, default=None,
                         help="tiny backend: generation starts at this fraction of T from an image "
                              "noised to it (SDEdit; 1 = pure noise); a new prior only")
