@@ -151,7 +151,7 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
     from inceptiongs.evaluate_generated import held_out, photo_of, render_image, score
     from inceptiongs.prior.hashgrid import HashGridConfig
     from inceptiongs.prior.joint import training_views
-    from inceptiongs.prior.trainer import HASH_ADAM_EPS
+    from inceptiongs.prior.trainer import adam_for
     from inceptiongs.train.run_folder import load_run
 
     gaussians, scene, _ = load_run(run)
@@ -160,9 +160,9 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
     config = replace(PriorConfig(), grid=grid)
     prior = Prior.for_gaussians(config, gaussians)
     trainer = PriorTrainer(prior, gaussians, [scene.cameras[i] for i in views], lambda k: scene.load_image(views[k]))
-    optimizer = torch.optim.Adam([
-        {"params": prior.appearance.parameters(), "lr": config.appearance_learning_rate},
-        {"params": prior.hash_grid.parameters(), "lr": config.hash_learning_rate, "eps": HASH_ADAM_EPS}])
+    # The prior's own groups for the hint head and the hash grid (the denoiser is not trained here).
+    denoiser = {id(parameter) for parameter in prior.denoiser.parameters()}
+    optimizer = adam_for([g for g in prior.parameter_groups() if id(g["params"][0]) not in denoiser])
     for _ in range(4 * len(views)):  # render every view's geometry before the clock starts
         trainer.sample_batch()
     start, steps = time.perf_counter(), 0

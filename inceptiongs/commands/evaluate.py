@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 from ..errors import InputError
+from .generate import add_sampling_arguments
 
 HELP = "PSNR/SSIM on held-out views, scarce vs covered (LPIPS/FID only with local weights)"
 
@@ -24,10 +25,7 @@ def add_arguments(parser) -> None:
                         help="DDIM step counts for --generated (default 20; several give the quality-"
                              "against-steps curve of `inceptiongs report`)")
     parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
-    parser.add_argument("--start", type=float, default=None,
-                        help="--generated, tiny backend: sampling start as a fraction of T (default: the prior's)")
-    parser.add_argument("--init", choices=("render", "hint"), default=None,
-                        help="--generated, tiny backend: what --start noises (default: the prior's sample_init)")
+    add_sampling_arguments(parser, "--generated, ")
     parser.add_argument("--device", default=None, help="torch device for --generated (default: cuda when available)")
 
 

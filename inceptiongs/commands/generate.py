@@ -29,14 +29,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same image)")
     parser.add_argument("--window", type=int, default=None, help="MultiDiffusion window (default: patch size)")
     parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
-    parser.add_argument("--start", type=float, default=None,
-                        help="tiny backend: start sampling at this fraction of T from a noised image "
-                             "(SDEdit; default: the prior's sample_start, 1 = pure noise)")
-    parser.add_argument("--init", choices=("render", "hint"), default=None,
-                        help="tiny backend: the image --start noises: the run's render of the view (the "
-                             "prior repairs it) or the appearance hint (default: the prior's sample_init)")
+    add_sampling_arguments(parser)
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
     parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
+
+
+def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -> None:
+    """--start / --init (checked by prior.trainer.sampling_options), shared with `eval --generated`."""
+    parser.add_argument("--start", type=float, default=None,
+                        help=f"{context}tiny backend: start sampling at this fraction of T from a noised image "
+                             "(SDEdit; default: the prior's sample_start, 1 = pure noise)")
+    parser.add_argument("--init", choices=("render", "hint"), default=None,
+                        help=f"{context}tiny backend: the image --start noises: the run's render of the view (the "
+                             "prior repairs it) or the appearance hint (default: the prior's sample_init)")
 
 
 def run(args) -> int:

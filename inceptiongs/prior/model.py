@@ -284,7 +284,6 @@ class Prior(nn.Module):
 def render_init(gaussians: Gaussians, camera: Camera) -> torch.Tensor:
     """The Gaussians' render of camera as a sampler start [1, 3, H, W] in [-1, 1] (black
     background, like the evaluation's renders)."""
-    from ..rasterize import render
+    from ..evaluate_generated import render_image
 
-    rgb = render(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)
-    return (rgb * 2.0 - 1.0).permute(2, 0, 1)[None]
+    return (render_image(gaussians, camera) * 2.0 - 1.0).permute(2, 0, 1)[None]

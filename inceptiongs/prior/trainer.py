@@ -44,6 +44,11 @@ HASH_ADAM_EPS = 1e-15
 GEOMETRY_CACHE_BYTES = 512 * 2 ** 20
 
 
+def adam_for(groups: list[dict]) -> torch.optim.Adam:
+    """Adam over a prior's parameter groups; a group marked "hash" gets HASH_ADAM_EPS."""
+    return torch.optim.Adam([{**group, "eps": HASH_ADAM_EPS} if group.get("hash") else group for group in groups])
+
+
 def prior_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "prior"
 
@@ -78,9 +83,7 @@ class PriorTrainer:
             raise InputError("prior training: no training cameras")
         self.patch_size = patch_size_for(self.prior, self.cameras)
         self.generator = torch.Generator().manual_seed(self.prior.config.seed)
-        groups = [{**group, "eps": HASH_ADAM_EPS} if group.get("hash") else group
-                  for group in self.prior.parameter_groups()]
-        self.optimizer = torch.optim.Adam(groups)
+        self.optimizer = adam_for(self.prior.parameter_groups())
         self._images: dict[int, torch.Tensor] = {}
         self._geometry: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._geometry_bytes = 0
