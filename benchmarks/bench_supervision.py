@@ -34,7 +34,9 @@ sys.path.insert(0, str(REPO))
 SOURCES = ("render", "blend(render)", "repair", "I*")
 
 
-def scores_at(view: int, scene, split, gaussians, prior, args) -> dict:
+def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
+    """One held-out view's scores; depths: {camera name: rendered depth}, shared across views
+    (a training view is a warp source of several held-out views)."""
     from inceptiongs.bootstrap.generation import blend_target
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.evaluate_generated import photo_of, render_image, score
@@ -48,8 +50,10 @@ def scores_at(view: int, scene, split, gaussians, prior, args) -> dict:
     photos = {i: photo_of(scene, i) for i in sources}
 
     def render_depth(cam):
-        with torch.no_grad():
-            return render(gaussians, cam, outputs=("depth",))["depth"]
+        if cam.name not in depths:
+            with torch.no_grad():
+                depths[cam.name] = render(gaussians, cam, outputs=("depth",))["depth"]
+        return depths[cam.name]
 
     blend = lambda base: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
                                       render_depth, True, args.delta)
@@ -85,9 +89,9 @@ def main(argv=None) -> int:
 
     _, scene, split, _, gaussians = load_stage1(Path(args.run))
     prior = load_prior(Path(args.run))
-    rows = {}
+    rows, depths = {}, {}
     for view in split.test:
-        rows[view] = scores_at(view, scene, split, gaussians, prior, args)
+        rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths)
         print(f"  {scene.cameras[view].name} ({group_of(view, split)}): "
               + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}/{rows[view][s]['ssim']:.3f}" for s in SOURCES),
               flush=True)
