@@ -42,7 +42,7 @@ def bootstrap_job_for(source, flags_file: Path, config=None):
     BootstrapConfig, default the command line's defaults)."""
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.job import BootstrapJob
-    from inceptiongs.bootstrap.targets import read_flag_cameras
+    from inceptiongs.io.flags import read_flag_cameras
 
     run_dir = run_dir_of(source)
     if run_dir is None:
@@ -60,7 +60,7 @@ def default_job(source, flags_file: Path):
 
 
 def read_flags_count(flags_file: Path) -> int:
-    from inceptiongs.bootstrap.targets import read_flag_cameras
+    from inceptiongs.io.flags import read_flag_cameras
 
     try:
         return len(read_flag_cameras(flags_file))

@@ -24,7 +24,7 @@ def default_job_factory(source):
     """The job the "start training" button runs: stage-I training for a scene, stage II
     (bootstrap) for a run when views are flagged (app/jobs.py). None when the source has
     neither a scene nor a run (a bare PLY)."""
-    from .flags import flags_path  # noqa: PLC0415
+    from inceptiongs.io.flags import flags_path  # noqa: PLC0415
     from .jobs import default_job, run_dir_of  # noqa: PLC0415
 
     if source.scene is None and run_dir_of(source) is None:

@@ -4,7 +4,6 @@ small camera (side by side, or an error heat-map with its PSNR)."""
 
 from __future__ import annotations
 
-import math
 import threading
 from dataclasses import dataclass
 
@@ -12,17 +11,9 @@ import numpy as np
 
 from inceptiongs.camera import Camera
 
-# MSE floor for PSNR: identical images would give log10(0); 1e-10 caps PSNR at 100 dB.
-_MSE_FLOOR = 1e-10
 # The heat-map's colour scale saturates at this absolute error (per pixel, mean over RGB):
 # GL and torch should agree to ~1e-2, so 0.1 already means a visible bug.
 HEATMAP_ERROR_MAX = 0.1
-
-
-def psnr(image_a: np.ndarray, image_b: np.ndarray) -> float:
-    """PSNR in dB of two [H, W, C] images in [0, 1] (peak 1)."""
-    mse = float(np.mean((image_a.astype(np.float64) - image_b.astype(np.float64)) ** 2))
-    return 10.0 * math.log10(1.0 / max(mse, _MSE_FLOOR))
 
 
 def error_heatmap(image_a: np.ndarray, image_b: np.ndarray,
@@ -52,7 +43,7 @@ class ReferenceResult:
 
 
 class ReferenceWorker:
-    """Renders requests with ``inceptiongs.rasterize.render`` on one background thread. Only the
+    """Renders requests with ``inceptiongs.rasterizer.rasterize.render`` on one background thread. Only the
     newest request is kept: while torch works, newer camera moves replace the pending one."""
 
     def __init__(self) -> None:
@@ -88,7 +79,7 @@ class ReferenceWorker:
         import torch
 
         from inceptiongs.gaussians import Gaussians
-        from inceptiongs.rasterize import render
+        from inceptiongs.rasterizer.rasterize import render
 
         while True:
             with self._lock:

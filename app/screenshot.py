@@ -14,7 +14,9 @@ import moderngl
 from inceptiongs.camera import Camera, read_camera_json
 from inceptiongs.errors import InputError
 
-from .images import visualize, write_png
+from inceptiongs.io.images import write_png
+
+from .images import visualize
 from .navigation import default_view, estimate_up
 from .sources import ViewerSource
 

@@ -69,7 +69,7 @@ def newest_ply(folder: Path) -> Path | None:
 
 
 def _read_ply_arrays(path: Path) -> dict:
-    from inceptiongs.ply import read_ply  # noqa: PLC0415 - keeps `--help` fast
+    from inceptiongs.io.ply import read_ply  # noqa: PLC0415 - keeps `--help` fast
 
     return read_ply(path).numpy()
 
@@ -106,7 +106,7 @@ def open_source(path: str | Path) -> ViewerSource:
             raise InputError(f"{path}: not a scene folder, a .ply model or a run folder")
         return ViewerSource("ply", path, _read_ply_arrays(path), [], path.parent / ".inceptiongs",
                             model_path=path)
-    from inceptiongs.scene import load_scene  # noqa: PLC0415
+    from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
 
     if (path / "config.json").is_file():
         return _open_run(path)

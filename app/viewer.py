@@ -24,13 +24,18 @@ from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.renderer.context import unbind_current_egl
 
+from inceptiongs.io import flags as flag_io
+
 from . import editing, flags as flagging
 from .frustums import segments_for_cameras
-from .images import visualize, write_png
+from inceptiongs.evaluation.metrics import psnr
+from inceptiongs.io.images import write_png
+
+from .images import visualize
 from .live_training import LiveTraining
 from .navigation import NavigationState, default_view, estimate_up
 from .overlay import OverlayRenderer, SceneTexture
-from .reference import ReferenceWorker, error_heatmap, psnr, side_by_side
+from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .sources import ViewerSource
 
 GL_REQUIRED = (4, 3)
@@ -162,10 +167,10 @@ class Viewer:
         self.nav = self._initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
-        self.flags_file = flagging.flags_path(source.work_dir)
+        self.flags_file = flag_io.flags_path(source.work_dir)
         self.status = "; ".join(source.notes)
         try:
-            self.flags = flagging.load_flags(self.flags_file)
+            self.flags = flag_io.load_flags(self.flags_file)
         except InputError as exc:
             self.flags, self.status = [], f"flags not loaded: {exc}"
         self.selected_flag = -1
@@ -401,7 +406,7 @@ class Viewer:
         self.status = "orbit pivot set"
 
     def _save_flags(self) -> None:
-        flagging.save_flags(self.flags_file, self.flags)
+        flag_io.save_flags(self.flags_file, self.flags)
 
     def flag_current_view(self) -> None:
         name = flagging.unique_flag_name(self.flags)
@@ -421,7 +426,7 @@ class Viewer:
 
     def rename_flag(self, index: int, name: str) -> None:
         flag = self.flags[index]
-        self.flags[index] = flagging.Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name),
+        self.flags[index] = flag_io.Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name),
                                           flag.created)
         self._save_flags()
 
@@ -472,7 +477,7 @@ class Viewer:
     def save_ply(self, path: str | Path) -> Path:
         """Write the shown Gaussians (atomic). Models of a scene are stored in the scene's
         original frame, like the trainer's model.ply."""
-        from inceptiongs.ply import write_ply  # noqa: PLC0415
+        from inceptiongs.io.ply import write_ply  # noqa: PLC0415
 
         gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         scene = self.source.scene
@@ -592,7 +597,7 @@ class Viewer:
             return
         gl = self.renderer.render(result.camera, mode="rgb", background=self.settings.background,
                                   sh_degree_cap=self.settings.sh_degree_cap, splat_scale=1.0)
-        self.reference_psnr = psnr(gl, result.rgb)
+        self.reference_psnr = float(psnr(gl.astype(np.float64), result.rgb.astype(np.float64)))
         if self.settings.reference_view == "heat-map":
             image = error_heatmap(gl, result.rgb)
         else:

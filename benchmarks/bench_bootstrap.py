@@ -55,8 +55,9 @@ def data_root() -> Path | None:
 
 
 def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int) -> Path:
-    from inceptiongs.demo_scene import write_demo_scene
-    from inceptiongs.train import TrainConfig, train
+    from inceptiongs.scene.demo import write_demo_scene
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.trainer import train
     from inceptiongs.train.config import short_run_schedule
 
     run_dir = out / name / "run"
@@ -82,7 +83,7 @@ def train_prior(run_dir: Path, minutes: float, seed: int) -> float:
     """The trained prior shared by the variants: RUN/prior/prior.pt -> seconds spent (0 if reused)."""
     from inceptiongs.prior.model import Prior, PriorConfig
     from inceptiongs.prior.trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir
-    from inceptiongs.protocols import Split
+    from inceptiongs.evaluation.protocols import Split
     from inceptiongs.train.run_folder import load_run
 
     seconds_file = prior_dir(run_dir) / "bench_seconds.json"
@@ -116,7 +117,8 @@ def eval_curve(run_dir: Path) -> list[dict]:
 
 
 def scores(run_dir: Path) -> dict:
-    from inceptiongs.evaluate import evaluate_run, flat_scores
+    from inceptiongs.evaluation.run import evaluate_run
+    from inceptiongs.evaluation.scoring import flat_scores
 
     return flat_scores(evaluate_run(run_dir, progress=False)["groups"])
 

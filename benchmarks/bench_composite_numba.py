@@ -1,4 +1,4 @@
-"""Time the numba compositing fast path (inceptiongs.composite_numba) at 512x512.
+"""Time the numba compositing fast path (inceptiongs.rasterizer.composite_numba) at 512x512.
 
 Random projected Gaussians spread over the image (footprint radius 2-20 px, anisotropy up to
 3:1, opacities 0.05-0.95, 3 value channels), as the composite stage sees them after
@@ -60,7 +60,7 @@ def measure(n: int, width: int, height: int, threads: int, repeats: int) -> dict
     import numba
     import torch
 
-    from inceptiongs.composite_numba import composite_numba
+    from inceptiongs.rasterizer.composite_numba import composite_numba
 
     numba.set_num_threads(threads)
     torch.set_num_threads(threads)
@@ -101,13 +101,13 @@ def measure(n: int, width: int, height: int, threads: int, repeats: int) -> dict
 def _count_pairs(scene, width, height) -> int:
     import numpy as np
 
-    from inceptiongs.composite_numba import _bin_tiles, _pack_params
+    from inceptiongs.rasterizer.composite_numba import bin_tiles, pack_params
     from inceptiongs.constants import TILE_SIZE
 
-    params = _pack_params(scene["means2d"].double().numpy(), scene["conics"].double().numpy(),
+    params = pack_params(scene["means2d"].double().numpy(), scene["conics"].double().numpy(),
                           scene["opacities"].double().numpy())
     extents = np.ascontiguousarray(scene["extents"].double().numpy())
-    _, _, entries = _bin_tiles(params, extents, width, height, -(-width // TILE_SIZE), -(-height // TILE_SIZE))
+    _, _, entries = bin_tiles(params, extents, width, height, -(-width // TILE_SIZE), -(-height // TILE_SIZE))
     return int(entries.shape[0])
 
 

@@ -92,7 +92,7 @@ def time_frames(renderer: SplatRenderer, cam: Camera, frames: int) -> dict:
 
 
 def torch_psnr(renderer: SplatRenderer, model: Gaussians, cam: Camera) -> dict:
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
     with torch.no_grad():
         ref = render(model, cam, outputs=("rgb", "alpha"))
     return agreement(renderer.render(cam, "rgb"), renderer.render(cam, "alpha"),
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
           f"load average {os.getloadavg()[0]:.1f}; GL: {ctx.info['GL_RENDERER']} {ctx.version_code}")
     scenes = [(f"random {int(n):,}", random_cube(int(n)), cube_camera) for n in args.sizes.split(",")]
     if Path(args.donut).is_file():
-        from inceptiongs.ply import read_ply
+        from inceptiongs.io.ply import read_ply
         donut = read_ply(args.donut)
         means = donut.means.numpy()
         scenes.append(("donut.ply (45,624)", donut, lambda w, h, m=means: donut_camera(m, w, h)))

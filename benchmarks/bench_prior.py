@@ -147,8 +147,9 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
     from dataclasses import replace
     from pathlib import Path
 
-    from inceptiongs.evaluate import group_of
-    from inceptiongs.evaluate_generated import held_out, photo_of, render_image, score
+    from inceptiongs.evaluation.scoring import group_of
+    from inceptiongs.rasterizer.rasterize import render_rgb
+    from inceptiongs.evaluation.generated import held_out, photo_of, score
     from inceptiongs.prior.hashgrid import HashGridConfig
     from inceptiongs.prior.joint import training_views
     from inceptiongs.prior.trainer import adam_for
@@ -180,7 +181,7 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
         camera, photo, group = scene.cameras[index], photo_of(scene, index), group_of(index, split)
         with torch.no_grad():
             hint = (prior.hint(prior.gbuffer(gaussians, camera)[None])[0].permute(1, 2, 0) + 1.0) * 0.5
-        scores.setdefault((group, "render"), []).append(score(render_image(gaussians, camera).cpu(), photo))
+        scores.setdefault((group, "render"), []).append(score(render_rgb(gaussians, camera).cpu(), photo))
         scores.setdefault((group, "hint"), []).append(score(hint.clamp(0.0, 1.0).cpu(), photo))
     for (group, source), values in sorted(scores.items()):
         print(f"{group:8s} {source:7s} PSNR {np.mean([v['psnr'] for v in values]):6.2f} "

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.ply import read_ply, write_ply
-from inceptiongs.scene import load_scene
+from inceptiongs.io.ply import read_ply, write_ply
+from inceptiongs.scene.loader import load_scene
 
 
 def _best_of(fn, repeats: int = 3) -> float:

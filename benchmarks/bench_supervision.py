@@ -39,13 +39,14 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     (a training view is a warp source of several held-out views)."""
     from inceptiongs.bootstrap.generation import blend_target
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
-    from inceptiongs.evaluate_generated import photo_of, render_image, score
-    from inceptiongs.metrics import psnr
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render_rgb
+    from inceptiongs.evaluation.generated import photo_of, score
+    from inceptiongs.evaluation.metrics import psnr
+    from inceptiongs.rasterizer.rasterize import render
 
     camera = scene.cameras[view]
     photo = photo_of(scene, view)
-    rendered = render_image(gaussians, camera)
+    rendered = render_rgb(gaussians, camera)
     sources = nearest_training_views(camera, scene.cameras, list(split.train), args.k)
     photos = {i: photo_of(scene, i) for i in sources}
 
@@ -76,7 +77,7 @@ def main(argv=None) -> int:
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
     from inceptiongs.bootstrap.warp import DEFAULT_DELTA
-    from inceptiongs.evaluate import GROUPS, group_of
+    from inceptiongs.evaluation.scoring import GROUPS, group_of
     from inceptiongs.prior.trainer import load_prior
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -25,7 +25,7 @@ WORKER = textwrap.dedent("""
     torch.set_num_threads(2)
     from inceptiongs.camera import Camera, look_at
     from inceptiongs.gaussians import Gaussians
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
     n, backend, repeats, size = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
     gen = torch.Generator().manual_seed(0)
@@ -81,7 +81,7 @@ WORKER = textwrap.dedent("""
 
 def numba_available() -> bool:
     try:
-        import inceptiongs.composite_numba  # noqa: F401
+        import inceptiongs.rasterizer.composite_numba  # noqa: F401
     except ImportError:
         return False
     return True

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write_text
-from .config_json import read_json_object
+from .io.atomic import atomic_write_text
+from .io.config_json import read_json_object
 from .errors import InputError
 
 # Below this |sin(angle)| slerp falls back to normalised lerp: the slerp weights

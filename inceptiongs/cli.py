@@ -28,7 +28,7 @@ COMMANDS = {
 }
 
 
-def _available_commands() -> dict[str, object]:
+def available_commands() -> dict[str, object]:
     modules = {}
     for name, module_name in COMMANDS.items():
         try:
@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name, module in _available_commands().items():
+    for name, module in available_commands().items():
         command_parser = sub.add_parser(name, help=module.HELP, description=module.HELP)
         command_parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                                     help="show tracebacks for errors")

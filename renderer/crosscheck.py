@@ -1,24 +1,18 @@
-"""Agreement figures between two renderings (GL vs the torch reference), numpy only.
+"""Agreement figures between two renderings (GL vs the torch reference).
 
 Used by the cross-check tests and the benchmark, so both report the same numbers.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from inceptiongs.evaluation.metrics import psnr
 
 # Acceptance thresholds of the GL-vs-torch cross-check (issue: rendering core, item 4).
 RGB_PSNR_MIN_DB = 45.0
 ALPHA_TOLERANCE = 2e-3
 ALPHA_FRACTION_MIN = 0.999
-
-
-def psnr(image: np.ndarray, reference: np.ndarray, peak: float = 1.0) -> float:
-    """PSNR in dB of two same-shape float arrays; inf when they are identical."""
-    mse = float(np.mean((np.asarray(image, np.float64) - np.asarray(reference, np.float64)) ** 2))
-    return math.inf if mse == 0.0 else 10.0 * math.log10(peak * peak / mse)
 
 
 def fraction_within(image: np.ndarray, reference: np.ndarray, tolerance: float) -> float:
@@ -30,7 +24,7 @@ def fraction_within(image: np.ndarray, reference: np.ndarray, tolerance: float) 
 def agreement(rgb: np.ndarray, alpha: np.ndarray, rgb_ref: np.ndarray, alpha_ref: np.ndarray) -> dict:
     """{"psnr": dB, "alpha_within": share of pixels within ALPHA_TOLERANCE, "alpha_max": max
     abs alpha difference, "ok": both thresholds met}."""
-    value = psnr(rgb, rgb_ref)
+    value = float(psnr(np.asarray(rgb, np.float64), np.asarray(rgb_ref, np.float64)))
     within = fraction_within(alpha, alpha_ref, ALPHA_TOLERANCE)
     alpha_max = float(np.max(np.abs(alpha - alpha_ref))) if alpha.size else 0.0
     return {"psnr": value, "alpha_within": within, "alpha_max": alpha_max,

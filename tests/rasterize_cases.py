@@ -1,7 +1,7 @@
 """Shared helpers for the torch rasterizer tests: small scenes and an independent
 brute-force float64 renderer that loops over pixels and Gaussians one at a time.
 
-The brute force shares no code with inceptiongs.projection/composite/sh: it evaluates every
+The brute force shares no code with inceptiongs.rasterizer.projection/composite/sh: it evaluates every
 Gaussian at every pixel (no tiles, no footprint boxes, no culling except the near/far rule),
 so it also checks that binning and footprints never drop a contribution.
 """

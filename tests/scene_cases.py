@@ -3,7 +3,7 @@
 Images show a bright Gaussian blob where each known 3-D point projects (through the lens
 distortion when there is one), so a loaded scene can be checked by finding the blobs again.
 Distorted projections use cv2.projectPoints, an implementation independent of
-inceptiongs.undistort.
+inceptiongs.scene.undistort.
 """
 
 from __future__ import annotations

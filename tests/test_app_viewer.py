@@ -58,7 +58,7 @@ def front_camera(width=160, height=120) -> Camera:
 
 @pytest.fixture()
 def model(tmp_path) -> Path:
-    from inceptiongs.ply import write_ply
+    from inceptiongs.io.ply import write_ply
 
     path = tmp_path / "model.ply"
     write_ply(Gaussians.from_numpy(synthetic_gaussians()), path)
@@ -88,7 +88,7 @@ def _compare(image: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
 # --- screenshots ------------------------------------------------------------------------------
 
 def test_screenshot_golden(xvfb, model, tmp_path):
-    from inceptiongs.app.images import read_png, write_png
+    from inceptiongs.io.images import read_png, write_png
 
     camera_path = tmp_path / "cam.json"
     write_camera_json(front_camera(), camera_path)
@@ -110,7 +110,7 @@ def test_screenshot_golden(xvfb, model, tmp_path):
 def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path):
     """The Xvfb/GLFW screenshot, the display-less (EGL) screenshot and the GL renderer called
     directly on the same camera agree; --size rescales the camera's intrinsics."""
-    from inceptiongs.app.images import read_png
+    from inceptiongs.io.images import read_png
 
     camera = front_camera(320, 240)
     camera_path = tmp_path / "cam.json"
@@ -123,9 +123,9 @@ def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path)
     # The GL renderer on its own, in a separate process: an EGL context next to this
     # process's GLX (GLFW) contexts is not something the tests should depend on.
     direct_path = tmp_path / "direct.png"
-    script = ("import sys; from inceptiongs.camera import read_camera_json; from inceptiongs.ply import read_ply;"
+    script = ("import sys; from inceptiongs.camera import read_camera_json; from inceptiongs.io.ply import read_ply;"
               "from inceptiongs.renderer.context import create_offscreen_context;"
-              "from inceptiongs.renderer.splats import SplatRenderer; from inceptiongs.app.images import write_png;"
+              "from inceptiongs.renderer.splats import SplatRenderer; from inceptiongs.io.images import write_png;"
               "r = SplatRenderer(create_offscreen_context()); r.set_gaussians(read_ply(sys.argv[1]).numpy());"
               "write_png(sys.argv[3], r.render(read_camera_json(sys.argv[2]).scaled(2.0), 'rgb'))")
     env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
@@ -140,10 +140,10 @@ def test_screenshot_matches_gl_renderer_and_headless_path(xvfb, model, tmp_path)
 
 @pytest.mark.slow
 def test_screenshot_matches_render_command(xvfb, model, tmp_path):
-    from inceptiongs.cli import _available_commands
-    from inceptiongs.app.images import read_png
+    from inceptiongs.cli import available_commands
+    from inceptiongs.io.images import read_png
 
-    if "render" not in _available_commands():
+    if "render" not in available_commands():
         pytest.skip("`inceptiongs render` is not available yet")
     camera_path = tmp_path / "cam.json"
     write_camera_json(front_camera(), camera_path)
@@ -172,7 +172,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
     import glfw
 
     from inceptiongs.app import editing
-    from inceptiongs.app.flags import load_flags
+    from inceptiongs.io.flags import load_flags
 
     viewer = _viewer(model)
     try:
@@ -284,7 +284,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
 
 
 def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
-    from inceptiongs.ply import read_ply
+    from inceptiongs.io.ply import read_ply
 
     viewer = _viewer(model)
     try:

@@ -12,7 +12,7 @@ from inceptiongs.bootstrap.langevin import (l1_log_p, langevin_step, pose_gradie
                                             pose_to_vector, pose_value_and_gradient, sampling_weight,
                                             snap_to_nearest, vector_to_pose)
 from inceptiongs.camera import look_at, pose_distance, quat_normalize, quat_to_rotation
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 
 from rasterize_cases import make_camera, random_gaussians
 

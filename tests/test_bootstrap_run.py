@@ -14,13 +14,14 @@ from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.bootstrap.generation import cache_key
 from inceptiongs.bootstrap.refine import continuation_config, probability
 from inceptiongs.bootstrap.runner import resolve_targets, run_bootstrap
-from inceptiongs.bootstrap.targets import Target, read_flag_cameras, round_targets
+from inceptiongs.bootstrap.targets import Target, round_targets
+from inceptiongs.io.flags import read_flag_cameras
 from inceptiongs.cli import main
-from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.errors import InputError
-from inceptiongs.evaluate import evaluate_run
+from inceptiongs.evaluation.run import evaluate_run
 from inceptiongs.live import SnapshotBox
-from inceptiongs.protocols import Split
+from inceptiongs.evaluation.protocols import Split
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.run_folder import load_run
 from inceptiongs.train.trainer import train
@@ -192,7 +193,7 @@ def test_round_targets_and_cache_keys():
 
 
 def test_flags_reader_agrees_with_the_viewer(tmp_path):
-    from inceptiongs.app.flags import Flag, load_flags, save_flags
+    from inceptiongs.io.flags import Flag, load_flags, save_flags
     from inceptiongs.camera import Camera, look_at
 
     pose = look_at(np.array([1.0, 2.0, 3.0]), np.zeros(3))
@@ -234,7 +235,7 @@ def test_cli_errors(stage1, tmp_path, capsys):
 def test_viewer_jobs_pick_training_or_bootstrap(tmp_path):
     from types import SimpleNamespace
 
-    from inceptiongs.app.flags import Flag, save_flags
+    from inceptiongs.io.flags import Flag, save_flags
     from inceptiongs.app.jobs import default_job, start_bootstrap
     from inceptiongs.app.main import default_job_factory
     from inceptiongs.bootstrap.job import BootstrapJob

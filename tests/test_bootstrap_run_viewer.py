@@ -12,7 +12,7 @@ pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
-    from inceptiongs.demo_scene import write_demo_scene
+    from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.train.config import TrainConfig
     from inceptiongs.train.trainer import train
 

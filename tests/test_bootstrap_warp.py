@@ -305,7 +305,7 @@ def test_warp_with_rasterized_depth_of_a_splatted_plane():
     """The rasterizer's depth convention (camera z, 0 = none) fits the warp: a plane tiled with
     flat Gaussians, rendered in two views, warps one render onto the other."""
     from inceptiongs.gaussians import Gaussians
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
     # A 24 x 24 grid of flat (log-scale -8 across) Gaussians on the plane z = 0.3 - 0.15 x.
     u, v = np.meshgrid(np.linspace(-1.2, 1.2, 24), np.linspace(-1.0, 1.0, 24))

@@ -12,9 +12,9 @@ import pytest
 
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
-from inceptiongs.io_colmap import write_colmap_binary
-from inceptiongs.ply import read_ply
-from inceptiongs.scene import load_scene
+from inceptiongs.scene.colmap import write_colmap_binary
+from inceptiongs.io.ply import read_ply
+from inceptiongs.scene.loader import load_scene
 from scene_cases import known_cameras, known_points, write_images
 
 

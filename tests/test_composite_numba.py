@@ -14,7 +14,7 @@ import numba
 import pytest
 import torch
 
-from inceptiongs.composite_numba import composite_numba
+from inceptiongs.rasterizer.composite_numba import composite_numba
 from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, RECURRENCE_CONIC_MAX, TRANSMITTANCE_MIN
 
 
@@ -396,11 +396,11 @@ def test_alpha_only_gradient():
 
 
 # --------------------------------------------------------------------------------------
-# against the project's tile-binned torch reference (inceptiongs.composite.composite_torch)
+# against the project's tile-binned torch reference (inceptiongs.rasterizer.composite.composite_torch)
 
 
 def run_composite_torch(scene, width, height):
-    from inceptiongs.composite import composite_torch
+    from inceptiongs.rasterizer.composite import composite_torch
 
     return composite_torch(scene["means2d"], scene["conics"], scene["opacities"], scene["values"],
                            scene["depths"], scene["extents"], width, height)

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from inceptiongs.cli import main
-from inceptiongs.protocols import Split
+from inceptiongs.evaluation.protocols import Split
 
 
 @pytest.mark.slow

@@ -14,9 +14,9 @@ import torch
 from inceptiongs.camera import Camera, look_at, rigid_inverse
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
-from inceptiongs.evaluate import UNAVAILABLE_FID, UNAVAILABLE_LPIPS, evaluate_run
+from inceptiongs.evaluation.run import UNAVAILABLE_FID, UNAVAILABLE_LPIPS, evaluate_run
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.protocols import Split, make_split
+from inceptiongs.evaluation.protocols import Split, make_split
 
 # torch 2.13 deprecates TorchScript; it is still the format the --lpips/--fid weights use.
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
@@ -48,7 +48,7 @@ def ring_cameras(count: int = 14) -> list[Camera]:
 
 def write_scene(root, gaussians: Gaussians, cameras: list[Camera]) -> None:
     """transforms.json (OpenGL camera-to-world) + PNG photos rendered from ``gaussians``."""
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
     (root / "images").mkdir(parents=True)
     frames = []
@@ -64,9 +64,9 @@ def write_scene(root, gaussians: Gaussians, cameras: list[Camera]) -> None:
 
 
 def write_run(run, scene_root, model: Gaussians, protocol: str = "unstructured", seed: int = 0):
-    from inceptiongs.ply import write_ply
-    from inceptiongs.scene import load_scene
-    from inceptiongs.train import TrainConfig
+    from inceptiongs.io.ply import write_ply
+    from inceptiongs.scene.loader import load_scene
+    from inceptiongs.train.config import TrainConfig
 
     run.mkdir(parents=True)
     TrainConfig(scene=str(scene_root), protocol=protocol, seed=seed).save(run / "config.json")
@@ -85,7 +85,7 @@ def scene_root(tmp_path_factory):
 
 
 def render_and_photo(model_original: Gaussians, scene, index: int) -> tuple[np.ndarray, np.ndarray]:
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
     normalised = scene.normalization.gaussians_to_normalized(model_original)
     with torch.no_grad():
@@ -94,7 +94,7 @@ def render_and_photo(model_original: Gaussians, scene, index: int) -> tuple[np.n
 
 
 def independent_psnr(model_original: Gaussians, scene, index: int) -> float:
-    """Render the view and score it with plain numpy (not inceptiongs.metrics)."""
+    """Render the view and score it with plain numpy (not inceptiongs.evaluation.metrics)."""
     rgb, photo = render_and_photo(model_original, scene, index)
     return 10 * math.log10(1 / np.mean((rgb - photo) ** 2))
 

@@ -12,8 +12,9 @@ import pytest
 import torch
 
 from inceptiongs.cli import main
-from inceptiongs.evaluate_generated import evaluate_generated_run, photo_of, render_image, score
-from inceptiongs.metrics import psnr
+from inceptiongs.rasterizer.rasterize import render_rgb
+from inceptiongs.evaluation.generated import evaluate_generated_run, photo_of, score
+from inceptiongs.evaluation.metrics import psnr
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -56,7 +57,7 @@ def test_eval_generated_scores_and_side_by_side_images(run_with_prior, capsys):
         # the render's scores are recomputed independently here
         camera = scene.cameras[view["index"]]
         photo = photo_of(scene, view["index"])
-        rendered = render_image(gaussians, camera)
+        rendered = render_rgb(gaussians, camera)
         assert view["render"]["psnr"] == pytest.approx(float(psnr(rendered, photo)), abs=1e-4)
         panels = cv2.imread(str(run_with_prior / view["image"]))[..., ::-1]
         assert panels.shape == (camera.height, 3 * camera.width, 3)

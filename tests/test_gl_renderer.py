@@ -149,7 +149,7 @@ def test_draw_into_a_framebuffer_is_upright_with_background(gl_context):
 
 def test_render_cli_gl_matches_torch_and_writes_png(tmp_path):
     from inceptiongs.cli import main
-    from inceptiongs.ply import write_ply
+    from inceptiongs.io.ply import write_ply
     model_path = tmp_path / "model.ply"
     write_ply(random_model(600, seed=6, degree=2), model_path)
     write_camera_json(view(96, 64), tmp_path / "cam.json")
@@ -175,9 +175,9 @@ def test_render_cli_gl_matches_torch_and_writes_png(tmp_path):
 @pytest.mark.slow
 def test_render_cli_view_from_a_scene(tmp_path):
     from inceptiongs.cli import main
-    from inceptiongs.demo_scene import write_demo_scene
-    from inceptiongs.ply import write_ply
-    from inceptiongs.scene import load_scene
+    from inceptiongs.scene.demo import write_demo_scene
+    from inceptiongs.io.ply import write_ply
+    from inceptiongs.scene.loader import load_scene
     scene_dir = write_demo_scene(tmp_path / "scene", progress=False)
     scene = load_scene(scene_dir)
     model = random_model(300, seed=7, degree=0)
@@ -187,7 +187,7 @@ def test_render_cli_view_from_a_scene(tmp_path):
     out = tmp_path / "view.npy"
     assert main(["render", str(tmp_path / "model.ply"), "--view", name, "--scene", str(scene_dir),
                  "--backend", "gl", "--mode", "alpha", "--out", str(out)]) == 0
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
     with torch.no_grad():
         ref = render(model, scene.camera_by_name(name), outputs=("alpha",))["alpha"].numpy()
     assert np.load(out).shape == ref.shape

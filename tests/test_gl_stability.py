@@ -55,7 +55,7 @@ def front_camera(width=96, height=72, eye=(0.0, 0.0, -3.0), target=(0.0, 0.0, 0.
 
 
 def gl_and_torch(renderer: SplatRenderer, model: Gaussians, cam: Camera, torch_model: Gaussians | None = None):
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
     renderer.set_gaussians(model.numpy())
     rgb, alpha = renderer.render(cam, "rgb"), renderer.render(cam, "alpha")
     assert np.isfinite(rgb).all() and np.isfinite(alpha).all()
@@ -152,7 +152,7 @@ def test_one_by_one_image(renderer):
 
 @pytest.mark.slow
 def test_4096_squared_image_matches_torch_on_a_window(renderer):
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
     rng = np.random.default_rng(4)
     model = gaussians(rng.uniform(-1, 1, (400, 3)), rng.uniform(-3.5, -2, (400, 3)))
     cam = front_camera(4096, 4096)

@@ -13,7 +13,7 @@ import torch
 from torch.autograd import gradcheck
 
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 
 from rasterize_cases import make_camera, random_gaussians
 
@@ -87,7 +87,7 @@ def test_gradcheck_pose():
 
 def test_gradcheck_composite_inputs_directly():
     """The composite alone w.r.t. its four differentiable inputs, with a background blend."""
-    from inceptiongs.composite import composite_torch
+    from inceptiongs.rasterizer.composite import composite_torch
     gen = torch.Generator().manual_seed(3)
     m = 12
     means2d = torch.rand(m, 2, generator=gen, dtype=torch.float64) * torch.tensor([32.0, 24.0])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.metrics import psnr, ssim, ssim_map
+from inceptiongs.evaluation.metrics import psnr, ssim, ssim_map
 
 
 def numpy_ssim(x: np.ndarray, y: np.ndarray, window: int = 11, sigma: float = 1.5) -> float:

@@ -9,7 +9,7 @@ import torch
 from conftest import require_data
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.ply import ply_field_names, read_ply, write_ply
+from inceptiongs.io.ply import ply_field_names, read_ply, write_ply
 
 
 def _write_raw_ply(path, fields: dict[str, np.ndarray], fmt="binary_little_endian", extra_header=""):

@@ -12,8 +12,8 @@ from inceptiongs.prior.model import Prior, PriorConfig
 from inceptiongs.prior.multidiffusion import multidiffusion_sample
 from inceptiongs.prior.schedule import make_schedule
 from inceptiongs.prior.trainer import PriorTrainer, load_prior, save_prior
-from test_prior_sampling import _oracle
-from test_prior_trainer import TINY, _scene
+from test_prior_sampling import oracle_denoiser
+from test_prior_trainer import TINY, prior_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -47,17 +47,17 @@ def test_sampling_from_an_init_with_the_exact_noise_ends_on_the_data(height, wid
     schedule = make_schedule("cosine", 1000)
     target = torch.full((1, 3, 1, 1), -0.35, dtype=torch.float64)
     init = torch.rand(1, 3, height, width, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
-    out = multidiffusion_sample(_oracle(schedule, target), schedule, height, width, window=16, stride=12,
+    out = multidiffusion_sample(oracle_denoiser(schedule, target), schedule, height, width, window=16, stride=12,
                                 steps=4, seed=2, dtype=torch.float64, init=init, start=0.5)
     torch.testing.assert_close(out, target.expand_as(out), rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="init must be"):
-        multidiffusion_sample(_oracle(schedule, target), schedule, height, width, window=16, stride=12,
+        multidiffusion_sample(oracle_denoiser(schedule, target), schedule, height, width, window=16, stride=12,
                               steps=4, init=init[..., :-1], start=0.5)
 
 
 def _prior_and_batch(config: PriorConfig = TINY):
     """A new prior on the synthetic scene and one training batch (photos, G-buffers)."""
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(config, gaussians)
     return prior, PriorTrainer(prior, gaussians, cameras, photos.__getitem__).sample_batch()
 
@@ -75,7 +75,7 @@ def test_the_hint_gives_the_hash_grid_a_gradient_from_the_first_step(weight, exp
 
 
 def test_the_hint_learns_the_colours_of_the_scene():
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(replace(TINY, hash_learning_rate=3e-2), gaussians)
     trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)
     fixed = [trainer.sample_batch() for _ in range(3)]
@@ -100,7 +100,7 @@ def test_the_hint_does_not_change_the_denoiser_at_step_zero():
 
 
 def test_generation_from_a_low_start_keeps_the_hint_and_is_seeded(tmp_path):
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(replace(TINY, sample_init="hint"), gaussians)
     trainer = PriorTrainer(prior, gaussians, cameras, photos.__getitem__)
     trainer.train(steps=20, progress=False)
@@ -125,9 +125,9 @@ def test_generation_from_a_low_start_keeps_the_hint_and_is_seeded(tmp_path):
 def test_generation_from_the_render_repairs_the_render_not_the_hint():
     # init "render": SDEdit of what the Gaussians show (the bootstrap's repair step). From a low
     # start the sample stays on the render; the hint, which the render is not, stays far.
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(TINY, gaussians)
     PriorTrainer(prior, gaussians, cameras, photos.__getitem__).train(steps=20, progress=False)
     camera = cameras[1]
@@ -160,7 +160,7 @@ def test_priors_from_before_the_option_have_no_hint():
     config = PriorConfig.from_dict(old)
     assert config.appearance_weight == 0.0 and config.sample_start == 1.0 and config.sample_init == "hint"
     assert PriorConfig().sample_init == "render"
-    gaussians, cameras, _ = _scene()
+    gaussians, cameras, _ = prior_scene()
     prior = Prior.for_gaussians(replace(TINY, appearance_weight=0.0, sample_start=1.0), gaussians)
     assert prior.appearance is None and prior.denoiser.cond_channels == 4 + prior.hash_grid.num_features
     with pytest.raises(ValueError, match="no appearance hint"):

@@ -9,10 +9,10 @@ import torch
 
 from inceptiongs.camera import write_camera_json
 from inceptiongs.cli import main
-from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.ply import write_ply
-from inceptiongs.scene import load_scene
+from inceptiongs.io.ply import write_ply
+from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.run_folder import to_original_frame
 
@@ -31,7 +31,7 @@ def make_stand_in_run(root, protocol: str | None = None):
     config.save(run / "config.json")
     scene = load_scene(scene_dir, downscale=4)
     if protocol is not None:
-        from inceptiongs.protocols import make_split
+        from inceptiongs.evaluation.protocols import make_split
         make_split(scene, protocol, 0).save(run / "split.json")
     points = torch.as_tensor(scene.points[::4], dtype=torch.float32)
     n = points.shape[0]

@@ -11,7 +11,7 @@ from inceptiongs.gaussians import Gaussians
 from inceptiongs.prior.gbuffer import (ALPHA_CHANNEL, FEATURES_START, NORMAL_CHANNELS, crop_candidates,
                                         gaussian_features, render_gbuffer, world_points)
 from inceptiongs.prior.hashgrid import HashGrid, HashGridConfig, vertex_index
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 import pytest
 
 

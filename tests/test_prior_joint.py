@@ -8,7 +8,7 @@ import json
 import pytest
 
 from inceptiongs.cli import main
-from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.prior.joint import JointPrior
 from inceptiongs.prior.trainer import read_prior_checkpoint
 

@@ -60,7 +60,7 @@ def test_ddim_timesteps():
     assert len(ddim_timesteps(make_schedule("cosine", 10), 50)) == 10
 
 
-def _oracle(schedule, target):
+def oracle_denoiser(schedule, target):
     """The exact noise prediction for data concentrated on ``target`` (broadcast over batch)."""
     def eps_fn(x, t, cond=None):
         ab = schedule.alphas_cumprod[t].to(x.dtype).view(-1, 1, 1, 1)
@@ -75,7 +75,7 @@ def test_ddim_with_the_exact_noise_recovers_the_data(kind, steps):
     # float64: at the cosine schedule's first step sqrt(alpha_bar) ~ 5e-5, so float32 rounding
     # of the oracle's own noise would already move x0 by ~1e-3.
     target = torch.linspace(-0.9, 0.9, 3 * 8 * 8, dtype=torch.float64).reshape(1, 3, 8, 8)
-    out = ddim_sample(_oracle(schedule, target), schedule, (2, 3, 8, 8), steps=steps, seed=4,
+    out = ddim_sample(oracle_denoiser(schedule, target), schedule, (2, 3, 8, 8), steps=steps, seed=4,
                       dtype=torch.float64)
     torch.testing.assert_close(out, target.expand(2, -1, -1, -1), rtol=0, atol=1e-6)
 
@@ -119,7 +119,7 @@ def test_multidiffusion_updates_every_pixel(height, width):
     # no window covered would keep its noise (or divide by zero).
     schedule = make_schedule("cosine", 1000)
     target = torch.full((1, 3, 1, 1), 0.3, dtype=torch.float64)
-    out = multidiffusion_sample(_oracle(schedule, target), schedule, height, width, window=16,
+    out = multidiffusion_sample(oracle_denoiser(schedule, target), schedule, height, width, window=16,
                                 stride=12, steps=5, seed=0, dtype=torch.float64)
     assert out.shape == (1, 3, height, width)
     torch.testing.assert_close(out, target.expand_as(out), rtol=0, atol=1e-6)

@@ -52,7 +52,7 @@ def sd_dir(tmp_path_factory):
 def scene():
     from inceptiongs.camera import Camera, look_at
     from inceptiongs.gaussians import Gaussians
-    from inceptiongs.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render
 
     g = torch.Generator().manual_seed(0)
     n = 40
@@ -133,7 +133,7 @@ def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path):
     assert records[-1]["step"] == 2 and records[-1]["train_s"] > 0
     assert main(["prior", str(run), "--steps", "1", "--backend", "tiny"]) == 2  # checkpoint is sd
     out = tmp_path / "g.png"
-    from inceptiongs.scene import load_scene
+    from inceptiongs.scene.loader import load_scene
     from inceptiongs.train.config import TrainConfig
     view = load_scene(TrainConfig.load(run / "config.json").scene, downscale=4).cameras[1]
     assert main(["generate", str(run), "--view", view.name, "--out", str(out), "--steps", "2", "--window", "16"]) == 0

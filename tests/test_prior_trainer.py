@@ -16,7 +16,7 @@ from inceptiongs.prior.ddim import start_timestep
 from inceptiongs.prior.model import Prior, PriorConfig, fit_bound
 from inceptiongs.prior.trainer import (PriorTrainer, load_prior, prior_dir, resume_trainer, save_prior)
 from inceptiongs.prior.unet import UNetConfig
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -28,7 +28,7 @@ TINY = PriorConfig(patch_size=16, batch_size=4, learning_rate=2e-3, num_timestep
                                        base_resolution=4, max_resolution=16))
 
 
-def _scene(n=60, seed=0):
+def prior_scene(n=60, seed=0):
     """Gaussians around the origin, three 32x32 cameras and the photos they render."""
     g = torch.Generator().manual_seed(seed)
     gaussians = Gaussians(
@@ -78,7 +78,7 @@ def test_diffusion_training_lowers_the_loss_on_a_synthetic_dataset():
 
 @pytest.mark.slow
 def test_trainer_on_rendered_patches_lowers_the_loss_and_trains_the_hash_grid():
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(replace(TINY, patch_size=8), gaussians)
     tables_before = [t.detach().clone() for t in prior.hash_grid.tables]
     trainer = PriorTrainer(prior, gaussians, cameras, lambda i: photos[i])
@@ -90,7 +90,7 @@ def test_trainer_on_rendered_patches_lowers_the_loss_and_trains_the_hash_grid():
 
 
 def test_checkpoint_resumes_exactly_and_generates_the_same_image(tmp_path):
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     trainer = PriorTrainer(Prior.for_gaussians(replace(TINY, patch_size=8), gaussians), gaussians, cameras,
                            lambda i: photos[i])
     trainer.train(steps=3, run_dir=tmp_path, checkpoint_every=2, progress=False)
@@ -112,7 +112,7 @@ def test_checkpoint_resumes_exactly_and_generates_the_same_image(tmp_path):
 
 
 def test_bad_inputs_raise_input_errors(tmp_path):
-    gaussians, cameras, photos = _scene(n=5)
+    gaussians, cameras, photos = prior_scene(n=5)
     with pytest.raises(InputError, match="prior.pt"):
         load_prior(tmp_path)
     (tmp_path / "prior").mkdir()
@@ -128,7 +128,7 @@ def test_bad_inputs_raise_input_errors(tmp_path):
 
 
 def test_patch_size_shrinks_to_small_images():
-    gaussians, cameras, photos = _scene(n=5)
+    gaussians, cameras, photos = prior_scene(n=5)
     small = [c.scaled(32 / 13) for c in cameras]  # 13x13 -> patches of 12 (multiple of 2)
     trainer = PriorTrainer(Prior(TINY), gaussians, small, lambda i: np.zeros((13, 13, 3), np.float32))
     assert trainer.patch_size == 12
@@ -177,7 +177,7 @@ def test_old_checkpoint_configs_read_as_epsilon_and_centre_splats():
 
 
 def test_high_noise_share_draws_that_part_of_each_batch_from_high_timesteps():
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     # Sampling from pure noise (sample_start 1): the share is taken from the top of all of [0, T).
     prior = Prior.for_gaussians(replace(TINY, prediction="v", high_noise_share=0.5, high_noise_t=0.8,
                                         sample_start=1.0), gaussians)
@@ -211,7 +211,7 @@ def _gaussians_at(means: torch.Tensor) -> Gaussians:
 
 
 def test_sampling_from_part_of_T_trains_only_on_that_part():
-    gaussians, cameras, photos = _scene()
+    gaussians, cameras, photos = prior_scene()
     prior = Prior.for_gaussians(replace(TINY, sample_start=0.3), gaussians)
     seen = []
     prior.denoiser.register_forward_pre_hook(lambda module, args: seen.append(args[1].clone()))

@@ -9,7 +9,7 @@ import pytest
 
 from inceptiongs.camera import Camera, look_at, pose_distance
 from inceptiongs.errors import InputError
-from inceptiongs.protocols import Split, make_split, pose_distance_matrix
+from inceptiongs.evaluation.protocols import Split, make_split, pose_distance_matrix
 
 
 def ring_cameras(n: int, radius: float = 3.0) -> list[Camera]:
@@ -135,7 +135,7 @@ def test_save_load_round_trip_and_validation(tmp_path):
 
 def test_real_scenes_split_properties():
     from conftest import require_data
-    from inceptiongs.scene import load_scene
+    from inceptiongs.scene.loader import load_scene
 
     statuette = load_scene(require_data("statuette"), downscale=2)
     split = make_split(statuette, "unstructured", 0)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs import composite as composite_module
+from inceptiongs.rasterizer import composite as composite_module
 from inceptiongs.camera import Camera, look_at
-from inceptiongs.composite import composite_torch
+from inceptiongs.rasterizer.composite import composite_torch
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 
 from rasterize_cases import brute_force_render, make_camera, random_gaussians
 
@@ -271,7 +271,7 @@ def test_pose_override_matches_camera_pose():
 
 
 def test_auto_backend_agrees_with_torch():
-    pytest.importorskip("inceptiongs.composite_numba", reason="numba fast path not present")
+    pytest.importorskip("inceptiongs.rasterizer.composite_numba", reason="numba fast path not present")
     g = _with_opaque_stack(random_gaussians(n=40, degree=1, seed=4)).to(dtype=torch.float32)
     camera = make_camera(48, 32)
     fast = render(g, camera, outputs=("rgb", "alpha", "depth"), backend="auto")
@@ -281,7 +281,7 @@ def test_auto_backend_agrees_with_torch():
 
 
 def test_composite_rejects_unknown_backend():
-    from inceptiongs.composite import composite
+    from inceptiongs.rasterizer.composite import composite
     z = torch.zeros(0, 2)
     with pytest.raises(ValueError):
         composite(z, torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3), torch.zeros(0), z, 4, 4, backend="cuda")

@@ -8,7 +8,7 @@ import pytest
 
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
-from inceptiongs.report import eval_series, make_report, read_metrics, score_at, scores_of
+from inceptiongs.evaluation.report import eval_series, make_report, read_metrics, score_at, scores_of
 
 
 def write_log(run_dir, records, torn_tail=False):

@@ -7,7 +7,7 @@ import json
 import cv2
 
 from inceptiongs.cli import main
-from inceptiongs.report_prior import generated_by_steps, prior_evaluations, prior_figure_path
+from inceptiongs.evaluation.report_prior import generated_by_steps, prior_evaluations, prior_figure_path
 
 
 def write_prior_logs(run, with_stage1=True):

@@ -13,9 +13,9 @@ import torch
 
 from conftest import require_data
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.io_colmap import write_colmap_binary
-from inceptiongs.scene import load_scene
-from inceptiongs.undistort import distort_normalized, undistort_normalized
+from inceptiongs.scene.colmap import write_colmap_binary
+from inceptiongs.scene.loader import load_scene
+from inceptiongs.scene.undistort import distort_normalized, undistort_normalized
 from scene_cases import blob_centroids, known_cameras, known_points, project, write_images
 
 
@@ -233,7 +233,7 @@ def test_recalibrated_lens_does_not_reuse_cached_undistortion(tmp_path):
 def test_scene_arguments_for_commands(tmp_path):
     import argparse
 
-    from inceptiongs.scene import add_scene_arguments, load_scene_from_args
+    from inceptiongs.scene.loader import add_scene_arguments, load_scene_from_args
 
     _write_colmap_scene(tmp_path, "PINHOLE", lambda c: [c.fx, c.fy, c.cx, c.cy], [None] * 4)
     parser = argparse.ArgumentParser()

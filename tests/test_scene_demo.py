@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-import inceptiongs.demo_scene as demo
+import inceptiongs.scene.demo as demo
 from inceptiongs.camera import pose_distance
 from inceptiongs.errors import InputError
-from inceptiongs.scene import load_scene
+from inceptiongs.scene.loader import load_scene
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_photos_are_textured_and_deterministic(demo_root):
     gradient = np.abs(np.diff(image, axis=1)).mean()
     assert gradient > 0.02
     cameras, _, _ = demo.demo_cameras("small", seed=0)
-    tex = demo._Textures(noise=np.random.default_rng(0).random((64, 64)))
+    tex = demo.Textures(noise=np.random.default_rng(0).random((64, 64)))
     again = demo.render_photo(cameras[0], tex)
     assert np.abs(again - image).max() <= 0.5 / 255 + 1e-6  # only PNG quantisation
     other, _, _ = demo.demo_cameras("small", seed=1)

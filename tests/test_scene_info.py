@@ -9,7 +9,7 @@ import pycolmap
 
 from conftest import require_data
 from inceptiongs.cli import main
-from inceptiongs.io_colmap import write_colmap_binary
+from inceptiongs.scene.colmap import write_colmap_binary
 from scene_cases import known_cameras, known_points, write_images
 
 

@@ -8,7 +8,7 @@ import pytest
 from conftest import require_data
 from inceptiongs.camera import rigid_inverse
 from inceptiongs.errors import InputError
-from inceptiongs.scene import load_scene
+from inceptiongs.scene.loader import load_scene
 from scene_cases import HEIGHT, WIDTH, blob_centroids, known_cameras, known_points, write_images
 
 

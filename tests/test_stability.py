@@ -25,7 +25,7 @@ import torch
 from inceptiongs import constants as K
 from inceptiongs.camera import Camera
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.rasterize import render
+from inceptiongs.rasterizer.rasterize import render
 
 from rasterize_cases import brute_force_render, make_camera, random_gaussians
 
@@ -247,7 +247,7 @@ def test_one_million_gaussians_forward_memory_bounded():
         import resource, torch
         from inceptiongs.camera import Camera
         from inceptiongs.gaussians import Gaussians
-        from inceptiongs.rasterize import render
+        from inceptiongs.rasterizer.rasterize import render
         torch.set_num_threads(2)
         gen = torch.Generator().manual_seed(0)
         n = 1_000_000

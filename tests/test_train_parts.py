@@ -18,7 +18,7 @@ from inceptiongs.train.init_gaussians import gaussians_from_points, mean_neighbo
 from inceptiongs.train.optim import position_learning_rate
 from inceptiongs.train.run_folder import (append_metrics, to_normalized_frame, to_original_frame,
                                           truncate_metrics)
-from inceptiongs.train.trainer import supported_sh_degree
+from inceptiongs.train.step import supported_sh_degree
 
 
 def test_config_round_trip_and_bad_files(tmp_path):

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.demo_scene import write_demo_scene
+from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.job import JobControl, TrainJob

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from inceptiongs.demo_scene import _Textures, trace, write_demo_scene
-from inceptiongs.scene import load_scene
+from inceptiongs.scene.demo import Textures, trace, write_demo_scene
+from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.triangulate import (TriangulationConfig, connected_labels, epipolar_distance,
                                            fundamental_matrix, training_points, triangulate_tracks)
 from scene_cases import known_cameras, known_points, project
@@ -81,7 +81,7 @@ def test_scene_without_points_gets_triangulated_points(demo_scene_without_points
     camera = scene.normalization.camera_to_original(scene.cameras[views[0]])
     directions = original - camera.center
     distance = np.linalg.norm(directions, axis=1)
-    _, hit = trace(np.broadcast_to(camera.center, original.shape), directions / distance[:, None], _Textures(np.zeros((64, 64))))
+    _, hit = trace(np.broadcast_to(camera.center, original.shape), directions / distance[:, None], Textures(np.zeros((64, 64))))
     in_front = (original - camera.center) @ camera.rotation[2] > 0
     visible = in_front & np.isfinite(hit) & (hit > distance * 0.98)   # not occluded from this camera
     relative = np.abs(hit[visible] - distance[visible]) / distance[visible]

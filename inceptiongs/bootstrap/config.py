@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config_json import load_config, save_config
+from ..io.config_json import load_config, save_config
 from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")

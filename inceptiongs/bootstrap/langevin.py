@@ -14,7 +14,7 @@ hemisphere (q and -q are the same rotation). The stationary density of this chai
 proportional to P^(1 / noise_scale^2) = exp(L1 / noise_scale^2): noise_scale^2 is the
 temperature.
 
-The pose gradient comes from autograd through inceptiongs.rasterize.render(world_to_camera=...)
+The pose gradient comes from autograd through inceptiongs.rasterizer.rasterize.render(world_to_camera=...)
 (:func:`pose_gradient`) or from central finite differences (:func:`pose_gradient_fd`), which
 the tests check against each other.
 """

@@ -1,13 +1,13 @@
 """The perceptual branch of the virtual-view loss.
 
 With user-given LPIPS weights (a TorchScript network loaded by
-inceptiongs.evaluate.load_torchscript) the distance is LPIPS. Without them no learned
+inceptiongs.evaluation.run.load_torchscript) the distance is LPIPS. Without them no learned
 perceptual metric exists here (no weights can be downloaded), so the fallback is a
 weight-free distance named for what it is, "MS-SSIM-G":
 
     d = 0.5 * (1 - mean_s SSIM_s(a, b)) + 0.5 * (1 - mean GMS(a, b))
 
-- SSIM_s: SSIM (inceptiongs.metrics, 11-tap Gaussian window) at scales s = 0, 1, 2 (2x2 average
+- SSIM_s: SSIM (inceptiongs.evaluation.metrics, 11-tap Gaussian window) at scales s = 0, 1, 2 (2x2 average
   pooling between scales, only while the image still holds a window), equal weights. Coarse
   scales compare structure rather than exact pixels, which is what a generated image and a
   render can share.
@@ -27,7 +27,7 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 
-from ..metrics import ssim
+from ..evaluation.metrics import ssim
 
 PERCEPTUAL_NAME = "MS-SSIM-G"   # the weight-free distance
 LPIPS_NAME = "LPIPS"
@@ -90,7 +90,7 @@ def perceptual_distance(a: torch.Tensor, b: torch.Tensor, lpips: Callable | None
     differentiable in both.
 
     lpips: a callable (pred, target) on [1, 3, H, W] in [-1, 1] -> distance (the convention of
-    inceptiongs.evaluate); without it the weight-free MS-SSIM-G (module doc).
+    inceptiongs.evaluation.run); without it the weight-free MS-SSIM-G (module doc).
     """
     if a.shape != b.shape:
         raise ValueError(f"images differ in shape: {tuple(a.shape)} vs {tuple(b.shape)}")

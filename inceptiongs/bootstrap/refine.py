@@ -20,11 +20,11 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ..metrics import ssim
+from ..evaluation.metrics import ssim
 from ..train import losses
 from ..train.config import TrainConfig
 from ..train.optim import gaussians_from_params, position_learning_rate, set_learning_rate
-from ..train.trainer import optimizer_step, sh_degree_at
+from ..train.step import optimizer_step, sh_degree_at
 from .config import BootstrapConfig
 from .generation import VirtualTarget
 

@@ -27,13 +27,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..atomic import atomic_write_text
+from ..io.atomic import atomic_write_text
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .config import BootstrapConfig
 from .generation import GenerationCache, VirtualTarget, blend_target, gaussians_version, generate_cached, \
     obtain_prior, prior_version
-from .targets import FLAGS_FILE_NAME, Target, flag_targets, named_target, round_targets, split_targets
+from ..io.flags import FLAGS_FILE_NAME
+from .targets import Target, flag_targets, named_target, round_targets, split_targets
 
 BOOTSTRAP_DIR = "bootstrap"
 
@@ -63,7 +64,7 @@ def default_out_dir(run_dir: str | Path) -> Path:
 # --- inputs ----------------------------------------------------------------------------------------
 def load_stage1(run_dir: Path):
     """RUN -> (TrainConfig, Scene, Split, checkpoint payload or None, Gaussians (normalised frame))."""
-    from ..protocols import Split
+    from ..evaluation.protocols import Split
     from ..train.checkpoint import latest_checkpoint, load_checkpoint
     from ..train.run_folder import load_run
 
@@ -99,18 +100,6 @@ def resolve_targets(scene, split, targets_file: str | Path | None, target_view: 
 
 
 # --- small pieces ------------------------------------------------------------------------------------
-def _state_from_gaussians(gaussians: Gaussians, data, config):
-    """A trainer state for a run that has model.ply but no checkpoint (fresh Adam moments)."""
-    from ..train.densify import DensifyStats
-    from ..train.optim import make_optimizer, params_from_gaussians
-    from ..train.trainer import _State
-
-    params = params_from_gaussians(gaussians)
-    optimizer = make_optimizer(params, config, data.extent)
-    return _State(params, optimizer, DensifyStats.zeros(len(gaussians)), config.iterations, 0.0, 0.0,
-                  np.random.default_rng(config.seed), torch.Generator().manual_seed(config.seed), [], 0, set())
-
-
 def _view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor, render: torch.Tensor) -> np.ndarray:
     """generated | mask | I* | stage-I render, side by side: [H, 4W, 3] uint8."""
     panels = [generated, mask.expand(-1, -1, 3), target, render]
@@ -119,7 +108,7 @@ def _view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor,
 
 
 def _write_summary(path: Path, summary: dict) -> None:
-    from ..evaluate import json_safe
+    from ..io.config_json import json_safe
 
     atomic_write_text(path, json.dumps(json_safe(summary), indent=1) + "\n")
 
@@ -132,17 +121,17 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                   render_fn=None) -> BootstrapResult:
     """Bootstrap RUN into RUN2 (see the module doc). ``targets=None`` with an empty pool is the
     same-time baseline: the stage-I loop continued on the photos alone (``baseline_run``)."""
-    from ..evaluate import write_png
-    from ..ply import write_ply
+    from ..io.images import write_png
+    from ..io.ply import write_ply
     from ..train.checkpoint import save_checkpoint
     from ..train.optim import gaussians_from_params
     from ..train.run_folder import append_metrics, to_original_frame
-    from ..train.trainer import _prepare_data, _restore_state, _train_step, _trim_sh, evaluate, \
-        sh_degree_at, supported_sh_degree
+    from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
+                              supported_sh_degree, train_step, trim_sh)
     from .refine import ViewSampler, continuation_config, render_l1, virtual_step
 
     if render_fn is None:
-        from ..rasterize import render as render_fn
+        from ..rasterizer.rasterize import render as render_fn
     log = log or (lambda message: tqdm.write(message, file=sys.stderr))
     config.validate()
     torch.set_num_threads(min(2, os.cpu_count() or 1))
@@ -167,10 +156,10 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     if (out_dir / "checkpoints").is_dir():
         shutil.rmtree(out_dir / "checkpoints")
 
-    data = _prepare_data(scene, split, train_config, log)
+    data = prepare_data(scene, split, train_config, log)
     sh_max = supported_sh_degree(len(data.train), train_config.sh_degree_max)
-    state = (_restore_state(payload, data, train_config) if payload is not None
-             else _state_from_gaussians(gaussians0, data, train_config))
+    state = (restore_state(payload, data, train_config) if payload is not None
+             else state_from_gaussians(gaussians0, data, train_config))
     state.iteration = start
     cameras = list(scene.cameras)
 
@@ -182,7 +171,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     def evaluate_now(extra: dict) -> dict:
         nonlocal eval_s
         began = time.perf_counter()
-        scores = evaluate(gaussians_from_params(state.params).detach(), scene, split, data)
+        scores = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data)
         eval_s += time.perf_counter() - began
         append_metrics(out_dir, {"iteration": state.iteration, "wall_s": now(), "train_s": now() - eval_s,
                                  "num_gaussians": int(state.params["means"].shape[0]), **extra, **scores})
@@ -211,7 +200,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         log(prior_text)
     lpips = None
     if config.lpips_weights:
-        from ..evaluate import load_torchscript
+        from ..evaluation.run import load_torchscript
         lpips = load_torchscript(config.lpips_weights, "LPIPS")
     from .perceptual import perceptual_name
     summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
@@ -339,7 +328,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     step_counts[record["virtual_branch"]] += 1
                     view_use[pool[choice.index].name] = view_use.get(pool[choice.index].name, 0) + 1
                 else:
-                    record = _train_step(step, state, data, train_config, sh_max, render_fn, None, log)
+                    record = train_step(step, state, data, train_config, sh_max, render_fn, None, log)
                     record["kind"] = "real"
                     step_counts["real"] += 1
                 state.iteration = step
@@ -347,7 +336,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 if step % config.log_every == 0:
                     record.update(iteration=step, wall_s=now(), train_s=now() - eval_s, round=round_index + 1)
                     if config.eval_every and step % config.eval_every == 0:
-                        record.update(evaluate(gaussians_from_params(state.params).detach(), scene, split, data))
+                        record.update(evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data))
                     append_metrics(out_dir, record)
                 if on_snapshot is not None and snapshot_every > 0 and step % snapshot_every == 0:
                     on_snapshot(step, gaussians_from_params(state.params).detach(), record)
@@ -370,7 +359,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     # run (load_run reads the checkpoint otherwise). A time budget that ran out is an end too.
     stopped_by_user = control is not None and control.stop.is_set()
     if not stopped_by_user:
-        write_ply(to_original_frame(_trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), train_config, sh_max)),
+        write_ply(to_original_frame(trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), train_config, sh_max)),
                                     scene.normalization), out_dir / "model.ply")
     train_config = dataclasses.replace(train_config, iterations=max(state.iteration, start + 1))
     train_config.save(out_dir / "config.json")

@@ -7,7 +7,6 @@ their photos stay unseen), j* is the unstructured protocol's target view.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -16,9 +15,8 @@ import numpy as np
 
 from ..camera import Camera, camera_from_json_dict, pose_distance
 from ..errors import InputError
+from ..io.flags import read_flag_cameras
 
-FLAGS_FILE_NAME = "flags.json"     # in the scene's work folder, as the viewer saves it
-FLAGS_FORMAT_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -36,31 +34,6 @@ def at_training_resolution(camera: Camera, train_cameras: Sequence[Camera]) -> C
     if width <= 0 or camera.width <= 0:
         raise InputError(f"{camera.name}: camera has no pixels")
     return camera.scaled(camera.width / width)
-
-
-def read_flag_cameras(flags_file: Path) -> list[Camera]:
-    """The cameras of the viewer's flags.json (format in docs/viewer.md, written by
-    inceptiongs.app.flags.save_flags). Read here because the library never imports the app;
-    tests/test_bootstrap_run.py checks both readers agree on a file the app wrote."""
-    flags_file = Path(flags_file)
-    if not flags_file.is_file():
-        raise InputError(f"{flags_file}: flags file does not exist")
-    try:
-        data = json.loads(flags_file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{flags_file}: not a readable flags file ({exc})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("flags"), list):
-        raise InputError(f"{flags_file}: flags file must be an object with a 'flags' list")
-    if data.get("version") != FLAGS_FORMAT_VERSION:
-        raise InputError(f"{flags_file}: unsupported flags file version {data.get('version')!r} "
-                         f"(expected {FLAGS_FORMAT_VERSION})")
-    cameras = []
-    for index, entry in enumerate(data["flags"]):
-        if not isinstance(entry, dict) or not isinstance(entry.get("camera"), dict):
-            raise InputError(f"{flags_file}: flag {index} must be an object with a 'camera' object")
-        name = str(entry.get("name", f"flag {index + 1}"))
-        cameras.append(camera_from_json_dict({**entry["camera"], "name": name}, f"{flags_file} (flag {index})"))
-    return cameras
 
 
 def flag_targets(flags_file: Path, train_cameras: Sequence[Camera]) -> list[Target]:

@@ -39,7 +39,7 @@ DEFAULT_K = 3
 # while |V| = 12 generations stay affordable.
 DEFAULT_L = 4
 # Radians weigh like scene units in the pose distance; scenes are normalised so the camera
-# rig's radius is 1 (inceptiongs.scene.compute_normalization), which makes 1 sensible.
+# rig's radius is 1 (inceptiongs.scene.loader.compute_normalization), which makes 1 sensible.
 DEFAULT_ROTATION_WEIGHT = 1.0
 
 

@@ -24,7 +24,7 @@ sampled there bilinearly. A pixel is trusted (mask 1) only when all of these hol
    cameras, and both cameras see the same side of the surface. A grazing view stretches a
    pixel over a long strip of surface (resampling blur, unreliable depth) and is rejected.
 
-Depths are camera z (what inceptiongs.rasterize.render's "depth" output holds), not ray
+Depths are camera z (what inceptiongs.rasterizer.rasterize.render's "depth" output holds), not ray
 lengths. Images are float in [0, 1]; numpy arrays or torch tensors; results are torch.
 """
 

@@ -76,8 +76,8 @@ def _target_image(scene, split, stage1_dir: Path, boot_dir: Path, out_path: Path
     import numpy as np
     import torch
 
-    from ..evaluate import write_png
-    from ..rasterize import render
+    from ..io.images import write_png
+    from ..rasterizer.rasterize import render
     from ..train.init_gaussians import initial_gaussians
     from ..train.run_folder import load_run
 
@@ -160,16 +160,18 @@ def report_markdown(scene, split, stage1: dict, boot: dict, stage1_result, boot_
 
 
 def run(args) -> int:
-    from ..atomic import atomic_write_text
+    from ..io.atomic import atomic_write_text
     from ..bootstrap.config import BootstrapConfig
     from ..bootstrap.runner import run_bootstrap
     from ..bootstrap.targets import split_targets
-    from ..demo_scene import write_demo_scene
-    from ..evaluate import evaluate_run, format_table
-    from ..protocols import Split
-    from ..report import make_report
-    from ..scene import load_scene
-    from ..train import TrainConfig, train
+    from ..scene.demo import write_demo_scene
+    from ..evaluation.run import evaluate_run
+    from ..evaluation.scoring import format_table
+    from ..evaluation.protocols import Split
+    from ..evaluation.report import make_report
+    from ..scene.loader import load_scene
+    from ..train.config import TrainConfig
+    from ..train.trainer import train
     from ..train.config import short_run_schedule
 
     _check(args)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..demo_scene import SIZES, write_demo_scene
+from ..scene.demo import SIZES, write_demo_scene
 
 HELP = "write the built-in procedural demo scene (COLMAP model + images, ground-truth cameras)"
 

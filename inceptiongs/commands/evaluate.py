@@ -40,7 +40,9 @@ def parse_steps(text: str) -> tuple[int, ...]:
 
 
 def run(args) -> int:
-    from ..evaluate import evaluate_run, format_table, json_safe
+    from ..io.config_json import json_safe
+    from ..evaluation.run import evaluate_run
+    from ..evaluation.scoring import format_table
 
     steps = parse_steps(args.ddim_steps) if args.generated else None
     summary = evaluate_run(args.run, lpips_weights=args.lpips_weights, fid_weights=args.fid_weights)
@@ -48,7 +50,7 @@ def run(args) -> int:
     if args.generated:
         import torch
 
-        from ..evaluate_generated import evaluate_generated_run, format_generated_table
+        from ..evaluation.generated import evaluate_generated_run, format_generated_table
         device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
         generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device, start=args.start,
                                            init=args.init)

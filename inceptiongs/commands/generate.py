@@ -47,9 +47,9 @@ def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -
 def run(args) -> int:
     import torch
 
-    from ..atomic import atomic_write_bytes
+    from ..io.atomic import atomic_write_bytes
     from ..camera import read_camera_json
-    from ..evaluate import write_png
+    from ..io.images import write_png
     from ..prior.trainer import load_prior, sampling_options
     from ..train.run_folder import load_run
 

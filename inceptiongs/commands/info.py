@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def scene_summary(path: Path, strict: bool = False) -> dict:
     """Summary of a scene in its original units. Image problems are warnings unless strict."""
-    from ..scene import load_scene
+    from ..scene.loader import load_scene
 
     scene = load_scene(path, require_images=strict)
     norm = scene.normalization
@@ -49,7 +49,7 @@ def scene_summary(path: Path, strict: bool = False) -> dict:
 
 
 def ply_summary(path: Path) -> dict:
-    from ..ply import read_ply
+    from ..io.ply import read_ply
 
     g = read_ply(path)
     summary = {"path": str(path), "kind": "gaussians", "gaussians": len(g), "sh_degree": g.sh_degree}

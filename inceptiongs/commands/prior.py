@@ -128,7 +128,7 @@ def run(args) -> int:
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None
     if args.eval_every_minutes is not None:
-        from ..evaluate_generated import generated_scores_fn
+        from ..evaluation.generated import generated_scores_fn
         evaluate = generated_scores_fn(run_dir, gaussians, scene, steps=args.eval_steps, max_views=args.eval_views)
     first = trainer.step_count
     losses = trainer.train(steps=args.steps, minutes=minutes, run_dir=run_dir,

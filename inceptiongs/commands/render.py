@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_open, atomic_write_bytes
+from ..io.atomic import atomic_open, atomic_write_bytes
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
@@ -85,7 +85,7 @@ def _run_scene_path(run_dir: Path) -> str | None:
 
 def load_model_and_camera(args):
     """-> (Gaussians, Camera) in one frame, per the rules in the module docstring."""
-    from ..ply import read_ply
+    from ..io.ply import read_ply
 
     model = Path(args.model)
     if not model.exists():
@@ -96,7 +96,7 @@ def load_model_and_camera(args):
         if ply is None:
             raise InputError(f"{model}: no .ply model in the run folder (--camera needs one)")
         return read_ply(ply), read_camera_json(args.camera)
-    from ..scene import load_scene
+    from ..scene.loader import load_scene
 
     scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
     if not scene_path:
@@ -110,25 +110,36 @@ def load_model_and_camera(args):
     return gaussians, scene.camera_by_name(args.view)
 
 
+BACKEND_ENTRY_POINTS = "inceptiongs.render_backends"
+
+
+def render_torch(gaussians, camera: Camera, mode: str, background) -> np.ndarray:
+    import torch
+
+    from ..rasterizer.rasterize import render
+    with torch.no_grad():
+        out = render(gaussians, camera, outputs=(mode,), background=torch.tensor(background))
+    return out[mode].numpy().astype(np.float32)
+
+
+def render_backend(name: str):
+    """The render function of backend ``name``: ``torch`` is the library's own; the others
+    (``gl``) come from the packages above the library, registered as entry points in the
+    group ``inceptiongs.render_backends``, so the library imports no GL."""
+    if name == "torch":
+        return render_torch
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group=BACKEND_ENTRY_POINTS):
+        if entry.name == name:
+            return entry.load()
+    raise InputError(f"--backend {name}: not installed (no {BACKEND_ENTRY_POINTS} entry point named {name!r}; "
+                     "reinstall the package)")
+
+
 def render_image(gaussians, camera: Camera, backend: str, mode: str, background) -> np.ndarray:
     """[H, W, 3] (rgb, normal) or [H, W, 1] (depth, alpha) float32 from either renderer."""
-    if backend == "torch":
-        import torch
-
-        from ..rasterize import render
-        with torch.no_grad():
-            out = render(gaussians, camera, outputs=(mode,), background=torch.tensor(background))
-        return out[mode].numpy().astype(np.float32)
-    from ..renderer.context import create_offscreen_context
-    from ..renderer.splats import SplatRenderer
-    ctx = create_offscreen_context()
-    renderer = SplatRenderer(ctx)
-    try:
-        renderer.set_gaussians(gaussians.numpy())
-        return renderer.render(camera, mode=mode, background=background)
-    finally:
-        renderer.release()
-        ctx.release()
+    return render_backend(backend)(gaussians, camera, mode, background)
 
 
 def to_png_rgb(image: np.ndarray, mode: str) -> np.ndarray:

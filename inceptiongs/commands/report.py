@@ -21,8 +21,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from ..report import make_report
-    from ..report_prior import has_prior_report, plot_prior_report, prior_figure_path, prior_table
+    from ..evaluation.report import make_report
+    from ..evaluation.report_prior import has_prior_report, plot_prior_report, prior_figure_path, prior_table
 
     for run_dir in args.runs:
         if not Path(run_dir).is_dir():

@@ -78,7 +78,7 @@ def joint_prior(args, out: Path, config):
     import torch
 
     from ..prior.joint import JointPrior
-    from ..scene import load_scene
+    from ..scene.loader import load_scene
     from .prior import new_prior
 
     if args.prior_every < 1:

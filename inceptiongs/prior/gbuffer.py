@@ -27,7 +27,7 @@ from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN
                          NEAR_PLANE)
 from ..gaussians import Gaussians
 from ..bootstrap.warp import unproject
-from ..rasterize import render
+from ..rasterizer.rasterize import render
 from .hashgrid import HashGrid
 
 HASH_AT = ("surface", "centres")

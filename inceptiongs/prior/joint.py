@@ -19,7 +19,7 @@ from .trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir, resume_trainer, s
 
 def training_views(run_dir: Path, scene) -> list[int]:
     """Indices of the run's training views (RUN/split.json; every view when there is none)."""
-    from ..protocols import Split
+    from ..evaluation.protocols import Split
 
     split_path = Path(run_dir) / "split.json"
     if not split_path.is_file():

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from ..atomic import atomic_write_bytes
+from ..io.atomic import atomic_write_bytes
 from ..errors import InputError
 
 _NAME = re.compile(r"^step_(\d{7,})\.pt$")

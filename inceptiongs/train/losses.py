@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from ..constants import ALPHA_EPS, NEAR_PLANE
-from ..metrics import ssim
+from ..evaluation.metrics import ssim
 
 # Guards for normalising vectors / dividing by projected z or plane offsets: below these
 # the geometry is degenerate (a ray parallel to the plane, a point at the camera centre)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-from ..atomic import atomic_write_text
+from ..io.atomic import atomic_write_text
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .checkpoint import latest_checkpoint, load_checkpoint
@@ -76,8 +76,8 @@ def load_run(run_dir: str | Path):
 
     The final model.ply when training finished, else the newest checkpoint.
     """
-    from ..ply import read_ply
-    from ..scene import load_scene
+    from ..io.ply import read_ply
+    from ..scene.loader import load_scene
 
     run_dir = Path(run_dir)
     config_path = run_dir / "config.json"

@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from ..atomic import atomic_write_bytes
+from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
 from ..constants import NEAR_PLANE
 from .neighbours import neighbour_views

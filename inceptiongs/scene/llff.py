@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera, rigid_inverse
-from .errors import InputError
-from .io_common import RawScene, check_finite_pose, check_intrinsics
+from ..camera import Camera, rigid_inverse
+from ..errors import InputError
+from .raw import RawScene, check_finite_pose, check_intrinsics
 
 _IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg"}
 

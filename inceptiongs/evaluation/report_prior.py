@@ -13,8 +13,8 @@ import json
 import math
 from pathlib import Path
 
-from .atomic import atomic_write_bytes
-from .errors import InputError
+from ..io.atomic import atomic_write_bytes
+from ..errors import InputError
 from .report import read_metrics
 
 GROUPS = ("scarce", "covered")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .camera import Camera
+from ..camera import Camera
 
 # Newton iterations for inverting the distortion (quadratic convergence: a handful suffice
 # for any lens COLMAP fits; extra ones cost little since only border points are inverted).

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from .constants import SH_C0, SH_C1, SH_C2, SH_C3, SH_MAX_DEGREE, SH_OFFSET, sh_coeff_count
+from ..constants import SH_C0, SH_C1, SH_C2, SH_C3, SH_MAX_DEGREE, SH_OFFSET, sh_coeff_count
 
 
 def sh_basis(directions: torch.Tensor, degree: int) -> torch.Tensor:

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
-from .atomic import atomic_write_bytes
-from .errors import InputError
+from ..io.atomic import atomic_write_bytes
+from ..errors import InputError
 
 REPORT_MINUTES = (1, 2, 5, 10, 20)
 GROUP_ORDER = ("scarce", "covered", "all", "test")

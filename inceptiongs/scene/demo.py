@@ -23,10 +23,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .atomic import atomic_write_bytes, atomic_write_text
-from .camera import Camera, look_at
-from .errors import InputError
-from .io_colmap import write_colmap_binary
+from ..io.atomic import atomic_write_bytes, atomic_write_text
+from ..camera import Camera, look_at
+from ..errors import InputError
+from .colmap import write_colmap_binary
 
 # size -> (width, height, dense cameras, scarce cameras)
 SIZES = {"small": (192, 144, 24, 4), "medium": (320, 240, 40, 6)}
@@ -40,7 +40,7 @@ _NO_HIT = np.inf
 
 
 @dataclass(frozen=True)
-class _Textures:
+class Textures:
     """Value-noise grids for the textures (deterministic for a seed)."""
 
     noise: np.ndarray  # [64, 64] in [0, 1]
@@ -134,7 +134,7 @@ _WALL_TOP = 2.5
 _OBJECT_CENTER = np.array([-0.2, 0.2, 0.5])
 
 
-def _shade(kind: int, points: np.ndarray, normals: np.ndarray, tex: _Textures) -> np.ndarray:
+def _shade(kind: int, points: np.ndarray, normals: np.ndarray, tex: Textures) -> np.ndarray:
     """Albedo [R, 3] of surface ``kind`` at points [R, 3]."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     if kind == 0:  # ground: large checker, tinted by noise, with fine grain
@@ -164,7 +164,7 @@ def _shade(kind: int, points: np.ndarray, normals: np.ndarray, tex: _Textures) -
     return _mix((0.95, 0.55, 0.10), (0.35, 0.12, 0.05), t)
 
 
-def trace(origins: np.ndarray, dirs: np.ndarray, tex: _Textures) -> tuple[np.ndarray, np.ndarray]:
+def trace(origins: np.ndarray, dirs: np.ndarray, tex: Textures) -> tuple[np.ndarray, np.ndarray]:
     """Cast unit rays. origins, dirs: [R, 3] -> (colour [R, 3] in [0, 1], hit distance [R]
     with inf for rays that leave the scene)."""
     hits = [
@@ -208,7 +208,7 @@ def camera_rays(camera: Camera, offsets: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.broadcast_to(camera.center, d.shape), d
 
 
-def render_photo(camera: Camera, tex: _Textures) -> np.ndarray:
+def render_photo(camera: Camera, tex: Textures) -> np.ndarray:
     """Supersampled photo: [H, W, 3] float in [0, 1]."""
     s = _SUPERSAMPLE
     offsets = np.array([((a + 0.5) / s, (b + 0.5) / s) for b in range(s) for a in range(s)])
@@ -241,7 +241,7 @@ def demo_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera], list
     return cameras, dense, scarce
 
 
-def _sample_points(cameras: list[Camera], tex: _Textures, rng: np.random.Generator):
+def _sample_points(cameras: list[Camera], tex: Textures, rng: np.random.Generator):
     """Surface points seen by the cameras, with their colours: ([P, 3], [P, 3] uint8)."""
     points, colours = [], []
     for camera in cameras:
@@ -270,7 +270,7 @@ def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, pr
         raise InputError(f"{out_dir}: exists and is not an empty folder or a previous demo scene")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    tex = _Textures(noise=rng.random((64, 64)))
+    tex = Textures(noise=rng.random((64, 64)))
     cameras, dense, scarce = demo_cameras(size, seed)
 
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))

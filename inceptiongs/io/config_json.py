@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import TypeVar
 
 from .atomic import atomic_write_text
-from .errors import InputError
+from ..errors import InputError
 
 Config = TypeVar("Config")
 
@@ -46,3 +47,14 @@ def load_config(cls: type[Config], path: str | Path, what: str = "config") -> Co
     except TypeError as exc:
         raise InputError(f"{path}: {what} JSON does not fit ({exc})") from None
     return config.validate(str(path))
+
+
+def json_safe(value):
+    """JSON has no inf: an exact reconstruction's PSNR is written as the string "inf"."""
+    if isinstance(value, float) and math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [json_safe(v) for v in value]
+    return value

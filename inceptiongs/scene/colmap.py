@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
-from .errors import InputError
-from .io_common import RawScene, check_finite_pose, check_intrinsics
+from ..camera import Camera
+from ..errors import InputError
+from .raw import RawScene, check_finite_pose, check_intrinsics
 
 # COLMAP camera model id -> (name, number of parameters), from COLMAP's camera model table.
 _MODELS = {
@@ -190,8 +190,8 @@ def write_colmap_binary(folder: Path, cameras: list[tuple[Camera, str, list[floa
     observations). Used by the demo scene and by tests that need COLMAP models with known
     intrinsics and distortion.
     """
-    from .atomic import atomic_write_bytes
-    from .camera import rotation_to_quat
+    from ..io.atomic import atomic_write_bytes
+    from ..camera import rotation_to_quat
 
     folder = Path(folder)
     camera_bytes = [struct.pack("<Q", len(cameras))]

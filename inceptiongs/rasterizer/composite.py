@@ -29,7 +29,7 @@ import math
 import torch
 from torch.utils.checkpoint import checkpoint
 
-from .constants import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
+from ..constants import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
 
 # Upper bound on (pixel, Gaussian) evaluations held at once (~ tens of MB per saved tensor).
 # A tile with more than PIXEL_PAIR_BUDGET / TILE_SIZE^2 Gaussians is handled in rounds.

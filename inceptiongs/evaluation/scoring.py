@@ -1,16 +1,14 @@
-"""Evaluation of a run on its held-out views: PSNR and SSIM, separately for the scarce
-cluster and the covered views, plus render | photo | error images and RUN/eval/eval.json.
+"""Scoring Gaussians on held-out views: PSNR and SSIM (LPIPS and FID when the caller gives
+networks), separately for the scarce cluster and the covered views, and render | photo | error
+images. Pure: it renders and compares, it knows no run folder and no training code (run-folder
+evaluation is :mod:`inceptiongs.evaluation.run`).
 
 Scores per group are means of per-view scores (the NeRF/3DGS convention: each held-out view
-weighs the same whatever its content). LPIPS and FID are computed only from weights the user
-gives as local TorchScript files (docs/evaluation.md says what they must compute); without
-them the result says "unavailable" - never a stand-in under that name.
+weighs the same whatever its content).
 """
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
@@ -18,8 +16,8 @@ from typing import Callable, Mapping
 import numpy as np
 import torch
 
-from .atomic import atomic_write_bytes, atomic_write_text
-from .errors import InputError
+from ..errors import InputError
+from ..io.images import write_png
 from .metrics import frechet_distance, psnr, ssim
 from .protocols import Split
 
@@ -28,8 +26,6 @@ GROUPS = ("scarce", "covered")
 # saturating at this error: typical reconstruction errors are well below 0.25, so the full
 # [0, 1] range would show nearly everything black.
 ERROR_IMAGE_MAX = 0.25
-UNAVAILABLE_LPIPS = "unavailable (no --lpips-weights given)"
-UNAVAILABLE_FID = "unavailable (no --fid-weights given)"
 
 
 @dataclass
@@ -47,7 +43,7 @@ def group_of(index: int, split: Split) -> str:
     return "scarce" if index in split.scarce_test else "covered"
 
 
-def _mean(values: list[float]) -> float | None:
+def mean_or_none(values: list[float]) -> float | None:
     """Mean of per-view scores; None for an empty group (nothing to report, not zero)."""
     return float(np.mean(values)) if values else None
 
@@ -57,10 +53,10 @@ def summarise(views: list[ViewScore]) -> dict[str, dict]:
     out = {}
     for group in (*GROUPS, "all"):
         members = [v for v in views if group == "all" or v.group == group]
-        entry = {"views": len(members), "psnr": _mean([v.psnr for v in members]),
-                 "ssim": _mean([v.ssim for v in members])}
+        entry = {"views": len(members), "psnr": mean_or_none([v.psnr for v in members]),
+                 "ssim": mean_or_none([v.ssim for v in members])}
         if members and all(v.lpips is not None for v in members):
-            entry["lpips"] = _mean([v.lpips for v in members])
+            entry["lpips"] = mean_or_none([v.lpips for v in members])
         out[group] = entry
     return out
 
@@ -91,17 +87,7 @@ def side_by_side(render: np.ndarray, photo: np.ndarray) -> np.ndarray:
     return (panels * 255.0 + 0.5).astype(np.uint8)
 
 
-def write_png(path: Path, rgb: np.ndarray) -> None:
-    """rgb: [H, W, 3] uint8 -> PNG, atomically."""
-    import cv2
-
-    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise OSError(f"{path}: PNG encoding failed")
-    atomic_write_bytes(path, encoded.tobytes())
-
-
-def _safe_name(name: str) -> str:
+def safe_name(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in Path(name).stem) or "view"
 
 
@@ -121,7 +107,7 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
     per-view and group "lpips", with fid_model group "fid" (groups of at least 2 views: a
     covariance needs two samples).
     """
-    from .rasterize import render  # the rasterizer is heavy; evaluation of a run needs it, readers don't
+    from ..rasterizer.rasterize import render  # the rasterizer is heavy; evaluation of a run needs it, readers don't
 
     views: list[ViewScore] = []
     features: list[tuple[str, torch.Tensor, torch.Tensor]] = []  # (group, render, photo) for FID
@@ -156,7 +142,7 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
                 features.append((score.group, torch.as_tensor(fid_model(chw(rgb))).reshape(-1).double(),
                                  torch.as_tensor(fid_model(chw(photo))).reshape(-1).double()))
         if save_dir is not None:
-            file_name = f"{score.group}_{index:04d}_{_safe_name(camera.name)}.png"
+            file_name = f"{score.group}_{index:04d}_{safe_name(camera.name)}.png"
             write_png(save_dir / file_name, side_by_side(rgb.cpu().numpy(), photo.cpu().numpy()))
             score.image = file_name
         views.append(score)
@@ -168,72 +154,6 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
                 groups[group]["fid"] = frechet_distance(torch.stack([r for r, _ in members]),
                                                         torch.stack([p for _, p in members]))
     return {"groups": groups, "views": [vars(v) for v in views]}
-
-
-def load_torchscript(path: str | Path, what: str) -> Callable:
-    """A user-given TorchScript network (LPIPS or FID feature extractor), in eval mode."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: {what} weights file does not exist")
-    try:
-        module = torch.jit.load(str(path), map_location="cpu")
-    except (RuntimeError, ValueError, OSError) as exc:
-        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"{path}: not a TorchScript {what} network ({first_line})") from None
-    return module.eval()
-
-
-def json_safe(value):
-    """JSON has no inf: an exact reconstruction's PSNR is written as the string "inf"."""
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [json_safe(v) for v in value]
-    return value
-
-
-def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
-                 fid_weights: str | Path | None = None, progress: bool = True) -> dict:
-    """Evaluate RUN/model (via inceptiongs.train.load_run) on RUN/split.json's held-out views.
-
-    Writes RUN/eval/<group>_<index>_<name>.png (render | photo | error) and RUN/eval/eval.json,
-    and returns the same dict as eval.json: {"run", "protocol", "seed", "target_view",
-    "groups": {"scarce"|"covered"|"all": {"views", "psnr", "ssim"[, "lpips"][, "fid"]}},
-    "views": [...], "lpips": "computed ..." | "unavailable ...", "fid": ...}.
-    """
-    from .train import load_run
-
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: run folder does not exist")
-    gaussians, scene, _config = load_run(run_dir)
-    split = Split.load(run_dir / "split.json", scene.cameras)
-    if not split.test:
-        raise InputError(f"{run_dir / 'split.json'}: the split holds out no views (protocol "
-                         f"{split.protocol!r}); nothing to evaluate")
-    lpips_model = load_torchscript(lpips_weights, "LPIPS") if lpips_weights else None
-    fid_model = load_torchscript(fid_weights, "FID") if fid_weights else None
-    eval_dir = run_dir / "eval"
-    # The trainer scores its test views on black (the rasterizer's default); so do we.
-    result = evaluate_views(gaussians, scene, split, save_dir=eval_dir, lpips_model=lpips_model,
-                            fid_model=fid_model, progress=progress)
-    for view in result["views"]:
-        view["image"] = f"eval/{view['image']}"
-    groups = result["groups"]
-    summary = {
-        "run": str(run_dir.resolve()),
-        "protocol": split.protocol,
-        "seed": split.seed,
-        "target_view": split.target_view,
-        "groups": groups,
-        "views": result["views"],
-        "lpips": f"computed with {lpips_weights}" if lpips_weights else UNAVAILABLE_LPIPS,
-        "fid": f"computed with {fid_weights}" if fid_weights else UNAVAILABLE_FID,
-    }
-    atomic_write_text(eval_dir / "eval.json", json.dumps(json_safe(summary), indent=1) + "\n")
-    return summary
 
 
 def format_table(summary: dict) -> str:

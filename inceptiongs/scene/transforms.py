@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera, rigid_inverse
-from .errors import InputError
-from .io_common import RawScene, check_finite_pose, check_intrinsics
+from ..camera import Camera, rigid_inverse
+from ..errors import InputError
+from .raw import RawScene, check_finite_pose, check_intrinsics
 
 _NAMES = ("transforms.json", "transforms_train.json")
 # Column flip from OpenGL camera axes to OpenCV camera axes (camera-to-world columns).
@@ -126,7 +126,7 @@ def load_transforms(root: Path) -> RawScene:
     points, colors = np.zeros((0, 3)), None
     if data.get("ply_file_path"):
         # nerfstudio: sparse points in the same world frame as the transform matrices.
-        from .ply import read_point_cloud_ply
+        from ..io.ply import read_point_cloud_ply
         points, colors = read_point_cloud_ply(base / str(data["ply_file_path"]))
     return RawScene(root if root.is_dir() else base, "transforms", cameras, paths, models, distortion,
                     points, colors, warnings=warnings)

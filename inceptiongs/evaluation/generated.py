@@ -17,22 +17,17 @@ from typing import Callable
 import numpy as np
 import torch
 
-from .atomic import atomic_write_text
-from .errors import InputError
-from .evaluate import GROUPS, _mean, _safe_name, group_of, json_safe, write_png
+from ..io.atomic import atomic_write_text
+from ..errors import InputError
+from ..io.images import write_png
+from ..io.config_json import json_safe
+from ..rasterizer.rasterize import render_rgb
+from .scoring import GROUPS, group_of, mean_or_none, safe_name
 from .metrics import psnr, ssim
 from .protocols import Split
 
 GENERATED_JSON = "generated.json"
 SOURCES = ("render", "generated")
-
-
-def render_image(gaussians, camera) -> torch.Tensor:
-    """The stage-I render [H, W, 3] in [0, 1] (black background, as evaluation uses)."""
-    from .rasterize import render
-
-    with torch.no_grad():
-        return render(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)
 
 
 def score(image: torch.Tensor, photo: torch.Tensor) -> dict[str, float]:
@@ -54,8 +49,8 @@ def group_means(views: list[dict], source: str) -> dict[str, dict]:
     out = {}
     for group in (*GROUPS, "all"):
         members = [v[source] for v in views if group == "all" or v["group"] == group]
-        out[group] = {"views": len(members), "psnr": _mean([m["psnr"] for m in members]),
-                      "ssim": _mean([m["ssim"] for m in members])}
+        out[group] = {"views": len(members), "psnr": mean_or_none([m["psnr"] for m in members]),
+                      "ssim": mean_or_none([m["ssim"] for m in members])}
     return out
 
 
@@ -74,7 +69,7 @@ def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps
         camera = scene.cameras[index]
         photo = photo_of(scene, index)
         if index not in renders:
-            renders[index] = render_image(gaussians, camera).cpu()
+            renders[index] = render_rgb(gaussians, camera).cpu()
         start, cpu_start = time.perf_counter(), time.process_time()
         generated, _ = prior.generate(gaussians.to(device), camera, steps=steps, seed=seed, **(sampling or {}))
         seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
@@ -83,7 +78,7 @@ def score_views(prior, gaussians, scene, indices: list[int], split: Split, steps
                 "render": score(renders[index], photo), "generated": score(generated, photo),
                 "seconds": seconds, "cpu_seconds": cpu_seconds}
         if save_dir is not None:
-            name = f"{view['group']}_{index:04d}_{_safe_name(camera.name)}.png"
+            name = f"{view['group']}_{index:04d}_{safe_name(camera.name)}.png"
             panels = torch.cat([renders[index], generated, photo], dim=1).numpy()
             write_png(save_dir / name, (np.clip(panels, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
             view["image"] = name
@@ -130,8 +125,8 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
     "train_s"}, "seed", "sampling" (the tiny prior's start and init, given or its config's), "by_steps": [{"ddim_steps", "seconds_per_image", "cpu_seconds_per_image", "groups": {group:
     {"views", "render": {"psnr", "ssim"}, "generated": {...}}}}], "views": [...first count...]}.
     """
-    from .prior.trainer import load_prior, read_prior_checkpoint, sampling_options
-    from .train import load_run
+    from ..prior.trainer import load_prior, read_prior_checkpoint, sampling_options
+    from ..train.run_folder import load_run
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

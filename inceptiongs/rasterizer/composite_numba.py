@@ -1,6 +1,6 @@
 """Numba-compiled CPU fast path of the per-pixel compositing stage.
 
-Implements exactly the composite contract of :mod:`inceptiongs.composite` (the torch
+Implements exactly the composite contract of :mod:`inceptiongs.rasterizer.composite` (the torch
 reference): front-to-back alpha blending of projected 2-D Gaussians, with the alpha rules,
 skip rules and stop rule read from :mod:`inceptiongs.constants`. Forward and backward are
 ``@njit(parallel=True)`` kernels with a ``prange`` over 16x16 tiles; the public entry point
@@ -80,7 +80,7 @@ def _pixel_range(mean: float, extent: float, size: int) -> tuple[int, int]:
 
 
 @njit(cache=True)
-def _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y):
+def bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y):
     """Counting sort of (tile, Gaussian) pairs by tile, Gaussians already in depth order.
 
     params: [M, 7] float64 (rows in depth order); extents_sorted: [M, 2].
@@ -421,7 +421,7 @@ def _as_f64(tensor: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(tensor.detach().cpu().numpy(), dtype=np.float64)
 
 
-def _pack_params(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray) -> np.ndarray:
+def pack_params(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray) -> np.ndarray:
     """[M, 7] float64 table: mean x, y, conic a, b, c, opacity, power cut.
 
     The power cut is log(opacity / ALPHA_MIN) plus a margin (see _POWER_CUT_MARGIN); it is
@@ -467,12 +467,12 @@ class _CompositeFunction(torch.autograd.Function):
         channels = values.shape[1]
         # Front-to-back order: ascending depth, ties by index (a stable sort).
         order = np.argsort(depths.detach().cpu().numpy(), kind="stable")
-        params = _pack_params(_as_f64(means2d), _as_f64(conics), _as_f64(opacities))[order]
+        params = pack_params(_as_f64(means2d), _as_f64(conics), _as_f64(opacities))[order]
         values_sorted = _as_f64(values)[order]
         extents_sorted = _as_f64(extents)[order]
         tiles_x = -(-width // TILE_SIZE)
         tiles_y = -(-height // TILE_SIZE)
-        rects, offsets, entries = _bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
+        rects, offsets, entries = bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
         tile_order = _busy_tiles_heaviest_first(offsets)
 
         image = np.zeros((height, width, channels), np.float64)

@@ -42,9 +42,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .atomic import atomic_write_text
-from .camera import Camera, pose_distance
-from .errors import InputError
+from ..io.atomic import atomic_write_text
+from ..camera import Camera, pose_distance
+from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
 LLFF_HOLDOUT_EVERY = 8

@@ -1,4 +1,4 @@
-"""What every scene reader hands to :func:`inceptiongs.scene.load_scene`, before
+"""What every scene reader hands to :func:`inceptiongs.scene.loader.load_scene`, before
 normalisation, undistortion and downscaling are applied (those live in scene.py)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera
-from .errors import InputError
+from ..camera import Camera
+from ..errors import InputError
 
 
 @dataclass

@@ -18,11 +18,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .atomic import atomic_write_bytes
-from .camera import Camera
-from .errors import InputError
-from .gaussians import Gaussians
-from .io_common import RawScene
+from ..io.atomic import atomic_write_bytes
+from ..camera import Camera
+from ..errors import InputError
+from ..gaussians import Gaussians
+from .raw import RawScene
 from .undistort import undistort_image, undistorted_camera
 
 # A camera extent below this (scene units) means "all cameras at one spot" (e.g. a single
@@ -217,8 +217,8 @@ def _image_size(path: Path) -> tuple[int, int] | None:
 
 def detect_format(root: Path) -> str:
     """The format name of the scene at ``root`` (a folder, or a transforms.json file)."""
-    from .io_colmap import find_model_dir
-    from .io_transforms import find_transforms
+    from .colmap import find_model_dir
+    from .transforms import find_transforms
 
     if root.is_file():
         if root.suffix == ".json":
@@ -242,12 +242,12 @@ def read_raw_scene(path: str | Path, downscale: float = 1) -> RawScene:
         raise InputError(f"{root}: path does not exist")
     fmt = detect_format(root)
     if fmt.startswith("colmap"):
-        from .io_colmap import load_colmap
+        from .colmap import load_colmap
         return load_colmap(root)
     if fmt == "transforms":
-        from .io_transforms import load_transforms
+        from .transforms import load_transforms
         return load_transforms(root)
-    from .io_llff import load_llff
+    from .llff import load_llff
     return load_llff(root, downscale)
 
 

@@ -1,8 +1,8 @@
 """render(): the differentiable torch reference rasterizer.
 
-Projection (:mod:`inceptiongs.projection`) runs over all N Gaussians; culled ones are
+Projection (:mod:`inceptiongs.rasterizer.projection`) runs over all N Gaussians; culled ones are
 dropped by index before colours are evaluated and before compositing
-(:mod:`inceptiongs.composite`), whose value channels are built from the requested outputs
+(:mod:`inceptiongs.rasterizer.composite`), whose value channels are built from the requested outputs
 only. Everything is autograd, so gradients reach means, log-scales, quaternions, opacity
 logits, SH, features and (through ``world_to_camera``) the camera pose.
 """
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import torch
 
-from .camera import Camera
+from ..camera import Camera
 from .composite import composite
-from .constants import ALPHA_EPS
-from .gaussians import Gaussians
+from ..constants import ALPHA_EPS
+from ..gaussians import Gaussians
 from .projection import Intrinsics, plane_normals, project, view_directions
 from .sh import sh_to_color
 
@@ -108,6 +108,13 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     result["means2d"] = means2d
     result["radii"] = proj.radii
     return result
+
+
+def render_rgb(gaussians: Gaussians, camera: Camera) -> torch.Tensor:
+    """The colour render [H, W, 3] float32 in [0, 1] on black, without gradients: what
+    evaluation scores and what the prior's sampler starts from."""
+    with torch.no_grad():
+        return render(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)
 
 
 def _plane_depth(offset: torch.Tensor, normal: torch.Tensor, covered: torch.Tensor,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .constants import (
+from ..constants import (
     ALPHA_MIN,
     DET_MIN,
     DILATION_PX,

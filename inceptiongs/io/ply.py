@@ -16,9 +16,9 @@ import numpy as np
 import torch
 
 from .atomic import atomic_open
-from .constants import SH_MAX_DEGREE, sh_coeff_count
-from .errors import InputError
-from .gaussians import Gaussians
+from ..constants import SH_MAX_DEGREE, sh_coeff_count
+from ..errors import InputError
+from ..gaussians import Gaussians
 
 # PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
 _PLY_TYPES = {

@@ -1,0 +1,80 @@
+"""Evaluation of a run folder on its held-out views: loads RUN (stage I or a bootstrap), scores
+it with :mod:`.scoring`, and writes RUN/eval/*.png and RUN/eval/eval.json. Sits above training
+(it reads run folders); scoring itself stays below it.
+
+LPIPS and FID are computed only from weights the user gives as local TorchScript files
+(docs/evaluation.md says what they must compute); without them the result says "unavailable" -
+never a stand-in under that name.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from ..errors import InputError
+from ..io.atomic import atomic_write_text
+from ..io.config_json import json_safe
+from ..train.run_folder import load_run
+from .protocols import Split
+from .scoring import evaluate_views
+
+UNAVAILABLE_LPIPS = "unavailable (no --lpips-weights given)"
+UNAVAILABLE_FID = "unavailable (no --fid-weights given)"
+
+
+def load_torchscript(path: str | Path, what: str) -> Callable:
+    """A user-given TorchScript network (LPIPS or FID feature extractor), in eval mode."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {what} weights file does not exist")
+    try:
+        module = torch.jit.load(str(path), map_location="cpu")
+    except (RuntimeError, ValueError, OSError) as exc:
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: not a TorchScript {what} network ({first_line})") from None
+    return module.eval()
+
+
+def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
+                 fid_weights: str | Path | None = None, progress: bool = True) -> dict:
+    """Evaluate RUN/model (via inceptiongs.train.run_folder.load_run) on RUN/split.json's held-out views.
+
+    Writes RUN/eval/<group>_<index>_<name>.png (render | photo | error) and RUN/eval/eval.json,
+    and returns the same dict as eval.json: {"run", "protocol", "seed", "target_view",
+    "groups": {"scarce"|"covered"|"all": {"views", "psnr", "ssim"[, "lpips"][, "fid"]}},
+    "views": [...], "lpips": "computed ..." | "unavailable ...", "fid": ...}.
+    """
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: run folder does not exist")
+    gaussians, scene, _config = load_run(run_dir)
+    split = Split.load(run_dir / "split.json", scene.cameras)
+    if not split.test:
+        raise InputError(f"{run_dir / 'split.json'}: the split holds out no views (protocol "
+                         f"{split.protocol!r}); nothing to evaluate")
+    lpips_model = load_torchscript(lpips_weights, "LPIPS") if lpips_weights else None
+    fid_model = load_torchscript(fid_weights, "FID") if fid_weights else None
+    eval_dir = run_dir / "eval"
+    # The trainer scores its test views on black (the rasterizer's default); so do we.
+    result = evaluate_views(gaussians, scene, split, save_dir=eval_dir, lpips_model=lpips_model,
+                            fid_model=fid_model, progress=progress)
+    for view in result["views"]:
+        view["image"] = f"eval/{view['image']}"
+    groups = result["groups"]
+    summary = {
+        "run": str(run_dir.resolve()),
+        "protocol": split.protocol,
+        "seed": split.seed,
+        "target_view": split.target_view,
+        "groups": groups,
+        "views": result["views"],
+        "lpips": f"computed with {lpips_weights}" if lpips_weights else UNAVAILABLE_LPIPS,
+        "fid": f"computed with {fid_weights}" if fid_weights else UNAVAILABLE_FID,
+    }
+    atomic_write_text(eval_dir / "eval.json", json.dumps(json_safe(summary), indent=1) + "\n")
+    return summary

@@ -1,0 +1,289 @@
+"""One stage-I training step and what it needs, as public pieces: the data prepared once
+(:class:`TrainData`), the optimiser state (:class:`TrainState`, new, restored from a checkpoint
+or built from a model), :func:`train_step` (render one view, the photometric and PGSR terms, Adam,
+densification) and :func:`optimizer_step`. The stage-I loop (:mod:`.trainer`) and the stage-II
+refinement (:mod:`inceptiongs.bootstrap`) both drive these.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..camera import Camera
+from ..errors import InputError
+from ..gaussians import Gaussians
+from . import losses
+from .config import TrainConfig
+from .densify import DensifyStats, accumulate, densify_and_prune, reset_opacity
+from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
+from .neighbours import neighbour_views
+from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
+                    position_learning_rate, set_learning_rate)
+from .triangulate import training_points
+
+
+def supported_sh_degree(num_train_views: int, cap: int) -> int:
+    """View-dependent colour needs views to be fitted from: a degree-d band has (2d+1)
+    coefficients per channel, so few views support only low degrees."""
+    by_views = 0 if num_train_views < 4 else 1 if num_train_views < 8 else 2 if num_train_views < 16 else 3
+    return min(cap, by_views)
+
+
+def sh_degree_at(step: int, config: TrainConfig, max_degree: int) -> int:
+    return min(max_degree, (step - 1) // config.sh_increase_every)
+
+
+@dataclass
+class TrainData:
+    """Training data prepared once. Images: index -> tensor at the training resolution."""
+
+    cameras: list[Camera]
+    train: list[int]
+    images: dict[int, torch.Tensor]           # [H, W, 3]
+    grey: dict[int, torch.Tensor]             # [H, W, 1] (train views, PGSR only)
+    edge_weights: dict[int, torch.Tensor]     # [H, W]    (train views, PGSR only)
+    intrinsics: dict[int, torch.Tensor]       # [3, 3]
+    neighbours: dict[int, list[int]]
+    extent: float
+
+
+def prepare_data(scene, split, config: TrainConfig, log: Callable[[str], None]) -> TrainData:
+    cameras = list(scene.cameras)
+    used = sorted(set(split.train) | set(split.test))
+    images = {}
+    for index in tqdm(used, desc="loading images", file=sys.stderr, leave=False):
+        image = torch.from_numpy(np.ascontiguousarray(scene.load_image(index), dtype=np.float32))
+        cam = cameras[index]
+        if tuple(image.shape[:2]) != (cam.height, cam.width):
+            raise InputError(f"{scene.image_paths[index]}: image is {image.shape[1]}x{image.shape[0]}, "
+                             f"camera says {cam.width}x{cam.height}")
+        images[index] = image
+    grey, edges = {}, {}
+    if config.pgsr:
+        for index in split.train:
+            grey[index] = images[index].mean(-1, keepdim=True)
+            edges[index] = losses.edge_aware_weight(images[index])
+    intrinsics = {i: torch.tensor(cameras[i].intrinsics, dtype=torch.float32) for i in used}
+    neighbours = {}
+    if config.pgsr:
+        neighbours = neighbour_views(cameras, list(split.train), config.neighbours_max,
+                                     config.neighbours_max_angle_deg)
+        with_nb = sum(1 for v in neighbours.values() if v)
+        log(f"multi-view terms: {with_nb}/{len(split.train)} training views have neighbours "
+            f"within {config.neighbours_max_angle_deg:g} degrees")
+    return TrainData(cameras, list(split.train), images, grey, edges, intrinsics, neighbours,
+                 scene_extent([cameras[i] for i in split.train]))
+
+
+@dataclass
+class TrainState:
+    params: dict[str, torch.Tensor]
+    optimizer: torch.optim.Adam
+    stats: DensifyStats
+    iteration: int
+    wall_s: float
+    train_s: float
+    view_rng: np.random.Generator
+    generator: torch.Generator
+    order: list[int]
+    order_pos: int
+    logged: set[str]
+
+    def payload(self, config: TrainConfig) -> dict:
+        return {
+            "iteration": self.iteration, "wall_s": self.wall_s, "train_s": self.train_s,
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "optimizer": self.optimizer.state_dict(),
+            "stats": {k: v.clone() for k, v in self.stats.tensors().items()},
+            "view_rng": self.view_rng.bit_generator.state,
+            "generator": self.generator.get_state(),
+            "order": list(self.order), "order_pos": self.order_pos,
+            "logged": sorted(self.logged), "config": config.to_json_dict(),
+        }
+
+
+def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) -> TrainState:
+    cameras = [data.cameras[i] for i in data.train]
+    points, colors, triangulated = training_points(scene, data.train, data.images, config.triangulate_init, log)
+    if triangulated:
+        gaussians, message = gaussians_from_sparse_depth(cameras, [data.images[i].numpy() for i in data.train],
+                                                         points, sh_degree, config.seed)
+    else:
+        gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
+    log(message)
+    params = params_from_gaussians(gaussians)
+    optimizer = make_optimizer(params, config, data.extent)
+    generator = torch.Generator().manual_seed(config.seed)
+    return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), 0, 0.0, 0.0,
+                  np.random.default_rng(config.seed), generator, [], 0, set())
+
+
+def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainState:
+    params = {k: v.clone().requires_grad_(True) for k, v in payload["params"].items()}
+    optimizer = make_optimizer(params, config, data.extent)
+    optimizer.load_state_dict(payload["optimizer"])
+    view_rng = np.random.default_rng()
+    view_rng.bit_generator.state = payload["view_rng"]
+    generator = torch.Generator()
+    generator.set_state(payload["generator"])
+    stats = DensifyStats(**payload["stats"])
+    return TrainState(params, optimizer, stats, int(payload["iteration"]), float(payload["wall_s"]),
+                  float(payload["train_s"]), view_rng, generator, list(payload["order"]),
+                  int(payload["order_pos"]), set(payload["logged"]))
+
+
+def next_view(state: TrainState, data: TrainData) -> int:
+    """Views in random order, every view once per epoch."""
+    if state.order_pos >= len(state.order):
+        state.order = [data.train[i] for i in state.view_rng.permutation(len(data.train))]
+        state.order_pos = 0
+    view = state.order[state.order_pos]
+    state.order_pos += 1
+    return view
+
+
+def log_once(state: TrainState, key: str, message: str, log) -> None:
+    if key not in state.logged:
+        state.logged.add(key)
+        log(message)
+
+
+def multiview_terms(render_fn, gaussians: Gaussians, out: dict, view: int, data: TrainData,
+                     config: TrainConfig, state: TrainState, sh_degree: int, log) -> dict[str, torch.Tensor]:
+    """Geometric and NCC terms against one random neighbour of ``view`` (may be empty)."""
+    neighbours = data.neighbours.get(view, [])
+    if not neighbours:
+        log_once(state, "no-neighbours", "multi-view terms skipped for views without neighbours "
+                  f"(first: {data.cameras[view].name})", log)
+        return {}
+    nb = neighbours[int(state.view_rng.integers(len(neighbours)))]
+    ref_cam, nb_cam = data.cameras[view], data.cameras[nb]
+    small = nb_cam.scaled(1.0 / config.multiview_scale)
+    with torch.no_grad():
+        # The neighbour's depth is a fixed target: its gradient would double the backward cost.
+        nb_depth = render_fn(gaussians.detach(), small, outputs=("plane_depth",), sh_degree=sh_degree)["plane_depth"]
+    ref_to_nb = torch.tensor(nb_cam.world_to_camera @ ref_cam.camera_to_world, dtype=torch.float32)
+    k_ref = data.intrinsics[view]
+    k_small = torch.tensor(small.intrinsics, dtype=torch.float32)
+    error, valid = losses.reprojection_error(out["plane_depth"], k_ref, nb_depth, k_small, ref_to_nb)
+    terms = {}
+    geo = losses.geometric_consistency_loss(error, valid, config.multiview_pixel_noise_max)
+    if geo is None:
+        log_once(state, "geo-empty", "geometric consistency skipped on a step: no pixel reprojects "
+                  "consistently yet (logged once)", log)
+        return terms
+    terms["geo"] = geo
+    mask = (valid & (error < config.multiview_pixel_noise_max)).reshape(-1)
+    candidates = torch.nonzero(mask)[:, 0]
+    pick = candidates[torch.randint(len(candidates), (min(config.ncc_samples, len(candidates)),),
+                                    generator=state.generator)]
+    width = ref_cam.width
+    pixels = torch.stack([(pick % width).float() + 0.5, (pick // width).float() + 0.5], -1)
+    depth = out["plane_depth"].reshape(-1)[pick]
+    normals = losses.safe_normalize(out["normal"].reshape(-1, 3)[pick])
+    weights = torch.exp(-error.detach().reshape(-1)[pick])
+    ncc = losses.ncc_loss(data.grey[view], data.grey[nb], pixels, depth, normals, k_ref,
+                          data.intrinsics[nb], ref_to_nb, config.ncc_patch_radius, weights)
+    if ncc is not None:
+        terms["ncc"] = ncc
+    return terms
+
+
+def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData) -> dict[str, float]:
+    """PSNR / SSIM over the held-out views, flat keys ("all_psnr", "scarce_ssim", ...);
+    {} when the split holds nothing out."""
+    if not split.test:
+        return {}
+    from ..evaluation.scoring import evaluate_views, flat_scores
+    return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images)["groups"])
+
+
+def trim_sh(gaussians: Gaussians, degree: int) -> Gaussians:
+    """Drop SH bands the schedule never switched on (they are all zero and unused)."""
+    keep = (degree + 1) ** 2
+    if gaussians.sh.shape[1] == keep:
+        return gaussians
+    return dataclasses.replace(gaussians, sh=gaussians.sh[:, :keep].contiguous())
+
+
+def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfig, sh_max: int, render_fn,
+                background, log) -> dict:
+    """One optimisation step on one view; returns the log record of its terms."""
+    set_learning_rate(state.optimizer, "means", position_learning_rate(step, config, data.extent))
+    sh_degree = sh_degree_at(step, config, sh_max)
+    view = next_view(state, data)
+    camera = data.cameras[view]
+    want_normal = config.pgsr and step >= config.normal_from
+    want_multiview = (config.pgsr and step >= config.multiview_from and step % config.multiview_every == 0)
+    outputs = ("rgb",) + (("alpha", "normal", "plane_depth") if (want_normal or want_multiview) else ())
+    gaussians = gaussians_from_params(state.params)
+    out = render_fn(gaussians, camera, outputs=outputs, background=background, sh_degree=sh_degree)
+
+    loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
+    terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
+    if config.pgsr:
+        terms["flatten"] = losses.flatten_loss(state.params["log_scales"])
+        loss = loss + config.lambda_flatten * terms["flatten"]
+    if want_normal:
+        normal = losses.normal_consistency_loss(out["normal"], out["plane_depth"], out["alpha"],
+                                                data.intrinsics[view], data.edge_weights[view])
+        if normal is None:
+            log_once(state, "normal-empty", "normal consistency skipped on a step: the render covers "
+                      "no pixel (logged once)", log)
+        else:
+            terms["normal"] = normal
+            loss = loss + config.lambda_normal * normal
+    if want_multiview:
+        mv = multiview_terms(render_fn, gaussians, out, view, data, config, state, sh_degree, log)
+        if "geo" in mv:
+            terms["geo"] = mv["geo"]
+            loss = loss + config.lambda_geo * mv["geo"]
+        if "ncc" in mv:
+            terms["ncc"] = mv["ncc"]
+            loss = loss + config.lambda_ncc * mv["ncc"]
+    terms["loss"] = loss
+
+    record = {name: float(value.detach()) for name, value in terms.items()}
+    record["sh_degree"] = sh_degree
+    record.update(optimizer_step(step, loss, out, camera, state, data, config))
+    return record
+
+
+def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, state: TrainState, data: TrainData,
+                   config: TrainConfig) -> dict:
+    """Backward ``loss`` of the render ``out`` of ``camera``, one Adam step, then densification
+    and the opacity reset on schedule. Shared with the stage-II refinement (inceptiongs.bootstrap),
+    whose virtual-view steps feed the same statistics. Returns densification counts and
+    ``num_gaussians``."""
+    loss.backward()
+    if step < config.densify_until and out["means2d"].grad is not None:
+        accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
+    state.optimizer.step()
+    state.optimizer.zero_grad(set_to_none=True)
+
+    record: dict = {}
+    if config.densify_from <= step < config.densify_until and step % config.densify_every == 0:
+        counts = densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
+                                   prune_large=step > config.opacity_reset_every, generator=state.generator)
+        state.stats = DensifyStats.zeros(state.params["means"].shape[0])
+        record.update(counts)
+    if step < config.densify_until and step % config.opacity_reset_every == 0:
+        reset_opacity(state.params, state.optimizer)
+    record["num_gaussians"] = int(state.params["means"].shape[0])
+    return record
+
+
+def state_from_gaussians(gaussians: Gaussians, data: TrainData, config: TrainConfig) -> TrainState:
+    """A state for a run that has a model but no checkpoint (fresh Adam moments), at the end of
+    ``config``'s schedule."""
+    params = params_from_gaussians(gaussians)
+    optimizer = make_optimizer(params, config, data.extent)
+    return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), config.iterations, 0.0, 0.0,
+                      np.random.default_rng(config.seed), torch.Generator().manual_seed(config.seed), [], 0, set())

@@ -1,0 +1,186 @@
+#!/usr/bin/env python3
+"""Checks the project's import graph: no import circles, one-way layers, no private names
+borrowed across modules.
+
+Every import counts, also those inside functions (a function-level import may defer a heavy
+module, never hide a circle). Rules:
+
+1. No circle among the project's modules. Importing ``a.b.c`` also runs ``a`` and ``a.b``
+   (their ``__init__``), so those count as imported too.
+2. Layers run one way: app -> renderer -> library. The library (``inceptiongs`` outside
+   ``inceptiongs.app`` and ``inceptiongs.renderer``) imports neither; the renderer does not
+   import the app.
+3. ``from X import _name`` is refused when X is another project module: a private name is
+   private to its module. Tests, benchmarks and scripts are held to this too.
+
+    python3 scripts/check_imports.py          # prints the problems, exit status 1 if any
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+# The design card's folders and the import names they are installed under (pyproject's package-dir).
+PACKAGE_DIRS = {"inceptiongs": "inceptiongs", "app": "inceptiongs.app", "renderer": "inceptiongs.renderer",
+                "shaders": "inceptiongs.shaders"}
+# Code that is not installed but must still keep to rule 3; its modules are named by path.
+LOOSE_DIRS = ("tests", "benchmarks", "scripts")
+LIBRARY, RENDERER, APP = "inceptiongs", "inceptiongs.renderer", "inceptiongs.app"
+
+
+@dataclass(frozen=True)
+class Import:
+    importer: str       # module doing the import
+    target: str         # absolute module imported (or the module a name is imported from)
+    names: tuple        # names taken with "from target import ..." (empty for "import target")
+    line: int
+
+
+def module_name(path: Path) -> tuple[str, bool]:
+    """File -> (dotted module name, is_package)."""
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    prefix = PACKAGE_DIRS.get(parts[0])
+    # Tests, benchmarks and scripts run with their own folder on sys.path: imported by bare name.
+    dotted = prefix.split(".") + parts[1:] if prefix else parts[-1:]
+    is_package = dotted[-1] == "__init__"
+    if is_package:
+        dotted = dotted[:-1]
+    return ".".join(dotted), is_package
+
+
+def project_files() -> list[Path]:
+    files = []
+    for folder in (*PACKAGE_DIRS, *LOOSE_DIRS):
+        files += sorted((ROOT / folder).rglob("*.py"))
+    return [f for f in files if "__pycache__" not in f.parts]
+
+
+def imports_of(path: Path, module: str, is_package: bool) -> list[Import]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    package = module if is_package else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [Import(module, alias.name, (), node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            found.append(Import(module, target, tuple(a.name for a in node.names), node.lineno))
+    return found
+
+
+def edges(imp: Import, modules: set[str]) -> set[str]:
+    """The project modules an import runs: the target, its parent packages, and any
+    ``from package import submodule``."""
+    out = set()
+    candidates = [imp.target] + [f"{imp.target}.{name}" for name in imp.names]
+    for candidate in candidates:
+        parts = candidate.split(".")
+        for i in range(1, len(parts) + 1):
+            prefix = ".".join(parts[:i])
+            if prefix in modules:
+                out.add(prefix)
+    out.discard(imp.importer)
+    return out
+
+
+def layer(module: str) -> str | None:
+    for name in (APP, RENDERER):
+        if module == name or module.startswith(name + "."):
+            return name
+    if module == LIBRARY or module.startswith(LIBRARY + "."):
+        return LIBRARY if not module.startswith("inceptiongs.shaders") else None
+    return None
+
+
+ALLOWED = {LIBRARY: {LIBRARY}, RENDERER: {LIBRARY, RENDERER}, APP: {LIBRARY, RENDERER, APP}}
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index, low, on_stack, stack, result, counter = {}, {}, set(), [], [], [0]
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter[0]; counter[0] += 1
+        stack.append(root); on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            advanced = False
+            for child in children:
+                if child not in index:
+                    index[child] = low[child] = counter[0]; counter[0] += 1
+                    stack.append(child); on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                    advanced = True
+                    break
+                if child in on_stack:
+                    low[node] = min(low[node], index[child])
+            if advanced:
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop(); on_stack.discard(member); component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    result.append(sorted(component))
+    return result
+
+
+def check() -> list[str]:
+    files = project_files()
+    named = {f: module_name(f) for f in files}
+    installed = {name for f, (name, _) in named.items() if f.relative_to(ROOT).parts[0] in PACKAGE_DIRS}
+    all_modules = {name for name, _ in named.values()}
+    problems = []
+    graph: dict[str, set[str]] = {name: set() for name in installed}
+    for path, (module, is_package) in named.items():
+        where = path.relative_to(ROOT)
+        for imp in imports_of(path, module, is_package):
+            targets = edges(imp, all_modules)
+            for name in imp.names:
+                if name.startswith("_") and not name.startswith("__") and imp.target in all_modules \
+                        and imp.target != module:
+                    problems.append(f"{where}:{imp.line}: private name {name} imported from {imp.target}")
+            if module not in installed:
+                continue
+            for target in targets & installed:
+                graph[module].add(target)
+                source_layer, target_layer = layer(module), layer(target)
+                if source_layer and target_layer and target_layer not in ALLOWED[source_layer]:
+                    problems.append(f"{where}:{imp.line}: {source_layer} layer imports {target} "
+                                    f"({target_layer} layer); layers run app -> renderer -> library")
+    for component in find_cycles(graph):
+        chain = " <-> ".join(component)
+        problems.append(f"import circle: {chain}")
+    return problems
+
+
+def main() -> int:
+    problems = check()
+    for problem in problems:
+        print(problem)
+    if problems:
+        print(f"{len(problems)} import problem(s)", file=sys.stderr)
+        return 1
+    print("imports: no circles, layers one way, no private names across modules")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
