@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..camera import Camera, camera_from_json_dict, pose_distance
+from ..camera import Camera, pose_distance
 from ..errors import InputError
 from ..io.flags import read_flag_cameras
 

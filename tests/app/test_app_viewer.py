@@ -21,7 +21,7 @@ from inceptiongs.camera import Camera, write_camera_json
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.camera import look_at
 
-GOLDEN = Path(__file__).parent / "golden"
+GOLDEN = Path(__file__).resolve().parents[1] / "golden"
 REGENERATE = os.environ.get("INCEPTIONGS_REGEN_GOLDEN") == "1"
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.

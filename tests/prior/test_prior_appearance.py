@@ -13,7 +13,7 @@ from inceptiongs.prior.multidiffusion import multidiffusion_sample
 from inceptiongs.prior.schedule import make_schedule
 from inceptiongs.prior.trainer import PriorTrainer, load_prior, save_prior
 from test_prior_sampling import oracle_denoiser
-from test_prior_trainer import TINY, prior_scene
+from prior_cases import TINY, prior_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

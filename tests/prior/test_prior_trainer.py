@@ -8,42 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.camera import Camera, look_at
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.prior.hashgrid import HashGridConfig
 from inceptiongs.prior.ddim import start_timestep
 from inceptiongs.prior.model import Prior, PriorConfig, fit_bound
 from inceptiongs.prior.trainer import (PriorTrainer, load_prior, prior_dir, resume_trainer, save_prior)
-from inceptiongs.prior.unet import UNetConfig
-from inceptiongs.rasterizer.rasterize import render
+
+from prior_cases import TINY, prior_scene
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-TINY = PriorConfig(patch_size=16, batch_size=4, learning_rate=2e-3, num_timesteps=200,
-                   unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16),
-                   grid=HashGridConfig(levels=2, features_per_level=2, table_size=512,
-                                       base_resolution=4, max_resolution=16))
-
-
-def prior_scene(n=60, seed=0):
-    """Gaussians around the origin, three 32x32 cameras and the photos they render."""
-    g = torch.Generator().manual_seed(seed)
-    gaussians = Gaussians(
-        means=(torch.rand(n, 3, generator=g) * 2 - 1) * 0.8,
-        log_scales=torch.full((n, 3), -2.2) + 0.5 * torch.rand(n, 3, generator=g),
-        quats=torch.randn(n, 4, generator=g),
-        opacity_logits=torch.full((n,), 2.0),
-        sh=torch.rand(n, 1, 3, generator=g) * 2 - 0.5,
-    )
-    cameras = [Camera(f"c{i}", 32, 32, 32.0, 32.0, 16.0, 16.0,
-                      look_at(np.array([3 * np.sin(a), 0.3, -3 * np.cos(a)]), np.zeros(3)))
-               for i, a in enumerate((0.0, 0.6, 1.2))]
-    with torch.no_grad():
-        photos = [render(gaussians, c, background=[0.5, 0.5, 0.5])["rgb"].numpy() for c in cameras]
-    return gaussians, cameras, photos
 
 
 def test_fit_bound_ignores_a_far_floater():

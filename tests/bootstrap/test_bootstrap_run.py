@@ -290,7 +290,7 @@ def test_prior_version_covers_the_weights_and_how_the_prior_samples():
 
     from inceptiongs.bootstrap.generation import prior_version
     from inceptiongs.prior.model import Prior
-    from test_prior_trainer import TINY
+    from prior_cases import TINY
 
     prior = Prior(TINY)
     same = Prior(TINY)

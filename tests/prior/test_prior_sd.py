@@ -122,7 +122,7 @@ def test_bad_sd_folders_raise_input_errors(tmp_path, sd_dir):
 
 @pytest.mark.slow
 def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path):
-    from test_prior_cli import make_stand_in_run
+    from prior_cases import make_stand_in_run
 
     run = make_stand_in_run(tmp_path)
     assert main(["prior", str(run), "--steps", "2", "--backend", "sd"]) == 2  # no --sd-path

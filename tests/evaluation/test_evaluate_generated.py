@@ -21,7 +21,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture(scope="module")
 def run_with_prior(tmp_path_factory):
-    from test_prior_cli import make_stand_in_run
+    from prior_cases import make_stand_in_run
 
     run = make_stand_in_run(tmp_path_factory.mktemp("eval_generated"), protocol="unstructured")
     assert main(["prior", str(run), "--steps", "3", "--patch-size", "16", "--batch-size", "2",

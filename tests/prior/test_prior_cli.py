@@ -9,37 +9,13 @@ import torch
 
 from inceptiongs.camera import write_camera_json
 from inceptiongs.cli import main
-from inceptiongs.scene.demo import write_demo_scene
-from inceptiongs.gaussians import Gaussians
-from inceptiongs.io.ply import write_ply
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.run_folder import to_original_frame
 
+
+from prior_cases import make_stand_in_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-def make_stand_in_run(root, protocol: str | None = None):
-    """A run folder as stage I leaves it (config.json + model.ply, and split.json when a
-    protocol is given), with Gaussians standing in for a trained model: the demo scene's points
-    as small isotropic splats."""
-    scene_dir = write_demo_scene(root / "scene", progress=False)
-    config = TrainConfig(scene=str(scene_dir), downscale=4, protocol=protocol or "none")
-    run = root / "run"
-    run.mkdir()
-    config.save(run / "config.json")
-    scene = load_scene(scene_dir, downscale=4)
-    if protocol is not None:
-        from inceptiongs.evaluation.protocols import make_split
-        make_split(scene, protocol, 0).save(run / "split.json")
-    points = torch.as_tensor(scene.points[::4], dtype=torch.float32)
-    n = points.shape[0]
-    colors = torch.as_tensor(scene.point_colors[::4], dtype=torch.float32) / 255.0
-    gaussians = Gaussians(points, torch.full((n, 3), -3.5), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).clone(),
-                          torch.full((n,), 2.0), ((colors - 0.5) / 0.28209479177387814)[:, None, :])
-    write_ply(to_original_frame(gaussians, scene.normalization), run / "model.ply")
-    return run
 
 
 @pytest.fixture(scope="module")
