@@ -114,14 +114,21 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
     return q / norm
 
 
+def unit_quat_to_rotation(w, x, y, z, stack):
+    """Rotation matrices [..., 3, 3] of unit quaternions given as components w, x, y, z (numpy
+    or torch arrays of one shape [...]); ``stack`` is ``np.stack`` or ``torch.stack``. The one
+    home of the formula: callers normalise first, each with its own rule for degenerate input."""
+    return stack([
+        stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
 def quat_to_rotation(q: np.ndarray) -> np.ndarray:
     """q: [..., 4] (w, x, y, z), any non-zero norm -> rotation matrices [..., 3, 3]."""
     w, x, y, z = np.moveaxis(quat_normalize(q), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    return unit_quat_to_rotation(w, x, y, z, np.stack)
 
 
 def rotation_to_quat(rotation: np.ndarray) -> np.ndarray:

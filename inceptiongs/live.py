@@ -8,7 +8,9 @@ the viewer re-uploads Gaussians only when the version moved.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass, field
+from typing import Protocol
 
 
 @dataclass
@@ -18,6 +20,19 @@ class JobControl:
 
     pause: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
+
+
+def wait_while_paused(control: JobControl | None, poll_s: float = 0.05) -> tuple[bool, float]:
+    """Block while ``control`` is paused. -> (stop requested, seconds spent paused). Paused time
+    is nobody's time: a job moves its clocks (time budget, elapsed) forward by it."""
+    if control is None:
+        return False, 0.0
+    paused_s = 0.0
+    while control.pause.is_set() and not control.stop.is_set():
+        began = time.perf_counter()
+        time.sleep(poll_s)
+        paused_s += time.perf_counter() - began
+    return control.stop.is_set(), paused_s
 
 
 @dataclass(frozen=True)
@@ -88,3 +103,17 @@ class JobPublisher:
 
     def log(self, message: str) -> None:
         self.box.publish(self.iteration, None, {}, message)
+
+    def finish(self, what: str, iteration: int, finished: bool, metrics: dict, detail: str = "") -> None:
+        """The job's last word: "<what> finished|stopped (checkpoint written) at iteration N[: detail]"
+        with its final scores."""
+        state = "finished" if finished else "stopped (checkpoint written)"
+        self.box.publish(iteration, None, dict(metrics),
+                         f"{what} {state} at iteration {iteration}" + (f": {detail}" if detail else ""))
+
+
+class Job(Protocol):
+    """What the viewer runs on a thread (stage-I training, stage-II bootstrap): publish through
+    ``box`` and honour ``control`` (pause, stop) until done."""
+
+    def run(self, box: SnapshotBox, control: JobControl) -> None: ...

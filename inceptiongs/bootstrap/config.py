@@ -7,18 +7,18 @@ here.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from pathlib import Path
 
-from ..io.config_json import load_config, save_config
+from ..io.config_json import SavedConfig
 from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")
 
 
 @dataclass
-class BootstrapConfig:
+class BootstrapConfig(SavedConfig):
+    CONFIG_KIND = "bootstrap config"
+
     seed: int = 0
     rounds: int = 1
     iterations: int = 300               # refinement steps per round (real + virtual)
@@ -103,13 +103,3 @@ class BootstrapConfig:
         if self.eval_every < 0 or self.save_views < 0 or self.regenerate_every < 0:
             raise InputError(f"{source}: eval_every, save_views and regenerate_every must be >= 0")
         return self
-
-    def to_json_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    def save(self, path: str | Path) -> None:
-        save_config(self, path)
-
-    @staticmethod
-    def load(path: str | Path) -> "BootstrapConfig":
-        return load_config(BootstrapConfig, path, "bootstrap config")

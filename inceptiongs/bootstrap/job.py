@@ -1,11 +1,11 @@
-"""Bootstrapping as a job the viewer runs on a thread (same interface as train.job.TrainJob)."""
+"""Bootstrapping as a job the viewer runs on a thread (an :class:`inceptiongs.live.Job`, like train.job.TrainJob)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..live import JobPublisher, SnapshotBox
+from ..live import JobControl, JobPublisher, SnapshotBox
 from .config import BootstrapConfig
 
 
@@ -21,7 +21,7 @@ class BootstrapJob:
     config: BootstrapConfig = field(default_factory=BootstrapConfig)
     snapshot_every: int = 5
 
-    def run(self, box: SnapshotBox, control) -> None:
+    def run(self, box: SnapshotBox, control: JobControl) -> None:
         from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
 
         out = JobPublisher(box)
@@ -32,7 +32,5 @@ class BootstrapJob:
         result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False)
-        state = "finished" if result.finished else "stopped (checkpoint written)"
-        box.publish(result.iteration, None, dict(result.last_eval),
-                    f"bootstrap {state} at iteration {result.iteration}: {result.virtual_views} virtual views, "
-                    f"{out_dir}")
+        out.finish("bootstrap", result.iteration, result.finished, result.last_eval,
+                   f"{result.virtual_views} virtual views, {out_dir}")

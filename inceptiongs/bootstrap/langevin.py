@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..camera import quat_normalize, rotation_to_quat
+from ..camera import quat_normalize, rotation_to_quat, unit_quat_to_rotation
 
 # Step size of the drift, in (scene units)^2 per unit of log P. Normalised scenes have a rig
 # radius of 1, and the L1 pose gradient is of order 0.1 - 1 per unit, so one step drifts by
@@ -63,18 +63,14 @@ def pose_to_vector(world_to_camera) -> np.ndarray:
     return np.concatenate([centre, rotation_to_quat(rotation)])
 
 
-def _quat_to_rotation_torch(q: torch.Tensor) -> torch.Tensor:
+def quat_to_rotation_differentiable(q: torch.Tensor) -> torch.Tensor:
     """q: [4] (w, x, y, z), any non-zero norm -> [3, 3], differentiable."""
     norm = torch.linalg.vector_norm(q)
     # A zero quaternion is no rotation; refuse it instead of dividing by 0.
     if float(norm.detach()) < 1e-12:
         raise ValueError("pose vector has a zero quaternion")
     w, x, y, z = q / norm
-    return torch.stack([
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-    ])
+    return unit_quat_to_rotation(w, x, y, z, torch.stack)
 
 
 def vector_to_pose(vector):
@@ -84,7 +80,7 @@ def vector_to_pose(vector):
     if isinstance(vector, torch.Tensor):
         if vector.shape != (7,):
             raise ValueError(f"pose vector must be [7], got {tuple(vector.shape)}")
-        rotation = _quat_to_rotation_torch(vector[3:])
+        rotation = quat_to_rotation_differentiable(vector[3:])
         top = torch.cat([rotation, (-rotation @ vector[:3])[:, None]], dim=1)
         bottom = torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=vector.dtype, device=vector.device)
         return torch.cat([top, bottom], dim=0)

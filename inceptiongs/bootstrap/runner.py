@@ -30,6 +30,7 @@ from tqdm import tqdm
 from ..io.atomic import atomic_write_text
 from ..errors import InputError
 from ..gaussians import Gaussians
+from ..live import wait_while_paused
 from .config import BootstrapConfig
 from .generation import GenerationCache, VirtualTarget, blend_target, gaussians_version, generate_cached, \
     obtain_prior, prior_version
@@ -222,13 +223,9 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     def wait_or_stop() -> bool:
         """Honour pause; True when asked to stop."""
         nonlocal clock_start
-        if control is None:
-            return False
-        while control.pause.is_set() and not control.stop.is_set():
-            paused_at = time.perf_counter()
-            time.sleep(0.05)
-            clock_start += time.perf_counter() - paused_at
-        return control.stop.is_set()
+        stop, paused_s = wait_while_paused(control)
+        clock_start += paused_s
+        return stop
 
     def checkpoint_now(round_index: int) -> None:
         state.wall_s, state.train_s = now(), now() - eval_s

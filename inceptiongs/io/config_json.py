@@ -28,6 +28,24 @@ def read_json_object(path: str | Path, what: str) -> dict:
     return data
 
 
+class SavedConfig:
+    """What every run configuration (a dataclass with ``validate(source)``) does with its file:
+    ``to_json_dict``, ``save`` (atomic) and ``load`` (strict, validated). ``CONFIG_KIND`` names
+    it in errors."""
+
+    CONFIG_KIND = "config"
+
+    def to_json_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def save(self, path: str | Path) -> None:
+        save_config(self, path)
+
+    @classmethod
+    def load(cls, path: str | Path):
+        return load_config(cls, path, cls.CONFIG_KIND)
+
+
 def save_config(config, path: str | Path) -> None:
     """config: a dataclass instance of JSON-able fields."""
     atomic_write_text(path, json.dumps(dataclasses.asdict(config), indent=2, sort_keys=True) + "\n")
@@ -37,16 +55,21 @@ def load_config(cls: type[Config], path: str | Path, what: str = "config") -> Co
     """An instance of the dataclass ``cls`` from ``path``, validated (``cls.validate(source)``).
     Errors name the file and the problem; ``what`` says which kind of config it should be."""
     path = Path(path)
-    data = read_json_object(path, what)
+    config = dataclass_from_dict(cls, read_json_object(path, what), str(path), what)
+    return config.validate(str(path))
+
+
+def dataclass_from_dict(cls: type[Config], data: dict, source: str, what: str = "config") -> Config:
+    """An instance of the dataclass ``cls`` from ``data``, strictly: an unknown key or a missing
+    required one is an InputError naming ``source``, never silently dropped or guessed."""
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
-        raise InputError(f"{path}: unknown {what} keys {', '.join(unknown)}")
+        raise InputError(f"{source}: unknown {what} keys {', '.join(unknown)}")
     try:
-        config = cls(**data)
+        return cls(**data)
     except TypeError as exc:
-        raise InputError(f"{path}: {what} JSON does not fit ({exc})") from None
-    return config.validate(str(path))
+        raise InputError(f"{source}: {what} does not fit ({exc})") from None
 
 
 def json_safe(value):

@@ -13,6 +13,7 @@ from torch import nn
 
 from ..camera import Camera
 from ..gaussians import Gaussians
+from ..io.config_json import dataclass_from_dict
 from .appearance import HINT_CHANNELS, AppearanceHead
 from .controlnet import ConditionalDenoiser
 from .ddim import start_timestep
@@ -77,20 +78,29 @@ class PriorConfig:
         return asdict(self)
 
     @staticmethod
-    def from_dict(data: dict) -> "PriorConfig":
-        data = dict(data)
-        data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
-        data.setdefault("prediction", "epsilon")
-        data.setdefault("high_noise_share", 0.0)
-        data.setdefault("high_noise_t", 0.8)
-        data.setdefault("appearance_weight", 0.0)  # no hint head before the option
-        data.setdefault("sample_start", 1.0)
-        data.setdefault("sample_init", "hint")  # priors from before the option started from the hint
-        data.setdefault("appearance_learning_rate", 5e-3)
+    def from_dict(data: dict, source: str = "prior checkpoint") -> "PriorConfig":
+        """Strict (unknown keys are an error); fields added after a checkpoint was written take
+        the value that checkpoint was trained with (LEGACY_DEFAULTS), not today's default."""
+        data = {**PRIOR_LEGACY_DEFAULTS, **data}
         unet = dict(data.pop("unet"))
         unet["channel_mults"] = tuple(unet["channel_mults"])
-        grid = HashGridConfig(**data.pop("grid"))
-        return PriorConfig(**data, unet=UNetConfig(**unet), grid=grid)
+        return dataclass_from_dict(PriorConfig, {
+            **data, "unet": dataclass_from_dict(UNetConfig, unet, source, "prior unet config"),
+            "grid": dataclass_from_dict(HashGridConfig, data.pop("grid"), source, "prior hash grid config"),
+        }, source, "prior config")
+
+
+# What a checkpoint written before a field existed was trained with.
+PRIOR_LEGACY_DEFAULTS = {
+    "hash_at": "centres",            # before the option, hash features were splatted at centres
+    "prediction": "epsilon",
+    "high_noise_share": 0.0,
+    "high_noise_t": 0.8,
+    "appearance_weight": 0.0,        # no hint head before the option
+    "sample_start": 1.0,
+    "sample_init": "hint",           # priors from before the option started from the hint
+    "appearance_learning_rate": 5e-3,
+}
 
 
 def fit_bound(means: torch.Tensor, quantile: float = BOUND_QUANTILE, margin: float = BOUND_MARGIN) -> float:

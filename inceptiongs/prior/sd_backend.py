@@ -33,6 +33,7 @@ from torch import nn
 from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
+from ..io.config_json import dataclass_from_dict
 from .gbuffer import gbuffer_channels, render_gbuffer
 from .hashgrid import HashGrid, HashGridConfig, scene_grid
 from .model import fit_grid
@@ -68,11 +69,11 @@ class SDPriorConfig:
         return asdict(self)
 
     @staticmethod
-    def from_dict(data: dict) -> "SDPriorConfig":
-        data = dict(data)
-        data.setdefault("hash_at", "centres")  # checkpoints from before the option splatted centres
-        grid = HashGridConfig(**data.pop("grid"))
-        return SDPriorConfig(**data, grid=grid)
+    def from_dict(data: dict, source: str = "prior checkpoint") -> "SDPriorConfig":
+        """Strict, as PriorConfig.from_dict; checkpoints from before ``hash_at`` splatted centres."""
+        data = {"hash_at": "centres", **data}
+        grid = dataclass_from_dict(HashGridConfig, data.pop("grid"), source, "prior hash grid config")
+        return dataclass_from_dict(SDPriorConfig, {**data, "grid": grid}, source, "sd prior config")
 
 
 def _diffusers():

@@ -248,11 +248,11 @@ def build_prior(backend: str, config, device=None):
     raise InputError(f"unknown prior backend {backend!r} ({' | '.join(BACKENDS)})")
 
 
-def config_from_dict(backend: str, data: dict):
+def config_from_dict(backend: str, data: dict, source: str = "prior checkpoint"):
     if backend == "sd":
         from .sd_backend import SDPriorConfig
-        return SDPriorConfig.from_dict(data)
-    return PriorConfig.from_dict(data)
+        return SDPriorConfig.from_dict(data, source)
+    return PriorConfig.from_dict(data, source)
 
 
 def save_prior(run_dir: str | Path, trainer: PriorTrainer) -> Path:
@@ -283,7 +283,7 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
     try:
         payload = torch.load(path, map_location=device, weights_only=True)
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
-        return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"])}
+        return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"], str(path))}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
         raise InputError(f"{path}: not a readable prior checkpoint ({type(exc).__name__}: {exc})") from None
 

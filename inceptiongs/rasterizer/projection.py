@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..camera import unit_quat_to_rotation
 from ..constants import (
     ALPHA_MIN,
     DET_MIN,
@@ -82,12 +83,7 @@ def quat_to_rotation(quats: torch.Tensor) -> torch.Tensor:
     # safe's norm is >= QUAT_NORM_MIN (or exactly 1), so the division is bounded.
     unit = safe / torch.linalg.vector_norm(safe, dim=-1, keepdim=True).clamp_min(QUAT_NORM_MIN)
     w, x, y, z = unit.unbind(-1)
-    rows = [
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ]
-    return torch.stack(rows, -2)
+    return unit_quat_to_rotation(w, x, y, z, torch.stack)
 
 
 def scales_from_log(log_scales: torch.Tensor) -> torch.Tensor:

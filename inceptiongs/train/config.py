@@ -9,16 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from pathlib import Path
 
-from ..io.config_json import load_config, save_config
+from ..io.config_json import SavedConfig
 from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
 
 
 @dataclass
-class TrainConfig:
+class TrainConfig(SavedConfig):
     scene: str = ""
     downscale: int = 1
     max_width: int | None = None
@@ -98,16 +97,6 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be >= 1")
         return self
-
-    def to_json_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    def save(self, path: str | Path) -> None:
-        save_config(self, path)
-
-    @staticmethod
-    def load(path: str | Path) -> "TrainConfig":
-        return load_config(TrainConfig, path, "config")
 
 
 SHORT_RUN_RESET_MIN = 10_000

@@ -1,4 +1,4 @@
-"""Training as a job the viewer runs on a thread (see inceptiongs.live and app/live_training)."""
+"""Training as a job the viewer runs on a thread (an :class:`inceptiongs.live.Job`; see app/live_training)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,6 @@ from pathlib import Path
 
 from ..live import JobControl, JobPublisher, SnapshotBox
 from .config import TrainConfig
-
-__all__ = ["JobControl", "TrainJob"]
-
 
 @dataclass
 class TrainJob:
@@ -26,6 +23,4 @@ class TrainJob:
         out = JobPublisher(box)
         result = train(self.config, self.run_dir, resume=self.resume, progress=False, control=control,
                        on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log)
-        state = "finished" if result.finished else "stopped (checkpoint written)"
-        box.publish(result.iteration, None, dict(result.last_eval),
-                    f"training {state} at iteration {result.iteration}")
+        out.finish("training", result.iteration, result.finished, result.last_eval)

@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from ..errors import InputError
 from ..gaussians import Gaussians
+from ..live import wait_while_paused
 from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .optim import gaussians_from_params
@@ -107,16 +108,12 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         while state.iteration < config.iterations:
             if budget_s is not None and time.perf_counter() - train_clock >= budget_s:
                 break
-            if control is not None:
-                while control.pause.is_set() and not control.stop.is_set():
-                    paused_at = time.perf_counter()
-                    time.sleep(0.05)
-                    pause_s = time.perf_counter() - paused_at
-                    session_start += pause_s
-                    train_clock += pause_s
-                if control.stop.is_set():
-                    finished = False
-                    break
+            stop, paused_s = wait_while_paused(control)
+            session_start += paused_s
+            train_clock += paused_s
+            if stop:
+                finished = False
+                break
             step = state.iteration + 1
             record = train_step(step, state, data, config, sh_max, render_fn, background, log)
             state.iteration = step

@@ -116,7 +116,7 @@ def test_rerun_reads_generated_images_from_the_cache(stage1, boot):
 @pytest.mark.slow
 def test_ablations_change_what_runs(stage1, tmp_path):
     from inceptiongs.bootstrap.job import BootstrapJob
-    from inceptiongs.train.job import JobControl
+    from inceptiongs.live import JobControl
 
     box = SnapshotBox()
     config = _config(blending=False, sampling="uniform", prior="untrained", iterations=4, rounds=2, k=1)

@@ -150,6 +150,21 @@ def test_old_checkpoint_configs_read_as_epsilon_and_centre_splats():
         Prior(replace(TINY, prediction="x0"))
 
 
+def test_prior_configs_load_strictly():
+    from inceptiongs.prior.sd_backend import SDPriorConfig
+
+    data = TINY.to_dict()
+    assert PriorConfig.from_dict(data) == TINY
+    with pytest.raises(InputError, match="ckpt: unknown prior config keys learning_rat$"):
+        PriorConfig.from_dict({**data, "learning_rat": 1.0}, "ckpt")
+    with pytest.raises(InputError, match="unknown prior hash grid config keys levls"):
+        PriorConfig.from_dict({**data, "grid": {**data["grid"], "levls": 3}})
+    sd = SDPriorConfig().to_dict()
+    assert SDPriorConfig.from_dict(sd) == SDPriorConfig()
+    with pytest.raises(InputError, match="unknown sd prior config keys extra"):
+        SDPriorConfig.from_dict({**sd, "extra": 1})
+
+
 def test_high_noise_share_draws_that_part_of_each_batch_from_high_timesteps():
     gaussians, cameras, photos = prior_scene()
     # Sampling from pure noise (sample_start 1): the share is taken from the top of all of [0, T).

@@ -19,7 +19,8 @@ import torch
 from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
 from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.job import JobControl, TrainJob
+from inceptiongs.live import JobControl
+from inceptiongs.train.job import TrainJob
 from inceptiongs.train.trainer import train
 from inceptiongs.live import SnapshotBox
 
