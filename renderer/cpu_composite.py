@@ -36,6 +36,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange
 
 from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, RECURRENCE_CONIC_MAX, TRANSMITTANCE_MIN
+from inceptiongs.rasterizer.numba_spans import next_pixel_ratio, row_span
 
 # Rows per band: small enough that bands balance over threads, large enough that walking
 # the Gaussian list once per band stays cheap (the walk is O(bands x Gaussians)).
@@ -132,9 +133,8 @@ def _composite_row(image, skip, live, pixel0, base, x0, x1, mx, dy, ca, cb, cc, 
             continue
         gaussian = math.exp(-power)
         if stepping:
-            # ca (dx + 1/2) + cb dy = power(x + 1) - power(x); within a span
-            # |ca (x + 1/2 - centre)| <= sqrt(ca level) + 2 ca < 15: no overflow.
-            ratio = math.exp(-(ca * (dx + 0.5) + cb * dy))
+            # Within a span |ca (x + 1/2 - centre)| <= sqrt(ca level) + 2 ca < 15: no overflow.
+            ratio = next_pixel_ratio(ca, cb, dx, dy)
             x = _stepped_run(image, skip, live, pixel0, base, x, x1, gaussian, ratio, step_factor,
                              opacity, value_r, value_g, value_b)
         else:
@@ -158,7 +158,7 @@ def _composite(splats, order, width, height, threads, out):
     y_hi = np.empty(m, np.int32)
     block_lo = np.empty(m, np.int32)
     block_hi = np.empty(m, np.int32)
-    terms = np.empty((m, 12))
+    terms = np.empty((m, 10))
     for k in prange(m):
         g = order[k]
         mx = np.float64(splats[g, 0, 0])
@@ -198,11 +198,8 @@ def _composite(splats, order, width, height, threads, out):
         terms[k, 6] = splats[g, 2, 0]
         terms[k, 7] = splats[g, 2, 1]
         terms[k, 8] = splats[g, 2, 2]
-        # Row spans (below): centre mx - (cb / ca) dy, half-width sqrt(level / ca -
-        # det / ca^2 dy^2); ca > 0. Overflow to inf gives NaN spans, handled there.
-        terms[k, 9] = cb / ca
-        terms[k, 10] = level / ca
-        terms[k, 11] = det / ca / ca
+        # Row spans (below) cut power at level / 2: level is twice the power bound.
+        terms[k, 9] = 0.5 * level
     bands = (height + BAND_ROWS - 1) // BAND_ROWS
     # Per-band lists of Gaussians (counting sort by band, draw order kept within a band),
     # so a band walks only the Gaussians that reach it.
@@ -263,36 +260,19 @@ def _composite(splats, order, width, height, threads, out):
             ca = terms[k, 2]
             cb = terms[k, 3]
             cc = terms[k, 4]
-            slope = terms[k, 9]
-            half_squared = terms[k, 10]
-            half_shrink = terms[k, 11]
+            cut = terms[k, 9]
             # The per-pixel recurrence is used where its factors stay far from float64
             # over/underflow; its relative drift over n pixels is ~n^2 * 1e-16.
             step_factor = math.exp(-ca)
             recurrence = ca < RECURRENCE_CONIC_MAX
             for y in range(max(y_lo[k], row0), min(y_hi[k] + 1, row1)):
                 dy = y + 0.5 - my
-                # Row span: ca dx^2 + 2 cb dy dx + cc dy^2 <= level, roots in dx.
-                disc = half_squared - half_shrink * dy * dy
-                if disc < 0.0:
+                # Conservative span (the per-pixel test decides); NaN terms give the whole row
+                # without the recurrence.
+                x0, x1, parabola = row_span(ca, cb, cc, cut, mx, dy, 0, width - 1)
+                if x0 > x1:
                     continue
-                half = math.sqrt(disc)
-                centre = mx - slope * dy
-                lo = centre - half - 0.5  # pixel x has its centre at x + 0.5
-                hi = centre + half - 0.5
-                stepping = recurrence
-                if lo <= hi:
-                    if hi < -1.0 or lo > width:
-                        continue
-                    # Clamped in float before the int conversion (huge spans), widened by
-                    # one pixel so rounding cannot drop a pixel: the per-pixel test decides.
-                    x0 = max(int(math.floor(max(lo, -1.0))) - 1, 0)
-                    x1 = min(int(math.ceil(min(hi, width + 0.0))) + 1, width - 1)
-                else:
-                    # NaN from overflowing terms: the whole row, every pixel tested directly.
-                    x0 = 0
-                    x1 = width - 1
-                    stepping = False
+                stepping = recurrence and parabola
                 base = (y - row0) * (width + 1)
                 x0 = _next_alive(skip, base, x0)
                 if x0 > x1:

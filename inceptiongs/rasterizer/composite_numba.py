@@ -41,6 +41,8 @@ from torch.autograd.function import once_differentiable
 
 from inceptiongs.constants import ALPHA_MAX, ALPHA_MIN, RECURRENCE_CONIC_MAX, TILE_SIZE, TRANSMITTANCE_MIN
 
+from .numba_spans import next_pixel_ratio, row_span
+
 # Columns of the packed per-Gaussian parameter table (rows in depth order).
 _MX, _MY, _CA, _CB, _CC, _OPACITY, _POWER_CUT = range(7)
 _PARAM_COLUMNS = 7
@@ -153,41 +155,8 @@ def _exp_along_span(stepping, first, power, ca, cb, mx, dy, x, gauss, ratio, ste
     if not stepping:
         return math.exp(-power), ratio
     if first:
-        return math.exp(-power), math.exp(-(ca * ((x + 0.5) - mx + 0.5) + cb * dy))
+        return math.exp(-power), next_pixel_ratio(ca, cb, (x + 0.5) - mx, dy)
     return gauss * ratio, ratio * step_factor
-
-
-@njit(cache=True, inline="always")
-def _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1):
-    """Inclusive pixel columns of one row that may satisfy power <= cut, within [bx0, bx1].
-
-    For a fixed row, power(dx) = 0.5 a dx^2 + b dy dx + 0.5 c dy^2 is a parabola in dx when
-    a > 0, below the cut between the roots dx = (-b dy +- sqrt(D)) / a with
-    D = 2 a cut - (a c - b^2) dy^2. The span is only a shortcut: every pixel in it still takes
-    the exact test, so it is made conservative -- D is raised by a bound far above its
-    rounding error and the span is widened by one pixel each side. Rows where the parabola
-    form does not apply (a <= 0, non-finite terms) keep the whole box row. The third value is
-    True only for a parabola span: there power stays within about the cut at every pixel,
-    which the exp() recurrence of the kernels relies on."""
-    if not (ca > 0.0 and cut < math.inf):
-        return bx0, bx1, False
-    dy2 = dy * dy
-    disc = 2.0 * ca * cut - (ca * cc - cb * cb) * dy2
-    disc += 1e-12 * ((abs(ca * cc) + cb * cb) * dy2 + abs(2.0 * ca * cut))
-    if disc != disc:
-        return bx0, bx1, False  # NaN terms: let the exact per-pixel test decide, as the contract does
-    if disc < 0.0:
-        return 1, 0, False  # the row lies wholly beyond the cut
-    half = math.sqrt(disc) / ca
-    centre = mx - cb * dy / ca
-    lo = centre - half - 0.5  # pixel index i has its centre at i + 0.5
-    hi = centre + half - 0.5
-    if not (lo < math.inf and hi > -math.inf):
-        return bx0, bx1, False
-    if lo > bx1 or hi < bx0:
-        return 1, 0, False
-    return (max(bx0, int(math.floor(max(lo, bx0 - 1.0))) - 1),
-            min(bx1, int(math.ceil(min(hi, bx1 + 1.0))) + 1), True)
 
 
 @njit(parallel=True, fastmath=False, cache=True)
@@ -231,7 +200,7 @@ def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, 
             for y in range(by0, by1 + 1):
                 dy = (y + 0.5) - my
                 ly = y - y0
-                sx0, sx1, parabola = _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
+                sx0, sx1, parabola = row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
                 stepping = parabola and ca < RECURRENCE_CONIC_MAX
                 gauss = 0.0
                 ratio = 0.0
@@ -325,7 +294,7 @@ def _backward_kernel(params, values, rects, offsets, entries, tile_order, width,
             for y in range(by0, by1 + 1):
                 dy = (y + 0.5) - my
                 ly = y - y0
-                sx0, sx1, parabola = _row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
+                sx0, sx1, parabola = row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
                 stepping = parabola and ca < RECURRENCE_CONIC_MAX
                 gauss = 0.0
                 ratio = 0.0

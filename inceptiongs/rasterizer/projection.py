@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..camera import unit_quat_to_rotation
+from ..camera import Camera, unit_quat_to_rotation
 from ..constants import (
     ALPHA_MIN,
     DET_MIN,
@@ -33,18 +33,6 @@ from ..constants import (
     OPACITY_LOGIT_ABS_MAX,
     QUAT_NORM_MIN,
 )
-
-
-@dataclass
-class Intrinsics:
-    """Pinhole intrinsics in pixels and the image size."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
 
 
 @dataclass
@@ -134,10 +122,11 @@ def project(
     quats: torch.Tensor,
     opacity_logits: torch.Tensor,
     world_to_camera: torch.Tensor,
-    intrinsics: Intrinsics,
+    intrinsics: Camera,
 ) -> Projection:
     """Project N Gaussians (means [N, 3], log_scales [N, 3], quats [N, 4], opacity_logits [N])
-    through world_to_camera [4, 4] (any float dtype; may require grad) and ``intrinsics``.
+    through world_to_camera [4, 4] (any float dtype; may require grad) and the pinhole
+    intrinsics and image size of the camera ``intrinsics`` (its own pose is not read).
 
     The per-Gaussian geometry is computed in float64 whatever the model's dtype (it is O(N)
     and cheap next to compositing): squared pixel covariances of huge or very close Gaussians

@@ -15,7 +15,7 @@ from ..camera import Camera
 from .composite import composite
 from ..constants import ALPHA_EPS
 from ..gaussians import Gaussians
-from .projection import Intrinsics, plane_normals, project, view_directions
+from .projection import plane_normals, project, view_directions
 from .sh import sh_to_color
 
 OUTPUTS = ("rgb", "alpha", "depth", "plane_depth", "normal", "features")
@@ -46,10 +46,9 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     if world_to_camera is None:
         world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=device)
     degree = gaussians.sh_degree if sh_degree is None else max(0, min(sh_degree, gaussians.sh_degree))
-    intrinsics = Intrinsics(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
 
     proj = project(gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits,
-                   world_to_camera, intrinsics)
+                   world_to_camera, camera)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
