@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import atomic_open, atomic_write_bytes
+from ..io.atomic import atomic_open
+from ..io.images import write_png
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
@@ -170,11 +171,7 @@ def write_output(image: np.ndarray, mode: str, out: Path) -> None:
         with atomic_open(out, "wb") as handle:
             np.save(handle, image.astype(np.float32))
         return
-    import cv2
-    ok, encoded = cv2.imencode(".png", cv2.cvtColor(to_png_rgb(image, mode), cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise InputError(f"{out}: PNG encoding failed")
-    atomic_write_bytes(out, encoded.tobytes())
+    write_png(out, to_png_rgb(image, mode))
 
 
 def run(args) -> int:
