@@ -210,13 +210,18 @@ def not_grazing(normals: torch.Tensor, rays_a: torch.Tensor, rays_b: torch.Tenso
 
 
 def warp_to_view(src_image, src_depth, src_cam: Camera, dst_depth, dst_cam: Camera,
-                 delta: float = DEFAULT_DELTA, grazing_deg: float = DEFAULT_GRAZING_DEG) -> WarpResult:
+                 delta: float = DEFAULT_DELTA, grazing_deg: float = DEFAULT_GRAZING_DEG,
+                 occlusion_depth=None) -> WarpResult:
     """Backward-warp a source photo into the destination view (see the module doc).
 
     src_image: [H, W, 3] float in [0, 1]; src_depth: [H, W, 1] source camera z (0 = none);
     dst_depth: [h, w, 1] destination camera z (0 = none). H, W and h, w must match the
     cameras (H, W >= 2). Returns image [h, w, 3] in src_image's dtype (0 where rejected)
     and mask [h, w, 1] in {0, 1}.
+
+    occlusion_depth: [h, w, 1] the destination depth the visibility test (5) uses instead of
+    dst_depth. A photo-refined dst_depth places the photo, while the occlusion test must
+    compare depths of one kind: the stage-I depths of both views, which share their errors.
     """
     if not (math.isfinite(delta) and delta > 0):
         raise ValueError(f"delta must be a positive number, got {delta}")
@@ -235,9 +240,13 @@ def warp_to_view(src_image, src_depth, src_cam: Camera, dst_depth, dst_cam: Came
     in_front = geometry.has_depth & (z > NEAR_PLANE)
     x0, y0, fx, fy, inside = bilinear_taps(geometry.uv, src_cam.width, src_cam.height)
     src_z = torch.where(torch.isfinite(src_z), src_z, torch.zeros_like(src_z))
-    sampled_z, z_taps = sample_bilinear(src_z, x0, y0, fx, fy)
-    taps_have_depth = (z_taps[..., 0] > 0).all(dim=-1)
-    visible = (z - sampled_z[..., 0]).abs() <= delta * z
+    occlusion = geometry if occlusion_depth is None else warp_geometry(
+        _tensor(occlusion_depth, "occlusion_depth", torch.float64, device), dst_cam, src_cam)
+    occ_z = occlusion.points_src[..., 2]
+    ox0, oy0, ofx, ofy, occ_inside = bilinear_taps(occlusion.uv, src_cam.width, src_cam.height)
+    sampled_z, z_taps = sample_bilinear(src_z, ox0, oy0, ofx, ofy)
+    taps_have_depth = (z_taps[..., 0] > 0).all(dim=-1) & occlusion.has_depth & (occ_z > NEAR_PLANE) & occ_inside
+    visible = (occ_z - sampled_z[..., 0]).abs() <= delta * occ_z
 
     normals, normal_ok = depth_normals(geometry.points_dst, geometry.has_depth)
     transform = torch.as_tensor(relative_pose(src_cam, dst_cam), dtype=torch.float64, device=device)
