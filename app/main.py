@@ -46,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
             path = take_screenshot(source, args.screenshot, args.camera, size)
             print(f"wrote {path}", file=sys.stderr)
             return 0
-        from .viewer import Viewer, WindowError  # noqa: PLC0415
+        from .viewer import Viewer  # noqa: PLC0415
+        from .window import WindowError  # noqa: PLC0415
 
         width, height = size or (1280, 720)
         try:

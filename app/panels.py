@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from .viewer import RENDER_MODES
+from .settings import RENDER_MODES
 
 
 def draw_panels(viewer) -> None:
@@ -43,7 +43,7 @@ def _view(viewer) -> None:
     changed, fov = imgui.slider_float("field of view", nav.fov_y_deg, 5.0, 150.0)
     if changed:
         nav.set_fov(fov)
-        viewer._moved()
+        viewer.moved()
     _, viewer.settings.orbit = imgui.checkbox("orbit (O; double-click sets the pivot)", viewer.settings.orbit)
     _, viewer.settings.show_training_cameras = imgui.checkbox("training cameras (T)",
                                                               viewer.settings.show_training_cameras)
@@ -77,11 +77,11 @@ def _inspect(viewer) -> None:
         changed, index = imgui.combo("show", views.index(settings.reference_view), views)
         if changed:
             settings.reference_view = views[index]
-        worker = viewer.reference
+        worker = viewer.drawing.reference
         if worker is not None and worker.error:
             imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"reference failed: {worker.error}")
-        elif viewer.reference_psnr is not None:
-            imgui.text(f"GL vs torch PSNR {viewer.reference_psnr:.2f} dB"
+        elif viewer.drawing.reference_psnr is not None:
+            imgui.text(f"GL vs torch PSNR {viewer.drawing.reference_psnr:.2f} dB"
                        + (" (updating...)" if worker is not None and worker.busy else ""))
         else:
             imgui.text("torch reference rendering...")
@@ -181,11 +181,9 @@ def _edit(viewer) -> None:
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
         if imgui.button("crop to box"):
             viewer.apply_crop()
-    if not hasattr(viewer, "_save_path"):
-        viewer._save_path = str(viewer.source.work_dir / "edited.ply")
-    _, viewer._save_path = imgui.input_text("file", viewer._save_path)
+    _, viewer.save_path = imgui.input_text("file", viewer.save_path)
     if imgui.button("save PLY"):
         try:
-            viewer.save_ply(viewer._save_path)
+            viewer.save_ply(viewer.save_path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line
             viewer.status = f"save failed: {exc}"

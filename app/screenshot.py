@@ -59,7 +59,7 @@ def _context():
     if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
         import glfw  # noqa: PLC0415
 
-        from .viewer import create_window  # noqa: PLC0415
+        from .window import create_window  # noqa: PLC0415
 
         window = create_window(64, 64, "inceptiongs screenshot", visible=False)
         ctx = moderngl.create_context()

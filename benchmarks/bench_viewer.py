@@ -83,6 +83,7 @@ def main() -> int:
         print(f"benchmark skipped: {args.ply} not found", file=sys.stderr)
         return 0
     from inceptiongs.app import viewer as viewer_module
+    from inceptiongs.app.drawing import STILL_SECONDS
     from inceptiongs.app.sources import open_source
 
     width, height = (int(v) for v in args.size.split("x"))
@@ -94,15 +95,15 @@ def main() -> int:
         viewer.step()
 
         def force_full_render(_):
-            viewer._last_render_key = None  # re-render although nothing changed
+            viewer.drawing.last_render_key = None  # re-render although nothing changed
         results["idle"] = _measure(viewer, args.frames, force_full_render)
         results["idle, cached"] = _measure(viewer, args.frames, lambda _: None)
 
         def turn(_):
             viewer.nav.look(4.0, 0.0)
-            viewer._moved()
+            viewer.moved()
         results["moving"] = _measure(viewer, args.frames, turn)
-        time.sleep(viewer_module.STILL_SECONDS)
+        time.sleep(STILL_SECONDS)
         viewer.start_training()
         time.sleep(0.3)
         results["training"] = _measure(viewer, args.frames, lambda _: None)

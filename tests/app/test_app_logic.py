@@ -329,7 +329,7 @@ def test_heatmap_and_side_by_side():
 
 
 def test_moving_render_scale_adapts_to_the_budget_and_stays_in_range():
-    viewer = pytest.importorskip("inceptiongs.app.viewer")
+    viewer = pytest.importorskip("inceptiongs.app.drawing")
     scales, budget = viewer.MOVING_RENDER_SCALES, viewer.MOVING_BUDGET_MS
     assert list(scales) == sorted(scales, reverse=True) and scales[0] < 1.0
     level = 0

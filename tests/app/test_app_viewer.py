@@ -178,8 +178,8 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
     try:
         viewer.step()
         # The F key, as GLFW delivers it.
-        viewer.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
-        viewer.on_key(viewer.window, glfw.KEY_F, 0, glfw.RELEASE, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.RELEASE, 0)
         # A right-click on a covered pixel away from the panel (the panel starts at the top left).
         viewer.settings.mode = "opacity"
         coverage = viewer.render_image()[..., 0]
@@ -187,9 +187,9 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         rows, cols = np.nonzero(coverage[:, 380:] > 0.5)
         assert len(rows), "the model should cover part of the right side of the window"
         x, y = float(cols[len(cols) // 2] + 380), float(rows[len(rows) // 2])
-        viewer.on_cursor(viewer.window, x, y)
-        viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
-        viewer.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
+        viewer.input.on_cursor(viewer.window, x, y)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
         viewer.step()
         current = viewer.current_camera()
         flags = load_flags(viewer.flags_file)
@@ -301,7 +301,7 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
         assert np.abs(after[:, 380:] - before[:, 380:]).mean() > 1e-3  # right side changed
         saved = viewer.save_ply(tmp_path / "edited.ply")
         assert len(read_ply(saved)) == total - selected
-        viewer.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
+        viewer.input.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
         viewer.step()
         assert viewer.edit.count == total
         np.testing.assert_allclose(viewer.render_image(), before, atol=1e-6)
@@ -317,17 +317,17 @@ def test_navigation_keys_move_the_camera(xvfb, model):
         viewer.step()
         start = viewer.nav.center.copy()
         forward = viewer.nav.rotation[2].copy()
-        viewer.on_key(viewer.window, glfw.KEY_W, 0, glfw.PRESS, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_W, 0, glfw.PRESS, 0)
         for _ in range(3):
             viewer.step()
-        viewer.on_key(viewer.window, glfw.KEY_W, 0, glfw.RELEASE, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_W, 0, glfw.RELEASE, 0)
         moved = viewer.nav.center - start
         assert moved @ forward > 0 and np.linalg.norm(np.cross(moved, forward)) < 1e-9
         assert viewer.stats.rendered_scale < 1.0  # reduced resolution while moving
         time.sleep(0.2)
         viewer.step()
         assert viewer.stats.rendered_scale == 1.0  # refined once still
-        viewer.on_key(viewer.window, glfw.KEY_R, 0, glfw.PRESS, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_R, 0, glfw.PRESS, 0)
         np.testing.assert_allclose(viewer.nav.center, start)
     finally:
         viewer.close()
@@ -341,7 +341,7 @@ def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
         "from inceptiongs.renderer.context import create_offscreen_context\n"
         "ctx = create_offscreen_context(); ctx.release()\n"
         "import glfw, moderngl\n"
-        "from inceptiongs.app.viewer import create_window\n"
+        "from inceptiongs.app.window import create_window\n"
         "window = create_window(32, 32, 'egl then glx', visible=False)\n"
         "print('renderer', moderngl.create_context().info['GL_RENDERER'])\n"
         "glfw.terminate()\n"

@@ -1,0 +1,176 @@
+"""Drawing one frame's picture: the splats into the scene texture (at reduced size while the
+camera or the model moves, full size once still, nothing when nothing changed), the torch
+reference comparison, and the world-space overlays (cameras, flags, crop box, selection).
+
+The drawer owns only GL resources and render caching; what to draw is read from the viewer
+it is given (settings, navigation, edit state, flags)."""
+
+from __future__ import annotations
+
+import time
+
+import moderngl
+import numpy as np
+
+from inceptiongs.constants import sh_degree_from_count
+from inceptiongs.evaluation.metrics import psnr
+
+from .frustums import segments_for_cameras
+from .images import visualize
+from .overlay import OverlayRenderer, SceneTexture
+from .reference import ReferenceWorker, error_heatmap, side_by_side
+from .settings import GL_MODE_NAMES
+
+# Resolution factors while the camera moves, largest first; the full frame follows once it
+# has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
+# Each moving render picks the next factor from the last one's splat time: a smaller factor
+# when it overran MOVING_BUDGET_MS, a larger one when it took under half of it. A few fixed
+# sizes rather than a continuous factor, so the scene texture is not reallocated every frame.
+MOVING_RENDER_SCALES = (0.5, 0.375, 0.25)
+MOVING_RENDER_SCALE = MOVING_RENDER_SCALES[0]
+MOVING_BUDGET_MS = 40.0
+STILL_SECONDS = 0.15
+# A model that changed less than MODEL_STILL_SECONDS ago is drawn at the moving size too (a
+# training view updates at reduced resolution) and refined once the job pauses, stops or goes
+# quiet.
+MODEL_STILL_SECONDS = 1.0
+# The torch reference renders at most this many pixels wide (it runs on the CPU).
+REFERENCE_MAX_WIDTH = 320
+TRAINING_COLOR = (0.2, 0.6, 1.0)
+FLAG_COLOR = (1.0, 0.3, 0.2)
+SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
+CROP_COLOR = (0.3, 1.0, 0.3)
+SELECTION_COLOR = (1.0, 0.2, 0.9)
+
+
+def next_moving_level(level: int, splat_ms: float) -> int:
+    """The MOVING_RENDER_SCALES index for the next moving frame, from the last one's splat
+    time (preprocess + sort + draw ms): down a size over budget, up one under half of it."""
+    if splat_ms > MOVING_BUDGET_MS:
+        return min(level + 1, len(MOVING_RENDER_SCALES) - 1)
+    if splat_ms < 0.5 * MOVING_BUDGET_MS:
+        return max(level - 1, 0)
+    return level
+
+
+def box_segments(box_min, box_max) -> np.ndarray:
+    """The 12 edges [12, 2, 3] of an axis-aligned box."""
+    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    corners = np.array([[(hi if (i >> k) & 1 else lo)[k] for k in range(3)] for i in range(8)])
+    edges = [(i, i | (1 << k)) for i in range(8) for k in range(3) if not (i >> k) & 1]
+    return np.array([(corners[a], corners[b]) for a, b in edges])
+
+
+class FrameDrawer:
+    """GL drawing for one viewer: scene texture, overlays, the reference worker."""
+
+    def __init__(self, ctx: moderngl.Context, renderer) -> None:
+        self.ctx = ctx
+        self.renderer = renderer
+        self.overlay = OverlayRenderer(ctx)
+        self.scene_texture = SceneTexture(ctx)
+        self.uploaded_version = None
+        self.reference = None  # ReferenceWorker, made when the reference mode is first used
+        self.reference_psnr: float | None = None
+        self.reference_request = None
+        self.last_render_key = None
+        self.moving_level = 0  # index into MOVING_RENDER_SCALES
+
+    def upload_model(self, viewer) -> None:
+        """Hand the viewer's visible Gaussians to the renderer when they changed."""
+        version = (viewer.model_version, viewer.edit.version)
+        if version != self.uploaded_version:
+            self.renderer.set_gaussians(viewer.edit.visible_arrays(), version=hash(version) & 0x7FFFFFFF)
+            self.uploaded_version = version
+
+    def draw_scene(self, viewer, screen: moderngl.Framebuffer) -> None:
+        now = time.perf_counter()
+        moving = (now - viewer.last_motion < STILL_SECONDS
+                  or now - viewer.last_snapshot_time < MODEL_STILL_SECONDS)
+        scale = MOVING_RENDER_SCALES[self.moving_level] if moving else 1.0
+        self.upload_model(viewer)
+        settings, stats = viewer.settings, viewer.stats
+        mode = settings.mode
+        camera = viewer.current_camera(scale)
+        key = (mode, settings.reference_view, scale, camera.width, camera.height,
+               camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
+               settings.splat_scale, tuple(settings.background))
+        if mode == "reference":
+            self.draw_reference(viewer)
+        elif key != self.last_render_key:
+            if mode in ("rgb", "opacity"):
+                # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
+                target = self.scene_texture.ensure(camera.width, camera.height)
+                self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=settings.background,
+                                   sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
+                self.scene_texture.flip_y = False
+            else:
+                # depth and normal need normalising for display: read back, map, upload.
+                image = self.renderer.render(camera, GL_MODE_NAMES[mode], sh_degree_cap=settings.sh_degree_cap,
+                                             splat_scale=settings.splat_scale)
+                self.scene_texture.upload(visualize(image, mode))
+            stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
+            stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
+            if moving:
+                self.moving_level = next_moving_level(self.moving_level, sum(self.renderer.timings.values()))
+            stats.rendered_scale = scale
+            stats.splat_renders += 1
+            self.last_render_key = key
+        self.scene_texture.blit(screen)
+
+    def draw_reference(self, viewer) -> None:
+        """GL and torch at the same reduced camera; the torch image comes from the worker."""
+        settings = viewer.settings
+        camera = viewer.current_camera()
+        if camera.width > REFERENCE_MAX_WIDTH:
+            camera = camera.scaled(camera.width / REFERENCE_MAX_WIDTH)
+        if self.reference is None:
+            self.reference = ReferenceWorker()
+        arrays = viewer.edit.visible_arrays()
+        result = self.reference.result()
+        request_key = (camera.world_to_camera.tobytes(), camera.width, self.uploaded_version,
+                       settings.sh_degree_cap)
+        if self.reference_request != request_key:
+            cap = min(settings.sh_degree_cap, sh_degree_from_count(arrays["sh"].shape[1]))
+            self.reference.request(arrays, hash(self.uploaded_version), camera, settings.background, cap)
+            self.reference_request = request_key
+        if result is None:
+            return
+        gl = self.renderer.render(result.camera, mode="rgb", background=settings.background,
+                                  sh_degree_cap=settings.sh_degree_cap, splat_scale=1.0)
+        self.reference_psnr = float(psnr(gl.astype(np.float64), result.rgb.astype(np.float64)))
+        if settings.reference_view == "heat-map":
+            image = error_heatmap(gl, result.rgb)
+        else:
+            image = side_by_side(gl, result.rgb)
+        self.scene_texture.upload(image)
+        self.last_render_key = None
+
+    def draw_overlays(self, viewer, screen: moderngl.Framebuffer) -> None:
+        settings, edit, flags = viewer.settings, viewer.edit, viewer.flags
+        camera = viewer.current_camera()
+        screen.use()
+        depth = max(viewer.nav.speed * 0.1, 1e-3)
+        if settings.show_training_cameras and viewer.cameras:
+            segments = segments_for_cameras(viewer.cameras, depth)
+            self.overlay.draw_segments(camera, segments, np.tile(TRAINING_COLOR, (len(segments), 1)))
+        if settings.show_flags and flags:
+            segments = segments_for_cameras([f.camera for f in flags], depth * 1.5)
+            colors = np.tile(FLAG_COLOR, (len(segments), 1))
+            if 0 <= viewer.selected_flag < len(flags):
+                colors[8 * viewer.selected_flag: 8 * viewer.selected_flag + 8] = SELECTED_FLAG_COLOR
+            self.overlay.draw_segments(camera, segments, colors)
+        if settings.crop_enabled:
+            self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),
+                                       np.tile(CROP_COLOR, (12, 1)))
+        if edit.selected.any():
+            self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
+
+    def close(self) -> None:
+        """Stop the reference worker (no GL calls: safe without a current context)."""
+        if self.reference is not None:
+            self.reference.close()
+
+    def release(self) -> None:
+        self.overlay.release()
+        self.scene_texture.release()

@@ -1,0 +1,79 @@
+"""The GLFW window with its GL 4.3 core context, and the imgui-bundle backend attached to it."""
+
+from __future__ import annotations
+
+import glfw
+import moderngl
+
+from inceptiongs.renderer.context import unbind_current_egl
+
+GL_REQUIRED = (4, 3)
+
+
+class WindowError(RuntimeError):
+    """No window / no GL 4.3 context; the message says what was found."""
+
+
+def create_window(width: int, height: int, title: str, visible: bool = True):
+    """A GLFW window with a GL 4.3 core context made current. Raises WindowError naming the GL
+    version that could be had when 4.3 core cannot."""
+    unbind_current_egl()  # an EGL context left current blocks GLX on this thread
+    if not glfw.init():
+        raise WindowError("could not initialise GLFW (no display? set DISPLAY or run under Xvfb)")
+    glfw.window_hint(glfw.VISIBLE, glfw.TRUE if visible else glfw.FALSE)
+    glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, GL_REQUIRED[0])
+    glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, GL_REQUIRED[1])
+    glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, glfw.TRUE)
+    window = glfw.create_window(width, height, title, None, None)
+    if window:
+        glfw.make_context_current(window)
+        return window
+    raise WindowError(f"no OpenGL {GL_REQUIRED[0]}.{GL_REQUIRED[1]} core context could be created; "
+                      f"found: {probe_gl_version()}")
+
+
+def probe_gl_version() -> str:
+    """What GL a default (unversioned) context gives, for the error message."""
+    glfw.default_window_hints()
+    glfw.window_hint(glfw.VISIBLE, glfw.FALSE)
+    window = glfw.create_window(16, 16, "probe", None, None)
+    if not window:
+        return "no OpenGL context at all"
+    glfw.make_context_current(window)
+    try:
+        ctx = moderngl.create_context()
+        info = f"OpenGL {ctx.info.get('GL_VERSION', '?')} ({ctx.info.get('GL_RENDERER', '?')})"
+        ctx.release()
+    except Exception as exc:  # noqa: BLE001 - only feeding an error message
+        info = f"an unusable context ({exc})"
+    glfw.destroy_window(window)
+    return info
+
+
+def create_imgui(window):
+    """imgui + implot contexts and the GLFW backend for ``window``; the viewer forwards GLFW's
+    events to it itself (attach_callbacks=False), so tests can inject them."""
+    from imgui_bundle import imgui, implot  # noqa: PLC0415 (no imgui unless there is a UI)
+    from imgui_bundle.python_backends.glfw_backend import GlfwRenderer  # noqa: PLC0415
+
+    imgui.create_context()
+    implot.create_context()
+    imgui.get_io().set_ini_filename("")  # no imgui.ini littering the working folder
+    return GlfwRenderer(window, attach_callbacks=False)
+
+
+def ui_wants_mouse(imgui_impl) -> bool:
+    """Whether imgui uses the mouse this frame (a panel is under it); False with no UI."""
+    if imgui_impl is None:
+        return False
+    from imgui_bundle import imgui  # noqa: PLC0415
+    return imgui.get_io().want_capture_mouse
+
+
+def ui_wants_keyboard(imgui_impl) -> bool:
+    """Whether imgui takes the keys (a text field has focus); False with no UI."""
+    if imgui_impl is None:
+        return False
+    from imgui_bundle import imgui  # noqa: PLC0415
+    return imgui.get_io().want_capture_keyboard
