@@ -60,6 +60,11 @@ class BootstrapConfig(SavedConfig):
     # virtual view's loss; 1 is the paper's loss on I*. Lower trusts a weak prior less.
     generated_weight: float = 1.0
     lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
+    # The conscience (conscience.py): every ``conscience_every`` steps the L1 of the training photos
+    # nearest the targets is measured; above its start value by more than this (relative) the
+    # virtual views' weight halves, and recovers once the photos are back. None: off.
+    conscience_tolerance: float | None = 0.05
+    conscience_every: int = 25
 
     # --- view-adaptive sampling (Algorithm 1) --------------------------------------------------
     sampling: str = "langevin"          # "langevin" | "uniform" (ablation)
@@ -73,7 +78,7 @@ class BootstrapConfig(SavedConfig):
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
         positive = ("rounds", "iterations", "ddim_steps", "virtual_every", "log_every",
-                    "checkpoint_every", "max_virtual_views")
+                    "checkpoint_every", "max_virtual_views", "conscience_every")
         for name in positive:
             if getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be >= 1, got {getattr(self, name)}")
@@ -95,6 +100,8 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
         if not 0 <= self.generated_weight <= 1:
             raise InputError(f"{source}: generated_weight must be in [0, 1], got {self.generated_weight}")
+        if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
+            raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:
             raise InputError(f"{source}: lambda_virtual must be >= 0, got {self.lambda_virtual}")
         if (self.langevin_step is not None and self.langevin_step <= 0) or (

@@ -158,15 +158,16 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
 
 
 def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
-                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None) -> dict:
-    """One optimisation step on a virtual view (weighted by choice.weight); the log record."""
+                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0) -> dict:
+    """One optimisation step on a virtual view (weighted by choice.weight and the conscience's
+    ``scale``); the log record."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, train_config, data.extent))
     sh_degree = sh_degree_at(step, train_config, sh_max)
     gaussians = gaussians_from_params(state.params)
     out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree)
     loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
                                      pixel_weights(view.mask, config.generated_weight))
-    total = config.lambda_virtual * choice.weight * loss
+    total = config.lambda_virtual * choice.weight * scale * loss
     if train_config.pgsr:
         total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
     record.update(kind="virtual", view=view.name, weight=choice.weight, p=choice.p,

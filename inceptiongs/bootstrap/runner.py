@@ -32,6 +32,8 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
 from .config import BootstrapConfig
+from .conscience import Conscience, photo_loss
+from .virtual_views import DEFAULT_K, nearest_training_views
 from .generation import GenerationCache, VirtualTarget, blend_target, gaussians_version, generate_cached, \
     obtain_prior, prior_version
 from ..io.flags import FLAGS_FILE_NAME
@@ -209,6 +211,12 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     cache = GenerationCache(boot_dir / "cache")
     pool: list[VirtualTarget] = []
     sampler = ViewSampler(config, config.seed)
+    # The conscience watches the training photos nearest the targets (none for the baseline,
+    # which has no virtual views to restrain).
+    conscience_views = sorted({i for r in rounds for t in r
+                               for i in nearest_training_views(t.camera, cameras, list(split.train), config.k or DEFAULT_K)})
+    conscience = Conscience(config.conscience_tolerance) if (config.conscience_tolerance is not None
+                                                             and conscience_views) else None
     step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0}   # what each refinement step was
     view_use: dict[str, int] = {}                               # how often each virtual view was chosen
     finished = True
@@ -316,12 +324,17 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 if (pool and config.regenerate_every and (step - start) % config.regenerate_every == 0
                         and round_end - step + 1 >= max(1, config.regenerate_every // 2)):
                     regenerate_pool()
+                if conscience is not None and (step - start - 1) % config.conscience_every == 0:
+                    loss = photo_loss(render_fn, gaussians_from_params(state.params).detach(), cameras, data.images,
+                                      conscience_views, sh_degree_at(step, train_config, sh_max))
+                    conscience.update(step, loss)
                 if pool and step % config.virtual_every == 0:
                     sh_degree = sh_degree_at(step, train_config, sh_max)
                     frozen = gaussians_from_params(state.params).detach()
                     choice = sampler.choose(pool, lambda i, w2c: render_l1(render_fn, frozen, pool[i], sh_degree, w2c))
                     record = virtual_step(step, state, data, train_config, sh_max, pool[choice.index], choice,
-                                          config, render_fn, lpips)
+                                          config, render_fn, lpips,
+                                          scale=conscience.scale if conscience is not None else 1.0)
                     step_counts[record["virtual_branch"]] += 1
                     view_use[pool[choice.index].name] = view_use.get(pool[choice.index].name, 0) + 1
                 else:
@@ -332,6 +345,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 bar.update(1)
                 if step % config.log_every == 0:
                     record.update(iteration=step, wall_s=now(), train_s=now() - eval_s, round=round_index + 1)
+                    if conscience is not None:
+                        record.update(conscience_loss=conscience.history[-1][1], virtual_scale=conscience.scale)
                     if config.eval_every and step % config.eval_every == 0:
                         record.update(evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data))
                     append_metrics(out_dir, record)
@@ -363,7 +378,10 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     summary.update(iteration=state.iteration, finished=finished, rounds_done=rounds_done,
                    wall_s=now(), cache_hits=cache.hits, cache_misses=cache.misses,
                    virtual_views=len(pool), last_eval=last_eval, steps=step_counts,
-                   view_use=view_use, regenerations=regenerations)
+                   view_use=view_use, regenerations=regenerations,
+                   conscience=None if conscience is None else {
+                       "views": [cameras[i].name for i in conscience_views], "tolerance": conscience.tolerance,
+                       "baseline": conscience.baseline, "checks": [list(c) for c in conscience.history]})
     _write_summary(boot_dir / "summary.json", summary)
     return BootstrapResult(out_dir, start, state.iteration, finished, rounds_done, len(gaussians), len(pool),
                            cache.hits, cache.misses, now(), prior_text, initial_eval, last_eval)
@@ -385,8 +403,6 @@ def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], 
 
 def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfig) -> list[int]:
     """The K training photos nearest the virtual view (warped into it for blending)."""
-    from .virtual_views import DEFAULT_K, nearest_training_views
-
     if not config.blending:
         return []
     return nearest_training_views(camera, cameras, list(train), config.k or DEFAULT_K)
