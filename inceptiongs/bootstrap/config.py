@@ -50,6 +50,12 @@ class BootstrapConfig(SavedConfig):
     blending: bool = True
     delta: float | None = None          # relative depth tolerance of the warp (A's default when None)
     save_views: int = 4                 # PNGs (I*, mask, generated) for this many virtual views
+    # What the warped photos are blended with: "blend" (the paper's: binary mask, uniform mean,
+    # stage-I depth) or "photo" (photo-consistent depth, exposure matching, lumigraph weights,
+    # soft mask; supervision.py), and what fills the pixels no photo covers under "photo":
+    # "prior" (the generated image), "inpaint" or "render". Figures: docs/bootstrap.md.
+    supervision: str = "blend"
+    fill: str = "prior"
 
     # --- refinement --------------------------------------------------------------------------
     virtual_every: int = 2              # every n-th step is a virtual view (2: alternate)
@@ -100,6 +106,10 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
         if not 0 <= self.generated_weight <= 1:
             raise InputError(f"{source}: generated_weight must be in [0, 1], got {self.generated_weight}")
+        if self.supervision not in ("blend", "photo"):
+            raise InputError(f"{source}: supervision must be 'blend' or 'photo', got {self.supervision!r}")
+        if self.fill not in ("prior", "inpaint", "render"):
+            raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
             raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:

@@ -163,22 +163,35 @@ class VirtualTarget:
 
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],
                  photos: dict[int, torch.Tensor], render_depth: Callable[[Camera], torch.Tensor],
-                 blending: bool, delta: float | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """I* = M * warped + (1 - M) * generated for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
+                 blending: bool, delta: float | None, supervision: str = "blend", fill: str = "prior",
+                 render_rgb: Callable[[Camera], torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
-    sources: training view indices whose photos are warped in (A's warp_to_view, with the
-    stage-I depth of both views); ``blending=False`` (ablation) keeps the generated image and
-    an all-zero mask.
+    sources: training view indices whose photos are warped in, with the stage-I depth of both
+    views. ``supervision="blend"``: the uniform mean of the binary-masked warps over the
+    generated image (the paper's blending); ``"photo"``: photo-consistent depth, exposure
+    matching, lumigraph weights and a soft mask over ``fill`` (supervision.py; needs
+    ``render_rgb`` for the render fill and the inpainting's surroundings). ``blending=False``
+    (ablation) keeps the generated image and an all-zero mask.
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
         return generated_t, torch.zeros((*generated_t.shape[:2], 1))
     from .warp import DEFAULT_DELTA, blend_views, warp_to_view
 
+    delta = DEFAULT_DELTA if delta is None else delta
     dst_depth = render_depth(camera)
+    if supervision == "photo":
+        from .supervision import Source, supervise
+
+        render = render_rgb(camera) if render_rgb is not None else generated_t
+        out = supervise(camera, render, dst_depth,
+                        [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
+                        generated=generated_t, fill=fill, delta=delta)
+        return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
     warps = []
     for index in sources:
         warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,
-                                  camera, delta=DEFAULT_DELTA if delta is None else delta))
+                                  camera, delta=delta))
     image, mask = blend_views(generated_t, warps)
     return image.detach().float().clamp(0.0, 1.0), mask.detach().float()

@@ -255,12 +255,16 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     depth_cache[key] = render_fn(current, camera, outputs=("depth",))["depth"]
             return depth_cache[key]
 
+        def render_rgb(camera) -> torch.Tensor:
+            with torch.no_grad():
+                return render_fn(current, camera, outputs=("rgb",))["rgb"].float().clamp(0.0, 1.0)
+
         def make(camera, round_number: int, save: bool):
             generated, hit = generate_cached(prior, current, camera, config.seed, config.ddim_steps,
                                              cache, prior_hash, gaussians_hash)
             sources = _blend_sources(camera, cameras, split.train, config)
-            image, mask = blend_target(generated, camera, sources, cameras, data.images,
-                                       render_depth, config.blending, config.delta)
+            image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
+                                       config.blending, config.delta, config.supervision, config.fill, render_rgb)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
             if save:
                 with torch.no_grad():

@@ -52,6 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--untrained-prior", action="store_true", help="ablation: randomly initialised prior")
     parser.add_argument("--lpips-weights", metavar="FILE", default=None,
                         help="TorchScript LPIPS for the perceptual loss (default: a weight-free distance)")
+    parser.add_argument("--supervision", choices=("blend", "photo"), default=d.supervision,
+                        help="what I* is made of: 'blend' (binary-masked mean of the warped photos over the "
+                             "generated image, stage-I depth) or 'photo' (photo-consistent depth, exposure "
+                             f"matching, lumigraph weights, soft mask; default {d.supervision})")
+    parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
+                        help=f"with --supervision photo: what fills pixels no photo covers (default {d.fill})")
+    parser.add_argument("--conscience-tolerance", type=float, default=d.conscience_tolerance, metavar="T",
+                        help="lower the virtual views' weight when the nearest photos' L1 rises above its start "
+                             f"by more than T (relative; default {d.conscience_tolerance}; a negative T: off)")
 
 
 def config_from_args(args):
@@ -66,6 +75,8 @@ def config_from_args(args):
         prior="untrained" if args.untrained_prior else "trained", lpips_weights=args.lpips_weights,
         generated_weight=args.generated_weight, densify=args.densify,
         regenerate_every=args.regenerate_every, include_target=args.include_target,
+        supervision=args.supervision, fill=args.fill,
+        conscience_tolerance=None if args.conscience_tolerance < 0 else args.conscience_tolerance,
     ).validate("arguments")
 
 

@@ -301,3 +301,26 @@ def test_prior_version_covers_the_weights_and_how_the_prior_samples():
     with torch.no_grad():
         same.appearance.net[0].bias.add_(1e-3)
     assert prior_version(same) != prior_version(prior)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fill", ["prior", "inpaint"])
+def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):
+    out = tmp_path / f"photo_{fill}"
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=8, supervision="photo", fill=fill, conscience_every=2, save_views=0,
+                                   regenerate_every=0),
+                           progress=False)
+    assert result.finished and (out / "model.ply").is_file()
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
+    # The soft mask: some photo trust, never more than full trust.
+    assert any(0 < m for m in masks) and all(0 <= m <= 1 for m in masks)
+    checks = summary["conscience"]["checks"]
+    assert len(checks) == 4 and summary["conscience"]["baseline"] == checks[0][1] > 0
+    assert all(r["virtual_scale"] == checks_at(checks, r["iteration"]) for r in _records(out) if "virtual_scale" in r)
+
+
+def checks_at(checks: list, iteration: int) -> float:
+    """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
+    return [scale for step, _, scale in checks if step <= iteration][-1]
