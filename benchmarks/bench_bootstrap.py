@@ -29,20 +29,29 @@ import sys
 import time
 from pathlib import Path
 
+import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
 VARIANTS = {
+    # The default: photo supervision (photo-consistent depth, exposure matching, lumigraph
+    # weights, soft mask) over the render, with the conscience.
     "full": {},
+    # The paper's I*: the warps (stage-I depth, binary mask, uniform mean) over the prior's image.
+    "paper": {"supervision": "blend", "fill": "prior"},
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
-    "untrained-prior": {"prior": "untrained"},
+    "untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior"},
+    # The new ingredients one at a time (on top of "full").
+    "fill-prior": {"fill": "prior"},
+    "fill-inpaint": {"fill": "inpaint"},
+    "no-conscience": {"conscience_tolerance": None},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},
     # Not an ablation of the paper: generated pixels weighted 0.2 against photo-trusted ones
-    # (what the demo uses; a weak CPU-trained prior paints noise where no photo is trusted).
-    "generated-weight-0.2": {"generated_weight": 0.2},
+    # (a weak CPU-trained prior paints noise where no photo is trusted).
+    "generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2},
 }
 
 
@@ -123,25 +132,32 @@ def scores(run_dir: Path) -> dict:
     return flat_scores(evaluate_run(run_dir, progress=False)["groups"])
 
 
-def bench_scene(name: str, args) -> dict:
+def base_config(args):
     from inceptiongs.bootstrap.config import BootstrapConfig
+
+    return BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations, ddim_steps=args.ddim_steps,
+                           k=args.k, l=args.l, log_every=1, eval_every=max(args.bootstrap_iterations // 4, 1))
+
+
+def bench_scene(name: str, args) -> dict:
     from inceptiongs.bootstrap.runner import baseline_run, load_stage1, resolve_targets, run_bootstrap
 
     out = Path(args.out)
     run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed)
-    prior_s = train_prior(run_dir, args.prior_minutes, args.seed)
-    print(f"[{name}] prior: {prior_s:.0f} s", flush=True)
+    configs = {variant: dataclasses.replace(base_config(args), **VARIANTS[variant]) for variant in args.variants}
+    prior_s = 0.0
+    if any(c.needs_prior() and c.prior != "untrained" for c in configs.values()):
+        prior_s = train_prior(run_dir, args.prior_minutes, args.seed)
+        print(f"[{name}] prior: {prior_s:.0f} s", flush=True)
     _, scene, split, _, _ = load_stage1(run_dir)
     targets = resolve_targets(scene, split, None, None, 1)
-    base = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations, ddim_steps=args.ddim_steps,
-                           k=args.k, l=args.l, log_every=1, eval_every=max(args.bootstrap_iterations // 4, 1))
     rows = {"stage I": {"seconds": 0.0, **scores(run_dir)}}
     curves = {}
-    for variant in args.variants:
-        config = dataclasses.replace(base, **VARIANTS[variant])
+    for variant, config in configs.items():
         print(f"[{name}] {variant} ...", flush=True)
         result = run_bootstrap(run_dir, out / name / variant, targets, config, progress=False)
-        extra = 0.0 if config.prior == "untrained" else prior_s
+        # A prior trained for the run counts towards the time of every variant that uses it.
+        extra = prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
         rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
         curves[variant] = eval_curve(out / name / variant)
     if "full" in rows:

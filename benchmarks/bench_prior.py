@@ -29,6 +29,7 @@ import argparse
 import time
 
 import numpy as np
+import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch
 
 from inceptiongs.camera import Camera, look_at

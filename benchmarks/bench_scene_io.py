@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch
 
 from inceptiongs.scene.demo import write_demo_scene

@@ -3,18 +3,26 @@
 Stage II refines the Gaussians towards I* at virtual views. A held-out view has a photo, so
 treating it *as* a virtual view measures how close each candidate I* comes to the truth there,
 before any refinement: if I* is no better than the render, refining on it cannot lift the
-held-out scores far. Per held-out view of RUN (scarce cluster / covered views), against its
-photo:
+held-out scores. Per held-out view of RUN (scarce cluster / covered views), against its photo,
+each ingredient on its own:
 
 - ``render``: the stage-I render (what the view shows now);
-- ``blend(render)``: the K nearest training photos warped in (the bootstrap's warp and
-  trusted-pixel mask), the render elsewhere: what blending alone gives;
-- ``repair``: the prior's repair of the render (RUN/prior/prior.pt, its default sampling);
-- ``I*``: the repair with the warped photos blended in: exactly what the bootstrap trains on;
-- ``trusted``: PSNR on the trusted pixels only, warped photos vs the render there, and the
-  trusted fraction M.
+- ``blend``: the paper's blending (K nearest photos warped with the stage-I depth, binary
+  trusted-pixel mask, uniform mean) over the render;
+- ``+depth``: the same warps placed with the photo-consistent depth (photo_depth.py), uniform
+  mean, soft mask, over the render;
+- ``+lumi``: lumigraph weights instead of the uniform mean;
+- ``+expo``: and exposure matching (the full photo supervision), over the render;
+- ``inpaint``: the full photo supervision with the inpainting fill;
+- ``repair``: the prior's repair of the render (needs a prior: RUN/prior/prior.pt or --prior-run);
+- ``I*blend``: the bootstrap's default I*: the paper's blending over the repair;
+- ``I*photo``: the photo supervision over the repair (``--supervision photo --fill prior``).
 
-    python benchmarks/bench_supervision.py RUN [--ddim-steps 10] [--k 3] [--delta 0.03]
+Trusted-pixel columns compare the photos with the render *on the pixels the supervision
+trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
+there, or blending cannot help.
+
+    python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
 
 Prints a table per group (mean over views) and writes nothing. No photo of a held-out view is
 used for anything but its score.
@@ -24,25 +32,29 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
-
-import torch
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-SOURCES = ("render", "blend(render)", "repair", "I*")
+import inceptiongs  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
+import torch  # noqa: E402
+
+WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint")
+WITH_PRIOR = ("repair", "I*blend", "I*photo")
+TRUSTED = ("blend", "photo")
 
 
 def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
     """One held-out view's scores; depths: {camera name: rendered depth}, shared across views
     (a training view is a warp source of several held-out views)."""
     from inceptiongs.bootstrap.generation import blend_target
+    from inceptiongs.bootstrap.supervision import Source, supervise
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
-    from inceptiongs.rasterizer.rasterize import render_rgb
     from inceptiongs.evaluation.generated import photo_of, score
     from inceptiongs.evaluation.metrics import psnr
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.rasterize import render, render_rgb
 
     camera = scene.cameras[view]
     photo = photo_of(scene, view)
@@ -58,18 +70,32 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
 
     blend = lambda base: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
                                       render_depth, True, args.delta)
-    blended, mask = blend(rendered)
-    with torch.no_grad():
-        repaired, _ = prior.generate(gaussians, camera, steps=args.ddim_steps, seed=args.seed)
-    repaired = repaired.detach().float().clamp(0, 1)
-    target, _ = blend(repaired)
-    row = {name: score(image, photo) for name, image in
-           zip(SOURCES, (rendered, blended, repaired, target))}
-    trusted = mask[..., 0] > 0
-    row["mask"] = float(mask.mean())
-    if trusted.any():
-        row["trusted_warp"] = float(psnr(blended, photo, mask))
-        row["trusted_render"] = float(psnr(rendered, photo, mask))
+    photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
+    dst_depth = render_depth(camera)
+    photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta, **kw)  # noqa: E731
+
+    began = time.perf_counter()
+    images = {"render": rendered}
+    images["blend"], blend_mask = blend(rendered)
+    images["+depth"] = photo_run(fill="render", lumigraph=False, exposure=False).target
+    images["+lumi"] = photo_run(fill="render", exposure=False).target
+    full = photo_run(fill="render")
+    images["+expo"] = full.target
+    images["inpaint"] = photo_run(fill="inpaint").target
+    row = {"photo_s": time.perf_counter() - began}
+    if prior is not None:
+        with torch.no_grad():
+            repaired, _ = prior.generate(gaussians, camera, steps=args.ddim_steps, seed=args.seed)
+        images["repair"] = repaired.detach().float().clamp(0, 1)
+        images["I*blend"], _ = blend(images["repair"])
+        images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
+    row.update({name: score(image, photo) for name, image in images.items()})
+    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5)):
+        row[f"{name}_trusted_fraction"] = float(mask.float().mean())
+        if mask.any():
+            warped = images["blend"] if name == "blend" else full.blended
+            row[f"{name}_trusted_warp"] = float(psnr(warped, photo, mask))
+            row[f"{name}_trusted_render"] = float(psnr(rendered, photo, mask))
     return row
 
 
@@ -81,33 +107,53 @@ def main(argv=None) -> int:
     from inceptiongs.prior.trainer import load_prior
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run", help="a stage-I run with a split and a trained prior (RUN/prior/prior.pt)")
+    parser.add_argument("run", help="a stage-I run with a split")
+    parser.add_argument("--prior-run", default=None,
+                        help="folder whose prior/prior.pt to use (default RUN; e.g. the bootstrap's output, "
+                             "which trains one when the run has none). Without a prior the prior rows are left out")
     parser.add_argument("--ddim-steps", type=int, default=10, help="the bootstrap's default")
     parser.add_argument("--k", type=int, default=DEFAULT_K, help="training photos warped into each view")
     parser.add_argument("--delta", type=float, default=DEFAULT_DELTA, help="the warp's depth tolerance")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    torch.set_num_threads(2)
 
     _, scene, split, _, gaussians = load_stage1(Path(args.run))
-    prior = load_prior(Path(args.run))
+    prior_run = Path(args.prior_run or args.run)
+    prior = load_prior(prior_run) if (prior_run / "prior" / "prior.pt").is_file() else None
+    sources = WITHOUT_PRIOR + (WITH_PRIOR if prior is not None else ())
+    if prior is None:
+        print(f"{prior_run}: no prior/prior.pt: the prior rows (repair, I*) are left out")
     rows, depths = {}, {}
     for view in split.test:
         rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths)
         print(f"  {scene.cameras[view].name} ({group_of(view, split)}): "
-              + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}/{rows[view][s]['ssim']:.3f}" for s in SOURCES),
-              flush=True)
+              + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}" for s in sources)
+              + f"  (photo supervision {rows[view]['photo_s']:.1f} s)", flush=True)
     print(f"\n{args.run}: held-out views as virtual views; PSNR (dB) / SSIM against their photos")
-    print(f"{'group':<9}{'views':>6}" + "".join(f"{s:>17}" for s in SOURCES) + f"{'M':>6}{'trusted warp/render':>22}")
+    print(f"{'group':<9}{'views':>6}" + "".join(f"{s:>14}" for s in sources))
     for group in GROUPS:
         members = [rows[v] for v in rows if group_of(v, split) == group]
         if not members:
             continue
         mean = lambda key, metric: sum(m[key][metric] for m in members) / len(members)  # noqa: E731
-        trusted = [m for m in members if "trusted_warp" in m]
-        cells = "".join(f"{mean(s, 'psnr'):>10.2f}/{mean(s, 'ssim'):.3f}" for s in SOURCES)
-        warp = (f"{sum(m['trusted_warp'] for m in trusted) / len(trusted):>13.2f}/"
-                f"{sum(m['trusted_render'] for m in trusted) / len(trusted):.2f}") if trusted else f"{'-':>22}"
-        print(f"{group:<9}{len(members):>6}{cells}{sum(m['mask'] for m in members) / len(members):>6.2f}{warp}")
+        print(f"{group:<9}{len(members):>6}" + "".join(f"{mean(s, 'psnr'):>7.2f}/{mean(s, 'ssim'):.3f}"
+                                                     for s in sources))
+    print("\ntrusted pixels: PSNR of the blended photos / of the render on the pixels the supervision trusts "
+          "(fraction of the image)")
+    for group in GROUPS:
+        members = [rows[v] for v in rows if group_of(v, split) == group]
+        cells = []
+        for name in TRUSTED:
+            have = [m for m in members if f"{name}_trusted_warp" in m]
+            if not have:
+                cells.append(f"{name}: -")
+                continue
+            avg = lambda key: sum(m[key] for m in have) / len(have)  # noqa: E731
+            cells.append(f"{name}: {avg(f'{name}_trusted_warp'):.2f} / {avg(f'{name}_trusted_render'):.2f} "
+                         f"({sum(m[f'{name}_trusted_fraction'] for m in members) / len(members):.2f})")
+        if members:
+            print(f"{group:<9}" + "   ".join(cells))
     return 0
 
 

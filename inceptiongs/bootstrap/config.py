@@ -51,11 +51,14 @@ class BootstrapConfig(SavedConfig):
     delta: float | None = None          # relative depth tolerance of the warp (A's default when None)
     save_views: int = 4                 # PNGs (I*, mask, generated) for this many virtual views
     # What the warped photos are blended with: "blend" (the paper's: binary mask, uniform mean,
-    # stage-I depth) or "photo" (photo-consistent depth, exposure matching, lumigraph weights,
-    # soft mask; supervision.py), and what fills the pixels no photo covers under "photo":
-    # "prior" (the generated image), "inpaint" or "render". Figures: docs/bootstrap.md.
-    supervision: str = "blend"
-    fill: str = "prior"
+    # stage-I depth, over the prior's generated image) or "photo" (photo-consistent depth,
+    # exposure matching, lumigraph weights, soft mask; supervision.py), and what fills the pixels
+    # no photo covers under "photo": "prior" (the generated image), "inpaint" or "render".
+    # bench_supervision on the demo (docs/bootstrap.md): photo + render is the only I* at or
+    # above the render on both groups (scarce 25.72 vs render 25.45 vs blend-over-prior 23.92);
+    # the CPU-trained prior's repair is 6 dB below the render, so it fills nothing by default.
+    supervision: str = "photo"
+    fill: str = "render"
 
     # --- refinement --------------------------------------------------------------------------
     virtual_every: int = 2              # every n-th step is a virtual view (2: alternate)
@@ -81,6 +84,10 @@ class BootstrapConfig(SavedConfig):
     log_every: int = 10
     eval_every: int = 0                 # 0: evaluate only at the start and after each round
     checkpoint_every: int = 200
+
+    def needs_prior(self) -> bool:
+        """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
+        return not (self.blending and self.supervision == "photo" and self.fill != "prior")
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
         positive = ("rounds", "iterations", "ddim_steps", "virtual_every", "log_every",

@@ -186,7 +186,12 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                      "rounds": [], "initial_eval": initial_eval}
 
     prior, prior_text, prior_hash = None, "none (baseline: no virtual views)", ""
-    if not baseline:
+    if not baseline and not config.needs_prior():
+        prior_text = (f"none: I* is made from the photos and the render (supervision {config.supervision}, "
+                      f"fill {config.fill}), nothing is generated")
+        summary["prior"] = {"description": prior_text, "version": "", "seconds": 0.0}
+        log(prior_text)
+    elif not baseline:
         began = time.perf_counter()
         train_cams = [cameras[i] for i in split.train]
         # A short prior training may take at most half of a time budget: generation and
@@ -260,8 +265,11 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 return render_fn(current, camera, outputs=("rgb",))["rgb"].float().clamp(0.0, 1.0)
 
         def make(camera, round_number: int, save: bool):
-            generated, hit = generate_cached(prior, current, camera, config.seed, config.ddim_steps,
-                                             cache, prior_hash, gaussians_hash)
+            if prior is not None:
+                generated, hit = generate_cached(prior, current, camera, config.seed, config.ddim_steps,
+                                                 cache, prior_hash, gaussians_hash)
+            else:  # the fill is the render itself (or inpainted around it): nothing to generate
+                generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
             image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                        config.blending, config.delta, config.supervision, config.fill, render_rgb)

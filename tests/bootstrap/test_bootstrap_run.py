@@ -46,8 +46,9 @@ def stage1(tmp_path_factory) -> Path:
 
 
 def _config(**overrides) -> BootstrapConfig:
+    # The paper's supervision (the prior's image under the blended photos) unless a test says otherwise.
     base = BootstrapConfig(seed=2, iterations=8, k=2, l=2, ddim_steps=2, prior_steps=2, prior_minutes=1.0,
-                           log_every=1, save_views=2, checkpoint_every=4)
+                           log_every=1, save_views=2, checkpoint_every=4, supervision="blend", fill="prior")
     return dataclasses.replace(base, **overrides)
 
 
@@ -316,6 +317,9 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
     masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
     # The soft mask: some photo trust, never more than full trust.
     assert any(0 < m for m in masks) and all(0 <= m <= 1 for m in masks)
+    # Only the prior fill needs a prior; the inpainting fill generates nothing.
+    assert (out / "prior" / "prior.pt").is_file() == (fill == "prior")
+    assert ("nothing is generated" in summary["prior"]["description"]) == (fill != "prior")
     checks = summary["conscience"]["checks"]
     assert len(checks) == 4 and summary["conscience"]["baseline"] == checks[0][1] > 0
     assert all(r["virtual_scale"] == checks_at(checks, r["iteration"]) for r in _records(out) if "virtual_scale" in r)
