@@ -15,6 +15,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics
 
 # COLMAP camera model id -> (name, number of parameters), from COLMAP's camera model table.
@@ -25,7 +26,8 @@ _MODELS = {
     11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16), 12: ("SIMPLE_DIVISION", 4), 13: ("DIVISION", 5),
     14: ("SIMPLE_FISHEYE", 3), 15: ("FISHEYE", 4), 16: ("EUCM", 6), 17: ("EQUIRECTANGULAR", 2),
 }
-SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                    "OPENCV_FISHEYE")
 
 
 def find_model_dir(root: Path) -> tuple[Path, str] | None:
@@ -105,7 +107,7 @@ def check_binary_model(folder: Path) -> None:
         points.finish()
 
 
-def _distortion(model: str, params: np.ndarray) -> np.ndarray | None:
+def _distortion(model: str, params: np.ndarray):
     """OpenCV distortion coefficients for a supported COLMAP model (None for pinhole models)."""
     if model in ("SIMPLE_PINHOLE", "PINHOLE"):
         return None
@@ -117,6 +119,8 @@ def _distortion(model: str, params: np.ndarray) -> np.ndarray | None:
         return np.array(params[4:8], dtype=np.float64)
     if model == "FULL_OPENCV":
         return np.array(params[4:12], dtype=np.float64)
+    if model == "OPENCV_FISHEYE":  # fx, fy, cx, cy, k1, k2, k3, k4: OpenCV's fisheye model
+        return Fisheye(params[4:8])
     raise AssertionError(model)
 
 
