@@ -16,6 +16,7 @@ import numpy as np
 
 from .io.atomic import atomic_write_text
 from .io.config_json import read_json_object
+from .io.limits import check_image_size
 from .errors import InputError
 
 # Below this |sin(angle)| slerp falls back to normalised lerp: the slerp weights
@@ -254,6 +255,7 @@ def camera_from_json_dict(data: dict, source: str = "<camera json>") -> Camera:
         raise InputError(f"{source}: camera JSON contains NaN or Inf")
     if width <= 0 or height <= 0 or values[0] <= 0 or values[1] <= 0:
         raise InputError(f"{source}: width, height, fx and fy must be positive")
+    check_image_size(width, height, source)
     rotation = pose[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or np.linalg.det(rotation) < 0:
         raise InputError(f"{source}: world_to_camera rotation is not a proper rotation")
