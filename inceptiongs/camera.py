@@ -247,7 +247,7 @@ def camera_from_json_dict(data: dict, source: str = "<camera json>") -> Camera:
         pose = np.asarray(data["world_to_camera"], dtype=np.float64)
         values = [float(data[key]) for key in ("fx", "fy", "cx", "cy")]
         width, height = int(data["width"]), int(data["height"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: int(inf)
         raise InputError(f"{source}: camera JSON has a malformed value ({exc})") from None
     if pose.shape != (4, 4):
         raise InputError(f"{source}: world_to_camera must be a 4x4 matrix, got shape {pose.shape}")

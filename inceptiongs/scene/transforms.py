@@ -61,6 +61,8 @@ def _resolve_image(base: Path, file_path: str) -> Path:
 
 def _frame_size(path: Path, width: float | None, height: float | None, source: str) -> tuple[int, int]:
     if width is not None and height is not None:
+        if not (math.isfinite(width) and math.isfinite(height)):
+            raise InputError(f"{source}: w/h must be finite numbers, got {width} x {height}")
         return int(round(width)), int(round(height))
     from PIL import Image
 
