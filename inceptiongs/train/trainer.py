@@ -153,7 +153,8 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                                 **({"psnr": f"{last_eval['all_psnr']:.2f}"} if "all_psnr" in last_eval else {}))
             if on_snapshot is not None and snapshot_every > 0 and step % snapshot_every == 0:
                 on_snapshot(step, gaussians_from_params(state.params).detach(), record)
-            if step % config.checkpoint_every == 0:
+            # The last step's checkpoint is the final save's, written after the model (below).
+            if step % config.checkpoint_every == 0 and step < config.iterations:
                 checkpoint_now()
             if after_step is not None:
                 after_step(step, gaussians_from_params(state.params).detach(),
