@@ -39,6 +39,9 @@ def main(argv: list[str] | None = None) -> int:
         from .sources import open_source  # noqa: PLC0415
 
         size = parse_size(args.size) if args.size else None
+        if size is not None:
+            from inceptiongs.io.limits import check_image_size  # noqa: PLC0415
+            check_image_size(*size, f"--size {args.size}")
         if args.camera and not args.screenshot:
             raise InputError(f"{args.camera}: --camera is only used with --screenshot")
         source = open_source(args.source)

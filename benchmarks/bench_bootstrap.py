@@ -155,7 +155,7 @@ def bench_scene(name: str, args) -> dict:
     curves = {}
     for variant, config in configs.items():
         print(f"[{name}] {variant} ...", flush=True)
-        result = run_bootstrap(run_dir, out / name / variant, targets, config, progress=False)
+        result = run_bootstrap(run_dir, out / name / variant, targets, config, progress=False, overwrite=True)
         # A prior trained for the run counts towards the time of every variant that uses it.
         extra = prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
         rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
@@ -166,7 +166,7 @@ def bench_scene(name: str, args) -> dict:
         iterations = max(1, int(total_s / max(step_s, 1e-3)))
         print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
         result = baseline_run(run_dir, out / name / "baseline", total_s / 60.0, iterations, seed=args.seed,
-                              progress=False, eval_every=max(iterations // 4, 1))
+                              progress=False, eval_every=max(iterations // 4, 1), overwrite=True)
         rows["baseline (same time)"] = {"seconds": result.wall_s, **scores(out / name / "baseline")}
         curves["baseline (same time)"] = eval_curve(out / name / "baseline")
     return {"rows": rows, "curves": curves, "prior_s": prior_s}

@@ -16,6 +16,7 @@ import numpy as np
 
 from .io.atomic import atomic_write_text
 from .io.config_json import read_json_object
+from .io.limits import check_image_size
 from .errors import InputError
 
 # Below this |sin(angle)| slerp falls back to normalised lerp: the slerp weights
@@ -253,7 +254,7 @@ def camera_from_json_dict(data: dict, source: str = "<camera json>") -> Camera:
         pose = np.asarray(data["world_to_camera"], dtype=np.float64)
         values = [float(data[key]) for key in ("fx", "fy", "cx", "cy")]
         width, height = int(data["width"]), int(data["height"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: int(inf)
         raise InputError(f"{source}: camera JSON has a malformed value ({exc})") from None
     if pose.shape != (4, 4):
         raise InputError(f"{source}: world_to_camera must be a 4x4 matrix, got shape {pose.shape}")
@@ -261,6 +262,7 @@ def camera_from_json_dict(data: dict, source: str = "<camera json>") -> Camera:
         raise InputError(f"{source}: camera JSON contains NaN or Inf")
     if width <= 0 or height <= 0 or values[0] <= 0 or values[1] <= 0:
         raise InputError(f"{source}: width, height, fx and fy must be positive")
+    check_image_size(width, height, source)
     rotation = pose[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or np.linalg.det(rotation) < 0:
         raise InputError(f"{source}: world_to_camera rotation is not a proper rotation")

@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from .errors import InputError
+from .io.cache import set_cache_dir
 
 # name -> module in inceptiongs.commands; order is the order in --help.
 COMMANDS = {
@@ -43,12 +44,17 @@ def available_commands() -> dict[str, object]:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="inceptiongs", description=__doc__.splitlines()[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
+    parser.add_argument("--cache-dir", metavar="DIR", default=None,
+                        help="cache folder (default $INCEPTIONGS_CACHE_DIR, else $XDG_CACHE_HOME/inceptiongs)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, module in available_commands().items():
         command_parser = sub.add_parser(name, help=module.HELP, description=module.HELP)
         command_parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                                     help="show tracebacks for errors")
+        command_parser.add_argument("--cache-dir", metavar="DIR", default=argparse.SUPPRESS,
+                                    help="cache folder (default $INCEPTIONGS_CACHE_DIR, else "
+                                         "$XDG_CACHE_HOME/inceptiongs)")
         module.add_arguments(command_parser)
         command_parser.set_defaults(_run=module.run)
     return parser
@@ -59,6 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in argv
     try:
         args = build_parser().parse_args(argv)
+        set_cache_dir(getattr(args, "cache_dir", None))
         return int(args._run(args) or 0)
     except InputError as exc:
         if debug:
@@ -68,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        set_cache_dir(None)
 
 
 if __name__ == "__main__":

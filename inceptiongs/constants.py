@@ -22,9 +22,12 @@ DET_MIN = 1e-12
 FRUSTUM_CLAMP_MARGIN = 1.3
 # Gaussians whose centre is closer than this (camera z, scene units after normalisation)
 # are culled; a covariance projected from nearer than this is unbounded.
-NEAR_PLANE = 0.01
-# Centres further away than this are culled as well (keeps depth sort keys finite).
-FAR_PLANE = 1.0e6
+# One rule in both renderers: keep iff NEAR_PLANE <= float32(z) <= FAR_PLANE. Both planes are
+# float32 numbers exactly (0.01 is not: float32(0.01) is used), so the GLSL comparison in
+# float32 and the torch comparison of z rounded to float32 see the same threshold: at
+# z = NEAR_PLANE and one float32 ulp either side both renderers draw or both cull.
+NEAR_PLANE = 0.009999999776482582   # float32(0.01)
+FAR_PLANE = 1.0e6                   # exactly representable in float32
 
 # --- compositing -----------------------------------------------------------------------
 # alpha = min(ALPHA_MAX, opacity * exp(-power)); capping below 1 keeps the transmittance
@@ -130,3 +133,12 @@ def glsl_defines() -> str:
     # GLSL has no 'e' without a digit before it and needs float literals; repr() gives
     # e.g. 1e-12 which GLSL accepts as a float literal.
     return "\n".join(lines) + "\n"
+
+# --- output image limits -----------------------------------------------------------------
+# The one size check before any image or framebuffer is allocated (inceptiongs.io.limits):
+# no side longer than this (the common GL maximum texture / renderbuffer size) ...
+IMAGE_SIDE_MAX = 16384
+# ... and the estimated working memory, this many bytes per pixel (float32 colour, depth,
+# normal, alpha and transmittance planes with the rasterizer's per-pixel temporaries, and the
+# 8-bit copy written out), must fit in the memory the system reports as available.
+RENDER_BYTES_PER_PIXEL = 256

@@ -21,6 +21,19 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 torch.set_num_threads(min(2, os.cpu_count() or 1))
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache_dir(tmp_path_factory):
+    """Caches of the whole test session go to one temporary folder, never to the user's
+    ~/.cache (and never into scene folders, which the library no longer writes)."""
+    previous = os.environ.get("INCEPTIONGS_CACHE_DIR")
+    os.environ["INCEPTIONGS_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if previous is None:
+        os.environ.pop("INCEPTIONGS_CACHE_DIR", None)
+    else:
+        os.environ["INCEPTIONGS_CACHE_DIR"] = previous
+
+
 def shared_data_dir() -> Path | None:
     env = os.environ.get("INCEPTIONGS_DATA")
     candidates = [Path(env)] if env else []

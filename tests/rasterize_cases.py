@@ -66,7 +66,7 @@ def brute_force_render(g: Gaussians, camera: Camera, degree: int | None = None,
     splats = []
     for i in range(len(g)):
         t = rot_w @ arr["means"][i] + trans_w
-        if not K.NEAR_PLANE <= t[2] <= K.FAR_PLANE:
+        if not K.NEAR_PLANE <= np.float32(t[2]) <= K.FAR_PLANE:  # the renderers' float32 rule
             continue
         q = arr["quats"][i]
         rot = np.eye(3) if np.linalg.norm(q) < K.QUAT_NORM_MIN else quat_to_rotation(q)

@@ -39,9 +39,17 @@ def known_cameras(count: int = 4, fx: float = 60.0, fy: float = 61.0, cx: float 
     return cameras
 
 
-def project(camera: Camera, points: np.ndarray, dist: np.ndarray | None = None) -> np.ndarray:
-    """Continuous pixel coordinates [P, 2] (pixel (i, j) is the point (i + 0.5, j + 0.5))."""
+def project(camera: Camera, points: np.ndarray, dist=None) -> np.ndarray:
+    """Continuous pixel coordinates [P, 2] (pixel (i, j) is the point (i + 0.5, j + 0.5)).
+    dist: OpenCV coefficients, a Fisheye (cv2.fisheye.projectPoints) or None."""
+    from inceptiongs.scene.undistort import Fisheye
+
     rvec, _ = cv2.Rodrigues(camera.world_to_camera[:3, :3])
+    if isinstance(dist, Fisheye):
+        pixels, _ = cv2.fisheye.projectPoints(points.reshape(-1, 1, 3), rvec,
+                                              np.ascontiguousarray(camera.world_to_camera[:3, 3]).reshape(3, 1),
+                                              camera.intrinsics, dist.k.reshape(4, 1))
+        return pixels.reshape(-1, 2)
     coefficients = np.zeros(8) if dist is None else np.pad(np.asarray(dist, float), (0, 8 - len(dist)))
     pixels, _ = cv2.projectPoints(points.reshape(-1, 1, 3), rvec, camera.world_to_camera[:3, 3],
                                   camera.intrinsics, coefficients)

@@ -20,17 +20,20 @@ class BootstrapJob:
     targets_file: Path | None = None
     config: BootstrapConfig = field(default_factory=BootstrapConfig)
     snapshot_every: int = 5
+    overwrite: bool = False  # replace a result already in out_dir (else refused)
 
     def run(self, box: SnapshotBox, control: JobControl) -> None:
+        from ..train.run_folder import next_free_folder
         from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
 
         out = JobPublisher(box)
-        out_dir = Path(self.out_dir) if self.out_dir is not None else default_out_dir(self.run_dir)
+        # No folder given: a fresh one, never an earlier result.
+        out_dir = Path(self.out_dir) if self.out_dir is not None else next_free_folder(default_out_dir(self.run_dir))
         _, scene, split, _, _ = load_stage1(Path(self.run_dir))
-        targets = resolve_targets(scene, split, self.targets_file, None, self.config.rounds)
+        targets = resolve_targets(scene, split, self.targets_file, None, self.config.rounds, run_dir=self.run_dir)
         out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
         result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
-                               progress=False)
+                               progress=False, overwrite=self.overwrite)
         out.finish("bootstrap", result.iteration, result.finished, result.last_eval,
                    f"{result.virtual_views} virtual views, {out_dir}")

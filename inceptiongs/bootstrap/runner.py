@@ -13,6 +13,7 @@ summary.json, cache/, views/*.png) and RUN2/prior/ when a prior was trained here
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -27,7 +28,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..io.atomic import atomic_write_text
+from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
+    remove_stale_temp_files
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
@@ -64,6 +66,15 @@ def default_out_dir(run_dir: str | Path) -> Path:
     return run_dir.with_name(run_dir.name + "_bootstrap")
 
 
+def check_output_folder(out_dir: Path, overwrite: bool) -> None:
+    """InputError (one line) when ``out_dir`` holds a result and the user did not ask to replace it."""
+    from ..train.run_folder import holds_result, next_free_folder
+
+    if holds_result(out_dir) and not overwrite:
+        raise InputError(f"{out_dir}: already holds a result; give --overwrite to replace it, or another "
+                         f"--out (e.g. {next_free_folder(out_dir)})")
+
+
 # --- inputs ----------------------------------------------------------------------------------------
 def load_stage1(run_dir: Path):
     """RUN -> (TrainConfig, Scene, Split, checkpoint payload or None, Gaussians (normalised frame))."""
@@ -86,9 +97,19 @@ def load_stage1(run_dir: Path):
     return config, scene, split, payload, gaussians
 
 
+def default_flag_files(scene, run_dir: str | Path | None = None) -> list[Path]:
+    """Where the viewer's flags.json may be, first found wins: the run folder, the scene's
+    cache folder, then (read-only) the scene folder's .inceptiongs/ written by older versions."""
+    found = [Path(run_dir) / FLAGS_FILE_NAME] if run_dir is not None else []
+    with contextlib.suppress(InputError):
+        found.append(Path(scene.work_dir) / FLAGS_FILE_NAME)
+    return found + [Path(scene.legacy_work_dir) / FLAGS_FILE_NAME]
+
+
 def resolve_targets(scene, split, targets_file: str | Path | None, target_view: str | None,
-                    rounds: int) -> list[Target]:
-    """--targets FILE, else --target-view NAME, else the scene's flags.json when it exists, else j*."""
+                    rounds: int, run_dir: str | Path | None = None) -> list[Target]:
+    """--targets FILE, else --target-view NAME, else the viewer's flags.json when it exists
+    (:func:`default_flag_files`), else j*."""
     train_cameras = [scene.cameras[i] for i in split.train]
     if targets_file is not None and target_view is not None:
         raise InputError("give either --targets or --target-view, not both")
@@ -96,9 +117,9 @@ def resolve_targets(scene, split, targets_file: str | Path | None, target_view: 
         return flag_targets(Path(targets_file), train_cameras)
     if target_view is not None:
         return [named_target(scene, target_view)]
-    default_flags = Path(scene.work_dir) / FLAGS_FILE_NAME
-    if default_flags.is_file():
-        return flag_targets(default_flags, train_cameras)
+    for default_flags in default_flag_files(scene, run_dir):
+        if default_flags.is_file():
+            return flag_targets(default_flags, train_cameras)
     return split_targets(split, scene, rounds)
 
 
@@ -121,9 +142,11 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                   config: BootstrapConfig, control=None,
                   on_snapshot: Callable[[int, Gaussians, dict], None] | None = None, snapshot_every: int = 0,
                   log: Callable[[str], None] | None = None, progress: bool = True,
-                  render_fn=None) -> BootstrapResult:
+                  render_fn=None, overwrite: bool = False) -> BootstrapResult:
     """Bootstrap RUN into RUN2 (see the module doc). ``targets=None`` with an empty pool is the
-    same-time baseline: the stage-I loop continued on the photos alone (``baseline_run``)."""
+    same-time baseline: the stage-I loop continued on the photos alone (``baseline_run``).
+    An ``out_dir`` that already holds a result is refused (InputError) unless ``overwrite``
+    (see ``inceptiongs.train.run_folder.next_free_folder`` for a fresh name instead)."""
     from ..io.images import write_png
     from ..io.ply import write_ply
     from ..train.checkpoint import save_checkpoint
@@ -142,18 +165,20 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     if out_dir.resolve() == run_dir.resolve():
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
+    check_output_folder(out_dir, overwrite)
     stage1, scene, split, payload, gaussians0 = load_stage1(run_dir)
     baseline = targets is None
     rounds = round_targets(targets, config.rounds) if not baseline else [[] for _ in range(config.rounds)]
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    boot_dir = out_dir / BOOTSTRAP_DIR
-    boot_dir.mkdir(exist_ok=True)
+    check_writable_dir(out_dir)
+    remove_stale_temp_files(out_dir, max_age_s=0.0)
+    boot_dir = ensure_dir(out_dir / BOOTSTRAP_DIR)
     config.save(boot_dir / "config.json")
-    shutil.copyfile(run_dir / "split.json", out_dir / "split.json")
+    atomic_write_bytes(out_dir / "split.json", (run_dir / "split.json").read_bytes())
     start = int(payload["iteration"]) if payload is not None else stage1.iterations
     train_config = continuation_config(stage1, start, config.rounds * config.iterations, config.densify)
     train_config.save(out_dir / "config.json")
+    # Only reached for a fresh folder or with overwrite=True (the user said so).
     (out_dir / "metrics.jsonl").unlink(missing_ok=True)
     (out_dir / "model.ply").unlink(missing_ok=True)  # a stale model must not pass for this run's
     if (out_dir / "checkpoints").is_dir():
@@ -421,9 +446,10 @@ def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfi
 
 
 def baseline_run(run_dir: str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
-                 seed: int = 0, progress: bool = True, log=None, eval_every: int = 0) -> BootstrapResult:
+                 seed: int = 0, progress: bool = True, log=None, eval_every: int = 0,
+                 overwrite: bool = False) -> BootstrapResult:
     """Stage I continued on the photos alone, with the same continuation schedule the bootstrap
     uses, for ``minutes`` (the bootstrap's total time) or ``iterations``: the comparison baseline."""
     config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1, log_every=1,
                              eval_every=eval_every)
-    return run_bootstrap(run_dir, out_dir, None, config, progress=progress, log=log)
+    return run_bootstrap(run_dir, out_dir, None, config, progress=progress, log=log, overwrite=overwrite)

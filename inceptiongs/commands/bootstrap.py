@@ -24,7 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the viewer's flags file (default: the scene's flags.json when it exists, "
                              "else the split's target view j*)")
     target.add_argument("--target-view", metavar="NAME", default=None, help="repair this scene view's pose")
-    parser.add_argument("--out", default=None, help="output run folder (default RUN_bootstrap)")
+    parser.add_argument("--out", default=None, help="output run folder (default RUN_bootstrap, or RUN_bootstrap_2, "
+                                                    "... when that already holds a result)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the result already in --out (refused without this flag)")
     parser.add_argument("--rounds", type=int, default=d.rounds, help=f"bootstrap rounds (default {d.rounds})")
     parser.add_argument("--minutes", type=float, default=None,
                         help="wall budget for the whole bootstrap (prior, generation, refinement)")
@@ -81,15 +84,21 @@ def config_from_args(args):
 
 
 def run(args) -> int:
-    from ..bootstrap.runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
+    from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
+                                    run_bootstrap)
+    from ..train.run_folder import next_free_folder
 
     config = config_from_args(args)
     run_dir = Path(args.run)
-    out_dir = Path(args.out) if args.out else default_out_dir(run_dir)
+    if args.out:
+        out_dir = Path(args.out)
+    else:  # the default name never lands on an earlier result: the next free one is chosen
+        out_dir = default_out_dir(run_dir) if args.overwrite else next_free_folder(default_out_dir(run_dir))
+    check_output_folder(out_dir, args.overwrite)  # before loading anything
     _, scene, split, _, _ = load_stage1(run_dir)
-    targets = resolve_targets(scene, split, args.targets, args.target_view, config.rounds)
+    targets = resolve_targets(scene, split, args.targets, args.target_view, config.rounds, run_dir=run_dir)
     print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
-    result = run_bootstrap(run_dir, out_dir, targets, config)
+    result = run_bootstrap(run_dir, out_dir, targets, config, overwrite=args.overwrite)
     print(f"prior: {result.prior}")
     print(f"{result.virtual_views} virtual views ({result.cache_hits} from the cache), "
           f"iterations {result.start_iteration}..{result.iteration}, {result.wall_s:.1f} s, "

@@ -201,7 +201,8 @@ def run(args) -> int:
                                   minutes=args.bootstrap_minutes, prior_minutes=args.prior_minutes,
                                   prior_steps=args.prior_steps, ddim_steps=args.ddim_steps, k=DEMO_K, l=DEMO_L,
                                   generated_weight=DEMO_GENERATED_WEIGHT)
-    boot_result = run_bootstrap(run_dir, boot_dir, split_targets(split, scene, 1), boot_config,
+    # The demo's own output folder: a rerun of the demo replaces its previous demo result.
+    boot_result = run_bootstrap(run_dir, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
                                 log=lambda message: print(f"      {message}", flush=True))
     timings["bootstrap"] = time.perf_counter() - began
 

@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import atomic_open
+from ..io.atomic import atomic_open, check_writable_dir
 from ..io.images import write_png
+from ..io.limits import check_image_size
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
@@ -102,11 +103,13 @@ def load_model_and_camera(args):
     scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
     if not scene_path:
         raise InputError(f"{model}: --view needs --scene (or a run folder whose config names its scene)")
+    # The camera at the scene's stated (full) size, whether the run finished (model.ply) or
+    # only checkpointed: --width/--height are the way to another size.
+    scene = load_scene(scene_path, require_images=False)
     if run_dir is not None and ply is None:
         from ..train.run_folder import load_run
-        gaussians, scene, _ = load_run(run_dir)  # newest checkpoint, normalised frame
+        gaussians, _, _ = load_run(run_dir)  # newest checkpoint, normalised frame (same normalisation)
     else:
-        scene = load_scene(scene_path, require_images=False)
         gaussians = scene.normalization.gaussians_to_normalized(read_ply(ply))
     return gaussians, scene.camera_by_name(args.view)
 
@@ -179,8 +182,13 @@ def run(args) -> int:
     if out.suffix.lower() not in (".png", ".npy"):
         raise InputError(f"{out}: output must end in .png or .npy")
     background = parse_background(args.background)
+    check_writable_dir(out.parent)  # a bad --out is one line before any work
+    if args.width is not None and args.height is not None:
+        check_image_size(args.width, args.height, "--width/--height")
     gaussians, camera = load_model_and_camera(args)
     camera = resized_camera(camera, args.width, args.height)
+    check_image_size(camera.width, camera.height, "--width/--height" if args.width or args.height else
+                     f"{args.camera or args.view}")
     try:
         image = render_image(gaussians, camera, args.backend, args.mode, background)
     except RuntimeError as exc:

@@ -12,14 +12,16 @@ HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
 def add_arguments(parser) -> None:
     parser.add_argument("scene", help="scene folder (COLMAP, transforms.json or LLFF)")
-    parser.add_argument("--out", help="run folder (default: SCENE/.inceptiongs/runs/train)")
+    parser.add_argument("--out", help="run folder (default: ./runs/SCENE_NAME in the current folder; "
+                                      "never inside the scene folder)")
     budget = parser.add_mutually_exclusive_group()
     budget.add_argument("--minutes", type=float, help="stop after this much training time")
     budget.add_argument("--iterations", type=int, help="number of steps (default 30000; with "
                         "--minutes the schedule length, default 5000)")
     parser.add_argument("--downscale", type=int, default=1, help="image downscale factor")
-    parser.add_argument("--protocol", choices=("llff", "unstructured", "none"), default="none",
-                        help="which views are held out for evaluation")
+    parser.add_argument("--protocol", choices=("llff", "unstructured", "none"), default="llff",
+                        help="which views are held out for evaluation (default llff: every 8th view, "
+                             "so `eval` works on the run; none: train on all)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
@@ -43,6 +45,14 @@ def build_config(args) -> "TrainConfig":
     return short_run_schedule(config.validate("command line"))
 
 
+def default_run_dir(scene: Path) -> Path:
+    """./runs/NAME for the scene folder (or transforms.json file) ``scene``: in the current
+    folder, never in the scene's."""
+    resolved = scene.resolve()
+    name = resolved.parent.name if resolved.is_file() else resolved.name
+    return Path.cwd() / "runs" / (name or "scene")
+
+
 def run(args) -> int:
     from ..train.config import TrainConfig
     from ..train.trainer import train
@@ -50,7 +60,7 @@ def run(args) -> int:
     scene = Path(args.scene)
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
-    out = Path(args.out) if args.out else scene / ".inceptiongs" / "runs" / "train"
+    out = Path(args.out) if args.out else default_run_dir(scene)
     config = build_config(args)
     stored = out / "config.json"
     if args.resume and stored.is_file():

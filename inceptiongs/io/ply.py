@@ -73,6 +73,8 @@ def _parse_header(raw: bytes, path: Path) -> tuple[int, str, list[tuple[str, int
                                  "which a 3DGS PLY does not have")
             if len(words) != 3 or words[1] not in _PLY_TYPES:
                 raise InputError(f"{path}: PLY property line is malformed: {line!r}")
+            if any(name == words[2] for name, _ in elements[-1][2]):
+                raise InputError(f"{path}: PLY property {words[2]!r} appears twice in element {elements[-1][0]!r}")
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
             raise InputError(f"{path}: unexpected PLY header line {line!r}")

@@ -111,6 +111,13 @@ def view_directions(means: torch.Tensor, world_to_camera: torch.Tensor) -> torch
     return (offset / norm).to(means.dtype)
 
 
+def depth_in_range(z: torch.Tensor) -> torch.Tensor:
+    """[N] camera z (any float dtype) -> [N] bool: the near/far rule shared with the GLSL
+    preprocess shader, NEAR_PLANE <= float32(z) <= FAR_PLANE (NaN is out of range)."""
+    z32 = z.to(torch.float32)
+    return (z32 >= NEAR_PLANE) & (z32 <= FAR_PLANE)
+
+
 def footprint_level(opacities: torch.Tensor) -> torch.Tensor:
     """[M] opacities -> the power log(opacity / ALPHA_MIN) at which alpha falls to ALPHA_MIN."""
     return torch.clamp_min(torch.log(opacities / ALPHA_MIN), 0.0)
@@ -140,7 +147,7 @@ def project(
 
     t = camera_space_means(means, world_to_camera)
     tz = t[:, 2]
-    in_depth_range = (tz >= NEAR_PLANE) & (tz <= FAR_PLANE)
+    in_depth_range = depth_in_range(tz)
     # Culled Gaussians still flow through the arithmetic below; a safe depth keeps their
     # values finite so no NaN can leak into gradients through torch.where.
     z = torch.where(in_depth_range, tz, torch.ones_like(tz))

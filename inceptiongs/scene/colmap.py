@@ -15,7 +15,8 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
-from .raw import RawScene, check_finite_pose, check_intrinsics
+from .undistort import Fisheye
+from .raw import RawScene, check_finite_pose, check_intrinsics, finite_points
 
 # COLMAP camera model id -> (name, number of parameters), from COLMAP's camera model table.
 _MODELS = {
@@ -25,7 +26,8 @@ _MODELS = {
     11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16), 12: ("SIMPLE_DIVISION", 4), 13: ("DIVISION", 5),
     14: ("SIMPLE_FISHEYE", 3), 15: ("FISHEYE", 4), 16: ("EUCM", 6), 17: ("EQUIRECTANGULAR", 2),
 }
-SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV",
+                    "OPENCV_FISHEYE")
 
 
 def find_model_dir(root: Path) -> tuple[Path, str] | None:
@@ -63,7 +65,10 @@ class _Reader:
         end = self.data.find(b"\0", self.pos)
         if end < 0:
             raise InputError(f"{self.path}: truncated COLMAP binary file (unterminated image name)")
-        name = self.data[self.pos:end].decode("utf-8", errors="replace")
+        try:
+            name = self.data[self.pos:end].decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(f"{self.path}: image name at byte {self.pos} is not UTF-8 text (corrupt file?)") from None
         self.pos = end + 1
         return name
 
@@ -105,7 +110,7 @@ def check_binary_model(folder: Path) -> None:
         points.finish()
 
 
-def _distortion(model: str, params: np.ndarray) -> np.ndarray | None:
+def _distortion(model: str, params: np.ndarray):
     """OpenCV distortion coefficients for a supported COLMAP model (None for pinhole models)."""
     if model in ("SIMPLE_PINHOLE", "PINHOLE"):
         return None
@@ -117,6 +122,8 @@ def _distortion(model: str, params: np.ndarray) -> np.ndarray | None:
         return np.array(params[4:8], dtype=np.float64)
     if model == "FULL_OPENCV":
         return np.array(params[4:12], dtype=np.float64)
+    if model == "OPENCV_FISHEYE":  # fx, fy, cx, cy, k1, k2, k3, k4: OpenCV's fisheye model
+        return Fisheye(params[4:8])
     raise AssertionError(model)
 
 
@@ -137,7 +144,11 @@ def load_colmap(root: Path) -> RawScene:
 
     image_dir = root / "images"
     cameras, paths, models, distortion, warnings = [], [], [], [], []
-    for image in sorted(recon.images.values(), key=lambda im: im.name):
+    try:
+        images = sorted(recon.images.values(), key=lambda im: im.name)
+    except UnicodeDecodeError:
+        raise InputError(f"{folder}: an image name in the COLMAP model is not UTF-8 text (corrupt file?)") from None
+    for image in images:
         source = f"{folder} image {image.name!r}"
         if not image.has_pose:
             warnings.append(f"image {image.name} is not registered (no pose); skipped")
@@ -169,10 +180,7 @@ def load_colmap(root: Path) -> RawScene:
         point_list = [point for _, point in sorted(recon.points3D.items())]  # by point id
         points = np.array([p.xyz for p in point_list], dtype=np.float64)
         colors = np.array([p.color for p in point_list], dtype=np.uint8)
-        finite = np.all(np.isfinite(points), axis=1)
-        if not finite.all():
-            warnings.append(f"{int((~finite).sum())} sparse point(s) with NaN/Inf coordinates dropped")
-            points, colors = points[finite], colors[finite]
+        points, colors = finite_points(points, colors, warnings)
     else:
         points, colors = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     return RawScene(root, fmt, cameras, paths, models, distortion, points, colors, warnings)

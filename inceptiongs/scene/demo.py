@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..io.atomic import atomic_write_bytes, atomic_write_text
+from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, output_error
 from ..camera import Camera, look_at
 from ..errors import InputError
 from .colmap import write_colmap_binary
@@ -268,12 +268,15 @@ def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, pr
     if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir())
                                                        and not (out_dir / "demo_scene.json").is_file())):
         raise InputError(f"{out_dir}: exists and is not an empty folder or a previous demo scene")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    check_writable_dir(out_dir.parent)  # one line before any rendering
     rng = np.random.default_rng(seed)
     tex = Textures(noise=rng.random((64, 64)))
     cameras, dense, scarce = demo_cameras(size, seed)
 
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    except OSError as exc:
+        raise output_error(out_dir, exc) from None
     try:
         for camera in tqdm(cameras, desc="demo scene", unit="view", disable=not progress):
             photo = render_photo(camera, tex)
@@ -283,7 +286,7 @@ def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, pr
             atomic_write_bytes(staging / "images" / camera.name, encoded.tobytes())
         points, colours = _sample_points(cameras, tex, rng)
         model = [(c, "PINHOLE", [c.fx, c.fy, c.cx, c.cy]) for c in cameras]
-        (staging / "sparse" / "0").mkdir(parents=True)
+        ensure_dir(staging / "sparse" / "0")
         write_colmap_binary(staging / "sparse" / "0", model, points, colours)
         meta = {
             "description": "InceptionGS procedural demo scene (z up, ground at z = 0)",
@@ -292,13 +295,16 @@ def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, pr
             "note": "scarce cameras view the north-west side, which the dense arc sees at most obliquely",
         }
         atomic_write_text(staging / "demo_scene.json", json.dumps(meta, indent=2) + "\n")
-        if out_dir.exists():
-            old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
-            os.replace(out_dir, old)
-            os.replace(staging, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(staging, out_dir)
+        try:
+            if out_dir.exists():
+                old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}")
+                os.replace(out_dir, old)
+                os.replace(staging, out_dir)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(staging, out_dir)
+        except OSError as exc:
+            raise output_error(out_dir, exc) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -34,8 +34,11 @@ def load_llff(root: Path, downscale: float = 1) -> RawScene:
     path = root / "poses_bounds.npy"
     try:
         table = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read as a .npy array ({exc})") from None
+    except Exception as exc:  # noqa: BLE001  (a corrupt header raises ValueError, SyntaxError, TokenError, ...)
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{path}: cannot read as a .npy array ({message})") from None
+    if table.dtype.kind not in "fiu":
+        raise InputError(f"{path}: expected a real-valued array, got dtype {table.dtype}")
     if table.ndim != 2 or table.shape[1] != 17:
         raise InputError(f"{path}: expected an N x 17 array, got shape {table.shape}")
     if not np.all(np.isfinite(table)):

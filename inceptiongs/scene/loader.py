@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -23,7 +22,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .raw import RawScene
-from .undistort import undistort_image, undistorted_camera
+from .undistort import distortion_key, undistort_image, undistorted_camera
 
 # A camera extent below this (scene units) means "all cameras at one spot" (e.g. a single
 # camera): the scale then falls back to the points' extent or 1 instead of dividing by ~0.
@@ -91,10 +90,30 @@ def compute_normalization(centers: np.ndarray, points: np.ndarray | None = None)
     return SceneNormalization(center, 1.0 / extent)
 
 
-def _user_cache_dir(root: Path) -> Path:
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "inceptiongs"
-    digest = hashlib.sha1(str(root.resolve()).encode()).hexdigest()[:10]
-    return base / f"{root.name}-{digest}"
+# The folder older versions kept caches, runs and flags in, inside the scene. It is never
+# written any more; caches found there are still read (read-only) so old runs stay fast.
+LEGACY_WORK_DIR_NAME = ".inceptiongs"
+
+
+def description_files(root: Path) -> list[Path]:
+    """The files that describe the scene at ``root`` (cameras, poses, points), whose content
+    keys its cache folder."""
+    from .colmap import find_model_dir
+    from .transforms import find_transforms
+
+    root = Path(root)
+    if root.is_file():
+        return [root]
+    files = []
+    found = find_model_dir(root)
+    if found is not None:
+        files += [p for p in found[0].iterdir() if p.is_file() and p.suffix in (".bin", ".txt")]
+    transforms = find_transforms(root)
+    if transforms is not None:
+        files.append(transforms)
+    if (root / "poses_bounds.npy").is_file():
+        files.append(root / "poses_bounds.npy")
+    return files
 
 
 @dataclass
@@ -113,24 +132,25 @@ class Scene:
     # Per camera: the camera of the image file as stored (original intrinsics, file size) and
     # its OpenCV distortion or None; load_image maps the file to ``cameras[i]`` through them.
     source_cameras: list[Camera] = field(default_factory=list, repr=False)
-    distortion: list[np.ndarray | None] = field(default_factory=list, repr=False)
+    distortion: list = field(default_factory=list, repr=False)
+    _work_dir: Path | None = field(default=None, repr=False, compare=False)
 
     @property
     def work_dir(self) -> Path:
-        """root / ".inceptiongs" (created on demand). A read-only scene folder (no write
-        permission bits, which also holds for root, who can write anywhere) falls back to a
-        per-scene folder in the user's cache directory."""
-        candidates = [_user_cache_dir(self.root)]
-        if self.root.stat().st_mode & 0o222:
-            candidates.insert(0, self.root / ".inceptiongs")
-        for folder in candidates:
-            try:
-                folder.mkdir(parents=True, exist_ok=True)
-            except OSError:
-                continue
-            if os.access(folder, os.W_OK):
-                return folder
-        raise InputError(f"{self.root}: cannot create a writable work folder for this scene")
+        """This scene's folder in the cache directory (inceptiongs.io.cache: keyed by the
+        scene's path and content), created on demand; never inside the scene folder.
+        OutputError (one line) when it cannot be created."""
+        if self._work_dir is None:
+            from ..io.atomic import ensure_dir
+            from ..io.cache import scene_cache_dir
+
+            self._work_dir = ensure_dir(scene_cache_dir(self.root, description_files(self.root)))
+        return self._work_dir
+
+    @property
+    def legacy_work_dir(self) -> Path:
+        """SCENE/.inceptiongs, where older versions wrote; only ever read."""
+        return self.root / LEGACY_WORK_DIR_NAME
 
     def camera_by_name(self, name: str) -> Camera:
         for camera in self.cameras:
@@ -154,11 +174,16 @@ class Scene:
         if dist is not None:
             # Undistorted images depend on the lens model too: a re-calibrated model must not
             # reuse images undistorted with the old one.
-            lens = np.concatenate([[source.fx, source.fy, source.cx, source.cy], dist])
-            key += "-" + hashlib.sha1(lens.astype("<f8").tobytes()).hexdigest()[:10]
-        cache = self.work_dir / "images" / key / f"{cache_name}.png"
-        if cache.is_file() and cache.stat().st_mtime >= path.stat().st_mtime:
-            return _to_float_rgb(_read_image(cache), cache)
+            lens = np.array([source.fx, source.fy, source.cx, source.cy], "<f8").tobytes() + distortion_key(dist)
+            key += "-" + hashlib.sha1(lens).hexdigest()[:10]
+        relative = Path("images") / key / f"{cache_name}.png"
+        try:
+            cache = self.work_dir / relative
+        except InputError:  # no usable cache directory: work without one
+            cache = None
+        for cached in (cache, self.legacy_work_dir / relative):
+            if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
+                return _to_float_rgb(_read_image(cached), cached)
         image = _read_image(path)
         if image.shape[1] != source.width or image.shape[0] != source.height:
             raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but its camera "
@@ -169,8 +194,11 @@ class Scene:
         if (camera.width, camera.height) != (image.shape[1], image.shape[0]):
             image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
         ok, encoded = cv2.imencode(".png", image)
-        if ok:
-            atomic_write_bytes(cache, encoded.tobytes())
+        if ok and cache is not None:
+            try:
+                atomic_write_bytes(cache, encoded.tobytes())
+            except InputError:  # a full or read-only cache only costs speed
+                pass
         return _to_float_rgb(image, path)
 
 
@@ -231,6 +259,10 @@ def detect_format(root: Path) -> str:
         return "transforms"
     if (root / "poses_bounds.npy").is_file():
         return "llff"
+    for name in ("bundle.out", "bundle/bundle.out"):
+        if (root / name).is_file():
+            raise InputError(f"{root / name}: Bundler scenes are not supported (convert them to COLMAP, "
+                             "e.g. with colmap model_converter, or to transforms.json)")
     raise InputError(f"{root}: no recognisable scene (expected sparse/0/, sparse/, transforms.json "
                      "or poses_bounds.npy)")
 

@@ -2,6 +2,10 @@
 
 Intrinsics are shared (top level) or per frame: ``fl_x``/``fl_y`` or ``camera_angle_x``/
 ``camera_angle_y``, ``cx``, ``cy``, ``w``, ``h`` and optional ``k1 k2 p1 p2`` (plus ``k3``).
+``camera_model`` (top level or per frame, nerfstudio): PINHOLE, SIMPLE_PINHOLE, OPENCV or
+PERSPECTIVE (k1 k2 p1 p2 k3, OpenCV's standard model) or OPENCV_FISHEYE (k1 k2 k3 k4, OpenCV's
+fisheye model, undistorted like COLMAP's OPENCV_FISHEYE); absent means OPENCV. Any other model
+(EQUIRECTANGULAR, ...) is refused with one line naming the file.
 ``ply_file_path`` (nerfstudio) names a point cloud PLY of sparse points.
 ``transform_matrix`` is camera-to-world with OpenGL camera axes (x right, y up, z backward);
 flipping the camera's y and z axes gives OpenCV's (x right, y down, z forward).
@@ -17,9 +21,12 @@ import numpy as np
 
 from ..camera import Camera, rigid_inverse
 from ..errors import InputError
+from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics
 
 _NAMES = ("transforms.json", "transforms_train.json")
+_STANDARD_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "PERSPECTIVE")
+_FISHEYE_MODEL = "OPENCV_FISHEYE"
 # Column flip from OpenGL camera axes to OpenCV camera axes (camera-to-world columns).
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -54,6 +61,8 @@ def _resolve_image(base: Path, file_path: str) -> Path:
 
 def _frame_size(path: Path, width: float | None, height: float | None, source: str) -> tuple[int, int]:
     if width is not None and height is not None:
+        if not (math.isfinite(width) and math.isfinite(height)):
+            raise InputError(f"{source}: w/h must be finite numbers, got {width} x {height}")
         return int(round(width)), int(round(height))
     from PIL import Image
 
@@ -114,14 +123,23 @@ def load_transforms(root: Path) -> RawScene:
         cy = height / 2.0 if cy is None else cy
         check_intrinsics(width, height, [fx, fy, cx, cy], source)
 
-        coefficients = [_number(frame, data, key, source) or 0.0 for key in ("k1", "k2", "p1", "p2", "k3")]
+        model = frame.get("camera_model", data.get("camera_model", "OPENCV"))
+        if model not in (*_STANDARD_MODELS, _FISHEYE_MODEL):
+            raise InputError(f"{source}: camera_model {model!r} is not supported (supported: "
+                             f"{', '.join((*_STANDARD_MODELS, _FISHEYE_MODEL))})")
+        keys = ("k1", "k2", "k3", "k4") if model == _FISHEYE_MODEL else ("k1", "k2", "p1", "p2", "k3")
+        coefficients = [_number(frame, data, key, source) or 0.0 for key in keys]
         if not all(math.isfinite(c) for c in coefficients):
             raise InputError(f"{source}: distortion coefficients contain NaN or Inf")
-        dist = np.array(coefficients) if any(coefficients) else None
+        if model == _FISHEYE_MODEL:
+            # A fisheye lens is never a pinhole one, even with all k = 0 (theta_d = theta).
+            dist = Fisheye(np.array(coefficients))
+        else:
+            dist = np.array(coefficients) if any(coefficients) else None
         name = str(Path(str(frame["file_path"])).as_posix()).removeprefix("./")
         cameras.append(Camera(name, width, height, fx, fy, cx, cy, world_to_camera))
         paths.append(path)
-        models.append("PINHOLE" if dist is None else "OPENCV")
+        models.append(_FISHEYE_MODEL if model == _FISHEYE_MODEL else ("PINHOLE" if dist is None else "OPENCV"))
         distortion.append(dist)
     points, colors = np.zeros((0, 3)), None
     if data.get("ply_file_path"):

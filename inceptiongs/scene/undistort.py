@@ -1,11 +1,17 @@
 """Lens undistortion to a pinhole camera (OpenCV distortion models, COLMAP's pixel convention).
 
+Two lens families: OpenCV's standard model (coefficients k1, k2, p1, p2[, k3, k4, k5, k6] as a
+plain array; COLMAP SIMPLE_RADIAL/RADIAL/OPENCV/FULL_OPENCV) and OpenCV's fisheye model
+(:class:`Fisheye`, k1..k4 on the angle theta = atan(r); COLMAP and nerfstudio OPENCV_FISHEYE).
+
 Pixel (i, j) is the continuous point (i + 0.5, j + 0.5) here and in COLMAP, while cv2.remap
 indexes pixel centres at integers; the maps below are built in our convention and shifted by
 0.5 only at the cv2 boundary, so undistortion adds no half-pixel offset.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -21,6 +27,36 @@ _JACOBIAN_STEP = 1e-6
 _DET_MIN = 1e-12
 
 
+@dataclass(frozen=True, eq=False)
+class Fisheye:
+    """OpenCV's fisheye model: theta = atan(r), theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
+    k3 theta^6 + k4 theta^8), distorted point = (theta_d / r) * (x, y). k: [4] float64."""
+
+    k: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "k", np.asarray(self.k, np.float64).reshape(4))
+
+
+def distortion_key(dist) -> bytes:
+    """Bytes that identify a lens model and its coefficients (for cache keys)."""
+    if isinstance(dist, Fisheye):
+        return b"fisheye" + dist.k.astype("<f8").tobytes()
+    return np.asarray(dist, "<f8").tobytes()
+
+
+def _distort_fisheye(xy: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """OpenCV fisheye distortion of normalised points [..., 2] (cv2.fisheye.distortPoints)."""
+    r = np.linalg.norm(xy, axis=-1)
+    theta = np.arctan(r)
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    # theta_d / r -> 1 as r -> 0 (theta ~ r); the guard keeps the centre from dividing 0 by 0.
+    safe_r = np.where(r > 1e-12, r, 1.0)
+    factor = np.where(r > 1e-12, theta_d / safe_r, 1.0)
+    return xy * factor[..., None]
+
+
 def _coefficients(dist: np.ndarray) -> np.ndarray:
     """Pad to the 8 OpenCV rational-model coefficients (k1, k2, p1, p2, k3, k4, k5, k6)."""
     out = np.zeros(8)
@@ -29,7 +65,10 @@ def _coefficients(dist: np.ndarray) -> np.ndarray:
 
 
 def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply OpenCV distortion to normalised image points. xy: [..., 2] -> [..., 2]."""
+    """Apply OpenCV distortion (standard or :class:`Fisheye`) to normalised image points.
+    xy: [..., 2] -> [..., 2]."""
+    if isinstance(dist, Fisheye):
+        return _distort_fisheye(np.asarray(xy, np.float64), dist.k)
     k1, k2, p1, p2, k3, k4, k5, k6 = _coefficients(dist)
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y

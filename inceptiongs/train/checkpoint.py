@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import re
+import sys
 from pathlib import Path
 
 import torch
@@ -51,6 +52,28 @@ def save_checkpoint(run_dir: Path, iteration: int, payload: dict, keep: int) -> 
     for _, old in list_checkpoints(run_dir)[:-max(keep, 1)]:
         old.unlink(missing_ok=True)
     return path
+
+
+def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
+    """The newest checkpoint that loads: (path, payload). A corrupt newest one (a disk that
+    filled or a file damaged after its atomic write) falls back to the previous kept one, with
+    a warning line through ``warn`` (default: stderr). InputError when none loads."""
+    found = list_checkpoints(run_dir)
+    if not found:
+        raise InputError(f"{run_dir}: no checkpoint")
+    if warn is None:
+        def warn(message: str) -> None:
+            print(f"warning: {message}", file=sys.stderr)
+    first_error = None
+    for _, path in reversed(found):
+        try:
+            payload = load_checkpoint(path)
+        except InputError as exc:
+            first_error = first_error or exc
+            warn(f"{exc}; trying the previous checkpoint")
+            continue
+        return path, payload
+    raise first_error
 
 
 def load_checkpoint(path: Path) -> dict:

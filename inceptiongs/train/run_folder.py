@@ -12,10 +12,10 @@ from pathlib import Path
 
 import torch
 
-from ..io.atomic import atomic_write_text
+from ..io.atomic import append_line, atomic_write_text
 from ..errors import InputError
 from ..gaussians import Gaussians
-from .checkpoint import latest_checkpoint, load_checkpoint
+from .checkpoint import latest_checkpoint, load_newest_checkpoint
 from .config import TrainConfig
 
 
@@ -49,9 +49,7 @@ def to_normalized_frame(gaussians: Gaussians, normalization) -> Gaussians:
 
 def append_metrics(run_dir: Path, record: dict) -> None:
     """One JSON line per call (appended and flushed; a torn last line is dropped on resume)."""
-    with open(Path(run_dir) / "metrics.jsonl", "a", encoding="utf-8") as handle:
-        handle.write(json.dumps(record) + "\n")
-        handle.flush()
+    append_line(Path(run_dir) / "metrics.jsonl", json.dumps(record))
 
 
 def truncate_metrics(run_dir: Path, last_iteration: int) -> None:
@@ -71,6 +69,44 @@ def truncate_metrics(run_dir: Path, last_iteration: int) -> None:
     atomic_write_text(path, "".join(line + "\n" for line in kept))
 
 
+def logged_iterations(run_dir: Path) -> set[int]:
+    """The iterations metrics.jsonl already holds a record for (torn lines skipped)."""
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.is_file():
+        return set()
+    found = set()
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict) and isinstance(record.get("iteration"), int):
+            found.add(record["iteration"])
+    return found
+
+
+# Files whose presence means a folder holds a result the user has not asked to lose.
+RESULT_FILES = ("model.ply", "config.json", "metrics.jsonl", "checkpoints")
+
+
+def holds_result(folder: str | Path) -> bool:
+    """Whether ``folder`` holds a run or bootstrap result (a model, a log or checkpoints)."""
+    folder = Path(folder)
+    return folder.is_dir() and any((folder / name).exists() for name in RESULT_FILES)
+
+
+def next_free_folder(folder: str | Path) -> Path:
+    """``folder`` if it holds no result, else the first of FOLDER_2, FOLDER_3, ... that
+    holds none: a new result never lands on an old one."""
+    folder = Path(folder)
+    if not holds_result(folder):
+        return folder
+    index = 2
+    while holds_result(folder.with_name(f"{folder.name}_{index}")):
+        index += 1
+    return folder.with_name(f"{folder.name}_{index}")
+
+
 def load_run(run_dir: str | Path):
     """RUN -> (Gaussians in the normalised frame (float32, CPU), Scene, TrainConfig).
 
@@ -88,9 +124,8 @@ def load_run(run_dir: str | Path):
     model = run_dir / "model.ply"
     if model.is_file():
         return to_normalized_frame(read_ply(model), scene.normalization), scene, config
-    checkpoint = latest_checkpoint(run_dir)
-    if checkpoint is None:
+    if latest_checkpoint(run_dir) is None:
         raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint")
     from .optim import gaussians_from_params
-    params = load_checkpoint(checkpoint)["params"]
+    params = load_newest_checkpoint(run_dir)[1]["params"]
     return gaussians_from_params(params).detach(), scene, config

@@ -9,6 +9,7 @@ and densifies on schedule.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -20,12 +21,13 @@ import torch
 from tqdm import tqdm
 
 from ..errors import InputError
+from ..io.atomic import OutputError, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
-from .checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
+from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .optim import gaussians_from_params
-from .run_folder import append_metrics, to_original_frame, truncate_metrics
+from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
 from .step import (evaluate_held_out, log_once, new_state, prepare_data, restore_state, sh_degree_at,
                    supported_sh_degree, train_step, trim_sh)
 
@@ -60,22 +62,33 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     torch.set_num_threads(min(2, os.cpu_count() or 1))
     run_dir = Path(run_dir)
     config.validate()
-    checkpoint = latest_checkpoint(run_dir) if resume else None
-    if resume and checkpoint is None:
-        log(f"{run_dir}: no checkpoint to resume from, starting a new run")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    created = not run_dir.exists()
+    check_writable_dir(run_dir)  # before any work: one line now, not a traceback hours later
+    remove_stale_temp_files(run_dir, max_age_s=0.0)  # this run owns the folder: its temp files are dead
+    try:
+        checkpoint, payload = None, None
+        if resume and latest_checkpoint(run_dir) is not None:
+            checkpoint, payload = load_newest_checkpoint(run_dir, warn=log)
+        elif resume:
+            log(f"{run_dir}: no checkpoint to resume from, starting a new run")
+        scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+        split = make_split(scene, config.protocol, config.seed)
+        if not split.train:
+            raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
+        data = prepare_data(scene, split, config, log)
+    except BaseException:
+        # A failed start leaves no half run: nothing was written yet, and a folder this call
+        # created is removed again when it is still empty.
+        if created:
+            with contextlib.suppress(OSError):
+                run_dir.rmdir()
+        raise
     config.save(run_dir / "config.json")
-
-    scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
-    split = make_split(scene, config.protocol, config.seed)
     split.save(run_dir / "split.json")
-    if not split.train:
-        raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
-    data = prepare_data(scene, split, config, log)
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
 
-    if checkpoint is not None:
-        state = restore_state(load_checkpoint(checkpoint), data, config)
+    if payload is not None:
+        state = restore_state(payload, data, config)
         truncate_metrics(run_dir, state.iteration)
         log(f"resumed from {checkpoint.name} (iteration {state.iteration})")
     else:
@@ -99,9 +112,12 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     session_start = time.perf_counter() - state.wall_s
     train_clock = time.perf_counter() - state.train_s
 
-    def checkpoint_now() -> None:
+    def stop_clocks() -> None:
         state.wall_s = time.perf_counter() - session_start
         state.train_s = time.perf_counter() - train_clock
+
+    def checkpoint_now() -> None:
+        stop_clocks()
         save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints)
 
     try:
@@ -134,7 +150,8 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                                 **({"psnr": f"{last_eval['all_psnr']:.2f}"} if "all_psnr" in last_eval else {}))
             if on_snapshot is not None and snapshot_every > 0 and step % snapshot_every == 0:
                 on_snapshot(step, gaussians_from_params(state.params).detach(), record)
-            if step % config.checkpoint_every == 0:
+            # The last step's checkpoint is the final save's, written after the model (below).
+            if step % config.checkpoint_every == 0 and step < config.iterations:
                 checkpoint_now()
             if after_step is not None:
                 after_step(step, gaussians_from_params(state.params).detach(),
@@ -142,17 +159,38 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     finally:
         bar.close()
 
-    checkpoint_now()
+    stop_clocks()
+    final_clocks = (state.wall_s, state.train_s)
     gaussians = gaussians_from_params(state.params).detach()
+    # Final save: the small model first, then its log line, then the (large) checkpoint. Each
+    # is attempted even when an earlier one fails (a full disk), and each is atomic, so what
+    # fails leaves the previous version: the newest complete checkpoint stays resumable.
+    failures: list[InputError] = []
+
+    def attempt(write) -> None:
+        try:
+            write()
+        except OutputError as exc:
+            failures.append(exc)
+            log(f"error: {exc}")
+
     if finished:
         if last_eval_iteration != state.iteration:
             last_eval = evaluate_held_out(gaussians, scene, split, data)
-            if last_eval:
-                append_metrics(run_dir, {"iteration": state.iteration, "wall_s": state.wall_s,
-                                         "train_s": state.train_s, "num_gaussians": len(gaussians), **last_eval})
         from ..io.ply import write_ply
-        write_ply(to_original_frame(trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)),
-                                    scene.normalization), run_dir / "model.ply")
+        attempt(lambda: write_ply(to_original_frame(
+            trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)), scene.normalization),
+            run_dir / "model.ply"))
+        # A resumed finished run logs nothing twice.
+        if last_eval and state.iteration not in logged_iterations(run_dir):
+            attempt(lambda: append_metrics(run_dir, {
+                "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
+                "num_gaussians": len(gaussians), **last_eval}))
+    # The checkpoint holds the clocks as they stood when training stopped (evaluation excluded).
+    state.wall_s, state.train_s = final_clocks
+    attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
+    if failures:
+        raise failures[0]
     return TrainResult(run_dir, state.iteration, finished, len(gaussians), last_eval)
 
 

@@ -109,7 +109,7 @@ def test_bootstrap_writes_a_run_folder_and_keeps_covered_views(stage1, boot):
 @pytest.mark.slow
 def test_rerun_reads_generated_images_from_the_cache(stage1, boot):
     out, first = boot
-    again = run_bootstrap(stage1, out, _targets(stage1), _config(iterations=1), progress=False)
+    again = run_bootstrap(stage1, out, _targets(stage1), _config(iterations=1), progress=False, overwrite=True)
     assert again.cache_hits == first.virtual_views and again.cache_misses == 0
     # (Another seed, pose, prior or model is another key: test_round_targets_and_cache_keys.)
 

@@ -91,8 +91,8 @@ def _trailing_garbage(tmp_path):
 
 
 def _unsupported_model(tmp_path):
-    _colmap_scene(tmp_path, model="OPENCV_FISHEYE", extra=(0.1, 0.01, 0.0, 0.0))
-    return tmp_path, "OPENCV_FISHEYE model, which is not supported"
+    _colmap_scene(tmp_path, model="FOV", extra=(0.1,))
+    return tmp_path, "FOV model, which is not supported"
 
 
 def _nan_colmap_pose(tmp_path):

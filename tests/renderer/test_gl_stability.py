@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from inceptiongs.camera import Camera, look_at
-from inceptiongs.constants import NEAR_PLANE
+from inceptiongs.constants import FAR_PLANE, NEAR_PLANE
 from inceptiongs.gaussians import Gaussians
 
 moderngl = pytest.importorskip("moderngl")
@@ -195,3 +195,26 @@ def test_all_gaussians_at_one_point(renderer):
     n = 300
     model = gaussians(np.zeros((n, 3)), rng.uniform(-2.5, -1.0, (n, 3)), logits=rng.normal(0, 1, n))
     assert_matches(*gl_and_torch(renderer, model, front_camera()), 0.2)
+
+
+def _float32_neighbours(value: float) -> list[float]:
+    """[one float32 ulp below, the float32 value itself, one ulp above]."""
+    v = np.float32(value)
+    return [float(np.nextafter(v, np.float32(-np.inf))), float(v), float(np.nextafter(v, np.float32(np.inf)))]
+
+
+@pytest.mark.parametrize("plane, log_scale", [(NEAR_PLANE, -7.0), (FAR_PLANE, 11.5)])
+def test_near_and_far_plane_one_rule_in_both_renderers(renderer, plane, log_scale):
+    """One Gaussian on the optical axis at camera z = the plane and one float32 ulp either side
+    (identity pose, so both renderers see exactly this z): torch and GL both draw or both cull,
+    and the rule is NEAR_PLANE <= z <= FAR_PLANE."""
+    cam = Camera("axis", 96, 72, 86.4, 86.4, 48.0, 36.0, np.eye(4))
+    decisions = []
+    for z in _float32_neighbours(plane):
+        model = gaussians([[0.0, 0.0, z]], [[log_scale] * 3], logits=[3.0])
+        _, alpha, _, ref_alpha = gl_and_torch(renderer, model, cam)
+        drawn_gl, drawn_torch = bool(alpha.max() > 0), bool(ref_alpha.max() > 0)
+        assert drawn_gl == drawn_torch, (plane, z, drawn_gl, drawn_torch)
+        decisions.append(drawn_gl)
+    expected = [False, True, True] if plane == NEAR_PLANE else [True, True, False]
+    assert decisions == expected

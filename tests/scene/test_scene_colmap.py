@@ -16,7 +16,7 @@ from inceptiongs.gaussians import Gaussians
 from inceptiongs.scene.colmap import write_colmap_binary
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.scene.undistort import distort_normalized, undistort_normalized
-from scene_cases import blob_centroids, known_cameras, known_points, project, write_images
+from scene_cases import HEIGHT, WIDTH, blob_centroids, known_cameras, known_points, project, write_images
 
 
 def _project_pinhole(camera, points):
@@ -165,6 +165,34 @@ def test_distorted_scene_is_undistorted_to_a_pinhole_camera(tmp_path, model):
     assert np.array_equal(scene.load_image(0), scene.load_image(0))
 
 
+def test_colmap_opencv_fisheye_is_undistorted_with_the_fisheye_model(tmp_path):
+    from inceptiongs.scene.undistort import Fisheye
+
+    k = [0.08, -0.03, 0.01, -0.002]
+    cameras = known_cameras()
+    lens = Fisheye(np.array(k))
+    _write_colmap_scene(tmp_path, "OPENCV_FISHEYE", lambda c: [c.fx, c.fy, c.cx, c.cy, *k], [lens] * len(cameras),
+                        cameras=cameras)
+    scene = load_scene(tmp_path)
+    assert scene.camera_models == ["OPENCV_FISHEYE"] * len(cameras)
+    # Our fisheye model agrees with COLMAP's own.
+    colmap_camera = pycolmap.Camera.create_from_model_name(1, "OPENCV_FISHEYE", 1.0, WIDTH, HEIGHT)
+    c = cameras[0]
+    colmap_camera.params = [c.fx, c.fy, c.cx, c.cy, *k]
+    xy = np.random.default_rng(0).uniform(-0.9, 0.9, (50, 2))
+    theirs = colmap_camera.img_from_cam(np.concatenate([xy, np.ones((50, 1))], 1))
+    ours = distort_normalized(xy, lens) * [c.fx, c.fy] + [c.cx, c.cy]
+    assert np.abs(ours - theirs).max() < 1e-9
+    worst, found = 0.0, 0
+    for index, camera in enumerate(scene.cameras):
+        expected, _ = _project_pinhole(camera, scene.points)
+        error = np.abs(blob_centroids(scene.load_image(index), expected) - expected).max(axis=1)
+        worst = max(worst, np.nanmax(error))
+        found += int(np.isfinite(error).sum())
+    assert found >= 0.9 * len(cameras) * len(known_points())
+    assert worst < 0.5  # reprojection error, pixels
+
+
 def test_downscale_and_max_width(tmp_path):
     cameras = _write_colmap_scene(tmp_path, "PINHOLE", lambda c: [c.fx, c.fy, c.cx, c.cy], [None] * 4)
     full = load_scene(tmp_path)
@@ -177,7 +205,7 @@ def test_downscale_and_max_width(tmp_path):
     expected = cv2.resize(original, (60, 45), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
     image = half.load_image(1)
     assert image.shape == (45, 60, 3) and np.abs(image - expected).max() < 1e-6
-    assert (tmp_path / ".inceptiongs").is_dir()
+    assert not (tmp_path / ".inceptiongs").exists()  # the scene folder is never written
     assert np.array_equal(half.load_image(1), image)  # second read comes from the cache
 
     capped = load_scene(tmp_path, max_width=50)

@@ -12,7 +12,8 @@ import pytest
 from inceptiongs.camera import rigid_inverse
 from inceptiongs.errors import InputError
 from inceptiongs.scene.loader import load_scene
-from scene_cases import HEIGHT, WIDTH, blob_centroids, known_cameras, known_points, write_images
+from inceptiongs.scene.undistort import Fisheye
+from scene_cases import HEIGHT, WIDTH, blob_centroids, known_cameras, known_points, project, write_images
 
 
 def _opengl_camera_to_world(camera) -> list:
@@ -91,6 +92,44 @@ def test_distortion_coefficients_are_undistorted(tmp_path):
     assert scene.camera_models == ["OPENCV"] * len(cameras)
     assert scene.cameras[0].fx != c.fx  # a new pinhole camera that covers only valid pixels
     assert _found_error(scene) < 0.2
+
+
+FISHEYE_K = [0.08, -0.03, 0.01, -0.002]
+
+
+@pytest.mark.parametrize("per_frame", [False, True])
+def test_opencv_fisheye_camera_model_is_undistorted_with_the_fisheye_model(tmp_path, per_frame):
+    cameras = known_cameras()
+    lens = Fisheye(np.array(FISHEYE_K))
+    # Blobs placed by cv2.fisheye.projectPoints: an implementation independent of ours.
+    write_images(tmp_path / "images", cameras, [lens] * len(cameras))
+    c = cameras[0]
+    model = {"camera_model": "OPENCV_FISHEYE", **dict(zip(("k1", "k2", "k3", "k4"), FISHEYE_K))}
+    data = {"fl_x": c.fx, "fl_y": c.fy, "cx": c.cx, "cy": c.cy, "w": WIDTH, "h": HEIGHT,
+            **({} if per_frame else model),
+            "frames": [{"file_path": f"images/{cam.name}", "transform_matrix": _opengl_camera_to_world(cam),
+                        **(model if per_frame else {})} for cam in cameras]}
+    (tmp_path / "transforms.json").write_text(json.dumps(data))
+    scene = load_scene(tmp_path)
+    assert scene.camera_models == ["OPENCV_FISHEYE"] * len(cameras)
+    assert _found_error(scene) < 0.5  # reprojection error of the undistorted images, pixels
+    # Read as the standard model (what happened before camera_model was read) the blobs are off.
+    naive = max(np.abs(project(cam, known_points(), lens) - project(cam, known_points())).max() for cam in cameras)
+    assert naive > 1.0
+
+
+@pytest.mark.parametrize("model", ["EQUIRECTANGULAR", "FISHEYE624", 7])
+def test_unsupported_camera_models_are_refused_in_one_line(tmp_path, model):
+    cameras = known_cameras(count=2)
+    write_images(tmp_path / "images", cameras, [None] * 2)
+    frames = [{"file_path": f"images/{cam.name}", "transform_matrix": _opengl_camera_to_world(cam)}
+              for cam in cameras]
+    frames[1]["camera_model"] = model
+    path = tmp_path / "transforms.json"
+    path.write_text(json.dumps({"fl_x": 60.0, "w": WIDTH, "h": HEIGHT, "frames": frames}))
+    with pytest.raises(InputError, match="camera_model .* is not supported") as info:
+        load_scene(tmp_path)
+    assert str(info.value).startswith(f"{path} frame 1") and "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("change, match", [
