@@ -7,11 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-from ..train.config import STRATEGIES
-
-# --minutes alone: the first plan is this many steps a minute (the 2-core machine at a
-# 100-200k Gaussian budget); the trainer re-sizes it from the rate it measures.
-STEPS_PER_MINUTE_GUESS = 70
+from ..train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
@@ -49,7 +45,7 @@ def build_config(args) -> "TrainConfig":
 
     sized = args.minutes is not None and args.iterations is None
     iterations = (args.iterations if args.iterations is not None
-                  else max(1, round(STEPS_PER_MINUTE_GUESS * args.minutes)) if sized else 30_000)
+                  else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes)) if sized else 30_000)
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,

@@ -18,6 +18,9 @@ PROTOCOLS = ("llff", "unstructured", "none")
 # Stage-I strategies sharing the trainer (inceptiongs.train.strategy): the 3DGS adaptive density
 # control, 3DGS-MCMC (Kheradmand et al. 2024) and DropGaussian (Park et al. 2025).
 STRATEGIES = ("default", "mcmc", "dropgaussian")
+# A schedule sized to a time budget (``size_to_minutes``) starts from this many steps a minute
+# (the 2-core machine at a 100-200k Gaussian budget); the trainer re-sizes it from the rate it measures.
+BUDGET_STEPS_PER_MINUTE_GUESS = 70
 
 
 @dataclass
