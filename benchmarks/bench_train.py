@@ -107,6 +107,10 @@ def main() -> int:
         for record in records:
             print(f"{record['train_s']:8.1f} {record['iteration']:6d} {record['num_gaussians']:9d} "
                   + " ".join(f"{record[g + '_psnr']:12.2f} {record[g + '_ssim']:12.4f}" for g in groups))
+        worst, over = floaters_in_training_views(run)
+        if worst is not None:
+            print(f"floaters (training-view pixels rendered closer than the camera's near bound): worst view "
+                  f"{100 * worst:.2f} %, {over} view(s) above 1 %")
         curve = [(r["train_s"], r["all_psnr"]) for r in records]
         for minutes, target in TARGETS.get(scene.name, []):
             if minutes > args.minutes:
@@ -129,6 +133,35 @@ def main() -> int:
         plot_curves(curves, groups, Path(args.plot), f"{scene.name}: stage I per strategy")
         print(f"plot: {args.plot}")
     return 0
+
+
+def floaters_in_training_views(run: Path) -> tuple[float | None, int]:
+    """(largest fraction of a training view's pixels drawn before its near bound, views above 1 %),
+    from the run's last checkpoint (its near bounds come from the sparse points); (None, 0)
+    when the checkpoint has no near bounds."""
+    import torch
+
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.checkpoint import latest_checkpoint, load_checkpoint
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.free_space import floater_fraction
+    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.scene.loader import load_scene
+
+    payload = load_checkpoint(latest_checkpoint(run))
+    if payload.get("near") is None:
+        return None, 0
+    config = TrainConfig.load(run / "config.json")
+    scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+    split = Split.load(run / "split.json", scene.cameras)
+    gaussians = gaussians_from_params(payload["params"]).detach()
+    fractions = []
+    with torch.no_grad():
+        for near, index in zip(payload["near"].tolist(), split.train):
+            depth = render(gaussians, scene.cameras[index], outputs=("depth",))["depth"]
+            fractions.append(floater_fraction(depth, near))
+    return max(fractions), sum(f > 0.01 for f in fractions)
 
 
 def _groups(records: list[dict]) -> list[str]:

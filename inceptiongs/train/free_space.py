@@ -221,3 +221,10 @@ def sh_rest_mask(degree: torch.Tensor, rest: int) -> torch.Tensor:
     bands = torch.floor(torch.sqrt(torch.arange(1, rest + 1, dtype=torch.float64))).long()  # [rest]
     return (bands[None, :] <= degree[:, None]).to(torch.float32)[..., None]
 
+
+
+def floater_fraction(depth: torch.Tensor, near: float) -> float:
+    """Fraction of a render's pixels drawn closer than the camera's near bound: depth [H, W, 1]
+    (expected depth, 0 where nothing was drawn). The issue's floater measure on training views."""
+    drawn = depth[..., 0] > 0
+    return float((drawn & (depth[..., 0] < near)).to(torch.float64).mean())

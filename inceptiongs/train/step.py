@@ -135,8 +135,8 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     generator = torch.Generator().manual_seed(config.seed)
     near = torch.tensor(near_bounds(cameras, points, config.near_percentile, config.near_margin))
     if config.free_space:
-        log(f"free space: near bounds from the sparse points' {config.near_percentile:g}th-percentile depths "
-            f"x {config.near_margin:g}: median {float(near.median()):.3g}, range {float(near.min()):.3g}.."
+        log(f"free space: near bounds = {config.near_margin:g} x percentile {config.near_percentile:g} of the "
+            f"sparse points' depths per camera: median {float(near.median()):.3g}, range {float(near.min()):.3g}.."
             f"{float(near.max()):.3g} (scene units)")
     return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), 0, 0.0, 0.0,
                       np.random.default_rng(config.seed), generator, [], 0, set(),

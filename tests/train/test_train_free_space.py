@@ -13,7 +13,8 @@ import train_cases as tc
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.train.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
-                                          before_near_bound, contains_camera, near_bounds, seen_through)
+                                          before_near_bound, contains_camera, floater_fraction, near_bounds,
+                                          seen_through)
 from inceptiongs.train.step import maintain
 
 
@@ -179,3 +180,11 @@ def test_oversized_gaussians_are_pruned_in_a_300_step_run_without_an_opacity_res
     # The size rule is what removed it: without it the big Gaussian stays.
     largest_off, _, _, _ = _size_run(prune_large_from=10_000)
     assert largest_off > limit
+
+
+def test_floater_fraction_counts_drawn_pixels_before_the_near_bound():
+    depth = torch.zeros(4, 5, 1)
+    depth[0, :2] = 0.5      # two pixels before a bound of 1
+    depth[1] = 3.0          # five behind it
+    assert floater_fraction(depth, 1.0) == 2 / 20
+    assert floater_fraction(depth, 0.1) == 0.0
