@@ -374,7 +374,9 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
         if growing:
             counts["relocated"] = strategies.relocate(state.params, state.optimizer, dead, state.generator, carried)
             n = state.params["means"].shape[0]
-            room = min(config.max_gaussians, int(n * (1.0 + config.mcmc_growth))) - n
+            rate = strategies.growth_rate(n, config.max_gaussians, config.mcmc_growth,
+                                          relocations_left(step, config))
+            room = min(config.max_gaussians, int(n * (1.0 + rate))) - n
             counts["added"] = strategies.grow(state.params, state.optimizer, room, state.generator, carried)
         else:
             # Past the growth window a relocated copy would have no time to be fitted: remove.
@@ -392,6 +394,11 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts
+
+
+def relocations_left(step: int, config: TrainConfig) -> int:
+    """Maintenance steps from ``step`` (included) to the end of the densification window (>= 1)."""
+    return max(1, (config.densify_until - 1 - step) // config.densify_every + 1)
 
 
 def update_sh_limits(state: TrainState, config: TrainConfig) -> None:

@@ -134,3 +134,12 @@ def test_drop_rate_rises_to_its_maximum_over_the_run():
     assert drop_rate(0, 100, 0.1) == 0.0
     assert drop_rate(50, 100, 0.1) == pytest.approx(0.05)
     assert drop_rate(100, 100, 0.1) == pytest.approx(0.1)
+
+
+def test_mcmc_growth_reaches_the_budget_within_a_short_window():
+    from inceptiongs.train.strategy import growth_rate
+
+    assert growth_rate(1000, 1000, 0.05, 10) == 0.0
+    assert growth_rate(90_000, 100_000, 0.05, 100) == 0.05            # the paper's rate is enough
+    rate = growth_rate(3_000, 100_000, 0.05, 10)
+    assert 3_000 * (1 + rate) ** 10 == pytest.approx(100_000)
