@@ -1,14 +1,19 @@
-"""Stage-I training benchmark: test PSNR against wall-clock time.
+"""Stage-I training benchmark: test PSNR against wall-clock time, per strategy.
 
-    python benchmarks/bench_train.py [--scene ../shared/data/fern] [--protocol llff]
+    python benchmarks/bench_train.py [--scene ../shared/data/fern | demo] [--protocol llff]
         [--minutes 10] [--iterations 700] [--eval-every 100] [--out /tmp/bench_train]
+        [--strategies default,mcmc,dropgaussian] [--no-free-space] [--plot F.png]
         [--profile-steps N]
 
-Trains with the CLI's defaults (the iteration count sets the schedule; --minutes stops the
-loop) and prints one line per evaluation: training seconds, iteration, Gaussians, test
-PSNR / SSIM. Targets (issue 4, 2-core CPU): fern >= 23 dB within 10 min, 25.17 dB within
-30 min. --profile-steps N instead profiles N steps with cProfile and prints where the time
-goes.
+Trains each strategy with the CLI's defaults on the same scene and seed, one after the other,
+at equal wall time (--minutes; without --iterations the schedule is sized to it from the
+measured step rate, as `inceptiongs train --minutes` does) and prints one line per evaluation:
+training seconds, iteration, Gaussians, PSNR / SSIM of every group the protocol scores
+(all; scarce and covered for the unstructured one), then a summary at the end of the budget
+and, with --plot, PSNR against time per strategy. ``--scene demo`` writes the built-in demo
+scene (its stage I runs at --downscale 2, as `inceptiongs demo`). Targets (issue 4, 2-core CPU):
+fern >= 23 dB within 10 min, 25.17 dB within 30 min. --profile-steps N instead profiles N steps
+with cProfile and prints where the time goes.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import dataclasses
+import io
 import json
 import os
 import pstats
@@ -34,63 +40,159 @@ def main() -> int:
     parser.add_argument("--downscale", type=int, default=1)
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--iterations", type=int, default=None,
-                        help="schedule length (default 70 per minute: what the 2-core machine "
-                             "does when idle at a 100-200k Gaussian budget)")
+                        help="schedule length (default: sized to --minutes from the measured step rate)")
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--no-pgsr", action="store_true")
+    parser.add_argument("--no-free-space", action="store_true", help="ablation: no free-space rules")
+    parser.add_argument("--strategies", default="default",
+                        help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
+    parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
     parser.add_argument("--out", default="/tmp/bench_train")
     parser.add_argument("--profile-steps", type=int, default=0)
     args = parser.parse_args()
-    if args.iterations is None:
-        args.iterations = max(1, round(70 * args.minutes))
 
-    from inceptiongs.train.config import TrainConfig, short_run_schedule
+    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES, TrainConfig, short_run_schedule
     from inceptiongs.train.trainer import train
 
-    config = short_run_schedule(TrainConfig(
-        scene=str(Path(args.scene).resolve()), protocol=args.protocol, downscale=args.downscale,
-        iterations=args.iterations, minutes=args.minutes, pgsr=not args.no_pgsr))
-    config = dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
-                                 checkpoint_every=max(args.eval_every, 500))
+    strategies = [name.strip() for name in args.strategies.split(",") if name.strip()]
+    unknown = [name for name in strategies if name not in STRATEGIES]
+    if unknown or not strategies:
+        parser.error(f"--strategies: choose from {', '.join(STRATEGIES)} (got {args.strategies!r})")
     out = Path(args.out)
-    shutil.rmtree(out, ignore_errors=True)
+    scene = Path(args.scene)
+    if args.scene == "demo":
+        from inceptiongs.scene.demo import write_demo_scene
+        scene = write_demo_scene(out / "demo_scene", progress=False)
+    sized = args.iterations is None
+    iterations = args.iterations if not sized else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes))
+
+    def config_for(strategy: str):
+        config = short_run_schedule(TrainConfig(
+            scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
+            iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
+            size_to_minutes=sized, free_space=not args.no_free_space))
+        return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
+                                   checkpoint_every=max(args.eval_every, 500))
+
     if args.profile_steps:
-        config = dataclasses.replace(config, iterations=args.profile_steps, minutes=None,
-                                     eval_every=10 ** 9, checkpoint_every=10 ** 9)
+        config = dataclasses.replace(config_for(strategies[0]), iterations=args.profile_steps, minutes=None,
+                                     size_to_minutes=False, eval_every=10 ** 9, checkpoint_every=10 ** 9)
+        shutil.rmtree(out / "profile", ignore_errors=True)
         profiler = cProfile.Profile()
         profiler.enable()
-        train(config, out, progress=False)
+        train(config, out / "profile", progress=False)
         profiler.disable()
         pstats.Stats(profiler, stream=sys.stdout).sort_stats("cumulative").print_stats(30)
         return 0
 
-    # The machine is shared: the load average says how much of it this run had.
-    load_before = os.getloadavg()
-    result = train(config, out)
-    load_after = os.getloadavg()
-    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    records = [r for r in records if "all_psnr" in r]
-    # The unstructured protocol also scores the scarce cluster and the covered views apart.
-    groups = [g for g in ("all", "scarce", "covered") if records and f"{g}_psnr" in records[0]]
-    print(f"{'train_s':>8} {'iter':>6} {'gaussians':>9} "
+    curves: dict[str, list[dict]] = {}
+    for strategy in strategies:
+        run = out / strategy
+        shutil.rmtree(run, ignore_errors=True)
+        # The machine is shared: the load average says how much of it this run had.
+        load_before = os.getloadavg()
+        result = train(config_for(strategy), run)
+        load_after = os.getloadavg()
+        records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+        records = [r for r in records if "all_psnr" in r]
+        curves[strategy] = records
+        groups = _groups(records)
+        print(f"\n== {strategy}: {result.iteration} iterations (schedule "
+              f"{json.loads((run / 'config.json').read_text())['iterations']}), {result.num_gaussians} Gaussians; "
+              f"load average (1/5/15 min) {'/'.join(f'{v:.1f}' for v in load_before)} before, "
+              f"{'/'.join(f'{v:.1f}' for v in load_after)} after, on {os.cpu_count()} cores "
+              f"(figures are noisy when others run)")
+        print(f"{'train_s':>8} {'iter':>6} {'gaussians':>9} "
+              + " ".join(f"{g + '_psnr':>12} {g + '_ssim':>12}" for g in groups))
+        for record in records:
+            print(f"{record['train_s']:8.1f} {record['iteration']:6d} {record['num_gaussians']:9d} "
+                  + " ".join(f"{record[g + '_psnr']:12.2f} {record[g + '_ssim']:12.4f}" for g in groups))
+        worst, over = floaters_in_training_views(run)
+        if worst is not None:
+            print(f"floaters (training-view pixels rendered closer than the camera's near bound): worst view "
+                  f"{100 * worst:.2f} %, {over} view(s) above 1 %")
+        curve = [(r["train_s"], r["all_psnr"]) for r in records]
+        for minutes, target in TARGETS.get(scene.name, []):
+            if minutes > args.minutes:
+                print(f"target {target:.2f} dB within {minutes} min: not measured (ran {args.minutes:g} min)")
+                continue
+            reached = [p for t, p in curve if t <= minutes * 60]
+            best = max(reached) if reached else float("nan")
+            print(f"target {target:.2f} dB within {minutes} min: best {best:.2f} dB -> "
+                  f"{'met' if best >= target else 'NOT met'}")
+
+    print(f"\n== at the end of {args.minutes:g} min ({scene.name}, seed 0, {args.protocol} protocol)")
+    groups = _groups(next(iter(curves.values())))
+    print(f"{'strategy':>14} {'iter':>6} {'gaussians':>9} "
           + " ".join(f"{g + '_psnr':>12} {g + '_ssim':>12}" for g in groups))
-    curve = []
-    for record in records:
-        curve.append((record["train_s"], record["all_psnr"]))
-        print(f"{record['train_s']:8.1f} {record['iteration']:6d} {record['num_gaussians']:9d} "
-              + " ".join(f"{record[g + '_psnr']:12.2f} {record[g + '_ssim']:12.4f}" for g in groups))
-    for minutes, target in TARGETS.get(Path(args.scene).name, []):
-        if minutes > args.minutes:
-            print(f"target {target:.2f} dB within {minutes} min: not measured (ran {args.minutes:g} min)")
-            continue
-        reached = [p for s, p in curve if s <= minutes * 60]
-        best = max(reached) if reached else float("nan")
-        verdict = "met" if best >= target else "NOT met"
-        print(f"target {target:.2f} dB within {minutes} min: best {best:.2f} dB -> {verdict}")
-    print(f"{result.iteration} iterations, {result.num_gaussians} Gaussians; load average (1/5/15 min) "
-          f"{'/'.join(f'{v:.1f}' for v in load_before)} before, {'/'.join(f'{v:.1f}' for v in load_after)} "
-          f"after, on {os.cpu_count()} cores (figures are noisy when others run)")
+    for strategy, records in curves.items():
+        last = records[-1]
+        print(f"{strategy:>14} {last['iteration']:6d} {last['num_gaussians']:9d} "
+              + " ".join(f"{last[g + '_psnr']:12.2f} {last[g + '_ssim']:12.4f}" for g in groups))
+    if args.plot:
+        plot_curves(curves, groups, Path(args.plot), f"{scene.name}: stage I per strategy")
+        print(f"plot: {args.plot}")
     return 0
+
+
+def floaters_in_training_views(run: Path) -> tuple[float | None, int]:
+    """(largest fraction of a training view's pixels drawn before its near bound, views above 1 %),
+    from the run's last checkpoint (its near bounds come from the sparse points); (None, 0)
+    when the checkpoint has no near bounds."""
+    import torch
+
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.checkpoint import latest_checkpoint, load_checkpoint
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.free_space import floater_fraction
+    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.scene.loader import load_scene
+
+    payload = load_checkpoint(latest_checkpoint(run))
+    if payload.get("near") is None:
+        return None, 0
+    config = TrainConfig.load(run / "config.json")
+    scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+    split = Split.load(run / "split.json", scene.cameras)
+    gaussians = gaussians_from_params(payload["params"]).detach()
+    fractions = []
+    with torch.no_grad():
+        for near, index in zip(payload["near"].tolist(), split.train):
+            depth = render(gaussians, scene.cameras[index], outputs=("depth",))["depth"]
+            fractions.append(floater_fraction(depth, near))
+    return max(fractions), sum(f > 0.01 for f in fractions)
+
+
+def _groups(records: list[dict]) -> list[str]:
+    """The scored groups, in display order (the unstructured protocol adds scarce and covered)."""
+    return [g for g in ("all", "scarce", "covered") if records and f"{g}_psnr" in records[0]]
+
+
+def plot_curves(curves: dict[str, list[dict]], groups: list[str], path: Path, title: str) -> None:
+    """One panel per group: PSNR against training minutes, one line per strategy."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from inceptiongs.io.atomic import atomic_write_bytes
+
+    figure, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.4), squeeze=False)
+    for axis, group in zip(axes[0], groups):
+        for strategy, records in curves.items():
+            axis.plot([r["train_s"] / 60 for r in records], [r[f"{group}_psnr"] for r in records],
+                      marker="o", markersize=3, label=strategy)
+        axis.set_title(f"{group} views")
+        axis.set_xlabel("training minutes")
+        axis.set_ylabel("PSNR (dB)")
+        axis.grid(alpha=0.3)
+    axes[0][0].legend()
+    figure.suptitle(title)
+    figure.tight_layout()
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110)
+    plt.close(figure)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 if __name__ == "__main__":

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from ..errors import InputError
 
+from ..train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES
+
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
 
@@ -15,9 +17,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", help="run folder (default: ./runs/SCENE_NAME in the current folder; "
                                       "never inside the scene folder)")
     budget = parser.add_mutually_exclusive_group()
-    budget.add_argument("--minutes", type=float, help="stop after this much training time")
-    budget.add_argument("--iterations", type=int, help="number of steps (default 30000; with "
-                        "--minutes the schedule length, default 5000)")
+    budget.add_argument("--minutes", type=float, help="train for this much time: the schedule (learning-rate "
+                        "decay, densification, pruning) is sized to it from the measured step rate")
+    budget.add_argument("--iterations", type=int, help="number of steps (default 30000)")
     parser.add_argument("--downscale", type=int, default=1, help="image downscale factor")
     parser.add_argument("--protocol", choices=("llff", "unstructured", "none"), default="llff",
                         help="which views are held out for evaluation (default llff: every 8th view, "
@@ -26,6 +28,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
     parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
+    parser.add_argument("--strategy", choices=STRATEGIES, default="default",
+                        help="default: 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed budget); "
+                             "dropgaussian: random drops with opacity compensation")
+    parser.add_argument("--no-free-space", action="store_true",
+                        help="keep Gaussians at the cameras and before their near bounds (ablation)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",
@@ -38,10 +45,13 @@ def add_arguments(parser) -> None:
 def build_config(args) -> "TrainConfig":
     from ..train.config import TrainConfig, short_run_schedule
 
-    iterations = args.iterations if args.iterations is not None else (5_000 if args.minutes else 30_000)
+    sized = args.minutes is not None and args.iterations is None
+    iterations = (args.iterations if args.iterations is not None
+                  else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes)) if sized else 30_000)
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
-                         minutes=args.minutes, pgsr=not args.no_pgsr)
+                         minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
+                         size_to_minutes=sized, free_space=not args.no_free_space)
     return short_run_schedule(config.validate("command line"))
 
 

@@ -14,6 +14,12 @@ from ..io.config_json import SavedConfig
 from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
+# Stage-I strategies sharing the trainer (inceptiongs.train.strategy): the 3DGS adaptive density
+# control, 3DGS-MCMC (Kheradmand et al. 2024) and DropGaussian (Park et al. 2025).
+STRATEGIES = ("default", "mcmc", "dropgaussian")
+# A schedule sized to a time budget (``size_to_minutes``) starts from this many steps a minute
+# (the 2-core machine at a 100-200k Gaussian budget); the trainer re-sizes it from the rate it measures.
+BUDGET_STEPS_PER_MINUTE_GUESS = 70
 
 
 @dataclass
@@ -26,6 +32,10 @@ class TrainConfig(SavedConfig):
     iterations: int = 30_000
     minutes: float | None = None
     pgsr: bool = True
+    strategy: str = "default"
+    # --minutes without --iterations: the trainer sizes ``iterations`` (and the schedule) to the
+    # time budget from the measured step rate, and re-sizes it when the rate changes a lot.
+    size_to_minutes: bool = False
     # Scenes without sparse points (LLFF): triangulate some from the training photos with
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
@@ -51,14 +61,46 @@ class TrainConfig(SavedConfig):
     densify_grad_threshold: float = 2e-4   # |d loss / d mean2d| in NDC units, averaged over views
     percent_dense: float = 0.01            # clone below, split above this fraction of the extent
     prune_opacity: float = 0.005
-    prune_screen_radius: float = 20.0      # pixels (after the first opacity reset)
+    # Oversized Gaussians (3DGS's rules, without waiting for an opacity reset): pruned from
+    # ``prune_large_from`` on, every ``densify_every`` steps until the end of the run.
+    prune_screen_radius: float = 20.0      # pixels of footprint radius (the largest over the views)
     prune_world_fraction: float = 0.1      # of the extent
+    prune_large_from: int = 3_000
     opacity_reset_every: int = 3_000
     max_gaussians: int = 2_000_000
+
+    # --- free space (inceptiongs.train.free_space) ---------------------------------------------
+    # Per-camera near bound: this low percentile of the sparse points' depths in that camera,
+    # times ``near_margin`` (real content lies at or beyond it; the margin leaves room for the
+    # points' own noise and for surfaces between the sparse points).
+    free_space: bool = True
+    near_percentile: float = 2.0
+    near_margin: float = 0.5
+    # A Gaussian whose ellipsoid holds a training camera centre within this many sigmas is removed.
+    camera_sigmas: float = 3.0
+    # A Gaussian seen by at least this many training views, in front of the rendered surface
+    # (by ``see_through_tolerance`` of its depth) in every one of them, is see-through floater.
+    see_through_min_views: int = 3
+    see_through_tolerance: float = 0.2
 
     # --- SH schedule ------------------------------------------------------------------------
     sh_degree_max: int = 3
     sh_increase_every: int = 1_000
+    # Per-Gaussian SH degree from the angular spread of the training views that see it: one
+    # degree per ``sh_spread_deg_per_degree`` degrees of (half-angle) spread; seen by fewer than
+    # ``sh_min_views`` views: degree 0. 0 switches the per-Gaussian limit off.
+    sh_spread_deg_per_degree: float = 10.0
+    sh_min_views: int = 3
+
+    # --- 3DGS-MCMC (strategy "mcmc"; values from the paper) ------------------------------------
+    mcmc_noise_lr: float = 5e5
+    mcmc_opacity_reg: float = 0.01
+    mcmc_scale_reg: float = 0.01
+    mcmc_dead_opacity: float = 0.005
+    mcmc_growth: float = 0.05           # budget grows by this fraction per relocation until max_gaussians
+
+    # --- DropGaussian (strategy "dropgaussian") ------------------------------------------------
+    drop_rate_max: float = 0.1          # drop rate rises linearly to this over the run
 
     # --- PGSR terms -------------------------------------------------------------------------
     lambda_flatten: float = 100.0
@@ -82,6 +124,12 @@ class TrainConfig(SavedConfig):
     keep_checkpoints: int = 2
 
     def validate(self, source: str = "config") -> "TrainConfig":
+        if self.strategy not in STRATEGIES:
+            raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
+        if not 0.0 <= self.drop_rate_max < 1.0:
+            raise InputError(f"{source}: drop_rate_max must be in [0, 1), got {self.drop_rate_max}")
+        if not 0.0 < self.near_percentile < 100.0 or not 0.0 < self.near_margin <= 1.0:
+            raise InputError(f"{source}: near_percentile must be in (0, 100) and near_margin in (0, 1]")
         if self.protocol not in PROTOCOLS:
             raise InputError(f"{source}: protocol must be one of {', '.join(PROTOCOLS)}, got {self.protocol!r}")
         if self.iterations < 1:
@@ -101,6 +149,20 @@ class TrainConfig(SavedConfig):
 
 SHORT_RUN_RESET_MIN = 10_000
 SHORT_RUN_MIN_GAUSSIANS = 100_000
+
+
+# The milestones short_run_schedule scales (from the 30k-step defaults).
+SCHEDULE_FIELDS = ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "max_gaussians",
+                   "sh_increase_every", "normal_from", "multiview_from", "prune_large_from")
+
+
+def sized_schedule(config: TrainConfig, iterations: int) -> TrainConfig:
+    """``config`` with ``iterations`` steps and the default milestones scaled to that length
+    (what the command line builds); for runs sized to a time budget."""
+    defaults = TrainConfig()
+    base = dataclasses.replace(config, iterations=max(1, int(iterations)),
+                               **{name: getattr(defaults, name) for name in SCHEDULE_FIELDS})
+    return short_run_schedule(base)
 
 
 def short_run_schedule(config: TrainConfig) -> TrainConfig:
@@ -126,6 +188,7 @@ def short_run_schedule(config: TrainConfig) -> TrainConfig:
         # right after one, 13.5 dB 33 steps later), more than a short run can spare; the
         # floaters a reset removes are few when training starts from triangulated points.
         # So runs below SHORT_RUN_RESET_MIN steps never reset.
+        prune_large_from=scaled(config.prune_large_from, min(100, config.iterations // 10)),
         opacity_reset_every=(config.iterations + 1 if config.iterations < SHORT_RUN_RESET_MIN
                              else scaled(config.opacity_reset_every, max(50, config.iterations // 4))),
         # A short run has no time to optimise millions of Gaussians (every step's cost grows

@@ -63,14 +63,19 @@ def _rotation_matrices(quats: torch.Tensor) -> torch.Tensor:
 
 def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, stats: DensifyStats,
                       config: TrainConfig, extent: float, prune_large: bool,
-                      generator: torch.Generator) -> dict[str, int]:
-    """Clone / split where the mean gradient exceeds the threshold, then prune. In place on
-    ``params`` and the optimizer. Returns counts {"cloned", "split", "pruned"}."""
+                      generator: torch.Generator, grow: bool = True,
+                      carried: dict[str, torch.Tensor] | None = None) -> dict[str, int]:
+    """Clone / split where the mean gradient exceeds the threshold (only with ``grow``), then
+    prune. In place on ``params`` and the optimizer; every tensor in ``carried`` (per-row
+    statistics, [N, ...]) is re-selected the same way (a clone or split child copies its
+    source's row). Returns counts {"cloned", "split", "pruned"}."""
     with torch.no_grad():
         mean_grad = stats.grad_sum / stats.count.clamp_min(1.0)  # never-seen Gaussians: 0
         n = params["means"].shape[0]
         room = max(config.max_gaussians - n, 0)
         hot = mean_grad >= config.densify_grad_threshold
+        if not grow:
+            hot = torch.zeros_like(hot)
         max_scale = params["log_scales"].exp().amax(1)
         small = max_scale <= config.percent_dense * extent
         clone = hot & small
@@ -98,20 +103,50 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
                         value = value - _SPLIT_SHRINK
                     appended[name].append(value)
         replace_rows(optimizer, params, ~split, {name: torch.cat(v) for name, v in appended.items()})
+        # Source row of every row now: the kept ones, the clones' sources, the split parents twice.
+        split_rows = torch.nonzero(split)[:, 0]
+        source = torch.cat([torch.nonzero(~split)[:, 0], torch.nonzero(clone)[:, 0]]
+                           + [split_rows] * _SPLIT_CHILDREN)
 
         opacity = torch.sigmoid(params["opacity_logits"])
         prune = opacity < config.prune_opacity
         if prune_large:
-            n_new = params["means"].shape[0]
-            radii = torch.cat([stats.max_radii[~split],
-                               torch.zeros(n_new - int((~split).sum()))])
-            prune |= radii > config.prune_screen_radius
-            prune |= params["log_scales"].exp().amax(1) > config.prune_world_fraction * extent
+            # New rows have not been rendered yet: no screen size (as in 3DGS).
+            radii = torch.cat([stats.max_radii[~split], torch.zeros(len(source) - int((~split).sum()))])
+            prune |= oversized(params, radii, config, extent)
         # Never remove every Gaussian: an empty model cannot recover.
         if bool(prune.all()):
             prune[torch.argmax(opacity)] = False
         replace_rows(optimizer, params, ~prune)
+        if carried is not None:
+            for name, tensor in carried.items():
+                carried[name] = tensor[source[~prune]]
     return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(prune.sum())}
+
+
+def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor, config: TrainConfig,
+              extent: float) -> torch.Tensor:
+    """[N] bool, 3DGS's size rules: a footprint radius above ``prune_screen_radius`` pixels in some
+    view since the last densification (max_radii [N]), or a largest scale above
+    ``prune_world_fraction`` of the scene extent."""
+    too_wide = max_radii > config.prune_screen_radius
+    return too_wide | (params["log_scales"].detach().exp().amax(1) > config.prune_world_fraction * extent)
+
+
+def remove_rows(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, remove: torch.Tensor,
+                carried: dict[str, torch.Tensor]) -> int:
+    """Remove the rows ``remove`` ([N] bool) from the parameters, their Adam moments and every
+    per-row tensor in ``carried`` (in place); never the last Gaussian. Returns how many went."""
+    with torch.no_grad():
+        remove = remove.clone()
+        if bool(remove.all()):
+            remove[torch.argmax(params["opacity_logits"].detach())] = False
+        if not bool(remove.any()):
+            return 0
+        replace_rows(optimizer, params, ~remove)
+        for name, tensor in carried.items():
+            carried[name] = tensor[~remove]
+    return int(remove.sum())
 
 
 def reset_opacity(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam) -> None:

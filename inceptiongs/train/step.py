@@ -21,7 +21,10 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from . import losses
 from .config import TrainConfig
-from .densify import DensifyStats, accumulate, densify_and_prune, reset_opacity
+from . import strategy as strategies
+from .densify import DensifyStats, accumulate, densify_and_prune, oversized, remove_rows, reset_opacity
+from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
+                         near_bounds, seen_through, sh_rest_mask)
 from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
@@ -95,9 +98,18 @@ class TrainState:
     order: list[int]
     order_pos: int
     logged: set[str]
+    # Per-Gaussian view statistics (free space, SH limits) and the training cameras' near
+    # bounds [len(train)]; None in a state built without them (a stage-II state from a model).
+    view_stats: ViewStats | None = None
+    near: torch.Tensor | None = None
 
     def payload(self, config: TrainConfig) -> dict:
-        return {
+        extra = {}
+        if self.view_stats is not None:
+            extra["view_stats"] = {k: v.clone() for k, v in self.view_stats.tensors().items()}
+        if self.near is not None:
+            extra["near"] = self.near.clone()
+        return {**extra,
             "iteration": self.iteration, "wall_s": self.wall_s, "train_s": self.train_s,
             "params": {k: v.detach().clone() for k, v in self.params.items()},
             "optimizer": self.optimizer.state_dict(),
@@ -121,8 +133,14 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)
+    near = torch.tensor(near_bounds(cameras, points, config.near_percentile, config.near_margin))
+    if config.free_space:
+        log(f"free space: near bounds = {config.near_margin:g} x percentile {config.near_percentile:g} of the "
+            f"sparse points' depths per camera: median {float(near.median()):.3g}, range {float(near.min()):.3g}.."
+            f"{float(near.max()):.3g} (scene units)")
     return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), 0, 0.0, 0.0,
-                  np.random.default_rng(config.seed), generator, [], 0, set())
+                      np.random.default_rng(config.seed), generator, [], 0, set(),
+                      ViewStats.zeros(len(gaussians)), near)
 
 
 def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainState:
@@ -134,9 +152,12 @@ def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainS
     generator = torch.Generator()
     generator.set_state(payload["generator"])
     stats = DensifyStats(**payload["stats"])
+    # Checkpoints written before the view statistics existed restore without them (rules off).
+    view_stats = ViewStats(**payload["view_stats"]) if "view_stats" in payload else None
+    near = payload.get("near")
     return TrainState(params, optimizer, stats, int(payload["iteration"]), float(payload["wall_s"]),
-                  float(payload["train_s"]), view_rng, generator, list(payload["order"]),
-                  int(payload["order_pos"]), set(payload["logged"]))
+                      float(payload["train_s"]), view_rng, generator, list(payload["order"]),
+                      int(payload["order_pos"]), set(payload["logged"]), view_stats, near)
 
 
 def next_view(state: TrainState, data: TrainData) -> int:
@@ -223,11 +244,20 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     want_normal = config.pgsr and step >= config.normal_from
     want_multiview = (config.pgsr and step >= config.multiview_from and step % config.multiview_every == 0)
     outputs = ("rgb",) + (("alpha", "normal", "plane_depth") if (want_normal or want_multiview) else ())
+    if wants_view_stats(step, state, config):
+        outputs += ("depth",)
     gaussians = gaussians_from_params(state.params)
-    out = render_fn(gaussians, camera, outputs=outputs, background=background, sh_degree=sh_degree)
+    rendered = gaussians
+    if config.strategy == "dropgaussian":
+        rendered = strategies.drop_gaussians(gaussians, strategies.drop_rate(step, config.iterations,
+                                                                             config.drop_rate_max), state.generator)
+    out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree)
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
     terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
+    if config.strategy == "mcmc":
+        terms["opacity_reg"], terms["scale_reg"] = strategies.mcmc_regularisers(state.params)
+        loss = loss + config.mcmc_opacity_reg * terms["opacity_reg"] + config.mcmc_scale_reg * terms["scale_reg"]
     if config.pgsr:
         terms["flatten"] = losses.flatten_loss(state.params["log_scales"])
         loss = loss + config.lambda_flatten * terms["flatten"]
@@ -256,28 +286,134 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     return record
 
 
+def wants_view_stats(step: int, state: TrainState, config: TrainConfig) -> bool:
+    """Whether this step's training render feeds the view statistics (it then renders depth too):
+    within stage I's schedule, when a rule needs them."""
+    return (state.view_stats is not None and step <= config.iterations
+            and (config.free_space or config.sh_spread_deg_per_degree > 0))
+
+
+def maintenance_due(step: int, config: TrainConfig) -> bool:
+    """Densification (or relocation) and pruning run every ``densify_every`` steps from
+    ``densify_from``: growing until ``densify_until``, pruning until the end of the run (so a
+    short run ends pruned). Stage-II continuations (steps past ``iterations``) only densify
+    within their own window."""
+    if step < config.densify_from or step % config.densify_every != 0:
+        return False
+    return step < config.densify_until or step <= config.iterations
+
+
 def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, state: TrainState, data: TrainData,
                    config: TrainConfig) -> dict:
-    """Backward ``loss`` of the render ``out`` of ``camera``, one Adam step, then densification
-    and the opacity reset on schedule. Shared with the stage-II refinement (inceptiongs.bootstrap),
-    whose virtual-view steps feed the same statistics. Returns densification counts and
-    ``num_gaussians``."""
+    """Backward ``loss`` of the render ``out`` of ``camera``, one Adam step, then the strategy's
+    densification / relocation, the free-space and size rules, and the opacity reset on schedule.
+    Shared with the stage-II refinement (inceptiongs.bootstrap), whose virtual-view steps feed the
+    same statistics. Returns densification counts and ``num_gaussians``."""
     loss.backward()
-    if step < config.densify_until and out["means2d"].grad is not None:
+    tracking = step < config.densify_until or step <= config.iterations
+    if tracking and out["means2d"].grad is not None:
         accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
+    if state.view_stats is not None and "depth" in out:
+        accumulate_views(state.view_stats, state.params["means"], camera, out["depth"], out["radii"],
+                         config.see_through_tolerance)
+    limit_sh = state.view_stats is not None and config.sh_spread_deg_per_degree > 0 and "sh_rest" in state.params
+    if limit_sh and state.params["sh_rest"].grad is not None:
+        # Bands above a Gaussian's allowed degree get no gradient (they are held at 0).
+        state.params["sh_rest"].grad.mul_(sh_rest_mask(state.view_stats.sh_degree,
+                                                       state.params["sh_rest"].shape[1]))
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
+    if config.strategy == "mcmc" and step <= config.iterations:
+        strategies.mcmc_noise(state.params, position_learning_rate(step, config, data.extent),
+                              config.mcmc_noise_lr, state.generator)
 
     record: dict = {}
-    if config.densify_from <= step < config.densify_until and step % config.densify_every == 0:
-        counts = densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
-                                   prune_large=step > config.opacity_reset_every, generator=state.generator)
+    if maintenance_due(step, config):
+        record.update(maintain(step, state, data, config))
         state.stats = DensifyStats.zeros(state.params["means"].shape[0])
-        record.update(counts)
-    if step < config.densify_until and step % config.opacity_reset_every == 0:
+        if state.view_stats is not None:
+            state.view_stats.reset_window()
+            if limit_sh:
+                update_sh_limits(state, config)
+    if config.strategy != "mcmc" and step < config.densify_until and step % config.opacity_reset_every == 0:
         reset_opacity(state.params, state.optimizer)
     record["num_gaussians"] = int(state.params["means"].shape[0])
     return record
+
+
+def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig) -> torch.Tensor:
+    """[N] bool: Gaussians in space the training cameras see through (inceptiongs.train.free_space)."""
+    params = state.params
+    flags = torch.zeros(params["means"].shape[0], dtype=torch.bool)
+    if not config.free_space:
+        return flags
+    cameras = [data.cameras[i] for i in data.train]
+    centers = torch.tensor(np.stack([c.center for c in cameras]))
+    flags |= contains_camera(params["means"], params["log_scales"], params["quats"], centers, config.camera_sigmas)
+    if state.near is not None:
+        flags |= before_near_bound(params["means"], cameras, state.near)
+    if state.view_stats is not None:
+        flags |= seen_through(state.view_stats, config.see_through_min_views)
+    return flags
+
+
+def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig) -> dict:
+    """The strategy's periodic edit of the model; returns its counts."""
+    in_schedule = step <= config.iterations    # stage-II continuations: no new pruning rules
+    growing = step < config.densify_until
+    prune_large = in_schedule and step >= config.prune_large_from
+    carried = state.view_stats.tensors() if state.view_stats is not None else {}
+    flags = free_space_flags(state, data, config) if in_schedule else torch.zeros(
+        state.params["means"].shape[0], dtype=torch.bool)
+    counts: dict = {"free_space": int(flags.sum())}
+    if config.strategy == "mcmc":
+        dead = torch.sigmoid(state.params["opacity_logits"].detach()) <= config.mcmc_dead_opacity
+        if prune_large:
+            dead |= oversized(state.params, state.stats.max_radii, config, data.extent)
+        dead |= flags
+        if growing:
+            counts["relocated"] = strategies.relocate(state.params, state.optimizer, dead, state.generator, carried)
+            n = state.params["means"].shape[0]
+            rate = strategies.growth_rate(n, config.max_gaussians, config.mcmc_growth,
+                                          relocations_left(step, config))
+            room = min(config.max_gaussians, int(n * (1.0 + rate))) - n
+            counts["added"] = strategies.grow(state.params, state.optimizer, room, state.generator, carried)
+        else:
+            # Past the growth window a relocated copy would have no time to be fitted: remove.
+            counts["pruned"] = remove_rows(state.params, state.optimizer, dead, carried)
+    else:
+        if bool(flags.all()):
+            flags[torch.argmax(state.params["opacity_logits"].detach())] = False  # never empty the model
+        keep_stats = ~flags
+        removed = remove_rows(state.params, state.optimizer, flags, carried)
+        if removed:
+            state.stats = DensifyStats(*(t[keep_stats] for t in state.stats.tensors().values()))
+        counts.update(densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
+                                        prune_large=prune_large, generator=state.generator, grow=growing,
+                                        carried=carried))
+    if state.view_stats is not None:
+        state.view_stats = ViewStats(**carried)
+    return counts
+
+
+def relocations_left(step: int, config: TrainConfig) -> int:
+    """Maintenance steps from ``step`` (included) to the end of the densification window (>= 1)."""
+    return max(1, (config.densify_until - 1 - step) // config.densify_every + 1)
+
+
+def update_sh_limits(state: TrainState, config: TrainConfig) -> None:
+    """Re-derive every Gaussian's allowed SH degree from its viewing directions and hold the
+    bands above it at 0 (values and Adam moments)."""
+    stats = state.view_stats
+    stats.sh_degree = allowed_sh_degree(stats, config.sh_spread_deg_per_degree, config.sh_min_views)
+    sh_rest = state.params["sh_rest"]
+    mask = sh_rest_mask(stats.sh_degree, sh_rest.shape[1]).to(sh_rest.dtype)
+    with torch.no_grad():
+        sh_rest.mul_(mask)
+        moments = state.optimizer.state.get(sh_rest)
+        if moments:
+            moments["exp_avg"].mul_(mask)
+            moments["exp_avg_sq"].mul_(mask)
 
 
 def state_from_gaussians(gaussians: Gaussians, data: TrainData, config: TrainConfig) -> TrainState:

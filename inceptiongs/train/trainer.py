@@ -25,11 +25,34 @@ from ..io.atomic import OutputError, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
-from .config import TrainConfig
+from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
 from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
 from .step import (evaluate_held_out, log_once, new_state, prepare_data, restore_state, sh_degree_at,
                    supported_sh_degree, train_step, trim_sh)
+
+
+# Time-budget sizing (``size_to_minutes``): the first step rate is measured after this many
+# steps, then the schedule is re-checked every BUDGET_CHECK_FRACTION of the budget and re-sized
+# when the steps the recent rate predicts differ from the planned ones by more than
+# BUDGET_RESIZE_TOLERANCE; the plan fills BUDGET_FILL of the time left (the rate falls as the
+# model grows) and is frozen in the last BUDGET_FREEZE of the budget (a late re-size would
+# jump the decayed learning rate).
+BUDGET_CALIBRATION_STEPS = 10
+BUDGET_CHECK_FRACTION = 0.1
+BUDGET_RESIZE_TOLERANCE = 0.25
+BUDGET_FILL = 0.95
+BUDGET_FREEZE = 0.15
+
+
+def budget_iterations(step: int, planned: int, rate: float, remaining_s: float) -> int | None:
+    """The schedule length that fits ``remaining_s`` seconds at ``rate`` steps/s after ``step``,
+    or None when the ``planned`` length is within BUDGET_RESIZE_TOLERANCE of it."""
+    wanted = step + max(1, int(rate * remaining_s * BUDGET_FILL))
+    left_planned = max(planned - step, 1)
+    if abs((wanted - step) - left_planned) <= BUDGET_RESIZE_TOLERANCE * left_planned:
+        return None
+    return wanted
 
 
 @dataclass
@@ -120,10 +143,33 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         stop_clocks()
         save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints)
 
+    sizing = config.size_to_minutes and budget_s is not None
+    rate_mark = (state.iteration, time.perf_counter() - train_clock)   # (step, train seconds) of the last check
+    next_check = state.iteration + BUDGET_CALIBRATION_STEPS
+
+    def resize(step: int) -> None:
+        nonlocal config, rate_mark, next_check
+        elapsed = time.perf_counter() - train_clock
+        steps, seconds = step - rate_mark[0], elapsed - rate_mark[1]
+        if steps > 0 and seconds > 0:  # a rate needs both
+            wanted = budget_iterations(step, config.iterations, steps / seconds, budget_s - elapsed)
+            if wanted is not None and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:
+                log(f"time budget: {steps / seconds:.2f} steps/s at {state.params['means'].shape[0]} Gaussians, "
+                    f"schedule re-sized from {config.iterations} to {wanted} iterations")
+                config = sized_schedule(config, wanted)
+                config.save(run_dir / "config.json")
+                bar.total = config.iterations
+        rate_mark = (step, elapsed)
+        # The next look once another slice of the budget has passed, in steps at this rate.
+        rate = steps / seconds if steps > 0 and seconds > 0 else 1.0
+        next_check = step + max(BUDGET_CALIBRATION_STEPS, int(rate * BUDGET_CHECK_FRACTION * budget_s))
+
     try:
         while state.iteration < config.iterations:
             if budget_s is not None and time.perf_counter() - train_clock >= budget_s:
                 break
+            if sizing and state.iteration >= next_check:
+                resize(state.iteration)
             stop, paused_s = wait_while_paused(control)
             session_start += paused_s
             train_clock += paused_s

@@ -1,0 +1,230 @@
+"""Free space stays free, and view-dependent colour only where it was observed.
+
+Unstructured captures put cameras inside the scene, and a Gaussian fitted in the space the
+training cameras look *through* (background pulled onto the camera rig) is invisible in the
+photos it was fitted to but covers a held-out view from the rig. Three rules find them:
+
+* a Gaussian whose ellipsoid holds a training camera centre (:func:`contains_camera`);
+* a Gaussian in front of a camera's near bound and inside its image (:func:`before_near_bound`);
+  the bound is per camera, from the sparse points' nearest depths (:func:`near_bounds`), since
+  walk-through captures have real content close to some cameras and none near others;
+* a Gaussian that every training view seeing it looks through: in each view it lies in front of
+  the rendered surface at its own pixel (:class:`ViewStats`, gathered from the training renders).
+
+:class:`ViewStats` also gathers the directions a Gaussian was seen from; their spread limits its
+SH degree (:func:`allowed_sh_degree`): a Gaussian seen from one direction has no view-dependent
+colour to fit, and higher bands there only learn the photo's noise and ring in other views.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN, SH_MAX_DEGREE
+
+# A camera needs this many sparse points in its image for a percentile to mean anything;
+# with fewer it keeps only the renderer's NEAR_PLANE.
+NEAR_MIN_POINTS = 8
+# Gaussian-camera pairs evaluated at once in the [N, C] tests (float64 [pairs, 3] ~ 100 MB).
+_PAIR_BUDGET = 1 << 22
+
+
+def _camera_block(n: int) -> int:
+    """Cameras per block so that n x block pairs stay within _PAIR_BUDGET (at least 1)."""
+    return max(1, _PAIR_BUDGET // max(n, 1))
+
+
+def camera_depths(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """Camera z of the ``points`` [P, 3] that project inside ``camera``'s image in front of it: [Q]."""
+    local = points @ camera.rotation.T + camera.world_to_camera[:3, 3]
+    z = local[:, 2]
+    front = z > NEAR_PLANE
+    safe_z = np.where(front, z, 1.0)  # only used where front (z > NEAR_PLANE > 0)
+    u = camera.fx * local[:, 0] / safe_z + camera.cx
+    v = camera.fy * local[:, 1] / safe_z + camera.cy
+    inside = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    return z[inside]
+
+
+def near_bounds(cameras: list[Camera], points: np.ndarray, percentile: float, margin: float) -> np.ndarray:
+    """Per-camera near bound [C]: ``margin`` x the ``percentile``-th percentile of the depths of
+    the sparse points in its image; NEAR_PLANE for a camera with fewer than NEAR_MIN_POINTS.
+
+    A low percentile rather than the minimum: one mis-triangulated point in front of a camera
+    would otherwise open the whole space before it.
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    out = np.full(len(cameras), NEAR_PLANE)
+    for index, camera in enumerate(cameras):
+        depths = camera_depths(points, camera)
+        if depths.size >= NEAR_MIN_POINTS:
+            out[index] = max(NEAR_PLANE, margin * float(np.percentile(depths, percentile)))
+    return out
+
+
+def _poses(cameras: list[Camera], dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    rotations = torch.tensor(np.stack([c.rotation for c in cameras]), dtype=dtype)          # [C, 3, 3]
+    translations = torch.tensor(np.stack([c.world_to_camera[:3, 3] for c in cameras]), dtype=dtype)
+    return rotations, translations
+
+
+def before_near_bound(means: torch.Tensor, cameras: list[Camera], near: torch.Tensor) -> torch.Tensor:
+    """means [N, 3], near [C] -> [N] bool: the centre lies in front of some camera (0 < z) and
+    closer than its near bound, and projects inside its image."""
+    out = torch.zeros(means.shape[0], dtype=torch.bool)
+    if means.shape[0] == 0 or not cameras:
+        return out
+    means = means.detach().to(torch.float64)
+    step = _camera_block(means.shape[0])
+    for start in range(0, len(cameras), step):
+        block = cameras[start:start + step]
+        rotations, translations = _poses(block, torch.float64)
+        local = torch.einsum("cij,nj->nci", rotations, means) + translations                # [N, C, 3]
+        z = local[..., 2]
+        close = (z > 0) & (z < near[start:start + len(block)].to(torch.float64))
+        safe_z = torch.where(z > 0, z, torch.ones_like(z))  # only read where z > 0
+        fx = torch.tensor([c.fx for c in block], dtype=torch.float64)
+        fy = torch.tensor([c.fy for c in block], dtype=torch.float64)
+        u = fx * local[..., 0] / safe_z + torch.tensor([c.cx for c in block], dtype=torch.float64)
+        v = fy * local[..., 1] / safe_z + torch.tensor([c.cy for c in block], dtype=torch.float64)
+        width = torch.tensor([c.width for c in block], dtype=torch.float64)
+        height = torch.tensor([c.height for c in block], dtype=torch.float64)
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        out |= (close & inside).any(1)
+    return out
+
+
+def contains_camera(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
+                    centers: torch.Tensor, sigmas: float) -> torch.Tensor:
+    """means [N, 3], log_scales [N, 3], quats [N, 4] (w, x, y, z), centers [C, 3] -> [N] bool:
+    some camera centre lies within ``sigmas`` standard deviations (Mahalanobis) of the Gaussian."""
+    n = means.shape[0]
+    out = torch.zeros(n, dtype=torch.bool)
+    if n == 0 or centers.shape[0] == 0:
+        return out
+    means = means.detach().to(torch.float64)
+    # Clamped like the renderer's: exp(-log_scale) stays finite.
+    inv_scales = torch.exp(-log_scales.detach().to(torch.float64).clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
+    q = quats.detach().to(torch.float64)
+    norm = q.norm(dim=-1, keepdim=True)
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64).expand_as(q)
+    q = torch.where(norm > QUAT_NORM_MIN, q / norm.clamp_min(QUAT_NORM_MIN), identity)
+    w, x, y, z = q.unbind(-1)
+    rotation = torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], -1).reshape(-1, 3, 3)                                                                 # [N, 3, 3]
+    centers = centers.to(torch.float64)
+    step = _camera_block(n)
+    for start in range(0, centers.shape[0], step):
+        offsets = centers[start:start + step][None] - means[:, None]                # [N, B, 3]
+        local = torch.einsum("nji,nbj->nbi", rotation, offsets) * inv_scales[:, None]       # R^T d / s
+        out |= (local.square().sum(-1) < sigmas * sigmas).any(1)
+    return out
+
+
+@dataclass
+class ViewStats:
+    """Per-Gaussian statistics of the training renders that see it, kept row for row through
+    densification (``index`` re-selects them as the parameters are re-selected).
+
+    seen [N]: views since the last prune in which it was on or in front of the rendered surface
+    at its pixel; through [N]: of those, views in which it was in front of that surface by the
+    tolerance (the view looks through it); dir_sum [N, 3] and dir_count [N]: the unit viewing
+    directions (camera to Gaussian) over the whole run; sh_degree [N]: the SH degree allowed so far.
+    """
+
+    seen: torch.Tensor
+    through: torch.Tensor
+    dir_sum: torch.Tensor
+    dir_count: torch.Tensor
+    sh_degree: torch.Tensor
+
+    @staticmethod
+    def zeros(n: int) -> "ViewStats":
+        return ViewStats(torch.zeros(n), torch.zeros(n), torch.zeros(n, 3), torch.zeros(n),
+                         torch.zeros(n, dtype=torch.int64))
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {"seen": self.seen, "through": self.through, "dir_sum": self.dir_sum,
+                "dir_count": self.dir_count, "sh_degree": self.sh_degree}
+
+    def index(self, rows: torch.Tensor) -> "ViewStats":
+        """The statistics of rows ``rows`` (int [M] or bool [N]), e.g. a clone copies its source's."""
+        return ViewStats(**{name: t[rows].clone() for name, t in self.tensors().items()})
+
+    def reset_window(self) -> None:
+        self.seen.zero_()
+        self.through.zero_()
+
+
+def accumulate_views(stats: ViewStats, means: torch.Tensor, camera: Camera, depth: torch.Tensor,
+                     radii: torch.Tensor, tolerance: float) -> None:
+    """Add one training render. means [N, 3]; depth [H, W, 1] (the render's expected depth, 0 where
+    nothing was drawn); radii [N] (0 = culled). A Gaussian counts when visible, its centre projects
+    into the image onto a drawn pixel, and it is not behind that pixel's depth by ``tolerance``
+    (relative): then it is seen, and seen through when in front of it by ``tolerance``."""
+    with torch.no_grad():
+        means = means.detach().to(torch.float64)
+        rotation = torch.as_tensor(camera.rotation, dtype=torch.float64)
+        translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=torch.float64)
+        local = means @ rotation.T + translation
+        z = local[:, 2]
+        front = z > NEAR_PLANE
+        safe_z = torch.where(front, z, torch.ones_like(z))  # only read where z > NEAR_PLANE > 0
+        u = camera.fx * local[:, 0] / safe_z + camera.cx
+        v = camera.fy * local[:, 1] / safe_z + camera.cy
+        inside = front & (radii > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        cols = u.clamp(0, camera.width - 1).long()
+        rows = v.clamp(0, camera.height - 1).long()
+        surface = depth.detach()[..., 0].to(torch.float64)[rows, cols]
+        drawn = inside & (surface > 0)
+        seen = drawn & (z <= surface * (1.0 + tolerance))
+        through = seen & (z < surface * (1.0 - tolerance))
+        stats.seen += seen.to(stats.seen.dtype)
+        stats.through += through.to(stats.through.dtype)
+        center = torch.as_tensor(camera.center, dtype=torch.float64)
+        directions = torch.nn.functional.normalize(means - center, dim=-1)  # a centre on the camera: 0 vector
+        stats.dir_sum += torch.where(seen[:, None], directions, torch.zeros_like(directions)).to(stats.dir_sum.dtype)
+        stats.dir_count += seen.to(stats.dir_count.dtype)
+
+
+def seen_through(stats: ViewStats, min_views: int) -> torch.Tensor:
+    """[N] bool: seen by at least ``min_views`` training renders since the last prune, and looked
+    through in every one of them."""
+    return (stats.seen >= min_views) & (stats.through >= stats.seen)
+
+
+def angular_spread_deg(stats: ViewStats) -> torch.Tensor:
+    """[N] half-angle (degrees) of the viewing directions: arccos of their mean resultant length
+    (two directions at +-a give exactly a; one direction 0; never seen 0)."""
+    count = stats.dir_count.clamp_min(1.0)  # never seen: dir_sum is 0, so the length is 0 / 1
+    resultant = (stats.dir_sum.norm(dim=-1) / count).clamp(0.0, 1.0)
+    spread = torch.rad2deg(torch.arccos(resultant))
+    return torch.where(stats.dir_count > 0, spread, torch.zeros_like(spread))
+
+
+def allowed_sh_degree(stats: ViewStats, deg_per_degree: float, min_views: int) -> torch.Tensor:
+    """[N] int64: floor(spread / deg_per_degree) capped at SH_MAX_DEGREE; 0 below ``min_views`` sightings."""
+    degree = torch.floor(angular_spread_deg(stats) / deg_per_degree).clamp(0, SH_MAX_DEGREE).long()
+    return torch.where(stats.dir_count >= min_views, degree, torch.zeros_like(degree))
+
+
+def sh_rest_mask(degree: torch.Tensor, rest: int) -> torch.Tensor:
+    """degree [N] int -> [N, rest, 1] float: 1 where coefficient k + 1 (band floor(sqrt(k + 1)))
+    is within the Gaussian's degree."""
+    bands = torch.floor(torch.sqrt(torch.arange(1, rest + 1, dtype=torch.float64))).long()  # [rest]
+    return (bands[None, :] <= degree[:, None]).to(torch.float32)[..., None]
+
+
+
+def floater_fraction(depth: torch.Tensor, near: float) -> float:
+    """Fraction of a render's pixels drawn closer than the camera's near bound: depth [H, W, 1]
+    (expected depth, 0 where nothing was drawn). The issue's floater measure on training views."""
+    drawn = depth[..., 0] > 0
+    return float((drawn & (depth[..., 0] < near)).to(torch.float64).mean())
