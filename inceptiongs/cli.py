@@ -16,6 +16,7 @@ from .errors import InputError
 # name -> module in inceptiongs.commands; order is the order in --help.
 COMMANDS = {
     "info": "info",
+    "coverage": "coverage",
     "demo-scene": "demo_scene",
     "render": "render",
     "train": "train",

@@ -66,7 +66,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     config.save(run_dir / "config.json")
 
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
-    split = make_split(scene, config.protocol, config.seed)
+    split = make_split(scene, config.protocol, config.seed, config.scarce_views)
     split.save(run_dir / "split.json")
     if not split.train:
         raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
