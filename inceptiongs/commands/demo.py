@@ -32,7 +32,7 @@ HELP = ("the whole pipeline on the built-in courtyard: scene, stage I, coverage,
 # training, at most half of it, and generating K * L = 2 * 3 virtual views), then the baseline
 # for the bootstrap's measured time.
 DEFAULT_SIZE = "small"
-DEFAULT_MINUTES = 2.25
+DEFAULT_MINUTES = 2.0
 DEFAULT_ITERATIONS = 600
 DEFAULT_DOWNSCALE = 1
 DEFAULT_BOOTSTRAP_MINUTES = 1.25

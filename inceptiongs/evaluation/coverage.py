@@ -12,9 +12,10 @@ For surface points (sparse points or Gaussian centres) and cameras:
   points are seen, normalised over the hemisphere so that a uniformly sampled hemisphere of
   N views reads N / (2 pi) everywhere, the rim included;
 - ``view_scarcity``: per view, how little of what it shows is seen by the *other* (training)
-  views from a similar direction: the mean over its visible points of 1 / (1 + n), n = other
-  views within ``window_deg`` of its own direction at that point. 1 = nothing it shows was
-  seen from near its direction; the highest-ranked views are the ones to flag.
+  views from a similar viewpoint: the mean over its visible points of 1 / (1 + n), n = other
+  views within ``window_deg`` of its own direction at that point and (optionally) at least
+  half its resolution there. 1 = nothing it shows was seen from near its viewpoint; the
+  highest-ranked views are the ones to flag.
 
 All functions here are pure (numpy in, numpy out). ``inceptiongs.evaluation.coverage_run``
 loads scenes and runs, renders depth and draws the figure.
@@ -37,6 +38,9 @@ DEPTH_TOLERANCE = 0.05
 # Directions count as "similar" within this angle (scarcity, directional counts): about the
 # angle over which a surface's appearance and its photos' resolution stay comparable.
 DIRECTION_WINDOW_DEG = 30.0
+# A source view supports a view's content only if it images it at no less than 1 / this of the
+# view's resolution (one octave: beyond it the detail the view shows was never photographed).
+SCALE_RATIO = 2.0
 # Kernel width of the hemisphere density (standard deviation of the angular kernel).
 DENSITY_SIGMA_DEG = 15.0
 # Hemisphere points used to normalise the kernel (the Fibonacci lattice's error is ~1/n).
@@ -106,10 +110,22 @@ def directional_counts(directions: np.ndarray, visible: np.ndarray, query: np.nd
     return (visible & (cosines >= math.cos(math.radians(window_deg)))).sum(axis=1)
 
 
+def view_resolution(points: np.ndarray, cameras: Sequence[Camera]) -> np.ndarray:
+    """Pixels per scene unit at which each camera images each point (focal length over
+    distance; a surface's detail survives in a photo only at enough of these): [P, N]."""
+    centers = np.array([c.center for c in cameras])
+    focal = np.array([0.5 * (c.fx + c.fy) for c in cameras])
+    distance = np.linalg.norm(points[:, None, :] - centers[None, :, :], axis=-1)
+    return focal[None, :] / np.maximum(distance, _NORM_MIN)
+
+
 def view_scarcity(directions: np.ndarray, visible: np.ndarray, sources: np.ndarray | None = None,
-                  window_deg: float = DIRECTION_WINDOW_DEG) -> np.ndarray:
+                  window_deg: float = DIRECTION_WINDOW_DEG, resolution: np.ndarray | None = None,
+                  scale_ratio: float = SCALE_RATIO) -> np.ndarray:
     """Per view, the mean over the points it sees of 1 / (1 + n), n = the other source views
-    that see the point from within ``window_deg`` of this view's direction.
+    that see the point from within ``window_deg`` of this view's direction (and, when
+    ``resolution`` [P, N] is given, at no less than 1 / ``scale_ratio`` of this view's
+    pixels per unit: a view from four times as far cannot supply the detail a close view shows).
 
     directions [P, N, 3], visible [P, N], sources [N] bool (views that count as seen-from, e.g.
     the training views; default all) -> [N] in (0, 1]; 1 also for a view that sees no point
@@ -125,8 +141,10 @@ def view_scarcity(directions: np.ndarray, visible: np.ndarray, sources: np.ndarr
         others = sources.copy()
         others[v] = False
         cosines = np.einsum("pnc,pc->pn", directions[seen][:, others], directions[seen, v])
-        near = (visible[seen][:, others] & (cosines >= cos_window)).sum(axis=1)
-        scores[v] = float(np.mean(1.0 / (1.0 + near)))
+        similar = visible[seen][:, others] & (cosines >= cos_window)
+        if resolution is not None:
+            similar &= resolution[seen][:, others] * scale_ratio >= resolution[seen, v][:, None]
+        scores[v] = float(np.mean(1.0 / (1.0 + similar.sum(axis=1))))
     return scores
 
 
@@ -139,12 +157,28 @@ def scarcest_views(scores: np.ndarray, k: int, candidates: Sequence[int] | None 
 
 # --- the hemisphere -------------------------------------------------------------------------
 
-def up_vector(cameras: Sequence[Camera]) -> np.ndarray:
-    """The world's "up" as the cameras hold it: minus the mean of their image-down axes
-    (OpenCV y), unit [3]. Falls back to +z when the rig has no consistent up."""
-    down = np.mean([c.world_to_camera[1, :3] for c in cameras], axis=0) if len(cameras) else np.zeros(3)
-    norm = float(np.linalg.norm(down))
-    return -down / norm if norm > 1e-6 else np.array([0.0, 0.0, 1.0])
+def up_vector(cameras: Sequence[Camera], level_ratio: float = 0.25) -> np.ndarray:
+    """The world's "up" as the cameras hold it, unit [3].
+
+    People hold cameras level: every image's right axis (OpenCV x) is horizontal, so up is the
+    direction most perpendicular to all of them (the smallest eigenvector of sum x x^T), signed
+    like minus the mean image-down axis. That holds for a ring with a gap, where the mean down
+    axis alone tilts towards the gap. When the right axes do not span a plane (a forward-facing
+    capture: all nearly parallel; smallest eigenvalue above ``level_ratio`` times the middle
+    one), up is the mean down axis negated, made perpendicular to the common right axis.
+    Falls back to +z for a rig with no consistent up."""
+    if not len(cameras):
+        return np.array([0.0, 0.0, 1.0])
+    rights = np.array([c.world_to_camera[0, :3] for c in cameras])
+    down = np.mean([c.world_to_camera[1, :3] for c in cameras], axis=0)
+    values, vectors = np.linalg.eigh(rights.T @ rights)           # ascending eigenvalues
+    if values[0] < level_ratio * values[1]:
+        up = vectors[:, 0] * (-1.0 if float(vectors[:, 0] @ down) > 0 else 1.0)
+    else:
+        common = vectors[:, 2]
+        up = -(down - common * float(down @ common))
+    norm = float(np.linalg.norm(up))
+    return up / norm if norm > 1e-6 else np.array([0.0, 0.0, 1.0])
 
 
 def hemisphere_frame(up: np.ndarray) -> np.ndarray:

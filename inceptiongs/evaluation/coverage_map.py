@@ -68,7 +68,8 @@ def compute(points: np.ndarray, cameras: list[Camera], sources: np.ndarray, dept
     azimuth, elevation, grid = cov.hemisphere_grid()
     samples, weights = cov.region_directions(directions, visible & sources[None, :], in_region, frame)
     return Coverage(kind, point_source, list(cameras), sources, points, visible, cov.view_counts(visible & sources),
-                    cov.angular_radius_deg(directions, visible & sources), cov.view_scarcity(directions, visible, sources),
+                    cov.angular_radius_deg(directions, visible & sources),
+                    cov.view_scarcity(directions, visible, sources, resolution=cov.view_resolution(points, cameras)),
                     frame, (lo, hi), in_region, azimuth, elevation, cov.directional_density(samples, weights, grid),
                     depths is not None, dict(groups or {}))
 
@@ -208,11 +209,18 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     cx, cy = corners @ east, corners @ north
     top.plot([cx.min(), cx.max(), cx.max(), cx.min(), cx.min()], [cy.min(), cy.min(), cy.max(), cy.max(), cy.min()],
              "k--", linewidth=0.8, label="region of interest (bounds)")
-    top.set_aspect("equal", adjustable="datalim")
+    # Frame the cameras and the region; stray points (a few far outliers in real SfM clouds)
+    # would otherwise shrink the scene to a dot.
+    xs = np.r_[centers @ east, cx, np.percentile(px, [2, 98])]
+    ys = np.r_[centers @ north, cy, np.percentile(py, [2, 98])]
+    margin = 0.08 * max(float(np.ptp(xs)), float(np.ptp(ys)), 1e-6)
+    top.set_xlim(xs.min() - margin, xs.max() + margin)
+    top.set_ylim(ys.min() - margin, ys.max() + margin)
+    top.set_aspect("equal", adjustable="box")
     top.set_xlabel("east (scene units)")
     top.set_ylabel("north")
-    top.set_title("bird's-eye view: points by views seeing them, cameras")
-    top.legend(fontsize=7, loc="best")
+    top.set_title("from above: points by views seeing them", fontsize=10)
+    top.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
 
     # Polar: theta = azimuth (0 = east, counter-clockwise as in the bird's-eye view), r = zenith angle.
     theta_edges = np.linspace(0, 2 * math.pi, len(c.azimuth) + 1)
@@ -228,8 +236,9 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     polar.set_ylim(0, 90)
     polar.set_yticks([30, 60, 90])
     polar.set_yticklabels(["60°", "30°", "0°"], fontsize=7)
-    polar.set_title("viewing density over the region's hemisphere\n(centre: views from straight above; rim: from the horizon; "
-                    "dots: cameras, red = not training)", fontsize=9)
+    polar.set_title("viewing density over the region's hemisphere", fontsize=10)
+    polar.text(0.5, -0.12, "centre: seen from straight above, rim: from the horizon;\ndots: cameras "
+               "(white: sources, red: others)", transform=polar.transAxes, ha="center", va="top", fontsize=7)
 
     shown = cov.scarcest_views(c.scarcity, 15, None if c.kind == "scene" else range(len(c.cameras)))
     colours = ["tab:red" if i in c.groups.get("scarce", []) else "tab:green" if i in c.groups.get("covered", [])
@@ -239,13 +248,13 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     bars.set_yticklabels([c.cameras[i].name for i in shown], fontsize=7)
     bars.invert_yaxis()
     bars.set_xlim(0, 1)
-    bars.set_xlabel(f"scarcity: mean 1 / (1 + other training views within {cov.DIRECTION_WINDOW_DEG:g}° "
-                    "of its direction)", fontsize=8)
-    bars.set_title("views whose content is seen least (red: held-out scarce)" if c.groups else
-                   "views whose content is seen least")
+    bars.set_xlabel(f"scarcity: mean over what it shows of 1 / (1 + other source views within "
+                    f"{cov.DIRECTION_WINDOW_DEG:g}°\nof its direction at >= 1/{cov.SCALE_RATIO:g} of its resolution)", fontsize=8)
+    bars.set_title("views whose content is seen least" + (" (red: held-out scarce)" if c.groups else ""),
+                   fontsize=10)
     if title:
         figure.suptitle(title)
     figure.tight_layout()
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png")
+    figure.savefig(buffer, format="png", bbox_inches="tight")  # the legend sits below the axes
     atomic_write_bytes(out_path, buffer.getvalue())

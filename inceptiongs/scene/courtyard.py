@@ -198,7 +198,7 @@ def courtyard_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera],
     """-> (cameras, dense names, scarce names).
 
     Dense: a walk over the southern half (y in [-4.5, 0.5]) at eye height, each view turned
-    towards the south, east or west facade or down at the floor, plus a few far views up the
+    towards the south, east or west facade or a southern corner, plus a few far views up the
     courtyard along the side walls (the north facade at 8-11 m, obliquely). Scarce: views 2.5 m
     in front of the north facade, looking at it head on.
     """
@@ -215,15 +215,16 @@ def courtyard_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera],
 
     n_far = max(2, n_dense // 8)
     n_walk = n_dense - n_far
-    # The walk: a lawn-mower path over the southern half; headings cycle south, east, west, floor.
-    headings = [(0.0, -1.0), (1.0, 0.0), (-1.0, 0.0), (0.3, -0.6)]
+    # The walk: a lawn-mower path over the southern half; headings cycle south, east, west and
+    # the two southern diagonals, so neighbouring views overlap.
+    headings = [(0.0, -1.0), (1.0, 0.0), (-1.0, 0.0), (0.7, -0.7), (-0.7, -0.7)]
     for k in range(n_walk):
         s = k / max(n_walk - 1, 1)
         x = -4.0 + 8.0 * _frac(np.array(3.0 * s)).item()
         y = -4.5 + 5.0 * s
         eye = np.array([x, y, _EYE_HEIGHT]) + rng.normal(0, 0.15, 3) * (1, 1, 0.3)
         hx, hy = headings[k % len(headings)]
-        pitch = -1.2 if k % len(headings) == 3 else -0.35
+        pitch = -0.35 if k % len(headings) < 3 else -0.6
         target = eye + np.array([hx * 4.0, hy * 4.0, pitch * 2.0]) + rng.normal(0, 0.3, 3)
         add(eye, target, dense)
     # Far views from the south-west and south-east corners looking up the courtyard at the

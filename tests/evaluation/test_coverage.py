@@ -103,8 +103,14 @@ def test_region_directions_put_views_where_they_are_in_the_hemisphere_frame():
     density = cov.directional_density(samples[:1], weights[:1], grid)
     row, col = np.unravel_index(np.argmax(density), density.shape)
     assert math.degrees(elevation[row]) == pytest.approx(45.0, abs=5.0) and math.degrees(azimuth[col]) < 10.0
-    # The rig's up is +z whatever the cameras look at.
-    assert np.allclose(cov.up_vector(_ring(5)), [0, 0, 1], atol=0.2)
+    # The rig's up is +z whatever the cameras look at: a full ring, half a ring looking down
+    # steeply (the mean image-down axis alone would tilt towards the missing half), and a
+    # forward-facing rig whose image right axes are all parallel.
+    assert np.allclose(cov.up_vector(_ring(5)), [0, 0, 1], atol=1e-6)
+    half = [_camera((4 * math.cos(a), 4 * math.sin(a), 3.0)) for a in np.radians(np.linspace(0, 180, 7))]
+    assert np.allclose(cov.up_vector(half), [0, 0, 1], atol=1e-6)
+    facing = [_camera((x, -4.0, 1.0 + 0.1 * x), target=(x, 0.0, 0.5)) for x in np.linspace(-1, 1, 5)]
+    assert np.allclose(cov.up_vector(facing), [0, 0, 1], atol=0.15)
 
 
 def test_view_scarcity_ranks_the_lone_view_first():
