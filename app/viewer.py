@@ -31,6 +31,7 @@ from .frustums import segments_for_cameras
 from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.io.images import write_png
 
+from .coverage_mode import CoverageMode
 from .images import visualize
 from .live_training import LiveTraining
 from .navigation import NavigationState, default_view, estimate_up
@@ -39,9 +40,10 @@ from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .sources import ViewerSource
 
 GL_REQUIRED = (4, 3)
-RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference")
+RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference", "coverage")
 # The viewer's mode names -> the GL renderer's.
-GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha"}
+# "coverage" draws splats recoloured by their view counts (app/coverage_mode.py) as rgb.
+GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha", "coverage": "rgb"}
 # Resolution factors while the camera moves, largest first; the full frame follows once it
 # has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
 # Each moving render picks the next factor from the last one's splat time: a smaller factor
@@ -178,6 +180,7 @@ class Viewer:
         self.job_factory = job_factory
         self.training: LiveTraining | None = None
         self.reference = None  # ReferenceWorker, made when the reference mode is first used
+        self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
         self.reference_psnr: float | None = None
         self._keys_down: set[int] = set()
         self._last_render_key = None
@@ -282,7 +285,7 @@ class Viewer:
             self.settings.orbit = not self.settings.orbit
         elif key == glfw.KEY_F12:
             self.save_screenshot()
-        elif glfw.KEY_1 <= key <= glfw.KEY_5:
+        elif glfw.KEY_1 <= key <= glfw.KEY_1 + len(RENDER_MODES) - 1:
             self.settings.mode = RENDER_MODES[key - glfw.KEY_1]
 
     def on_char(self, window, codepoint) -> None:
@@ -538,10 +541,42 @@ class Viewer:
 
     # --- drawing -------------------------------------------------------------------------------
     def _upload_model(self) -> None:
-        version = (self.model_version, self.edit.version)
+        model = (self.model_version, self.edit.version)
+        coverage = self.settings.mode == "coverage"
+        version = model + (("coverage",) if coverage else ())
         if version != self.uploaded_version:
-            self.renderer.set_gaussians(self.edit.visible_arrays(), version=hash(version) & 0x7FFFFFFF)
+            arrays = self.edit.visible_arrays()
+            if coverage:
+                # Depth for the occlusion test comes from the model as it is (its own colours).
+                self.renderer.set_gaussians(arrays, version=hash(model) & 0x7FFFFFFF)
+                arrays = self.coverage.update(arrays, self.cameras, self._depth_of, model)
+            self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
+
+    def _depth_of(self, camera: Camera) -> np.ndarray:
+        """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
+        return self.renderer.render(camera, "depth")[..., 0]
+
+    def suggest_flags(self, k: int | None = None) -> list[str]:
+        """Flag the k cameras whose content the other cameras see least (coverage mode's
+        suggestion); returns the new flags' names."""
+        from .coverage_mode import SUGGESTED_FLAGS  # noqa: PLC0415
+
+        self.settings.mode, previous = "rgb", self.settings.mode
+        self._upload_model()            # depth of the model itself, not of its coverage colours
+        indices = self.coverage.suggest(self.edit.visible_arrays(), self.cameras, self._depth_of,
+                                        SUGGESTED_FLAGS if k is None else k)
+        self.settings.mode = previous
+        names = []
+        for index in indices:
+            name = flagging.unique_flag_name(self.flags, prefix="scarce")
+            self.flags.append(flagging.flag_camera(self.cameras[index], name))
+            names.append(name)
+        if names:
+            self._save_flags()
+        self.status = (f"flagged the scarcest views: {', '.join(self.cameras[i].name for i in indices)}"
+                       if names else "no cameras to suggest flags from")
+        return names
 
     def _draw_scene(self, screen: moderngl.Framebuffer) -> None:
         now = time.perf_counter()
@@ -557,7 +592,7 @@ class Viewer:
         if mode == "reference":
             self._draw_reference()
         elif key != self._last_render_key:
-            if mode in ("rgb", "opacity"):
+            if mode in ("rgb", "opacity", "coverage"):
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
                 self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=self.settings.background,

@@ -27,17 +27,21 @@ from pathlib import Path
 HELP = ("the whole pipeline on the built-in courtyard: scene, stage I, coverage, bootstrap, the same-time "
         "baseline, evaluation, report")
 
-# Budgets sized for about 6 minutes on two idle CPU cores (the README's first command, install
+# Budgets sized for about 5.5 minutes on two idle CPU cores (the README's first command, install
 # included, must stay under 8): stage I, then the bootstrap (which includes the prior's
 # training, at most half of it, and generating K * L = 2 * 3 virtual views), then the baseline
 # for the bootstrap's measured time.
 DEFAULT_SIZE = "small"
-DEFAULT_MINUTES = 2.0
+DEFAULT_MINUTES = 1.75
 DEFAULT_ITERATIONS = 600
 DEFAULT_DOWNSCALE = 1
-DEFAULT_BOOTSTRAP_MINUTES = 1.25
+DEFAULT_BOOTSTRAP_MINUTES = 1.5
 DEFAULT_BOOTSTRAP_ITERATIONS = 300
-DEFAULT_PRIOR_MINUTES = 0.6
+DEFAULT_PRIOR_MINUTES = 0.5
+# Fewer DDIM steps than the bootstrap's default: generating the virtual views at 192x144 must
+# leave most of the short budget to refinement (measured under load: 8 steps, a 0.6-minute
+# prior and 1.25 minutes in all left no refinement step at all).
+DEMO_DDIM_STEPS = 4
 DEMO_K, DEMO_L = 2, 3
 # Generated pixels count 0.2 against pixels trusted from warped photos: a prior trained for a
 # minute on a CPU paints mostly noise, and at weight 1 it cost the scarce views ~0.4 dB in
@@ -50,8 +54,12 @@ DEMO_EVAL_EVERY = 50
 BASELINE_ITERATION_CAP = 100_000
 # Rough seconds for the stages that have no budget of their own (ETA only): scene, coverage,
 # evaluating three runs, the report.
-_FIXED_ESTIMATES_S = {"scene": 15.0, "coverage": 25.0, "evaluation": 30.0, "report": 10.0}
+_FIXED_ESTIMATES_S = {"scene": 15.0, "coverage": 15.0, "evaluation": 15.0, "report": 5.0}
 RUN_LABELS = ("stage I", "baseline", "bootstrap")
+# The demo's coverage map: fewer points and smaller depth maps than the command's defaults
+# (39 s under load at 3,000 points and 96 px), enough for a map of 47 views.
+DEMO_COVERAGE_POINTS = 2000
+DEMO_DEPTH_WIDTH = 64
 
 
 def add_arguments(parser) -> None:
@@ -73,7 +81,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--prior-minutes", type=float, default=DEFAULT_PRIOR_MINUTES,
                         help=f"prior training budget (default {DEFAULT_PRIOR_MINUTES:g})")
     parser.add_argument("--prior-steps", type=int, default=None, help="or stop the prior after this many steps")
-    parser.add_argument("--ddim-steps", type=int, default=8, help="DDIM steps per generated image")
+    parser.add_argument("--ddim-steps", type=int, default=DEMO_DDIM_STEPS,
+                        help=f"DDIM steps per generated image (default {DEMO_DDIM_STEPS})")
 
 
 def _check(args) -> None:
@@ -325,7 +334,7 @@ def run(args) -> int:
 
     progress.stage("coverage of stage I's Gaussians by the training views")
     began = time.perf_counter()
-    coverage = coverage_map.run_coverage(run_dir)
+    coverage = coverage_map.run_coverage(run_dir, max_points=DEMO_COVERAGE_POINTS, depth_width=DEMO_DEPTH_WIDTH)
     coverage_map.plot(coverage, out / "coverage.png", title="demo courtyard: coverage by stage I's training views")
     coverage_figures = coverage_map.summary(coverage)
     timings["coverage"] = time.perf_counter() - began

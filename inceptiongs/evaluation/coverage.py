@@ -255,3 +255,27 @@ def robust_bounds(points: np.ndarray, percentile: float = 2.0) -> tuple[np.ndarr
     """Axis-aligned box holding the points between the given low and high percentiles per
     axis (stray points do not stretch it): points [P, 3] -> (lo [3], hi [3])."""
     return np.percentile(points, percentile, axis=0), np.percentile(points, 100.0 - percentile, axis=0)
+
+
+# --- colours (the viewer's coverage mode, figures) ------------------------------------------
+
+# A perceptually ordered ramp (dark purple -> blue -> green -> yellow, as viridis): few views
+# read dark, many bright. Stops at 0, 0.25, 0.5, 0.75, 1.
+_RAMP = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551],
+                  [0.370, 0.789, 0.383], [0.993, 0.906, 0.144]])
+
+
+def ramp_colours(values: np.ndarray, vmax: float) -> np.ndarray:
+    """values [N] >= 0 -> colours [N, 3] in [0, 1], 0 at the dark end, >= vmax at the bright
+    end (vmax <= 0 maps everything to the dark end)."""
+    t = np.clip(np.asarray(values, np.float64) / vmax, 0.0, 1.0) if vmax > 0 else np.zeros(len(values))
+    position = t * (len(_RAMP) - 1)
+    low = np.minimum(np.floor(position).astype(np.int64), len(_RAMP) - 2)
+    frac = (position - low)[:, None]
+    return _RAMP[low] * (1.0 - frac) + _RAMP[low + 1] * frac
+
+
+def colour_bar(vmax: float, height: int = 128, width: int = 16) -> np.ndarray:
+    """The ramp as an image [height, width, 3] in [0, 1], vmax at the top row, 0 at the bottom."""
+    values = np.linspace(vmax, 0.0, height)
+    return np.repeat(ramp_colours(values, vmax)[:, None, :], width, axis=1)
