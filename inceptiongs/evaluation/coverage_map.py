@@ -144,9 +144,7 @@ def summary(c: Coverage, listed: int = SCARCE_VIEWS_LISTED) -> dict:
     peak = float(density.max())
     # Cell areas on the sphere: cos(elevation) d(elevation) d(azimuth).
     area = np.cos(c.elevation)[:, None] * np.ones_like(density)
-    candidates = [i for i in range(len(c.cameras))] if c.kind == "scene" else sorted(
-        set(c.groups.get("scarce", [])) | set(c.groups.get("covered", [])) | set(np.flatnonzero(c.sources).tolist()))
-    order = cov.scarcest_views(c.scarcity, listed, candidates)
+    order = cov.scarcest_views(c.scarcity, listed)
     return {
         "points": int(len(c.points)),
         "point_source": c.point_source,
@@ -240,7 +238,7 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     polar.text(0.5, -0.12, "centre: seen from straight above, rim: from the horizon;\ndots: cameras "
                "(white: sources, red: others)", transform=polar.transAxes, ha="center", va="top", fontsize=7)
 
-    shown = cov.scarcest_views(c.scarcity, 15, None if c.kind == "scene" else range(len(c.cameras)))
+    shown = cov.scarcest_views(c.scarcity, 15)
     colours = ["tab:red" if i in c.groups.get("scarce", []) else "tab:green" if i in c.groups.get("covered", [])
                else "tab:blue" for i in shown]
     bars.barh(range(len(shown)), [c.scarcity[i] for i in shown], color=colours)
