@@ -11,6 +11,8 @@ import numpy as np
 
 from ..errors import InputError
 
+INFO_COVERAGE_POINTS = 1000
+
 HELP = "summarise a scene (format, cameras, resolutions, points, extent, warnings) or a .ply"
 
 
@@ -56,7 +58,9 @@ def coverage_section(scene) -> dict:
 
     if not len(scene.points):
         return {"available": False, "reason": "no sparse points (inceptiongs coverage triangulates them)"}
-    figures = coverage_map.summary(coverage_map.scene_coverage(scene, triangulate=False), listed=5)
+    # 1,000 points keep `info` quick on big captures (the cost is points x views^2).
+    figures = coverage_map.summary(coverage_map.scene_coverage(scene, max_points=INFO_COVERAGE_POINTS,
+                                                               triangulate=False), listed=5)
     return {"available": True, **figures}
 
 
