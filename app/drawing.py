@@ -77,11 +77,23 @@ class FrameDrawer:
         self.moving_level = 0  # index into MOVING_RENDER_SCALES
 
     def upload_model(self, viewer) -> None:
-        """Hand the viewer's visible Gaussians to the renderer when they changed."""
-        version = (viewer.model_version, viewer.edit.version)
+        """Hand the viewer's visible Gaussians to the renderer when they changed (recoloured by
+        their view counts in the coverage mode)."""
+        model = (viewer.model_version, viewer.edit.version)
+        coverage = viewer.settings.mode == "coverage"
+        version = model + (("coverage",) if coverage else ())
         if version != self.uploaded_version:
-            self.renderer.set_gaussians(viewer.edit.visible_arrays(), version=hash(version) & 0x7FFFFFFF)
+            arrays = viewer.edit.visible_arrays()
+            if coverage:
+                # Depth for the occlusion test comes from the model as it is (its own colours).
+                self.renderer.set_gaussians(arrays, version=hash(model) & 0x7FFFFFFF)
+                arrays = viewer.coverage.update(arrays, viewer.cameras, self.depth_of, model)
+            self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
+
+    def depth_of(self, camera) -> np.ndarray:
+        """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
+        return self.renderer.render(camera, "depth")[..., 0]
 
     def draw_scene(self, viewer, screen: moderngl.Framebuffer) -> None:
         now = time.perf_counter()
@@ -98,7 +110,7 @@ class FrameDrawer:
         if mode == "reference":
             self.draw_reference(viewer)
         elif key != self.last_render_key:
-            if mode in ("rgb", "opacity"):
+            if mode in ("rgb", "opacity", "coverage"):
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
                 self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=settings.background,

@@ -72,7 +72,7 @@ class InputController:
             viewer.settings.orbit = not viewer.settings.orbit
         elif key == glfw.KEY_F12:
             viewer.save_screenshot()
-        elif glfw.KEY_1 <= key <= glfw.KEY_5:
+        elif glfw.KEY_1 <= key <= glfw.KEY_1 + len(RENDER_MODES) - 1:
             viewer.settings.mode = RENDER_MODES[key - glfw.KEY_1]
 
     def on_char(self, window, codepoint) -> None:

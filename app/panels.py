@@ -69,9 +69,12 @@ def _view(viewer) -> None:
 
 def _inspect(viewer) -> None:
     settings = viewer.settings
-    changed, index = imgui.combo("mode (1-5)", RENDER_MODES.index(settings.mode), list(RENDER_MODES))
+    changed, index = imgui.combo(f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
+                                 list(RENDER_MODES))
     if changed:
         settings.mode = RENDER_MODES[index]
+    if settings.mode == "coverage":
+        _coverage(viewer)
     if settings.mode == "reference":
         views = ["heat-map", "side by side"]
         changed, index = imgui.combo("show", views.index(settings.reference_view), views)
@@ -88,6 +91,20 @@ def _inspect(viewer) -> None:
     _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)
+
+
+def _coverage(viewer) -> None:
+    """Colour bar of the coverage mode and the flag suggestion."""
+    from inceptiongs.evaluation.coverage import ramp_colours
+
+    vmax = viewer.coverage.vmax
+    imgui.text(f"views seeing each splat: 0 (dark) .. {vmax:.0f}+ (bright)")
+    for step, colour in enumerate(ramp_colours(np.linspace(0, vmax, 6), vmax)):
+        imgui.color_button(f"##bar{step}", imgui.ImVec4(*colour.tolist(), 1.0), 0, imgui.ImVec2(24, 12))
+        imgui.same_line(0, 0)
+    imgui.new_line()
+    if imgui.button("suggest flags (the 3 scarcest views)"):
+        viewer.suggest_flags()
 
 
 def _flags(viewer) -> None:

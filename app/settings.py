@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference")
-# The viewer's mode names -> the GL renderer's.
-GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha"}
+RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference", "coverage")
+# The viewer's mode names -> the GL renderer's. "coverage" draws splats recoloured by their view
+# counts (app/coverage_mode.py) as rgb.
+GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha", "coverage": "rgb"}
 
 
 @dataclass

@@ -21,6 +21,7 @@ from inceptiongs.io import flags as flag_io
 from inceptiongs.io.images import write_png
 
 from . import editing, flags as flagging
+from .coverage_mode import SUGGESTED_FLAGS, CoverageMode
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
 from .images import visualize
 from .input import InputController
@@ -50,6 +51,7 @@ class Viewer:
         self.ctx = moderngl.create_context()
         self.renderer = SplatRenderer(self.ctx)
         self.drawing = FrameDrawer(self.ctx, self.renderer)
+        self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
         self.settings = ViewSettings()
         self.stats = FrameStats()
         self.edit = editing.EditState(source.gaussians)
@@ -145,6 +147,25 @@ class Viewer:
         self.status = "orbit pivot set"
 
     # --- flags -------------------------------------------------------------------------------
+    def suggest_flags(self, k: int | None = None) -> list[str]:
+        """Flag the k cameras whose content the other cameras see least (the coverage mode's
+        suggestion); returns the new flags' names."""
+        self.settings.mode, previous = "rgb", self.settings.mode
+        self.drawing.upload_model(self)  # depth of the model itself, not of its coverage colours
+        indices = self.coverage.suggest(self.edit.visible_arrays(), self.cameras, self.drawing.depth_of,
+                                        SUGGESTED_FLAGS if k is None else k)
+        self.settings.mode = previous
+        names = []
+        for index in indices:
+            name = flagging.unique_flag_name(self.flags, prefix="scarce")
+            self.flags.append(flagging.flag_camera(self.cameras[index], name))
+            names.append(name)
+        if names:
+            self.save_flags()
+        self.status = (f"flagged the scarcest views: {', '.join(self.cameras[i].name for i in indices)}"
+                       if names else "no cameras to suggest flags from")
+        return names
+
     def save_flags(self) -> None:
         flag_io.save_flags(self.flags_file, self.flags)
 

@@ -17,6 +17,7 @@ from .io.cache import set_cache_dir
 # name -> module in inceptiongs.commands; order is the order in --help.
 COMMANDS = {
     "info": "info",
+    "coverage": "coverage",
     "demo-scene": "demo_scene",
     "render": "render",
     "train": "train",

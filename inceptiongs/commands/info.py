@@ -11,6 +11,8 @@ import numpy as np
 
 from ..errors import InputError
 
+INFO_COVERAGE_POINTS = 1000
+
 HELP = "summarise a scene (format, cameras, resolutions, points, extent, warnings) or a .ply"
 
 
@@ -45,7 +47,21 @@ def scene_summary(path: Path, strict: bool = False) -> dict:
     if len(scene.points):
         points = norm.to_original(scene.points)
         summary["points_bounds"] = [points.min(axis=0).tolist(), points.max(axis=0).tolist()]
+    summary["coverage"] = coverage_section(scene)
     return summary
+
+
+def coverage_section(scene) -> dict:
+    """Viewing coverage of the sparse points (`inceptiongs coverage` draws it); scenes without
+    sparse points say so instead of triangulating here (that takes minutes)."""
+    from ..evaluation import coverage_map
+
+    if not len(scene.points):
+        return {"available": False, "reason": "no sparse points (inceptiongs coverage triangulates them)"}
+    # 1,000 points keep `info` quick on big captures (the cost is points x views^2).
+    figures = coverage_map.summary(coverage_map.scene_coverage(scene, max_points=INFO_COVERAGE_POINTS,
+                                                               triangulate=False), listed=5)
+    return {"available": True, **figures}
 
 
 def ply_summary(path: Path) -> dict:
@@ -80,6 +96,11 @@ def format_summary(summary: dict) -> str:
     if "points_bounds" in summary:
         lines.append(f"  point bounds:  {_format_vector(summary['points_bounds'][0])} .. "
                      f"{_format_vector(summary['points_bounds'][1])}")
+    coverage = summary.get("coverage", {})
+    if coverage.get("available"):
+        lines.append(f"  coverage:      median {coverage['views_per_point']['median']:g} views per sparse point, "
+                     f"{coverage['thinly_seen_fraction']:.0%} seen by fewer than {coverage['thin_threshold_views']}; "
+                     "scarcest views " + ", ".join(v["name"] for v in coverage["scarcest_views"]))
     lines.append(f"  warnings:      {len(summary['warnings'])}")
     lines.extend(f"    - {w}" for w in summary["warnings"])
     return "\n".join(lines)

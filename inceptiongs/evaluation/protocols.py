@@ -21,6 +21,8 @@ Rules of the unstructured protocol (decided here, documented in docs/evaluation.
   index). Sampling stops early when every view coincides with a centre (duplicate poses),
   so no cluster is empty. Every view joins its nearest centre (ties -> earlier centre); a
   centre always belongs to its own cluster.
+- Declared scarce views (``scarce_views``, e.g. a demo scene's thin-region cameras): they form
+  the scarce cluster; the other views are clustered as above into at most K - 1 clusters.
 - Scarce cluster: a seeded random choice among the clusters with at least 2 views. Its
   centroid view (the member minimising the summed distance to the other members; ties ->
   lowest index) is the target view j*. It holds out round(0.9 n) views, at least 1 (j*) and
@@ -200,13 +202,37 @@ def centroid_view(cluster: Sequence[int], distances: np.ndarray) -> int:
     return int(members[int(np.argmin(totals))])
 
 
-def _unstructured(cameras: list[Camera], seed: int) -> Split:
+def _declared_clusters(cameras: list[Camera], scarce_names: Sequence[str], distances: np.ndarray,
+                       rng: np.random.Generator, source: str) -> list[list[int]]:
+    """Clusters with the named views as the first one (the scarce cluster) and the other views
+    clustered by farthest-point sampling as usual (K - 1 clusters)."""
+    index = {camera.name: i for i, camera in enumerate(cameras)}
+    unknown = [name for name in scarce_names if name not in index]
+    if unknown:
+        raise InputError(f"{source}: scarce views {', '.join(unknown[:3])} are not views of the scene")
+    scarce = sorted({index[name] for name in scarce_names})
+    if len(scarce) < 2:
+        raise InputError(f"{source}: a declared scarce cluster needs at least 2 views, got {len(scarce)}")
+    others = [i for i in range(len(cameras)) if i not in set(scarce)]
+    if len(others) < 2:
+        raise InputError(f"{source}: the views outside the declared scarce cluster are too few to train on")
+    count = max(1, min(UNSTRUCTURED_CLUSTERS - 1, len(others) // 2))
+    sub = farthest_point_clusters(distances[np.ix_(others, others)], count, rng)
+    return [scarce] + [[others[i] for i in cluster] for cluster in sub]
+
+
+def _unstructured(cameras: list[Camera], seed: int, scarce_names: Sequence[str] = (),
+                  source: str = "<scene>") -> Split:
     n = len(cameras)
     rng = np.random.default_rng(seed)
     distances = pose_distance_matrix(cameras)
-    clusters = farthest_point_clusters(distances, min(UNSTRUCTURED_CLUSTERS, n // 2), rng)
-    eligible = [k for k, cluster in enumerate(clusters) if len(cluster) >= 2]
-    scarce = eligible[int(rng.integers(len(eligible)))]  # non-empty: K <= N/2 (pigeonhole)
+    if scarce_names:
+        clusters = _declared_clusters(cameras, scarce_names, distances, rng, source)
+        scarce = 0
+    else:
+        clusters = farthest_point_clusters(distances, min(UNSTRUCTURED_CLUSTERS, n // 2), rng)
+        eligible = [k for k, cluster in enumerate(clusters) if len(cluster) >= 2]
+        scarce = eligible[int(rng.integers(len(eligible)))]  # non-empty: K <= N/2 (pigeonhole)
     scarce_test: list[int] = []
     covered_test: list[int] = []
     target = centroid_view(clusters[scarce], distances)
@@ -226,8 +252,11 @@ def _unstructured(cameras: list[Camera], seed: int) -> Split:
                  target, clusters, [c.name for c in cameras])
 
 
-def make_split(scene, protocol: str, seed: int = 0) -> Split:
+def make_split(scene, protocol: str, seed: int = 0, scarce_views: Sequence[str] = ()) -> Split:
     """Train/test split of ``scene``'s views (a Scene or a list of Camera) under ``protocol``.
+
+    scarce_views (unstructured only): names of views that form the scarce cluster instead of a
+    seeded random cluster, e.g. the views a demo scene was built to see its thin region from.
 
     Raises InputError for an unknown protocol or too few views to hold any out.
     """
@@ -239,6 +268,8 @@ def make_split(scene, protocol: str, seed: int = 0) -> Split:
         raise InputError(f"{source}: unknown protocol {protocol!r} (choose from {', '.join(PROTOCOLS)})")
     if n == 0:
         raise InputError(f"{source}: the scene has no views")
+    if scarce_views and protocol != "unstructured":
+        raise InputError(f"{source}: declared scarce views need the unstructured protocol, not {protocol!r}")
     if protocol == "none":
         return Split("none", seed, list(range(n)), [], view_names=names)
     if n < 2:
@@ -247,4 +278,4 @@ def make_split(scene, protocol: str, seed: int = 0) -> Split:
         test = [i for i in range(n) if i % LLFF_HOLDOUT_EVERY == 0]
         train = [i for i in range(n) if i % LLFF_HOLDOUT_EVERY != 0]
         return Split("llff", seed, train, test, [], list(test), view_names=names)
-    return _unstructured(cameras, seed)
+    return _unstructured(cameras, seed, scarce_views, source)

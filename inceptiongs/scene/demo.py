@@ -61,18 +61,18 @@ class Textures:
         return 0.65 * self.sample(u, v) + 0.35 * self.sample(4.1 * u + 17.0, 4.1 * v + 5.0)
 
 
-def _checker(u: np.ndarray, v: np.ndarray, period: float) -> np.ndarray:
+def checker(u: np.ndarray, v: np.ndarray, period: float) -> np.ndarray:
     return ((np.floor(u / period) + np.floor(v / period)) % 2).astype(np.float64)
 
 
-def _mix(a, b, t: np.ndarray) -> np.ndarray:
+def mix(a, b, t: np.ndarray) -> np.ndarray:
     """Blend colours a, b [3] by t [R] -> [R, 3]."""
     return np.asarray(a)[None] * (1 - t[:, None]) + np.asarray(b)[None] * t[:, None]
 
 
 # --- geometry: each returns ray parameter t [R] (inf = miss) and normals [R, 3] -----------
 
-def _hit_plane(origins, dirs, axis: int, offset: float, lo: np.ndarray, hi: np.ndarray, normal_sign: float):
+def hit_plane(origins, dirs, axis: int, offset: float, lo: np.ndarray, hi: np.ndarray, normal_sign: float):
     """Axis-aligned rectangle {x[axis] = offset, lo <= other coords <= hi}, one-sided."""
     d = dirs[:, axis]
     # Rays parallel to the plane (|d| ~ 0) never hit it; the guard keeps the division finite.
@@ -88,7 +88,7 @@ def _hit_plane(origins, dirs, axis: int, offset: float, lo: np.ndarray, hi: np.n
     return t, normal
 
 
-def _hit_box(origins, dirs, center, half):
+def hit_box(origins, dirs, center, half):
     """Slab test against an axis-aligned box; normal from the face that was entered."""
     center, half = np.asarray(center, float), np.asarray(half, float)
     # Zero direction components are replaced by a tiny value: the slab bounds become +-huge,
@@ -108,7 +108,7 @@ def _hit_box(origins, dirs, center, half):
     return t, normal
 
 
-def _hit_sphere(origins, dirs, center, radius):
+def hit_sphere(origins, dirs, center, radius):
     """Nearest positive root of |o + t d - c|^2 = r^2 (dirs are unit vectors)."""
     oc = origins - np.asarray(center, float)
     b = np.sum(oc * dirs, axis=1)
@@ -138,48 +138,48 @@ def _shade(kind: int, points: np.ndarray, normals: np.ndarray, tex: Textures) ->
     """Albedo [R, 3] of surface ``kind`` at points [R, 3]."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     if kind == 0:  # ground: large checker, tinted by noise, with fine grain
-        base = _mix((0.78, 0.74, 0.62), (0.32, 0.40, 0.30), _checker(x, y, 0.75))
+        base = mix((0.78, 0.74, 0.62), (0.32, 0.40, 0.30), checker(x, y, 0.75))
         return base * (0.6 + 0.5 * tex.fractal(2.0 * x + 31.0, 2.0 * y + 7.0))[:, None]
     if kind == 1:  # wall: brick-like stripes with offset rows and noise
         row = np.floor(z / 0.25)
         brick = ((np.floor((y + 0.25 * (row % 2)) / 0.5) + row) % 2).astype(float)
-        base = _mix((0.72, 0.30, 0.22), (0.85, 0.62, 0.45), brick)
+        base = mix((0.72, 0.30, 0.22), (0.85, 0.62, 0.45), brick)
         mortar = (np.abs(z / 0.25 - np.round(z / 0.25)) < 0.08)
         base[mortar] = (0.9, 0.9, 0.88)
         return base * (0.75 + 0.35 * tex.fractal(5.0 * y, 5.0 * z + 11.0))[:, None]
     if kind == 2:  # box A: small red/white checker on every face
         uv = points - np.asarray(_BOX_A[0])
         pattern = ((np.floor(uv[:, 0] / 0.2) + np.floor(uv[:, 1] / 0.2) + np.floor(uv[:, 2] / 0.2)) % 2)
-        return _mix((0.90, 0.88, 0.85), (0.80, 0.12, 0.10), pattern.astype(float))
+        return mix((0.90, 0.88, 0.85), (0.80, 0.12, 0.10), pattern.astype(float))
     if kind == 3:  # box B: diagonal blue/yellow stripes
         stripes = (np.floor((x + y + z) / 0.15) % 2).astype(float)
-        return _mix((0.15, 0.25, 0.75), (0.95, 0.80, 0.20), stripes)
+        return mix((0.15, 0.25, 0.75), (0.95, 0.80, 0.20), stripes)
     if kind == 4:  # sphere A: latitude/longitude checker, green
         d = normals
         lon = np.arctan2(d[:, 1], d[:, 0])
         lat = np.arcsin(np.clip(d[:, 2], -1, 1))
-        return _mix((0.10, 0.55, 0.20), (0.85, 0.95, 0.80), _checker(lon, lat, math.pi / 8))
+        return mix((0.10, 0.55, 0.20), (0.85, 0.95, 0.80), checker(lon, lat, math.pi / 8))
     # sphere B: orange marbled noise
     t = tex.fractal(6.0 * x + 3.0, 6.0 * (y + z))
-    return _mix((0.95, 0.55, 0.10), (0.35, 0.12, 0.05), t)
+    return mix((0.95, 0.55, 0.10), (0.35, 0.12, 0.05), t)
 
 
 def trace(origins: np.ndarray, dirs: np.ndarray, tex: Textures) -> tuple[np.ndarray, np.ndarray]:
     """Cast unit rays. origins, dirs: [R, 3] -> (colour [R, 3] in [0, 1], hit distance [R]
     with inf for rays that leave the scene)."""
     hits = [
-        _hit_plane(origins, dirs, 2, 0.0, np.array([-_GROUND_HALF_SIZE] * 2), np.array([_GROUND_HALF_SIZE] * 2), 1.0),
-        _hit_plane(origins, dirs, 0, _WALL_X, np.array([_WALL_Y[0], 0.0]), np.array([_WALL_Y[1], _WALL_TOP]), 1.0),
-        _hit_box(origins, dirs, *_BOX_A),
-        _hit_box(origins, dirs, *_BOX_B),
-        _hit_sphere(origins, dirs, *_SPHERE_A),
-        _hit_sphere(origins, dirs, *_SPHERE_B),
+        hit_plane(origins, dirs, 2, 0.0, np.array([-_GROUND_HALF_SIZE] * 2), np.array([_GROUND_HALF_SIZE] * 2), 1.0),
+        hit_plane(origins, dirs, 0, _WALL_X, np.array([_WALL_Y[0], 0.0]), np.array([_WALL_Y[1], _WALL_TOP]), 1.0),
+        hit_box(origins, dirs, *_BOX_A),
+        hit_box(origins, dirs, *_BOX_B),
+        hit_sphere(origins, dirs, *_SPHERE_A),
+        hit_sphere(origins, dirs, *_SPHERE_B),
     ]
     ts = np.stack([h[0] for h in hits])              # [S, R]
     kind = np.argmin(ts, axis=0)
     t = ts[kind, np.arange(len(dirs))]
     # Sky: brighter towards the horizon.
-    colour = _mix((0.55, 0.70, 0.95), (0.85, 0.90, 0.98), 1.0 - np.clip(dirs[:, 2], 0, 1))
+    colour = mix((0.55, 0.70, 0.95), (0.85, 0.90, 0.98), 1.0 - np.clip(dirs[:, 2], 0, 1))
     for k, (_, normals) in enumerate(hits):
         mask = (kind == k) & np.isfinite(t)
         if not mask.any():
@@ -241,59 +241,51 @@ def demo_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera], list
     return cameras, dense, scarce
 
 
-def _sample_points(cameras: list[Camera], tex: Textures, rng: np.random.Generator):
-    """Surface points seen by the cameras, with their colours: ([P, 3], [P, 3] uint8)."""
+def sample_points(cameras: list[Camera], trace_fn, rng: np.random.Generator,
+                  per_camera: int = _POINTS_PER_CAMERA):
+    """Surface points seen by the cameras, with their colours: ([P, 3], [P, 3] uint8).
+    trace_fn(origins [R, 3], dirs [R, 3]) -> (colour [R, 3], distance [R], inf = miss)."""
     points, colours = [], []
     for camera in cameras:
         offsets = rng.uniform(0, 1, (1, 2))
         origins, dirs = camera_rays(camera, offsets)
-        pick = rng.choice(len(dirs), size=_POINTS_PER_CAMERA, replace=False)
-        colour, t = trace(origins[pick], dirs[pick], tex)
+        pick = rng.choice(len(dirs), size=min(per_camera, len(dirs)), replace=False)
+        colour, t = trace_fn(origins[pick], dirs[pick])
         hit = np.isfinite(t)
         points.append(origins[pick][hit] + dirs[pick][hit] * t[hit, None])
         colours.append(np.round(colour[hit] * 255).astype(np.uint8))
     return np.concatenate(points), np.concatenate(colours)
 
 
-def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, progress: bool = True) -> Path:
-    """Write images/, sparse/0/{cameras,images,points3D}.bin and demo_scene.json to out_dir.
-
-    The folder is built beside out_dir and renamed into place, so an interrupted run leaves
-    nothing half-written. An existing demo scene at out_dir is replaced; any other non-empty
-    folder is refused. Returns out_dir.
-    """
-    if size not in SIZES:
-        raise InputError(f"{out_dir}: unknown demo scene size {size!r} (choose {', '.join(SIZES)})")
-    out_dir = Path(out_dir)
+def check_out_dir(out_dir: Path) -> None:
+    """Refuse anything but a missing folder, an empty one or a previous demo scene, and a parent
+    folder that cannot be written: one line before any rendering."""
     if out_dir.exists() and (not out_dir.is_dir() or (any(out_dir.iterdir())
                                                        and not (out_dir / "demo_scene.json").is_file())):
         raise InputError(f"{out_dir}: exists and is not an empty folder or a previous demo scene")
-    check_writable_dir(out_dir.parent)  # one line before any rendering
-    rng = np.random.default_rng(seed)
-    tex = Textures(noise=rng.random((64, 64)))
-    cameras, dense, scarce = demo_cameras(size, seed)
+    check_writable_dir(out_dir.parent)
 
+
+def write_scene_folder(out_dir: Path, cameras: list[Camera], photo_fn, points: np.ndarray,
+                       colours: np.ndarray, meta: dict, progress: bool = True, desc: str = "demo scene") -> Path:
+    """images/, sparse/0/*.bin and demo_scene.json, built beside out_dir and renamed into place
+    (an interrupted run leaves nothing half-written; a previous demo scene is replaced).
+    photo_fn(camera) -> [H, W, 3] float in [0, 1]."""
+    check_out_dir(out_dir)
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     except OSError as exc:
         raise output_error(out_dir, exc) from None
     try:
-        for camera in tqdm(cameras, desc="demo scene", unit="view", disable=not progress):
-            photo = render_photo(camera, tex)
+        for camera in tqdm(cameras, desc=desc, unit="view", disable=not progress):
+            photo = photo_fn(camera)
             ok, encoded = cv2.imencode(".png", np.round(photo[:, :, ::-1] * 255).astype(np.uint8))
             if not ok:
                 raise RuntimeError("PNG encoding failed")
             atomic_write_bytes(staging / "images" / camera.name, encoded.tobytes())
-        points, colours = _sample_points(cameras, tex, rng)
         model = [(c, "PINHOLE", [c.fx, c.fy, c.cx, c.cy]) for c in cameras]
         ensure_dir(staging / "sparse" / "0")
         write_colmap_binary(staging / "sparse" / "0", model, points, colours)
-        meta = {
-            "description": "InceptionGS procedural demo scene (z up, ground at z = 0)",
-            "size": size, "seed": seed, "width": cameras[0].width, "height": cameras[0].height,
-            "dense_cameras": dense, "scarce_cameras": scarce,
-            "note": "scarce cameras view the north-west side, which the dense arc sees at most obliquely",
-        }
         atomic_write_text(staging / "demo_scene.json", json.dumps(meta, indent=2) + "\n")
         try:
             if out_dir.exists():
@@ -309,3 +301,31 @@ def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, pr
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out_dir
+
+
+def write_demo_scene(out_dir: str | Path, size: str = "small", seed: int = 0, progress: bool = True) -> Path:
+    """Write images/, sparse/0/{cameras,images,points3D}.bin and demo_scene.json to out_dir.
+
+    The folder is built beside out_dir and renamed into place, so an interrupted run leaves
+    nothing half-written. An existing demo scene at out_dir is replaced; any other non-empty
+    folder is refused. Returns out_dir.
+    """
+    if size not in SIZES:
+        raise InputError(f"{out_dir}: unknown demo scene size {size!r} (choose {', '.join(SIZES)})")
+    out_dir = Path(out_dir)
+    check_out_dir(out_dir)
+    rng = np.random.default_rng(seed)
+    tex = Textures(noise=rng.random((64, 64)))
+    cameras, dense, scarce = demo_cameras(size, seed)
+    # Photos first, then the points: the random stream stays the one the scene always used.
+    photos = {camera.name: render_photo(camera, tex)
+              for camera in tqdm(cameras, desc="demo scene", unit="view", disable=not progress)}
+    points, colours = sample_points(cameras, lambda o, d: trace(o, d, tex), rng)
+    meta = {
+        "description": "InceptionGS procedural demo scene (z up, ground at z = 0)",
+        "scene": "objects", "size": size, "seed": seed, "width": cameras[0].width, "height": cameras[0].height,
+        "dense_cameras": dense, "scarce_cameras": scarce,
+        "note": "scarce cameras view the north-west side, which the dense arc sees at most obliquely",
+    }
+    return write_scene_folder(out_dir, cameras, lambda camera: photos[camera.name], points, colours, meta,
+                              progress=False)

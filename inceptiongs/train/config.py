@@ -29,6 +29,9 @@ class TrainConfig(SavedConfig):
     max_width: int | None = None
     protocol: str = "none"
     seed: int = 0
+    # Unstructured protocol: these views (names) form the scarce cluster instead of a seeded
+    # random one (the demo declares the cameras of its thin region).
+    scarce_views: list[str] = dataclasses.field(default_factory=list)
     iterations: int = 30_000
     minutes: float | None = None
     pgsr: bool = True
@@ -132,6 +135,8 @@ class TrainConfig(SavedConfig):
             raise InputError(f"{source}: near_percentile must be in (0, 100) and near_margin in (0, 1]")
         if self.protocol not in PROTOCOLS:
             raise InputError(f"{source}: protocol must be one of {', '.join(PROTOCOLS)}, got {self.protocol!r}")
+        if self.scarce_views and self.protocol != "unstructured":
+            raise InputError(f"{source}: scarce_views need the unstructured protocol, got {self.protocol!r}")
         if self.iterations < 1:
             raise InputError(f"{source}: iterations must be >= 1, got {self.iterations}")
         if self.minutes is not None and self.minutes <= 0:

@@ -95,7 +95,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         elif resume:
             log(f"{run_dir}: no checkpoint to resume from, starting a new run")
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
-        split = make_split(scene, config.protocol, config.seed)
+        split = make_split(scene, config.protocol, config.seed, config.scarce_views)
         if not split.train:
             raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
         data = prepare_data(scene, split, config, log)

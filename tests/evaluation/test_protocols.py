@@ -144,3 +144,21 @@ def test_real_scenes_split_properties():
     assert len(split.covered_test) == 5  # one per covered cluster (each has < 10 views)
     fern = load_scene(require_data("fern"))
     assert make_split(fern, "llff", 0).test == [0, 8, 16]
+
+
+def test_declared_scarce_views_form_the_scarce_cluster():
+    cameras = ring_cameras(20)
+    declared = [cameras[i].name for i in (3, 4, 5, 6, 7)]
+    for seed in range(4):
+        split = make_split(cameras, "unstructured", seed, scarce_views=declared)
+        check_partition(split, 20)
+        assert split.scarce_cluster == [3, 4, 5, 6, 7]
+        assert split.target_view == 5                       # the cluster's centroid view
+        assert len(split.scarce_test) == 4 and set(split.scarce_test) < {3, 4, 5, 6, 7}
+        assert not set(split.covered_test) & {3, 4, 5, 6, 7}
+    with pytest.raises(InputError, match="not views of the scene"):
+        make_split(cameras, "unstructured", 0, scarce_views=["nope.png", cameras[0].name])
+    with pytest.raises(InputError, match="at least 2 views"):
+        make_split(cameras, "unstructured", 0, scarce_views=[cameras[0].name])
+    with pytest.raises(InputError, match="unstructured"):
+        make_split(cameras, "llff", 0, scarce_views=declared)

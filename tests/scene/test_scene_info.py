@@ -59,6 +59,9 @@ def test_info_lists_missing_images_as_warnings_with_point_bounds(tmp_path, capsy
     assert len(summary["warnings"]) == 1 and cameras[2].name in summary["warnings"][0]
     bounds = np.array(summary["points_bounds"])
     assert np.allclose(bounds[0], known_points().min(axis=0)) and np.allclose(bounds[1], known_points().max(axis=0))
+    # Coverage: all three cameras see every point (a missing image does not change the geometry).
+    coverage = summary["coverage"]
+    assert coverage["available"] and coverage["views_per_point"]["median"] == 3 and coverage["views"] == 3
 
 
 def test_info_warns_about_duplicate_image_names(tmp_path, capsys):
