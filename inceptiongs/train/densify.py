@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..camera import unit_quat_to_rotation
 from .config import TrainConfig
 from .optim import replace_rows, reset_moments
 
@@ -53,12 +54,7 @@ def accumulate(stats: DensifyStats, means2d_grad: torch.Tensor, radii: torch.Ten
 
 def _rotation_matrices(quats: torch.Tensor) -> torch.Tensor:
     """quats [N, 4] (w, x, y, z), non-zero -> [N, 3, 3]."""
-    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
+    return unit_quat_to_rotation(*torch.nn.functional.normalize(quats, dim=-1).unbind(-1), torch.stack)
 
 
 def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, stats: DensifyStats,

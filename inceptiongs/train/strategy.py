@@ -22,6 +22,7 @@ import math
 
 import torch
 
+from ..camera import unit_quat_to_rotation
 from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, OPACITY_LOGIT_ABS_MAX
 from ..gaussians import Gaussians
 from .optim import replace_rows
@@ -73,12 +74,7 @@ def mcmc_regularisers(params: dict[str, torch.Tensor]) -> tuple[torch.Tensor, to
 
 def _rotations(quats: torch.Tensor) -> torch.Tensor:
     """quats [N, 4] (w, x, y, z), non-zero -> [N, 3, 3]."""
-    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)
+    return unit_quat_to_rotation(*torch.nn.functional.normalize(quats, dim=-1).unbind(-1), torch.stack)
 
 
 def mcmc_noise(params: dict[str, torch.Tensor], position_lr: float, noise_lr: float,
