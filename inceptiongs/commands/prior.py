@@ -101,6 +101,8 @@ def run(args) -> int:
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
 
     gaussians, scene, _ = load_run(run_dir)
+    from ..io.atomic import check_writable_dir
+    check_writable_dir(prior_dir(run_dir))  # one line now, not after the prior's training
     gaussians = gaussians.to(device)
     views = training_views(run_dir, scene)
     cameras = [scene.cameras[i] for i in views]

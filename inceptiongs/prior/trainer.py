@@ -231,11 +231,9 @@ class PriorTrainer:
 def append_prior_metrics(run_dir: str | Path, record: dict) -> None:
     """One JSON line in RUN/prior/metrics.jsonl (appended and flushed; a torn last line, from a
     kill mid-write, is dropped by the reader)."""
-    path = prior_dir(run_dir) / METRICS_NAME
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a", encoding="utf-8") as handle:
-        handle.write(json.dumps(record) + "\n")
-        handle.flush()
+    from ..io.atomic import append_line
+
+    append_line(prior_dir(run_dir) / METRICS_NAME, json.dumps(record))
 
 
 def build_prior(backend: str, config, device=None):

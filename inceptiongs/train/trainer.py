@@ -205,8 +205,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     finally:
         bar.close()
 
-    stop_clocks()
-    final_clocks = (state.wall_s, state.train_s)
+    stop_clocks()  # the checkpoint holds the clocks as they stood when training stopped
     gaussians = gaussians_from_params(state.params).detach()
     # Final save: the small model first, then its log line, then the (large) checkpoint. Each
     # is attempted even when an earlier one fails (a full disk), and each is atomic, so what
@@ -218,7 +217,6 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             write()
         except OutputError as exc:
             failures.append(exc)
-            log(f"error: {exc}")
 
     if finished:
         if last_eval_iteration != state.iteration:
@@ -232,10 +230,10 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             attempt(lambda: append_metrics(run_dir, {
                 "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
                 "num_gaussians": len(gaussians), **last_eval}))
-    # The checkpoint holds the clocks as they stood when training stopped (evaluation excluded).
-    state.wall_s, state.train_s = final_clocks
     attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
     if failures:
+        for later in failures[1:]:  # one line each; the first is raised (the CLI prints it)
+            log(f"error: {later}")
         raise failures[0]
     return TrainResult(run_dir, state.iteration, finished, len(gaussians), last_eval)
 

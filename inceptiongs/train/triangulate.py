@@ -33,6 +33,7 @@ import numpy as np
 from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
 from ..constants import NEAR_PLANE
+from ..errors import InputError
 from .neighbours import neighbour_views
 
 _CACHE_VERSION = 1
@@ -291,7 +292,7 @@ def cached_triangulation(work_dir, cameras: list[Camera], images: list[np.ndarra
     np.savez(buffer, points=points, colors=colours)
     try:
         atomic_write_bytes(path, buffer.getvalue())
-    except OSError:
+    except InputError:  # OutputError: a full or read-only cache only costs speed
         pass
     return points, colours, False
 

@@ -157,10 +157,12 @@ def test_enospc_at_the_final_checkpoint_keeps_the_model_and_the_previous_checkpo
     run = tmp_path / "run"
     config = tiny_config(scene)
     final = f"step_{config.iterations:07d}.pt"
+    messages = []
     with failing(monkeypatch, "replace", errno.ENOSPC, lambda src, dst: str(dst).endswith(final)):
         with pytest.raises(InputError, match="no space left on device") as info:
-            train(config, run, progress=False, log=lambda m: None)
+            train(config, run, progress=False, log=messages.append)
     assert final in str(info.value) and "\n" not in str(info.value)
+    assert not any("no space" in m for m in messages)  # raised once, not also logged: one line
     # The model was written first, the log is complete, the newest complete checkpoint loads.
     assert (run / "model.ply").read_bytes() == (reference / "model.ply").read_bytes()
     assert [r["iteration"] for r in records(run) if "loss" in r] == list(range(1, config.iterations + 1))
@@ -173,6 +175,17 @@ def test_enospc_at_the_final_checkpoint_keeps_the_model_and_the_previous_checkpo
     assert status == 0, lines
     assert (run / "model.ply").read_bytes() == (reference / "model.ply").read_bytes()
     assert [r["iteration"] for r in records(run) if "loss" in r] == list(range(1, config.iterations + 1))
+
+
+def test_enospc_through_the_cli_is_one_line_and_the_model_survives(scene, tmp_path, capsys, monkeypatch):
+    run = tmp_path / "run"
+    with failing(monkeypatch, "replace", errno.ENOSPC, lambda src, dst: str(dst).endswith(".pt")):
+        status, lines = cli(["train", scene, "--out", run, "--iterations", "2", "--no-pgsr", "--protocol", "none"],
+                            capsys)
+    # Besides progress and log lines, exactly one error line.
+    assert_one_line(status, [line for line in lines if line.startswith("error")],
+                    "step_0000002.pt", "cannot write (no space left on device)")
+    assert (run / "model.ply").is_file() and not list(run.rglob("*.tmp"))
 
 
 def test_enospc_on_the_model_still_writes_the_checkpoint(scene, reference, tmp_path, monkeypatch):
