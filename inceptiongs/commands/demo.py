@@ -6,7 +6,7 @@ OUT/run              stage I (unstructured protocol; the views in front of the n
                      scarce cluster, 90 % of them held out; j* its centre view)
 OUT/coverage.png     where the capture is thin (cameras from above, the viewing density over the
                      scene's hemisphere, the views whose content is seen least)
-OUT/run_bootstrap    stage II on j* (prior trained here when the run has none)
+OUT/run_bootstrap    stage II on j* (a prior is trained here only when the supervision generates images)
 OUT/run_baseline     stage I continued on the photos alone for the bootstrap's total time
 OUT/*/eval/          render | photo | error images of the held-out views + eval.json
 OUT/target.png       j*: stage I | baseline | bootstrap | photo (held out, shown only)
@@ -260,9 +260,9 @@ def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_
         f"- target view j* = {target} (`{scene.cameras[target].name}`), the centre of the scarce cluster",
         f"- prior: {boot_result.prior}",
         f"- bootstrap: `run_bootstrap/` ({boot_result.virtual_views} virtual views, "
-        f"{sum(v['mask_fraction'] for v in views) / max(len(views), 1):.0%} of their pixels from warped photos; "
-        f"iterations {boot_result.start_iteration}..{boot_result.iteration} in {boot_result.wall_s:.0f} s, prior "
-        f"included; perceptual loss: {boot_summary.get('perceptual', '-')})",
+        f"mean trust of their pixels in the warped photos {sum(v['mask_fraction'] for v in views) / max(len(views), 1):.0%}; "
+        f"iterations {boot_result.start_iteration}..{boot_result.iteration} in {boot_result.wall_s:.0f} s, all of "
+        f"stage II included; perceptual loss: {boot_summary.get('perceptual', '-')})",
         f"- baseline: `run_baseline/`, stage I continued on the photos alone for the bootstrap's time "
         f"(iterations {base_result.start_iteration}..{base_result.iteration} in {base_result.wall_s:.0f} s)",
         "- times: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()),
@@ -341,14 +341,15 @@ def run(args) -> int:
 
     scene = load_scene(config.scene, downscale=config.downscale)
     split = Split.load(run_dir / "split.json", scene.cameras)
-    progress.stage(f"bootstrap of j* = {scene.cameras[split.target_view].name} (prior, virtual views, "
-                   f"refinement; at most {args.bootstrap_minutes:g} min)")
-    began = time.perf_counter()
-    boot_dir = out / "run_bootstrap"
     boot_config = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations,
                                   minutes=args.bootstrap_minutes, prior_minutes=args.prior_minutes,
                                   prior_steps=args.prior_steps, ddim_steps=args.ddim_steps, k=DEMO_K, l=DEMO_L,
                                   generated_weight=DEMO_GENERATED_WEIGHT, eval_every=DEMO_EVAL_EVERY)
+    made_of = "prior, virtual views" if boot_config.needs_prior() else "virtual views from the photos"
+    progress.stage(f"bootstrap of j* = {scene.cameras[split.target_view].name} ({made_of}, "
+                   f"refinement; at most {args.bootstrap_minutes:g} min)")
+    began = time.perf_counter()
+    boot_dir = out / "run_bootstrap"
     # The demo's own output folder: a rerun of the demo replaces its previous demo result.
     boot_result = run_bootstrap(run_dir, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
                                 log=lambda message: print(f"      {message}", flush=True))
