@@ -20,18 +20,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def default_job_factory(source):
-    """The job the "start training" button runs: stage-I training for a scene, stage II
-    (bootstrap) for a run when views are flagged (app/jobs.py). None when the source has
-    neither a scene nor a run (a bare PLY)."""
-    from inceptiongs.io.flags import flags_path  # noqa: PLC0415
-    from .jobs import default_job, run_dir_of  # noqa: PLC0415
-
-    if source.scene is None and run_dir_of(source) is None:
-        return None
-    return lambda src: default_job(src, flags_path(src.work_dir))  # noqa: E731
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
@@ -51,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
 
         width, height = size or (1280, 720)
         try:
-            viewer = Viewer(source, width, height, job_factory=default_job_factory(source))
+            viewer = Viewer(source, width, height)
         except WindowError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

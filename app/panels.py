@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from .jobs import start_bootstrap
+from .runs import can_resume
 from .settings import RENDER_MODES
 
 
@@ -118,17 +120,20 @@ def _flags(viewer) -> None:
 
 def _training(viewer) -> None:
     run = viewer.training
+    imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     if run is None or not run.alive:
-        if imgui.button("start training"):
+        if imgui.button("train (new run)"):
             viewer.start_training()
+        if can_resume(viewer.run_dir):
+            imgui.same_line()
+            if imgui.button("resume"):
+                viewer.resume_training()
         imgui.same_line()
         if imgui.button("Bootstrap flagged views"):
-            from .jobs import start_bootstrap  # noqa: PLC0415
-
             start_bootstrap(viewer)
     else:
         if run.control.pause.is_set():
-            if imgui.button("resume"):
+            if imgui.button("continue"):
                 run.resume()
         elif imgui.button("pause"):
             run.pause()
@@ -137,6 +142,8 @@ def _training(viewer) -> None:
             run.control.stop.set()
     if run is None:
         return
+    if viewer.job_out_dir is not None:
+        imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
     progress = run.progress
     imgui.text(f"{run.state}: iteration {progress.iteration}, {progress.gaussian_count} Gaussians, "
                f"{progress.iterations_per_second:.2f} it/s")

@@ -32,6 +32,7 @@ class ViewerSource:
     cameras: list[Camera]
     work_dir: Path
     model_path: Path | None = None
+    run_dir: Path | None = None  # the stage-I/II run folder shown (for Resume and Bootstrap)
     sparse_points: bool = False
     scene: object = None
     notes: list[str] = field(default_factory=list)
@@ -94,7 +95,7 @@ def _open_run(run_dir: Path) -> ViewerSource:
     gaussians, scene, _config = load_run(run_dir)
     model = run_dir / "model.ply"
     return ViewerSource("run", run_dir, gaussians.numpy(), list(scene.cameras), scene.work_dir,
-                        model_path=model if model.is_file() else None, scene=scene)
+                        model_path=model if model.is_file() else None, run_dir=run_dir, scene=scene)
 
 
 def open_source(path: str | Path) -> ViewerSource:

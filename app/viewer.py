@@ -24,8 +24,10 @@ from . import editing, flags as flagging
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
 from .images import visualize
 from .input import InputController
+from .jobs import JobSettings, resume_job_for, train_job_for
 from .live_training import LiveTraining
 from .navigation import NavigationState, default_view, estimate_up
+from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, FrameStats, ViewSettings
 from .sources import ViewerSource
 from .window import create_imgui, create_window
@@ -68,8 +70,11 @@ class Viewer:
         self.selected_flag = -1
         self.save_path = str(source.work_dir / "edited.ply")  # the Edit panel's "file" field
         self.last_gl_error: str | None = None
-        self.job_factory = job_factory
+        self.job_factory = job_factory  # source -> job; None: the job dialog's stage-I training
+        self.job_settings = JobSettings()
         self.training: LiveTraining | None = None
+        self.run_dir = run_dir_of(source)  # the open run: what Resume continues, Bootstrap repairs
+        self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self.last_motion = -1e9
         self._last_frame_time = time.perf_counter()
@@ -78,6 +83,7 @@ class Viewer:
         self.imgui_impl = create_imgui(self.window) if with_ui else None
         self.input = InputController(self)
         self.input.install(self.window)
+        self.update_title()
 
     # --- setup -------------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
@@ -251,22 +257,54 @@ class Viewer:
 
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
-        if self.job_factory is None:
-            self.status = "no training job available for this source"
-            return
+        """A new stage-I run (the job dialog's settings) in a fresh run folder."""
         if self.training is not None and self.training.alive:
             return
         try:
-            job = self.job_factory(self.source)
+            job = (self.job_factory(self.source) if self.job_factory is not None
+                   else train_job_for(self.source, self.job_settings))
         except Exception as exc:  # noqa: BLE001 - a job that cannot be built is shown, not fatal
             self.status = f"training could not start: {type(exc).__name__}: {exc}"
             return
+        out_dir = getattr(job, "run_dir", None)
+        self.start_job(job, out_dir, f"training into {out_dir}" if out_dir else "training")
+
+    def resume_training(self) -> None:
+        """Continue the open run from its newest checkpoint."""
+        if self.training is not None and self.training.alive:
+            return
+        try:
+            job = resume_job_for(self.run_dir, self.job_settings)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line
+            self.status = f"resume could not start: {exc}"
+            return
+        self.start_job(job, job.run_dir, f"resuming {job.run_dir}")
+
+    def start_job(self, job, out_dir: Path | None, message: str) -> None:
+        """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
         self.training = LiveTraining(job)
         self.training.start()
+        self.job_out_dir = Path(out_dir) if out_dir is not None else None
+        if self.job_out_dir is not None:
+            self.run_dir = self.job_out_dir
+        self.status = message
+        self.update_title()
+
+    def update_title(self) -> None:
+        """The window names the model shown: the file, or the job folder it comes from."""
+        if self.training is not None and self.job_out_dir is not None:
+            shown = f"{self.job_out_dir} ({self.training.state})"
+        else:
+            shown = describe_model(self.source, self.run_dir)
+        self.title = f"InceptionGS — {shown}"
+        self.title_state = None if self.training is None else self.training.state
+        glfw.set_window_title(self.window, self.title)
 
     def take_snapshot(self) -> None:
         if self.training is None:
             return
+        if self.training.state != self.title_state:
+            self.update_title()  # running -> paused -> finished shows in the title
         now = time.perf_counter()
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and self.training.alive:

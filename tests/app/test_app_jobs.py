@@ -1,0 +1,143 @@
+"""The viewer's jobs: each writes a folder of its own, Resume continues the open run, the
+schedule is sized as the command line sizes it; the real app under Xvfb on the demo scene."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from inceptiongs.app.jobs import JobSettings, bootstrap_job_for, start_bootstrap, train_job_for
+from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
+from inceptiongs.errors import InputError
+
+
+def test_fresh_folder_never_returns_an_existing_one(tmp_path):
+    base = tmp_path / "runs" / "train"
+    assert fresh_folder(base) == base
+    base.mkdir(parents=True)
+    assert fresh_folder(base) == tmp_path / "runs" / "train_2"
+    (tmp_path / "runs" / "train_2").mkdir()
+    (tmp_path / "runs" / "train_3").write_text("a file counts too")
+    assert fresh_folder(base) == tmp_path / "runs" / "train_4"
+    assert new_train_dir(tmp_path) == tmp_path / "runs" / "train_4"
+    run = tmp_path / "runs" / "train"
+    assert new_bootstrap_dir(run) == tmp_path / "runs" / "train_bootstrap"
+    (tmp_path / "runs" / "train_bootstrap").mkdir()
+    assert new_bootstrap_dir(run) == tmp_path / "runs" / "train_bootstrap_2"
+
+
+def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
+    from inceptiongs.commands.train import build_config
+
+    settings = JobSettings(minutes=2.0, iterations=800, downscale=3, protocol="llff")
+    ours = settings.train_config(tmp_path)
+    args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
+                              seed=0, no_pgsr=False)
+    assert ours == build_config(args)
+    assert ours.densify_until < 15_000 and ours.minutes == 2.0
+    boot = JobSettings(bootstrap_minutes=1.5, bootstrap_iterations=40, k=2, l=3, prior_minutes=0.5).bootstrap_config()
+    assert (boot.minutes, boot.iterations, boot.k, boot.l, boot.prior_minutes) == (1.5, 40, 2, 3, 0.5)
+    assert JobSettings().bootstrap_config().k is None  # 0 in the dialog: the bootstrap's own default
+    with pytest.raises(InputError):
+        JobSettings(downscale=0).train_config(tmp_path)
+
+
+def test_jobs_write_fresh_folders(tmp_path):
+    from inceptiongs.io.flags import Flag, save_flags
+    from inceptiongs.camera import Camera
+    from inceptiongs.train.job import TrainJob
+
+    run = tmp_path / "runs" / "train"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    source = SimpleNamespace(kind="scene", path=tmp_path, scene=SimpleNamespace(root=tmp_path), work_dir=tmp_path,
+                             run_dir=run)
+    job = train_job_for(source, JobSettings(iterations=100))
+    assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / "train_2" and not job.resume
+    flags_file = tmp_path / "flags.json"
+    viewer = SimpleNamespace(training=None, run_dir=run, flags_file=flags_file, flags=[], status="",
+                             job_settings=JobSettings())
+    start_bootstrap(viewer)
+    assert viewer.training is None and "no flagged views" in viewer.status
+    save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
+    (tmp_path / "runs" / "train_bootstrap").mkdir()
+    job = bootstrap_job_for(run, flags_file)
+    assert job.run_dir == run and job.targets_file == flags_file
+    assert job.out_dir == tmp_path / "runs" / "train_bootstrap_2"
+    with pytest.raises(InputError, match="trained run"):
+        bootstrap_job_for(None, flags_file)
+    bare = SimpleNamespace(kind="ply", path=tmp_path / "m.ply", scene=None, work_dir=tmp_path, run_dir=None)
+    with pytest.raises(InputError, match="no scene"):
+        train_job_for(bare)
+
+
+# --- the real app ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory) -> Path:
+    from inceptiongs.scene.demo import write_demo_scene
+
+    return write_demo_scene(tmp_path_factory.mktemp("viewer_jobs") / "scene", progress=False)
+
+
+def _wait(viewer, condition, seconds=120.0) -> None:
+    deadline = time.time() + seconds
+    while not condition() and time.time() < deadline:
+        viewer.step()
+    assert condition(), viewer.status
+
+
+@pytest.mark.gl
+def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
+    import glfw
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
+
+    viewer = Viewer(open_source(demo_scene), 320, 240)
+    runs = demo_scene / ".inceptiongs" / "runs"
+    try:
+        assert "sparse points" in viewer.title
+        # A long schedule, stopped early: what a user does who trains "until it looks good".
+        viewer.job_settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
+        viewer.start_training()
+        assert viewer.job_out_dir == runs / "train" and str(runs / "train") in viewer.title
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        first = latest_checkpoint(runs / "train")
+        assert first is not None
+        first_bytes = first.read_bytes()
+        # A second "train" starts a new run beside the first, leaving it as it was.
+        viewer.start_training()
+        assert viewer.job_out_dir == runs / "train_2"
+        assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert first.read_bytes() == first_bytes
+        stopped_at = list_checkpoints(runs / "train_2")[-1][0]
+        # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
+        assert viewer.run_dir == runs / "train_2"
+        viewer.resume_training()
+        job = viewer.training.job
+        assert job.resume and job.run_dir == runs / "train_2"
+        seen = []
+        _wait(viewer, lambda: (seen.append(viewer.training.progress.iteration) or True)
+              and viewer.training.progress.iteration > stopped_at)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert viewer.training.error is None, viewer.training.error
+        # A fresh run would show iteration 10 first; the resumed one starts past its checkpoint.
+        assert min(i for i in seen if i > 0) > stopped_at
+        assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
+        viewer.step()
+        assert "stopped" in viewer.title
+    finally:
+        viewer.close()
