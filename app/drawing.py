@@ -73,6 +73,7 @@ class FrameDrawer:
         self.reference = None  # ReferenceWorker, made when the reference mode is first used
         self.reference_psnr: float | None = None
         self.reference_request = None
+        self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
         self.moving_level = 0  # index into MOVING_RENDER_SCALES
 
@@ -98,6 +99,7 @@ class FrameDrawer:
         if mode == "reference":
             self.draw_reference(viewer)
         elif key != self.last_render_key:
+            self.reference_shown = None  # the texture is about to hold a splat render
             if mode in ("rgb", "opacity"):
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
@@ -119,22 +121,24 @@ class FrameDrawer:
         self.scene_texture.blit(screen)
 
     def draw_reference(self, viewer) -> None:
-        """GL and torch at the same reduced camera; the torch image comes from the worker."""
+        """GL and torch at the same reduced camera; the torch image comes from the worker. The
+        comparison is computed once per new result (and view choice), then the texture is reused."""
         settings = viewer.settings
         camera = viewer.current_camera()
         if camera.width > REFERENCE_MAX_WIDTH:
             camera = camera.scaled(camera.width / REFERENCE_MAX_WIDTH)
         if self.reference is None:
             self.reference = ReferenceWorker()
-        arrays = viewer.edit.visible_arrays()
-        result = self.reference.result()
         request_key = (camera.world_to_camera.tobytes(), camera.width, self.uploaded_version,
                        settings.sh_degree_cap)
         if self.reference_request != request_key:
+            arrays = viewer.edit.visible_arrays()
             cap = min(settings.sh_degree_cap, sh_degree_from_count(arrays["sh"].shape[1]))
             self.reference.request(arrays, hash(self.uploaded_version), camera, settings.background, cap)
             self.reference_request = request_key
-        if result is None:
+        result = self.reference.result()
+        self.last_render_key = None  # the texture holds the comparison, not a splat render
+        if result is None or self.reference_shown == (result, settings.reference_view):
             return
         gl = self.renderer.render(result.camera, mode="rgb", background=settings.background,
                                   sh_degree_cap=settings.sh_degree_cap, splat_scale=1.0)
@@ -144,7 +148,15 @@ class FrameDrawer:
         else:
             image = side_by_side(gl, result.rgb)
         self.scene_texture.upload(image)
-        self.last_render_key = None
+        self.reference_shown = (result, settings.reference_view)
+
+    def reference_settled(self) -> bool:
+        """The reference mode has nothing left to draw until something changes."""
+        worker = self.reference
+        if worker is None or not worker.idle:
+            return False
+        return worker.error is not None or (self.reference_shown is not None
+                                            and self.reference_shown[0] is worker.result())
 
     def draw_overlays(self, viewer, screen: moderngl.Framebuffer) -> None:
         settings, edit, flags = viewer.settings, viewer.edit, viewer.flags

@@ -6,6 +6,7 @@ Built when the user presses the button, so flags made during the session count."
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,10 @@ from .runs import new_bootstrap_dir, new_train_dir
 # Without a budget the command line trains 30000 steps; with one, the schedule is this long
 # (`inceptiongs train --minutes M`), and the viewer does the same.
 BUDGET_SCHEDULE_ITERATIONS = 5_000
+# The viewer's jobs evaluate the held-out views this often (the command lines: every 500 steps
+# for stage I, only per round for stage II), so the panel's PSNR curve has points within a
+# few-minute budget. Evaluation time does not count against the training budget.
+VIEWER_EVAL_EVERY = 50
 
 
 @dataclass
@@ -41,14 +46,18 @@ class JobSettings:
 
         config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
                              protocol=self.protocol, iterations=self.iterations, minutes=self.minutes)
-        return short_run_schedule(config.validate("job settings"))
+        config = short_run_schedule(config.validate("job settings"))
+        return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
+                                   log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))
 
     def bootstrap_config(self):
         from inceptiongs.bootstrap.config import BootstrapConfig
 
+        defaults = BootstrapConfig()
         return BootstrapConfig(iterations=self.bootstrap_iterations, minutes=self.bootstrap_minutes,
-                               k=self.k or None, l=self.l or None,
-                               prior_minutes=self.prior_minutes).validate()
+                               k=self.k or None, l=self.l or None, prior_minutes=self.prior_minutes,
+                               eval_every=VIEWER_EVAL_EVERY,
+                               log_every=math.gcd(defaults.log_every, VIEWER_EVAL_EVERY)).validate()
 
 
 def train_job_for(source, settings: JobSettings | None = None):

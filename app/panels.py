@@ -7,13 +7,28 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from .jobs import start_bootstrap
+from .progress import eta_seconds, format_duration
 from .runs import can_resume
-from .settings import RENDER_MODES
+from .settings import MAX_TRAINING_UTILISATION, RENDER_MODES
+
+PANEL_MARGIN = 10
+PANEL_WIDTH = 400
+PANEL_MIN_WIDTH = 300
+
+# The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
+PLOTS = (("training loss", "loss", ("loss", "l1")),
+         ("Gaussians", "count", ("num_gaussians",)))
 
 
 def draw_panels(viewer) -> None:
-    imgui.set_next_window_pos(imgui.ImVec2(10, 10), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(360, 620), imgui.Cond_.first_use_ever)
+    width, height = imgui.get_io().display_size
+    # The panel follows the window: full height, a width the user may drag, never past the
+    # window; long lines wrap instead of clipping.
+    imgui.set_next_window_pos(imgui.ImVec2(PANEL_MARGIN, PANEL_MARGIN), imgui.Cond_.always)
+    imgui.set_next_window_size_constraints(
+        imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
+        imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
+    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     imgui.begin("InceptionGS")
     _stats(viewer)
     if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
@@ -22,7 +37,7 @@ def draw_panels(viewer) -> None:
         _inspect(viewer)
     if imgui.collapsing_header("Flags", imgui.TreeNodeFlags_.default_open):
         _flags(viewer)
-    if imgui.collapsing_header("Training"):
+    if imgui.collapsing_header("Training", imgui.TreeNodeFlags_.default_open):
         _training(viewer)
     if imgui.collapsing_header("Edit"):
         _edit(viewer)
@@ -32,10 +47,18 @@ def draw_panels(viewer) -> None:
     imgui.end()
 
 
+def _hint(text: str) -> None:
+    """Greyed text that wraps at the panel's edge (text_disabled alone clips)."""
+    imgui.push_text_wrap_pos(0.0)
+    imgui.text_disabled(text)
+    imgui.pop_text_wrap_pos()
+
+
 def _stats(viewer) -> None:
     s = viewer.stats
-    imgui.text(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  draw {s.draw_ms:5.1f} ms")
-    imgui.text(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+    imgui.text_wrapped(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  "
+                       f"draw {s.draw_ms:5.1f} ms")
+    imgui.text_wrapped(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
     if viewer.last_gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {viewer.last_gl_error}")
 
@@ -95,9 +118,8 @@ def _inspect(viewer) -> None:
 def _flags(viewer) -> None:
     if imgui.button("flag this view (F)"):
         viewer.flag_current_view()
-    imgui.same_line()
-    imgui.text_disabled("right-click: flag a view aimed at the point")
-    imgui.text_disabled(str(viewer.flags_file))
+    _hint("right-click: flag a view aimed at the point")
+    _hint(str(viewer.flags_file))
     for index, flag in enumerate(list(viewer.flags)):
         imgui.push_id(f"flag{index}")
         if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
@@ -122,6 +144,7 @@ def _training(viewer) -> None:
     run = viewer.training
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     if run is None or not run.alive:
+        _job_settings(viewer.job_settings)
         if imgui.button("train (new run)"):
             viewer.start_training()
         if can_resume(viewer.run_dir):
@@ -142,19 +165,98 @@ def _training(viewer) -> None:
             run.control.stop.set()
     if run is None:
         return
+    settings = viewer.settings
+    _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
+                                                          0.5, MAX_TRAINING_UTILISATION, "%.2f")
     if viewer.job_out_dir is not None:
         imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
-    progress = run.progress
-    imgui.text(f"{run.state}: iteration {progress.iteration}, {progress.gaussian_count} Gaussians, "
-               f"{progress.iterations_per_second:.2f} it/s")
-    if progress.message:
-        imgui.text_wrapped(progress.message)
+    _progress(viewer, run)
+    _plots(run.progress)
+
+
+def _job_settings(settings) -> None:
+    """The job dialog: the command lines' main settings."""
+    if not imgui.tree_node("job settings"):
+        return
+    imgui.text_disabled("stage I (train)")
+    settings.minutes = _optional_minutes("time budget min", "budget", settings.minutes, 3.0)
+    _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
+    settings.iterations = max(settings.iterations, 1)
+    _, settings.downscale = imgui.input_int("downscale", settings.downscale)
+    settings.downscale = max(settings.downscale, 1)
+    protocols = ["none", "unstructured", "llff"]
+    changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
+    if changed:
+        settings.protocol = protocols[index]
+    imgui.text_disabled("stage II (bootstrap)")
+    settings.bootstrap_minutes = _optional_minutes("bootstrap budget min", "bootstrap budget",
+                                                   settings.bootstrap_minutes, 4.0)
+    _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
+    settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
+    _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
+    _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
+    settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
+    _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
+    settings.prior_minutes = max(settings.prior_minutes, 0.1)
+    imgui.tree_pop()
+
+
+def _optional_minutes(label: str, checkbox: str, minutes, default: float):
+    """A budget that can be switched off (None: run the whole schedule)."""
+    changed, on = imgui.checkbox(checkbox, minutes is not None)
+    if changed:
+        minutes = default if on else None
+    if minutes is not None:
+        imgui.same_line()
+        imgui.set_next_item_width(120)
+        _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
+        minutes = max(minutes, 0.1)
+    return minutes
+
+
+def _progress(viewer, run) -> None:
+    progress, plan = run.progress, run.plan
+    if not run.alive and viewer.job_reported:
+        imgui.text_wrapped(viewer.status)  # the closing line: time, iteration, final scores
+    else:
+        done = progress.iteration - plan.start_iteration
+        total = plan.steps
+        label = f"{run.state}: iteration {progress.iteration}"
+        if total:
+            label += f" / {plan.end_iteration}"
+            imgui.progress_bar(min(max(done / total, 0.0), 1.0), imgui.ImVec2(-1, 0), f"{done} / {total} steps")
+        imgui.text(label)
+        eta = eta_seconds(progress.iteration, plan, progress.iterations_per_second, run.elapsed_s)
+        budget = "" if plan.budget_s is None else f" of {format_duration(plan.budget_s)}"
+        imgui.text_wrapped(f"elapsed {format_duration(run.elapsed_s)}{budget}  ETA {format_duration(eta)}  "
+                   f"{progress.iterations_per_second:.2f} it/s")
+        imgui.text(f"{progress.gaussian_count} Gaussians")
+        if progress.message:
+            imgui.text_wrapped(progress.message)
     if run.error:
         imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"job failed: {run.error}")
-    if progress.history and implot.begin_plot("losses", imgui.ImVec2(-1, 160)):
-        for name, (iterations, values) in progress.history.items():
-            implot.plot_line(name, np.asarray(iterations, np.float64), np.asarray(values, np.float64))
-        implot.end_plot()
+
+
+def _plots(progress) -> None:
+    """One plot per unit (dB, loss, count), axes refitted to the data every frame."""
+    _plot(progress, "held-out PSNR", "dB", list(progress.psnr.items()), 150)
+    for title, unit, names in PLOTS:
+        _plot(progress, title, unit, [(name, progress.history[name]) for name in names if name in progress.history],
+              120)
+
+
+def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
+    """series: [(name, ([x], [y]))]. The limits drawn are kept in progress.plot_limits[title]
+    ((x min, x max), (y min, y max)), so a test can check that the axes follow the data."""
+    if not series or not implot.begin_plot(title, imgui.ImVec2(-1, height)):
+        return
+    fit = implot.AxisFlags_.auto_fit
+    implot.setup_axes("iteration", unit, fit, fit)
+    for name, (xs, ys) in series:
+        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+    limits = implot.get_plot_limits()
+    progress.plot_limits[title] = ((limits.x.min, limits.x.max), (limits.y.min, limits.y.max))
+    implot.end_plot()
 
 
 def _edit(viewer) -> None:

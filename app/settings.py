@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference")
 # The viewer's mode names -> the GL renderer's.
 GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha"}
+# training_utilisation is capped here: 1 would leave the viewer no frames at all (and divide by 0).
+MAX_TRAINING_UTILISATION = 0.98
 
 
 @dataclass
@@ -28,6 +30,10 @@ class ViewSettings:
     crop_max: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
     max_opacity: float = 0.05
     min_size: float = 0.5
+    # While a job trains, the share of the time the viewer leaves to it: after a frame that
+    # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
+    # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
+    training_utilisation: float = 0.9
 
 
 @dataclass

@@ -27,8 +27,9 @@ from .input import InputController
 from .jobs import JobSettings, resume_job_for, train_job_for
 from .live_training import LiveTraining
 from .navigation import NavigationState, default_view, estimate_up
+from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
-from .settings import GL_MODE_NAMES, FrameStats, ViewSettings
+from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
 from .sources import ViewerSource
 from .window import create_imgui, create_window
 
@@ -36,8 +37,19 @@ from .window import create_imgui, create_window
 # re-render, and the job publishes faster than software GL can draw them.
 TRAINING_REFRESH_SECONDS = 0.3
 # run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
-# (no motion, no refine pending, no job): an idle window costs no frames.
-IDLE_WAIT_SECONDS = 0.5
+# (no motion, no refine pending, no running job, no reference image awaited): an idle window
+# costs no frames. Any input event ends the wait at once; the timeout only refreshes the
+# panel's figures now and then.
+IDLE_WAIT_SECONDS = 2.0
+# While a job runs the viewer waits at most this long between frames (its snapshots show).
+MAX_TRAINING_WAIT_SECONDS = 0.5
+
+
+def read_framebuffer(screen: moderngl.Framebuffer, width: int, height: int) -> np.ndarray:
+    """The window's back buffer before the swap -> [H, W, 3] float in [0, 1], row 0 = top."""
+    data = screen.read(viewport=(0, 0, width, height), components=3, alignment=1)
+    image = np.frombuffer(data, np.uint8).reshape(height, width, 3)[::-1]
+    return image.astype(np.float32) / 255.0
 
 
 class Viewer:
@@ -75,6 +87,9 @@ class Viewer:
         self.training: LiveTraining | None = None
         self.run_dir = run_dir_of(source)  # the open run: what Resume continues, Bootstrap repairs
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
+        self.job_reported = False  # the closing line of the last job has replaced the status
+        self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
+        self.captured: np.ndarray | None = None
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self.last_motion = -1e9
         self._last_frame_time = time.perf_counter()
@@ -255,6 +270,12 @@ class Viewer:
         self.status = f"screenshot saved to {path}"
         return path
 
+    def capture_window(self) -> np.ndarray:
+        """Draw one frame and return the window as shown, panels included: [H, W, 3] float."""
+        self.capture_requested = True
+        self.step()
+        return self.captured
+
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
         """A new stage-I run (the job dialog's settings) in a fresh run folder."""
@@ -282,13 +303,25 @@ class Viewer:
 
     def start_job(self, job, out_dir: Path | None, message: str) -> None:
         """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
-        self.training = LiveTraining(job)
+        self.training = LiveTraining(job, plan=plan_of(job))
         self.training.start()
+        self.job_reported = False
         self.job_out_dir = Path(out_dir) if out_dir is not None else None
         if self.job_out_dir is not None:
             self.run_dir = self.job_out_dir
         self.status = message
         self.update_title()
+
+    def report_job_end(self) -> None:
+        """Replace the running status with the closing line: time, iteration, final scores."""
+        run = self.training
+        run.refresh_scores(force=True)
+        self.job_reported = True
+        if run.error:
+            self.status = f"{run.plan.kind} failed after {format_duration(run.elapsed_s)}: {run.error}"
+            return
+        self.status = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
+                                   final_scores(run.progress.psnr), self.job_out_dir)
 
     def update_title(self) -> None:
         """The window names the model shown: the file, or the job folder it comes from."""
@@ -305,16 +338,20 @@ class Viewer:
             return
         if self.training.state != self.title_state:
             self.update_title()  # running -> paused -> finished shows in the title
+        self.training.refresh_scores()
         now = time.perf_counter()
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and self.training.alive:
             return
+        ended = not self.training.alive  # read before the poll: the job's last publish is then in
         gaussians = self.training.poll_gaussians()
         if gaussians is not None:
             self.last_snapshot_time = now
             # A new model replaces the edit state: edits are for models at rest.
             self.edit = editing.EditState(gaussians)
             self.model_version += 1
+        if ended and not self.job_reported:
+            self.report_job_end()
 
     # --- the frame loop --------------------------------------------------------------------------
     def step(self) -> None:
@@ -336,6 +373,13 @@ class Viewer:
         self.drawing.draw_overlays(self, screen)
         if self.imgui_impl is not None:
             self.draw_ui()
+        if self.capture_requested:
+            self.captured = read_framebuffer(screen, width, height)
+            self.capture_requested = False
+            # moderngl's read of the window sets the read buffer to a colour attachment, which GL
+            # refuses for the default framebuffer (the pixels still come from the back buffer):
+            # drop that error so it is neither shown nor raised by imgui's PyOpenGL later.
+            _ = self.ctx.error
         glfw.swap_buffers(self.window)
         self.stats.frames += 1
         self._frame_times.append(time.perf_counter() - now)
@@ -350,16 +394,19 @@ class Viewer:
 
         from .panels import draw_panels  # noqa: PLC0415
 
-        # PyOpenGL (used by imgui's backend) raises on any pending GL error, even one left
-        # by an earlier draw; read it here (which clears it) and show it instead.
-        error = self.ctx.error
-        if error != "GL_NO_ERROR":
-            self.last_gl_error = error
+        self.note_gl_error()
         self.imgui_impl.process_inputs()
         imgui.new_frame()
         draw_panels(self)
         imgui.render()
         self.imgui_impl.render(imgui.get_draw_data())
+
+    def note_gl_error(self) -> None:
+        """PyOpenGL (used by imgui's backend) raises on any pending GL error, even one left by
+        an earlier draw; read it here (which clears it) and show it in the panel instead."""
+        error = self.ctx.error
+        if error != "GL_NO_ERROR":
+            self.last_gl_error = error
 
     def should_close(self) -> bool:
         return bool(glfw.window_should_close(self.window))
@@ -372,15 +419,30 @@ class Viewer:
             return False
         if now - self.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
             return False  # the refine of the last snapshot is still to come
-        if self.training is not None and self.training.alive:
-            return False
-        return self.settings.mode != "reference"
+        if self.job_running():
+            return False  # a paused job is idle: it publishes nothing
+        return self.settings.mode != "reference" or self.drawing.reference_settled()
+
+    def job_running(self) -> bool:
+        """A job is training now (started, not paused, not ended)."""
+        return self.training is not None and self.training.alive and not self.training.control.pause.is_set()
+
+    def training_frame_wait(self) -> float:
+        """Seconds to leave to a running job after a frame (ViewSettings.training_utilisation)."""
+        share = min(max(self.settings.training_utilisation, 0.0), MAX_TRAINING_UTILISATION)
+        return min(self.stats.frame_ms / 1000.0 * share / (1.0 - share), MAX_TRAINING_WAIT_SECONDS)
+
+    def wait_for_next_frame(self) -> None:
+        """Sleep until input arrives or the next frame is due; step() polls what arrived."""
+        if self.is_idle():
+            glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
+        elif self.job_running() and time.perf_counter() - self.last_motion >= STILL_SECONDS:
+            glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
 
     def run(self) -> None:
         try:
             while not self.should_close():
-                if self.is_idle():
-                    glfw.wait_events_timeout(IDLE_WAIT_SECONDS)  # step() polls what arrived
+                self.wait_for_next_frame()
                 self.step()
         finally:
             self.close()
@@ -391,6 +453,7 @@ class Viewer:
             self.training.stop(timeout=60.0)
         self.drawing.close()
         if self.imgui_impl is not None:
+            self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
             self.imgui_impl.shutdown()
             self.imgui_impl = None
         if self.window is not None:

@@ -4,6 +4,7 @@ schedule is sized as the command line sizes it; the real app under Xvfb on the d
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -11,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import JobSettings, bootstrap_job_for, start_bootstrap, train_job_for
+from inceptiongs.app.jobs import VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, start_bootstrap, train_job_for
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.errors import InputError
 
@@ -38,7 +39,10 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     ours = settings.train_config(tmp_path)
     args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
                               seed=0, no_pgsr=False)
-    assert ours == build_config(args)
+    cli = build_config(args)
+    # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
+    assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
+    assert ours.eval_every % ours.log_every == 0  # the trainer evaluates on logged steps only
     assert ours.densify_until < 15_000 and ours.minutes == 2.0
     boot = JobSettings(bootstrap_minutes=1.5, bootstrap_iterations=40, k=2, l=3, prior_minutes=0.5).bootstrap_config()
     assert (boot.minutes, boot.iterations, boot.k, boot.l, boot.prior_minutes) == (1.5, 40, 2, 3, 0.5)
@@ -139,5 +143,45 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
         viewer.step()
         assert "stopped" in viewer.title
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene, tmp_path):
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.io.images import write_png
+
+    viewer = Viewer(open_source(demo_scene), 1200, 1000)
+    try:
+        viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
+        viewer.start_training()
+        plan = viewer.training.plan
+        assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 30)
+        assert viewer.training.elapsed_s > 0 and viewer.training.progress.iterations_per_second > 0
+        _wait(viewer, lambda: not viewer.training.alive, 300)
+        viewer.step()
+        assert viewer.training.error is None, viewer.training.error
+        psnr = viewer.training.progress.psnr
+        assert psnr and all(len(iterations) >= 3 for iterations, _ in psnr.values())  # 0, 50, 70
+        # The closing line replaced "training into ...": time, iteration and the final scores.
+        assert viewer.status.startswith("training finished in ") and "at iteration 70" in viewer.status
+        last = next(iter(psnr.values()))[1][-1]
+        assert f"{last:.2f} dB" in viewer.status
+        image = viewer.capture_window()
+        write_png(tmp_path / "progress.png", image)
+        # The plots' axes follow the data: every point lies inside the drawn ranges, and the
+        # x range spans the run rather than sitting at its first point.
+        limits = viewer.training.progress.plot_limits
+        (x0, x1), (y0, y1) = limits["held-out PSNR"]
+        for iterations, values in psnr.values():
+            assert x0 <= min(iterations) and max(iterations) <= x1
+            assert y0 <= min(values) and max(values) <= y1
+        assert x1 - x0 >= 60
+        (x0, x1), _ = limits["training loss"]
+        assert x1 - x0 >= 40
     finally:
         viewer.close()

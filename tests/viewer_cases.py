@@ -1,0 +1,71 @@
+"""Shared pieces of the viewer's tests: a small synthetic model and the real app opened on it."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from inceptiongs.camera import Camera, look_at
+from inceptiongs.gaussians import Gaussians
+
+
+def synthetic_gaussians(shift: float = 0.0) -> dict:
+    """A 12 x 9 grid of coloured, slightly flattened blobs on the plane z = 0 (x, y in [-1, 1]),
+    plus a second smaller layer behind it so sorting matters. Arrays as Gaussians.numpy()."""
+    xs, ys = np.meshgrid(np.linspace(-1, 1, 12), np.linspace(-0.75, 0.75, 9))
+    front = np.stack([xs.ravel() + shift, ys.ravel(), np.zeros(xs.size)], 1)
+    back = front[::3] * 1.2 + np.array([0.05, 0.05, 0.6])
+    means = np.concatenate([front, back]).astype(np.float32)
+    n = len(means)
+    hue = np.linspace(0, 1, n, endpoint=False)
+    rgb = np.stack([0.5 + 0.4 * np.cos(2 * np.pi * hue), 0.5 + 0.4 * np.cos(2 * np.pi * (hue - 1 / 3)),
+                    0.5 + 0.4 * np.cos(2 * np.pi * (hue - 2 / 3))], 1)
+    log_scales = np.tile(np.log([0.07, 0.05, 0.01]), (n, 1))
+    angle = np.linspace(0, np.pi, n)
+    quats = np.stack([np.cos(angle / 2), np.zeros(n), np.zeros(n), np.sin(angle / 2)], 1)
+    return {"means": means, "log_scales": log_scales.astype(np.float32), "quats": quats.astype(np.float32),
+            "opacity_logits": np.full(n, 2.0, np.float32),
+            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
+
+
+def front_camera(width=160, height=120) -> Camera:
+    pose = look_at(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
+    focal = 0.9 * width
+    return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
+
+
+def write_grid_model(path: Path) -> Path:
+    """synthetic_gaussians() as a PLY at ``path``."""
+    from inceptiongs.io.ply import write_ply
+
+    write_ply(Gaussians.from_numpy(synthetic_gaussians()), path)
+    return path
+
+
+def open_viewer(source_path: Path, width: int = 640, height: int = 480, **kwargs):
+    """The real app (a GLFW window; needs the xvfb fixture) on ``source_path``."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    return Viewer(open_source(source_path), width, height, **kwargs)
+
+
+class MovingGridJob:
+    """A fake training job (the hand-off is what is tested): publishes the grid shifted a little
+    further each step, then keeps its 'checkpoint' when told to stop."""
+
+    def __init__(self):
+        self.checkpoint_written = False
+        self.steps = 0
+
+    def run(self, box, control):
+        while not control.stop.is_set():
+            if control.pause.is_set():
+                time.sleep(0.01)
+                continue
+            self.steps += 1
+            box.publish(self.steps, synthetic_gaussians(shift=0.1 * self.steps), {"loss": 1.0 / self.steps})
+            time.sleep(0.05)
+        self.checkpoint_written = True
