@@ -100,14 +100,17 @@ class FrameDrawer:
             self.draw_reference(viewer)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
-            if mode in ("rgb", "opacity"):
+            if mode == "rgb":
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
                 self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=settings.background,
                                    sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
                 self.scene_texture.flip_y = False
             else:
-                # depth and normal need normalising for display: read back, map, upload.
+                # depth and normal need normalising for display, and opacity must be the alpha
+                # image itself (draw() would composite it like colour, over the background, with
+                # the colour path's blending: a solid surface read as grey ~0.4): read back, map,
+                # upload, exactly what F12 and `inceptiongs render --mode alpha` write.
                 image = self.renderer.render(camera, GL_MODE_NAMES[mode], sh_degree_cap=settings.sh_degree_cap,
                                              splat_scale=settings.splat_scale)
                 self.scene_texture.upload(visualize(image, mode))

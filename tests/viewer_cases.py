@@ -69,3 +69,25 @@ class MovingGridJob:
             box.publish(self.steps, synthetic_gaussians(shift=0.1 * self.steps), {"loss": 1.0 / self.steps})
             time.sleep(0.05)
         self.checkpoint_written = True
+
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+# The real window's pictures that have golden images: file name -> the view settings shown.
+GOLDEN_WINDOW_SIZE = (320, 240)
+
+
+def golden_window_images(model: Path) -> dict:
+    """{golden file name: [H, W, 3] window capture} of the app on ``model`` (no panels), seen
+    from front_camera(): what scripts/regen_viewer_golden.py writes and the tests compare."""
+    from inceptiongs.app.navigation import NavigationState
+
+    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE, with_ui=False)
+    try:
+        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.settings.show_training_cameras = False
+        images = {}
+        viewer.settings.mode = "opacity"
+        images["viewer_window_opacity_320x240.png"] = viewer.capture_window()
+        return images
+    finally:
+        viewer.close()
