@@ -30,7 +30,7 @@ from .navigation import NavigationState, default_view, estimate_up
 from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
-from .sources import ViewerSource
+from .sources import PointsWorker, ViewerSource
 from .window import create_imgui, create_window
 
 # While a job trains, its snapshots replace the model at most this often: each one costs a
@@ -96,6 +96,7 @@ class Viewer:
         self._frame_times: list[float] = []
         self.with_ui = with_ui
         self.imgui_impl = create_imgui(self.window) if with_ui else None
+        self.points_worker = PointsWorker(source.scene.root) if source.points_pending else None
         self.input = InputController(self)
         self.input.install(self.window)
         self.update_title()
@@ -333,6 +334,18 @@ class Viewer:
         self.title_state = None if self.training is None else self.training.state
         glfw.set_window_title(self.window, self.title)
 
+    def take_points(self) -> None:
+        """Show the triangulated points of a scene without sparse points once they are in."""
+        worker = self.points_worker
+        if worker is None or not worker.done:
+            return
+        self.points_worker = None
+        splats, self.status = worker.result
+        if splats is not None and self.training is None:
+            self.edit = editing.EditState(splats)
+            self.model_version += 1
+            self.moved()
+
     def take_snapshot(self) -> None:
         if self.training is None:
             return
@@ -361,6 +374,7 @@ class Viewer:
         seconds = min(now - self._last_frame_time, 0.25)  # a stalled frame must not teleport
         self._last_frame_time = now
         self.input.update_fly(seconds)
+        self.take_points()
         self.take_snapshot()
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
@@ -421,6 +435,8 @@ class Viewer:
             return False  # the refine of the last snapshot is still to come
         if self.job_running():
             return False  # a paused job is idle: it publishes nothing
+        if self.points_worker is not None:
+            return False  # the triangulated points are to come
         return self.settings.mode != "reference" or self.drawing.reference_settled()
 
     def job_running(self) -> bool:
@@ -438,6 +454,8 @@ class Viewer:
             glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
         elif self.job_running() and time.perf_counter() - self.last_motion >= STILL_SECONDS:
             glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
+        elif self.points_worker is not None and time.perf_counter() - self.last_motion >= STILL_SECONDS:
+            glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
 
     def run(self) -> None:
         try:

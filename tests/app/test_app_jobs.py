@@ -185,3 +185,33 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
         assert x1 - x0 >= 40
     finally:
         viewer.close()
+
+
+@pytest.mark.gl
+def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
+    """A PLY saved in the work folder after the runs is what the scene opens next (and says so)."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    source = open_source(demo_scene)
+    if source.run_dir is None:
+        pytest.skip("needs the runs of test_train_twice_then_resume_never_overwrites (same module)")
+    viewer = Viewer(source, 320, 240)
+    try:
+        viewer.edit.select(np.arange(viewer.edit.count) % 2 == 0)
+        viewer.delete_selection()
+        shown = viewer.edit.visible_arrays()["means"]
+        saved = viewer.save_ply(demo_scene / ".inceptiongs" / "edited.ply")
+    finally:
+        viewer.close()
+    reopened = Viewer(open_source(demo_scene), 320, 240)
+    try:
+        assert reopened.source.model_path == saved and "edited.ply" in reopened.title
+        assert reopened.run_dir is None and "edited.ply" in reopened.status
+        np.testing.assert_allclose(reopened.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
+    finally:
+        reopened.close()
+    time.sleep(0.05)
+    # A run written to after the PLY is the newest again.
+    (demo_scene / ".inceptiongs" / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
+    assert open_source(demo_scene).run_dir == demo_scene / ".inceptiongs" / "runs" / "train_2"

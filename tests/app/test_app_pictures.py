@@ -57,3 +57,29 @@ def test_opacity_mode_equals_render_mode_alpha(xvfb, tmp_path):
     assert expected.max() > 0.9  # the grid is opaque in its middle: white there, as F12 shows
     mean, p99 = _difference(window, expected)
     assert mean <= 0.5 / 255 and p99 <= 2 / 255, (mean, p99)
+
+
+@pytest.mark.slow
+def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
+    """fern (LLFF, no sparse points) opened black with "0 Gaussians" under a status claiming
+    sparse points; now the window opens at once and the triangulated points follow."""
+    import time
+
+    from conftest import require_data
+    from viewer_cases import open_viewer
+
+    fern = require_data("fern")
+    viewer = open_viewer(fern, 320, 240)
+    try:
+        assert viewer.edit.count == 0 and "triangulating" in viewer.status
+        deadline = time.time() + 300
+        while viewer.points_worker is not None and time.time() < deadline:
+            viewer.wait_for_next_frame()
+            viewer.step()
+        assert viewer.edit.count > 500, viewer.status
+        assert "triangulated from the photos" in viewer.status
+        viewer.step()
+        image = viewer.render_image()
+        assert (image.max(axis=2) > 0.05).mean() > 0.05  # not black: points cover the view
+    finally:
+        viewer.close()
