@@ -66,6 +66,8 @@ class InputController:
             viewer.snap_to_camera(viewer.camera_index - 1)
         elif key == glfw.KEY_R and not ctrl:
             viewer.reset_view()
+        elif key == glfw.KEY_HOME:
+            viewer.frame_model()
         elif key == glfw.KEY_T:
             viewer.settings.show_training_cameras = not viewer.settings.show_training_cameras
         elif key == glfw.KEY_O:

@@ -7,6 +7,7 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from .jobs import start_bootstrap
+from .navigation import UP_AXES, up_axis_name
 from .progress import eta_seconds, format_duration
 from .runs import can_resume
 from .settings import MAX_TRAINING_UTILISATION, RENDER_MODES
@@ -75,6 +76,16 @@ def _view(viewer) -> None:
     imgui.same_line()
     _, viewer.settings.show_flags = imgui.checkbox("flags", viewer.settings.show_flags)
     imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
+    names = list(UP_AXES)
+    current = up_axis_name(viewer.up)
+    labels = names if current is not None else names + ["tilted"]
+    changed, index = imgui.combo(f"up, {viewer.up_source}", names.index(current) if current else len(names),
+                                 labels)
+    if changed and index < len(names):
+        viewer.set_up(UP_AXES[names[index]])
+    if imgui.button("frame the model (Home)"):
+        viewer.frame_model()
+    imgui.same_line()
     if imgui.button("reset view (R)"):
         viewer.reset_view()
     if viewer.cameras:

@@ -26,7 +26,7 @@ from .images import visualize
 from .input import InputController
 from .jobs import JobSettings, resume_job_for, train_job_for
 from .live_training import LiveTraining
-from .navigation import NavigationState, default_view, estimate_up
+from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up
 from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
@@ -69,7 +69,9 @@ class Viewer:
         self.edit = editing.EditState(source.gaussians)
         self.model_version = 1
         self.cameras = source.cameras
-        self.up = estimate_up(self.cameras)
+        # Up: the cameras' mean up, else the model's dominant plane; the View panel may change it.
+        self.up = estimate_up(self.cameras) if self.cameras else model_up(source.gaussians["means"])
+        self.up_source = "from the cameras" if self.cameras else "from the model"
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
@@ -155,6 +157,24 @@ class Viewer:
 
     def reset_view(self) -> None:
         self.nav = self.home.copy()
+        self.moved()
+
+    def set_up(self, up) -> None:
+        """A new world up [3] (the View panel's +-X/Y/Z): the view and home are re-levelled."""
+        self.up = np.asarray(up, np.float64)
+        self.up_source = "chosen"
+        if self.cameras:
+            self.nav = leveled(self.nav, self.up)
+            self.home = leveled(self.home, self.up)
+        else:  # no camera to keep: the home view is the default view for the new up
+            self.home = self.initial_view()
+            self.nav = self.home.copy()
+        self.moved()
+
+    def frame_model(self) -> None:
+        """Fit the view to the model's robust bounds, looking the same way; pivot at its centre."""
+        width, height = self.framebuffer_size
+        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width / height)
         self.moved()
 
     def set_pivot_at_pixel(self, x: float, y: float) -> None:

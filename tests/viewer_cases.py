@@ -36,6 +36,31 @@ def front_camera(width=160, height=120) -> Camera:
     return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
 
 
+def synthetic_table() -> dict:
+    """A grey disc of radius 1 on the plane z = 0 (a table top, its normal +Z) with a red block
+    standing on it at z in [0.1, 0.5]: the model's up is +Z, and an upright view shows the red
+    above the grey. Arrays as Gaussians.numpy()."""
+    rng = np.random.default_rng(3)
+    angle, radius = rng.uniform(0, 2 * np.pi, 900), np.sqrt(rng.uniform(0, 1, 900))
+    disc = np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.normal(0, 0.005, 900)], 1)
+    block = np.stack([rng.uniform(-0.15, 0.15, 200), rng.uniform(-0.15, 0.15, 200), rng.uniform(0.1, 0.5, 200)], 1)
+    means = np.concatenate([disc, block]).astype(np.float32)
+    rgb = np.concatenate([np.full((900, 3), 0.6), np.tile([0.9, 0.1, 0.1], (200, 1))])
+    n = len(means)
+    return {"means": means, "log_scales": np.full((n, 3), np.log(0.05), np.float32),
+            "quats": np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+            "opacity_logits": np.full(n, 3.0, np.float32),
+            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
+
+
+def write_table_model(path: Path) -> Path:
+    """synthetic_table() as a PLY at ``path``."""
+    from inceptiongs.io.ply import write_ply
+
+    write_ply(Gaussians.from_numpy(synthetic_table()), path)
+    return path
+
+
 def write_grid_model(path: Path) -> Path:
     """synthetic_gaussians() as a PLY at ``path``."""
     from inceptiongs.io.ply import write_ply
@@ -50,6 +75,14 @@ def open_viewer(source_path: Path, width: int = 640, height: int = 480, **kwargs
     from inceptiongs.app.viewer import Viewer
 
     return Viewer(open_source(source_path), width, height, **kwargs)
+
+
+def open_grid_viewer(source_path: Path, width: int = 640, height: int = 480, **kwargs):
+    """open_viewer on the synthetic grid, seen from the front: the grid is a wall (its plane's
+    normal, which the viewer would take as up, is horizontal), so -Y is chosen as up."""
+    viewer = open_viewer(source_path, width, height, **kwargs)
+    viewer.set_up((0.0, -1.0, 0.0))
+    return viewer
 
 
 class MovingGridJob:
@@ -88,6 +121,12 @@ def golden_window_images(model: Path) -> dict:
         images = {}
         viewer.settings.mode = "opacity"
         images["viewer_window_opacity_320x240.png"] = viewer.capture_window()
-        return images
     finally:
         viewer.close()
+    # Orientation: a model without cameras opens upright (its up from its dominant plane).
+    viewer = open_viewer(write_table_model(Path(model).with_name("table.ply")), *GOLDEN_WINDOW_SIZE, with_ui=False)
+    try:
+        images["viewer_window_table_up_320x240.png"] = viewer.capture_window()
+    finally:
+        viewer.close()
+    return images

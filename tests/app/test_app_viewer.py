@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import GOLDEN, MovingGridJob, front_camera, open_viewer, write_grid_model
+from viewer_cases import GOLDEN, MovingGridJob, front_camera, open_grid_viewer, write_grid_model
 
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
@@ -135,7 +135,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
     from inceptiongs.app import editing
     from inceptiongs.io.flags import load_flags
 
-    viewer = open_viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         # The F key, as GLFW delivers it.
@@ -168,7 +168,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         assert abs(point[2]) < 0.1
         # Reloaded on start.
         viewer.close()
-        viewer = open_viewer(model)
+        viewer = open_grid_viewer(model)
         assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
         viewer.delete_flag(0)
         viewer.rename_flag(0, "bad corner")
@@ -179,7 +179,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
 
 def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
     job = MovingGridJob()
-    viewer = open_viewer(model, job_factory=lambda source: job)
+    viewer = open_grid_viewer(model, job_factory=lambda source: job)
     try:
         viewer.step()
         viewer.start_training()
@@ -212,7 +212,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
         def run(self, box, control):
             raise ValueError("CUDA out of memory (pretend)")
 
-    viewer = open_viewer(model, job_factory=lambda source: Broken())
+    viewer = open_grid_viewer(model, job_factory=lambda source: Broken())
     try:
         viewer.start_training()
         viewer.training._thread.join(10)
@@ -228,7 +228,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
 def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
     from inceptiongs.io.ply import read_ply
 
-    viewer = open_viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         total = viewer.edit.count
@@ -254,7 +254,7 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
 def test_navigation_keys_move_the_camera(xvfb, model):
     import glfw
 
-    viewer = open_viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         start = viewer.nav.center.copy()
