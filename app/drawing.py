@@ -40,6 +40,8 @@ TRAINING_COLOR = (0.2, 0.6, 1.0)
 FLAG_COLOR = (1.0, 0.3, 0.2)
 SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
 CROP_COLOR = (0.3, 1.0, 0.3)
+# Flags closer to the current camera than this many frustum depths are not drawn.
+FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
@@ -169,11 +171,16 @@ class FrameDrawer:
         if settings.show_training_cameras and viewer.cameras:
             segments = segments_for_cameras(viewer.cameras, depth)
             self.overlay.draw_segments(camera, segments, np.tile(TRAINING_COLOR, (len(segments), 1)))
-        if settings.show_flags and flags:
-            segments = segments_for_cameras([f.camera for f in flags], depth * 1.5)
+        # A flag made where the camera stands would be drawn around the eye, its lines across the
+        # whole window: flags that close are left out until the camera moves away.
+        shown = [i for i, f in enumerate(flags)
+                 if np.linalg.norm(f.camera.center - camera.center) > FLAG_HIDE_DISTANCE * depth]
+        if settings.show_flags and shown:
+            segments = segments_for_cameras([flags[i].camera for i in shown], depth * 1.5)
             colors = np.tile(FLAG_COLOR, (len(segments), 1))
-            if 0 <= viewer.selected_flag < len(flags):
-                colors[8 * viewer.selected_flag: 8 * viewer.selected_flag + 8] = SELECTED_FLAG_COLOR
+            if viewer.selected_flag in shown:
+                slot = shown.index(viewer.selected_flag)
+                colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
         if settings.crop_enabled:
             self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),

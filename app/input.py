@@ -18,6 +18,8 @@ from .window import ui_wants_keyboard, ui_wants_mouse
 # Two left presses within this time and this many pixels form a double-click.
 DOUBLE_CLICK_SECONDS = 0.35
 DOUBLE_CLICK_PIXELS = 4.0
+# The lasso takes a new corner once the cursor has moved this far from the last one.
+LASSO_STEP_PIXELS = 3.0
 
 
 class InputController:
@@ -30,6 +32,7 @@ class InputController:
         self.last_cursor = None
         self.last_click = (-1e9, 0.0, 0.0)
         self.dragging_button = None
+        self.lasso: list[tuple[float, float]] = []  # the lasso being drawn (window positions)
 
     def install(self, window) -> None:
         glfw.set_key_callback(window, self.on_key)
@@ -104,9 +107,13 @@ class InputController:
         if self.dragging_button == glfw.MOUSE_BUTTON_LEFT:
             tool = viewer.settings.edit_tool
             if tool == "brush":
-                viewer.brush_select(x, y)
+                viewer.brush_select(x, y, stroke_start=False)
             elif tool == "rectangle":
-                pass  # the rectangle is applied on release
+                pass  # the rectangle is applied on release (the panels draw it meanwhile)
+            elif tool == "lasso":
+                last = self.lasso[-1] if self.lasso else (math.inf, math.inf)
+                if math.hypot(x - last[0], y - last[1]) >= LASSO_STEP_PIXELS:
+                    self.lasso.append((x, y))
             elif viewer.settings.orbit:
                 viewer.nav.orbit(dx, dy)
                 viewer.moved()
@@ -123,9 +130,12 @@ class InputController:
             viewer.imgui_impl.io.add_mouse_button_event(button, action == glfw.PRESS)
         x, y = glfw.get_cursor_pos(window) if self.last_cursor is None else self.last_cursor
         if action == glfw.RELEASE:
-            if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button
-                    and viewer.settings.edit_tool == "rectangle" and self.drag_start is not None):
-                viewer.rectangle_select(self.drag_start, (x, y))
+            if button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None:
+                if viewer.settings.edit_tool == "rectangle":
+                    viewer.rectangle_select(self.drag_start, (x, y))
+                elif viewer.settings.edit_tool == "lasso":
+                    viewer.lasso_select(self.lasso + [(x, y)])
+            self.lasso = []
             self.dragging_button = None
             return
         if ui_wants_mouse(viewer.imgui_impl):
@@ -144,6 +154,8 @@ class InputController:
                 now = -1e9  # a third click starts a new pair
             elif viewer.settings.edit_tool == "brush":
                 viewer.brush_select(x, y)
+            elif viewer.settings.edit_tool == "lasso":
+                self.lasso = [(x, y)]
             self.last_click = (now, x, y)
 
     def update_fly(self, seconds: float) -> None:

@@ -6,12 +6,14 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
+from .drawing import SELECTION_COLOR
 from .jobs import start_bootstrap
 from .navigation import UP_AXES, up_axis_name
 from .progress import eta_seconds, format_duration
 from .runs import can_resume
-from .settings import MAX_TRAINING_UTILISATION, RENDER_MODES
+from .settings import EDIT_TOOLS, MAX_TRAINING_UTILISATION, RENDER_MODES
 
+TOOL_LINE_WIDTH = 2.0
 PANEL_MARGIN = 10
 PANEL_WIDTH = 400
 PANEL_MIN_WIDTH = 300
@@ -19,6 +21,30 @@ PANEL_MIN_WIDTH = 300
 # The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
 PLOTS = (("training loss", "loss", ("loss", "l1")),
          ("Gaussians", "count", ("num_gaussians",)))
+
+
+def draw_tool_feedback(viewer) -> None:
+    """What the edit tool will select, drawn over the scene: the rectangle being dragged, the
+    brush circle at the cursor, the lasso's path."""
+    tool, controls = viewer.settings.edit_tool, viewer.input
+    cursor = controls.last_cursor
+    if tool == "none" or cursor is None:
+        return
+    draw = imgui.get_foreground_draw_list()
+    color = imgui.get_color_u32(imgui.ImVec4(*SELECTION_COLOR, 1.0))
+    dragging = controls.dragging_button is not None and controls.drag_start is not None
+    if tool == "rectangle" and dragging:
+        (x0, y0), (x1, y1) = controls.drag_start, cursor
+        draw.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), color,
+                      0.0, TOOL_LINE_WIDTH)
+    elif tool == "brush":
+        # The brush radius is in framebuffer pixels; the cursor in window pixels.
+        scale = viewer.window_to_framebuffer(1.0, 1.0)[0]
+        draw.add_circle(imgui.ImVec2(*cursor), viewer.settings.brush_radius / max(scale, 1e-6), color, 0,
+                        TOOL_LINE_WIDTH)
+    elif tool == "lasso" and dragging and controls.lasso:
+        points = [imgui.ImVec2(x, y) for x, y in controls.lasso + [cursor]]
+        draw.add_polyline(points, color, TOOL_LINE_WIDTH, 0)
 
 
 def draw_panels(viewer) -> None:
@@ -30,6 +56,7 @@ def draw_panels(viewer) -> None:
         imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
         imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
+    draw_tool_feedback(viewer)
     imgui.begin("InceptionGS")
     _stats(viewer)
     if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
@@ -272,7 +299,7 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
 
 def _edit(viewer) -> None:
     settings = viewer.settings
-    tools = ["none", "rectangle", "brush"]
+    tools = list(EDIT_TOOLS)
     changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]

@@ -12,6 +12,9 @@ GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": 
 MAX_TRAINING_UTILISATION = 0.98
 
 
+EDIT_TOOLS = ("none", "rectangle", "brush", "lasso")
+
+
 @dataclass
 class ViewSettings:
     mode: str = "rgb"
@@ -22,7 +25,7 @@ class ViewSettings:
     show_training_cameras: bool = True
     show_flags: bool = True
     orbit: bool = False
-    edit_tool: str = "none"  # "none" | "rectangle" | "brush"
+    edit_tool: str = "none"  # one of EDIT_TOOLS
     brush_radius: float = 30.0
     selection_mode: str = "replace"
     crop_enabled: bool = False

@@ -231,11 +231,19 @@ class Viewer:
         b = self.window_to_framebuffer(*corner_b)
         self.edit.select(editing.select_rectangle(pixels, a, b), self.settings.selection_mode)
 
-    def brush_select(self, x: float, y: float) -> None:
+    def lasso_select(self, points) -> None:
+        """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""
+        pixels, _ = self.projected_means()
+        polygon = np.array([self.window_to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
+        self.edit.select(editing.select_lasso(pixels, polygon), self.settings.selection_mode)
+
+    def brush_select(self, x: float, y: float, stroke_start: bool = True) -> None:
+        """One dab of the brush; a drag's later dabs join its first one's undo step."""
         pixels, _ = self.projected_means()
         center = self.window_to_framebuffer(x, y)
         mode = "add" if self.settings.selection_mode == "replace" else self.settings.selection_mode
-        self.edit.select(editing.select_brush(pixels, center, self.settings.brush_radius), mode)
+        self.edit.select(editing.select_brush(pixels, center, self.settings.brush_radius), mode,
+                         record=stroke_start)
 
     def threshold_select(self) -> None:
         base = self.edit.base
