@@ -71,6 +71,8 @@ class InputController:
             viewer.reset_view()
         elif key == glfw.KEY_HOME:
             viewer.frame_model()
+        elif key in (glfw.KEY_H, glfw.KEY_F1):
+            viewer.show_help = not viewer.show_help
         elif key == glfw.KEY_T:
             viewer.settings.show_training_cameras = not viewer.settings.show_training_cameras
         elif key == glfw.KEY_O:

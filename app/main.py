@@ -9,11 +9,15 @@ from inceptiongs.errors import InputError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .settings import bindings_text  # noqa: PLC0415 (plain data: keeps --help fast)
+
     parser = argparse.ArgumentParser(
         prog="inceptiongs-viewer",
-        description="View, inspect, flag, train and edit a Gaussian-splat scene.")
+        description="View, inspect, flag, train and edit a Gaussian-splat scene.",
+        epilog="keys and mouse in the window (also H / F1 there):\n" + bindings_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", help="a scene folder, a model .ply or a training run folder")
-    parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (PNG) and exit")
+    parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (format from its extension: .png, .jpg, ...) and exit")
     parser.add_argument("--camera", metavar="JSON", help="camera for --screenshot (default: first training camera)")
     parser.add_argument("--size", metavar="WxH", help="image size for --screenshot / window size")
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")

@@ -11,7 +11,7 @@ from .jobs import start_bootstrap
 from .navigation import UP_AXES, up_axis_name
 from .progress import eta_seconds, format_duration
 from .runs import can_resume
-from .settings import EDIT_TOOLS, MAX_TRAINING_UTILISATION, RENDER_MODES
+from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, RENDER_MODES
 
 TOOL_LINE_WIDTH = 2.0
 PANEL_MARGIN = 10
@@ -59,6 +59,8 @@ def draw_panels(viewer) -> None:
     draw_tool_feedback(viewer)
     imgui.begin("InceptionGS")
     _stats(viewer)
+    if imgui.small_button("keys and mouse (H)"):
+        viewer.show_help = not viewer.show_help
     if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
         _view(viewer)
     if imgui.collapsing_header("Inspect", imgui.TreeNodeFlags_.default_open):
@@ -72,6 +74,26 @@ def draw_panels(viewer) -> None:
     if viewer.status:
         imgui.separator()
         imgui.text_wrapped(viewer.status)
+    imgui.end()
+    if viewer.show_help:
+        _help(viewer)
+
+
+def _help(viewer) -> None:
+    """The key bindings, over the middle of the window (H / F1 or its close button hides it)."""
+    width, height = imgui.get_io().display_size
+    imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+    imgui.set_next_window_bg_alpha(0.92)
+    opened, viewer.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
+    if opened:
+        if imgui.begin_table("bindings", 2):
+            for keys, action in KEY_BINDINGS:
+                imgui.table_next_row()
+                imgui.table_next_column()
+                imgui.text(keys)
+                imgui.table_next_column()
+                imgui.text(action)
+            imgui.end_table()
     imgui.end()
 
 

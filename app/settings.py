@@ -13,6 +13,32 @@ MAX_TRAINING_UTILISATION = 0.98
 
 
 EDIT_TOOLS = ("none", "rectangle", "brush", "lasso")
+# What the keys and buttons do (input.py), shown by the help overlay (H / F1) and --help.
+KEY_BINDINGS = (
+    ("W A S D, Q / E", "fly forward / left / back / right, up / down (Shift: x4)"),
+    ("left drag", "look around (fly) or orbit the pivot (orbit mode); with an edit tool: select"),
+    ("middle drag", "pan"),
+    ("scroll", "fly speed (fly) / zoom to the pivot (orbit)"),
+    ("double-click", "orbit around the surface point under the cursor"),
+    ("O", "orbit mode on / off"),
+    ("Home", "frame the model"),
+    ("R", "reset the view"),
+    ("N / P (PageDown / PageUp)", "next / previous training camera"),
+    ("T", "training-camera frustums on / off"),
+    ("1 2 3 4 5", "mode: rgb, depth, normal, opacity, reference"),
+    ("F", "flag the current view"),
+    ("right-click", "flag a view aimed at the clicked surface"),
+    ("Delete", "delete the selection"),
+    ("Ctrl+Z / Ctrl+Y", "undo / redo (selections, deletions, crops)"),
+    ("F12", "screenshot of the scene at window size"),
+    ("H / F1", "this help"),
+)
+
+
+def bindings_text(indent: str = "  ") -> str:
+    """KEY_BINDINGS as aligned lines of text."""
+    width = max(len(keys) for keys, _ in KEY_BINDINGS)
+    return "\n".join(f"{indent}{keys:<{width}}  {action}" for keys, action in KEY_BINDINGS)
 
 
 @dataclass

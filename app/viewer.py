@@ -18,7 +18,7 @@ from inceptiongs.camera import Camera
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io import flags as flag_io
-from inceptiongs.io.images import write_png
+from inceptiongs.io.images import write_image
 
 from . import editing, flags as flagging
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
@@ -90,6 +90,7 @@ class Viewer:
         self.run_dir = run_dir_of(source)  # the open run: what Resume continues, Bootstrap repairs
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
+        self.show_help = False  # the key-bindings overlay (H / F1)
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
@@ -295,7 +296,7 @@ class Viewer:
             path = self.source.work_dir / "screenshots" / f"view-{stamp}.png"
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_png(path, self.render_image())
+        write_image(path, self.render_image())  # at window size, in the extension's format
         self.status = f"screenshot saved to {path}"
         return path
 
