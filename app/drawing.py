@@ -15,6 +15,7 @@ import numpy as np
 from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
+from .editing import box_handles
 from .frustums import segments_for_cameras
 from .images import visualize
 from .overlay import OverlayRenderer, SceneTexture
@@ -40,6 +41,7 @@ TRAINING_COLOR = (0.2, 0.6, 1.0)
 FLAG_COLOR = (1.0, 0.3, 0.2)
 SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
 CROP_COLOR = (0.3, 1.0, 0.3)
+CROP_HANDLE_SIZE = 9.0  # pixels: the face handles one drags
 # Flags closer to the current camera than this many frustum depths are not drawn.
 FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
@@ -185,6 +187,8 @@ class FrameDrawer:
         if settings.crop_enabled:
             self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),
                                        np.tile(CROP_COLOR, (12, 1)))
+            self.overlay.draw_points(camera, box_handles(settings.crop_min, settings.crop_max), CROP_COLOR,
+                                     size=CROP_HANDLE_SIZE)
         if edit.selected.any():
             self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
 

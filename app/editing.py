@@ -67,6 +67,29 @@ def select_lasso(pixels: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return inside
 
 
+def box_handles(box_min, box_max) -> np.ndarray:
+    """The 6 face centres [6, 3] of a box, in the order -x, +x, -y, +y, -z, +z (handle k moves
+    face k: axis k // 2, the max side when k is odd)."""
+    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    center = 0.5 * (lo + hi)
+    handles = np.repeat(center[None], 6, axis=0)
+    for k in range(6):
+        handles[k, k // 2] = (hi if k % 2 else lo)[k // 2]
+    return handles
+
+
+def drag_box_face(box_min, box_max, handle: int, amount: float) -> tuple[list, list]:
+    """Move face ``handle`` (box_handles order) by ``amount`` along its axis; the face stops at
+    the opposite one (a box never turns inside out)."""
+    lo, hi = [float(v) for v in box_min], [float(v) for v in box_max]
+    axis = handle // 2
+    if handle % 2:
+        hi[axis] = max(hi[axis] + amount, lo[axis])
+    else:
+        lo[axis] = min(lo[axis] + amount, hi[axis])
+    return lo, hi
+
+
 def sigmoid_opacity(opacity_logits: np.ndarray) -> np.ndarray:
     """[N] logits -> opacities in (0, 1); clamped like the renderers so exp() cannot overflow."""
     logits = np.clip(opacity_logits.astype(np.float64), -OPACITY_LOGIT_ABS_MAX, OPACITY_LOGIT_ABS_MAX)

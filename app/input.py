@@ -33,6 +33,7 @@ class InputController:
         self.last_click = (-1e9, 0.0, 0.0)
         self.dragging_button = None
         self.lasso: list[tuple[float, float]] = []  # the lasso being drawn (window positions)
+        self.crop_handle: int | None = None  # the crop-box face being dragged
 
     def install(self, window) -> None:
         glfw.set_key_callback(window, self.on_key)
@@ -108,7 +109,9 @@ class InputController:
         dx, dy = x - previous[0], y - previous[1]
         if self.dragging_button == glfw.MOUSE_BUTTON_LEFT:
             tool = viewer.settings.edit_tool
-            if tool == "brush":
+            if self.crop_handle is not None:
+                viewer.drag_crop_handle(self.crop_handle, previous, (x, y))
+            elif tool == "brush":
                 viewer.brush_select(x, y, stroke_start=False)
             elif tool == "rectangle":
                 pass  # the rectangle is applied on release (the panels draw it meanwhile)
@@ -132,12 +135,14 @@ class InputController:
             viewer.imgui_impl.io.add_mouse_button_event(button, action == glfw.PRESS)
         x, y = glfw.get_cursor_pos(window) if self.last_cursor is None else self.last_cursor
         if action == glfw.RELEASE:
-            if button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None:
+            if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None
+                    and self.crop_handle is None):
                 if viewer.settings.edit_tool == "rectangle":
                     viewer.rectangle_select(self.drag_start, (x, y))
                 elif viewer.settings.edit_tool == "lasso":
                     viewer.lasso_select(self.lasso + [(x, y)])
             self.lasso = []
+            self.crop_handle = None
             self.dragging_button = None
             return
         if ui_wants_mouse(viewer.imgui_impl):
@@ -149,6 +154,9 @@ class InputController:
         self.dragging_button = button
         self.drag_start = (x, y)
         if button == glfw.MOUSE_BUTTON_LEFT:
+            self.crop_handle = viewer.crop_handle_at(x, y)  # a handle wins over tools and looking
+            if self.crop_handle is not None:
+                return
             then, px, py = self.last_click
             now = time.perf_counter()
             if now - then < DOUBLE_CLICK_SECONDS and math.hypot(x - px, y - py) < DOUBLE_CLICK_PIXELS:

@@ -344,12 +344,17 @@ def _edit(viewer) -> None:
     imgui.same_line()
     if imgui.button("redo (Ctrl+Y)"):
         viewer.redo()
-    _, settings.crop_enabled = imgui.checkbox("crop box", settings.crop_enabled)
+    changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
+    if changed:
+        viewer.enable_crop(enabled)
     if settings.crop_enabled:
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
         if imgui.button("crop to box"):
             viewer.apply_crop()
+        imgui.same_line()
+        if imgui.button("fit to the model"):
+            viewer.fit_crop_box()
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
     if imgui.button("save PLY"):
         try:

@@ -28,6 +28,7 @@ KEY_BINDINGS = (
     ("1 2 3 4 5", "mode: rgb, depth, normal, opacity, reference"),
     ("F", "flag the current view"),
     ("right-click", "flag a view aimed at the clicked surface"),
+    ("left drag a crop handle", "move that face of the crop box"),
     ("Delete", "delete the selection"),
     ("Ctrl+Z / Ctrl+Y", "undo / redo (selections, deletions, crops)"),
     ("F12", "screenshot of the scene at window size"),
@@ -55,8 +56,8 @@ class ViewSettings:
     brush_radius: float = 30.0
     selection_mode: str = "replace"
     crop_enabled: bool = False
-    crop_min: list = field(default_factory=lambda: [-1.0, -1.0, -1.0])
-    crop_max: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    crop_min: list | None = None  # None: fitted to the model when the box is first shown
+    crop_max: list | None = None
     max_opacity: float = 0.05
     min_size: float = 0.5
     # While a job trains, the share of the time the viewer leaves to it: after a frame that

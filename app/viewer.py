@@ -41,6 +41,8 @@ TRAINING_REFRESH_SECONDS = 0.3
 # costs no frames. Any input event ends the wait at once; the timeout only refreshes the
 # panel's figures now and then.
 IDLE_WAIT_SECONDS = 2.0
+# A crop-box handle is grabbed within this many pixels of the cursor.
+CROP_HANDLE_PIXELS = 12.0
 # While a job runs the viewer waits at most this long between frames (its snapshots show).
 MAX_TRAINING_WAIT_SECONDS = 0.5
 
@@ -255,6 +257,49 @@ class Viewer:
     def delete_selection(self) -> None:
         if self.edit.delete_selected():
             self.status = f"deleted; {self.edit.count} Gaussians left"
+
+    def fit_crop_box(self) -> None:
+        """The crop box around the model's robust bounds (2-98 % of the shown means, 5 % margin)."""
+        means = self.edit.visible_arrays()["means"]
+        if len(means) == 0:
+            return
+        lo, hi = np.percentile(means, [2, 98], axis=0)
+        margin = 0.05 * (hi - lo)
+        self.settings.crop_min, self.settings.crop_max = (lo - margin).tolist(), (hi + margin).tolist()
+
+    def enable_crop(self, enabled: bool = True) -> None:
+        """Show the crop box; the first time, fitted to the model (not a fixed +-1)."""
+        if enabled and self.settings.crop_min is None:
+            self.fit_crop_box()
+        self.settings.crop_enabled = enabled and self.settings.crop_min is not None
+
+    def crop_handle_at(self, x: float, y: float) -> int | None:
+        """The crop-box handle (editing.box_handles index) within CROP_HANDLE_PIXELS of window
+        position (x, y), nearest first; None when the box is hidden or none is that close."""
+        if not self.settings.crop_enabled:
+            return None
+        pixels, _ = editing.project_means(editing.box_handles(self.settings.crop_min, self.settings.crop_max),
+                                          self.current_camera())
+        distance = np.hypot(*(pixels - np.array(self.window_to_framebuffer(x, y))).T)
+        distance = np.where(np.isnan(distance), np.inf, distance)
+        best = int(np.argmin(distance))
+        return best if distance[best] <= CROP_HANDLE_PIXELS else None
+
+    def drag_crop_handle(self, handle: int, start, end) -> None:
+        """Move a crop face by the mouse motion start -> end (window positions) projected on the
+        face's axis as the screen shows it."""
+        settings = self.settings
+        point = editing.box_handles(settings.crop_min, settings.crop_max)[handle]
+        axis = np.eye(3)[handle // 2]
+        step = max(float(np.max(np.subtract(settings.crop_max, settings.crop_min))) * 0.01, 1e-6)
+        pixels, _ = editing.project_means(np.stack([point, point + axis * step]), self.current_camera())
+        screen_axis = (pixels[1] - pixels[0]) / step  # pixels per scene unit along the axis
+        length2 = float(screen_axis @ screen_axis)
+        if not np.isfinite(length2) or length2 < 1e-9:
+            return  # the axis points at the eye: no screen direction to drag along
+        motion = np.subtract(self.window_to_framebuffer(*end), self.window_to_framebuffer(*start))
+        settings.crop_min, settings.crop_max = editing.drag_box_face(
+            settings.crop_min, settings.crop_max, handle, float(motion @ screen_axis) / length2)
 
     def apply_crop(self) -> None:
         if self.edit.crop(np.array(self.settings.crop_min), np.array(self.settings.crop_max)):

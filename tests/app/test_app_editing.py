@@ -94,3 +94,34 @@ def test_a_flag_made_here_draws_no_lines_across_the_window(viewer):
     viewer.nav.center = viewer.nav.center - 2.0 * viewer.nav.rotation[2] - 0.8 * viewer.nav.rotation[0]
     flag_red = (lambda im: (im[..., 0] > 0.9) & (np.abs(im[..., 1] - 0.3) < 0.1))(viewer.capture_window())
     assert flag_red[:, 420:].sum() >= 20
+
+
+def test_crop_box_fits_the_model_and_its_handles_drag(xvfb, tmp_path):
+    from inceptiongs.app.editing import box_handles, project_means
+    from viewer_cases import open_viewer, write_table_model
+
+    viewer = open_viewer(write_table_model(tmp_path / "table.ply"), 900, 600)
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.nav.center = viewer.nav.center - 1.2 * viewer.nav.rotation[0]  # the model right of the panel
+        viewer.enable_crop()
+        lo, hi = np.array(viewer.settings.crop_min), np.array(viewer.settings.crop_max)
+        # Fitted to the table (x, y in [-1, 1], z in [0, 0.5]), not a fixed +-1 cube.
+        assert -1.2 < lo[0] < -0.8 and 0.8 < hi[0] < 1.2 and -0.1 < lo[2] < 0.05 and 0.4 < hi[2] < 0.6
+        handles, _ = project_means(box_handles(lo, hi), viewer.current_camera())
+        image = viewer.capture_window()
+        x, y = handles[5]  # the top face's handle: drawn as a green square
+        patch = image[int(y) - 2: int(y) + 3, int(x) - 2: int(x) + 3]
+        assert ((patch[..., 1] > 0.8) & (patch[..., 0] < 0.5)).any()
+        # Drag the top face's handle up by 40 px: the box grows upward, nothing else moves.
+        _press(viewer, x, y)
+        assert viewer.input.crop_handle == 5
+        viewer.input.on_cursor(viewer.window, x, y - 40)
+        _release(viewer)
+        new_lo, new_hi = np.array(viewer.settings.crop_min), np.array(viewer.settings.crop_max)
+        assert new_hi[2] > hi[2] + 0.05
+        np.testing.assert_allclose(new_lo, lo)
+        np.testing.assert_allclose(new_hi[:2], hi[:2])
+        assert not viewer.edit.selected.any()  # grabbing a handle did not look around or select
+    finally:
+        viewer.close()

@@ -364,3 +364,12 @@ def test_lasso_selects_inside_the_polygon():
     inside = editing.select_lasso(np.array([[1.0, 5.0], [6.0, 5.0], [6.0, 1.0]]), c_shape)
     assert inside.tolist() == [True, False, True]
     assert not editing.select_lasso(pixels, triangle[:2]).any()
+
+
+def test_box_handles_and_face_drag():
+    handles = editing.box_handles([0, 0, 0], [2, 4, 6])
+    np.testing.assert_allclose(handles, [[0, 2, 3], [2, 2, 3], [1, 0, 3], [1, 4, 3], [1, 2, 0], [1, 2, 6]])
+    lo, hi = editing.drag_box_face([0, 0, 0], [2, 4, 6], 3, 1.5)
+    assert (lo, hi) == ([0, 0, 0], [2, 5.5, 6])
+    lo, hi = editing.drag_box_face([0, 0, 0], [2, 4, 6], 0, 5.0)  # past the opposite face: stops there
+    assert lo[0] == 2 and hi[0] == 2
