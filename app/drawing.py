@@ -17,7 +17,7 @@ from inceptiongs.evaluation.metrics import psnr
 
 from .editing import box_handles
 from .frustums import segments_for_cameras
-from .images import visualize
+from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .settings import GL_MODE_NAMES
@@ -97,14 +97,21 @@ class FrameDrawer:
         settings, stats = viewer.settings, viewer.stats
         mode = settings.mode
         camera = viewer.current_camera(scale)
+        photo_index = viewer.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
                camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
-               settings.splat_scale, tuple(settings.background))
+               settings.splat_scale, tuple(settings.background), settings.photo, settings.photo_alpha, photo_index)
+        photo = viewer.training_photo(photo_index) if photo_index is not None else None
         if mode == "reference":
             self.draw_reference(viewer)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
-            if mode == "rgb":
+            if photo is not None:
+                # The render with the nearest training photo: composed on the CPU, then uploaded.
+                image = self.renderer.render(camera, "rgb", background=settings.background,
+                                             sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
+                self.scene_texture.upload(compose_photo(image, photo, settings.photo, settings.photo_alpha))
+            elif mode == "rgb":
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
                 self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=settings.background,

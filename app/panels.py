@@ -11,7 +11,7 @@ from .jobs import start_bootstrap
 from .navigation import UP_AXES, up_axis_name
 from .progress import eta_seconds, format_duration
 from .runs import can_resume
-from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, RENDER_MODES
+from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
 
 TOOL_LINE_WIDTH = 2.0
 PANEL_MARGIN = 10
@@ -170,6 +170,16 @@ def _inspect(viewer) -> None:
                        + (" (updating...)" if worker is not None and worker.busy else ""))
         else:
             imgui.text("torch reference rendering...")
+    if viewer.cameras and viewer.source.scene is not None:
+        views = list(PHOTO_VIEWS)
+        changed, index = imgui.combo("training photo", views.index(settings.photo), views)
+        if changed:
+            settings.photo = views[index]
+        if settings.photo != "off":
+            nearest = viewer.nearest_camera_index(viewer.current_camera())
+            _hint(f"nearest training camera: {viewer.cameras[nearest].name}")
+            if settings.photo == "blended":
+                _, settings.photo_alpha = imgui.slider_float("photo weight", settings.photo_alpha, 0.0, 1.0)
     _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)

@@ -3,7 +3,7 @@ frame statistics the panel shows. Plain data: every other part of the viewer rea
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference")
 # The viewer's mode names -> the GL renderer's.
@@ -13,6 +13,8 @@ MAX_TRAINING_UTILISATION = 0.98
 
 
 EDIT_TOOLS = ("none", "rectangle", "brush", "lasso")
+# How the photo of the nearest training camera is shown with the rgb render (as SIBR does).
+PHOTO_VIEWS = ("off", "blended", "beside")
 # What the keys and buttons do (input.py), shown by the help overlay (H / F1) and --help.
 KEY_BINDINGS = (
     ("W A S D, Q / E", "fly forward / left / back / right, up / down (Shift: x4)"),
@@ -49,6 +51,8 @@ class ViewSettings:
     sh_degree_cap: int = 3
     splat_scale: float = 1.0
     background: tuple = (0.0, 0.0, 0.0)
+    photo: str = "off"  # one of PHOTO_VIEWS
+    photo_alpha: float = 0.5  # the photo's weight when blended
     show_training_cameras: bool = True
     show_flags: bool = True
     orbit: bool = False

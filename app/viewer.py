@@ -14,7 +14,7 @@ import glfw
 import moderngl
 import numpy as np
 
-from inceptiongs.camera import Camera
+from inceptiongs.camera import Camera, pose_distance
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io import flags as flag_io
@@ -93,6 +93,7 @@ class Viewer:
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
+        self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
@@ -147,6 +148,27 @@ class Viewer:
         if depth is None:
             return None
         return flagging.unproject_pixel(camera, int(px), int(py), depth)
+
+    # --- training photos ------------------------------------------------------------------------
+    def nearest_camera_index(self, camera: Camera) -> int | None:
+        """The training camera closest to ``camera`` (centre distance + viewing angle), or None."""
+        if not self.cameras:
+            return None
+        distances = [pose_distance(camera.world_to_camera, c.world_to_camera) for c in self.cameras]
+        return int(np.argmin(distances))
+
+    def training_photo(self, index: int) -> np.ndarray | None:
+        """The photo of training camera ``index`` [H, W, 3] in [0, 1] (the last one is kept), or
+        None when the source has no scene photos or the file cannot be read."""
+        if self.source.scene is None:
+            return None
+        if self._photo_cache[0] != index:
+            try:
+                self._photo_cache = (index, self.source.scene.load_image(index))
+            except (InputError, OSError) as exc:
+                self.status = f"training photo not shown: {exc}"
+                self._photo_cache = (index, None)
+        return self._photo_cache[1]
 
     # --- navigation actions ------------------------------------------------------------------
     def snap_to_camera(self, index: int) -> None:

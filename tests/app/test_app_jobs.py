@@ -215,3 +215,36 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
     # A run written to after the PLY is the newest again.
     (demo_scene / ".inceptiongs" / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
     assert open_source(demo_scene).run_dir == demo_scene / ".inceptiongs" / "runs" / "train_2"
+
+
+@pytest.mark.gl
+def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
+    import cv2
+
+    from inceptiongs.app.images import PHOTO_INSET_FRACTION
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    viewer = Viewer(open_source(demo_scene), 384, 288, with_ui=False)
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.snap_to_camera(3)
+        time.sleep(0.2)  # still: the full-resolution frames follow
+        viewer.step()
+        photo = viewer.source.scene.load_image(3)
+        assert viewer.nearest_camera_index(viewer.current_camera()) == 3
+        render = viewer.capture_window()
+        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 1.0
+        blended = viewer.capture_window()
+        expected = cv2.resize(photo, (384, 288), interpolation=cv2.INTER_AREA)
+        assert np.abs(blended - expected).mean() < 0.02           # the photo itself at weight 1
+        assert np.abs(render - expected).mean() > np.abs(blended - expected).mean()
+        viewer.settings.photo = "beside"
+        beside = viewer.capture_window()
+        inset_w = int(384 * PHOTO_INSET_FRACTION)
+        inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
+        inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
+        assert np.abs(beside[-inset_h:, -inset_w:] - inset).mean() < 0.02  # the photo in the corner
+        np.testing.assert_allclose(beside[:100, :150], render[:100, :150], atol=2 / 255)  # the render elsewhere
+    finally:
+        viewer.close()
