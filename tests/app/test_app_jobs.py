@@ -92,6 +92,7 @@ def demo_scene(tmp_path_factory) -> Path:
 def _wait(viewer, condition, seconds=120.0) -> None:
     deadline = time.time() + seconds
     while not condition() and time.time() < deadline:
+        viewer.wait_for_next_frame()  # as run() does: the job gets the CPU between frames
         viewer.step()
     assert condition(), viewer.status
 
