@@ -67,7 +67,7 @@ class ViewSettings:
     # While a job trains, the share of the time the viewer leaves to it: after a frame that
     # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
     # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
-    training_utilisation: float = 0.9
+    training_utilisation: float = 0.95
 
 
 @dataclass
