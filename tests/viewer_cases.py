@@ -127,6 +127,12 @@ def golden_window_images(model: Path) -> dict:
     viewer = open_viewer(write_table_model(Path(model).with_name("table.ply")), *GOLDEN_WINDOW_SIZE, with_ui=False)
     try:
         images["viewer_window_table_up_320x240.png"] = viewer.capture_window()
+        # The crop box, fitted to the model, drawn in 3-D with its face handles.
+        viewer.settings.orbit = True
+        viewer.nav.orbit(60.0, 40.0)  # from above at an angle: all three axes show
+        viewer.enable_crop()
+        viewer.frame_model()
+        images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
     finally:
         viewer.close()
     return images
