@@ -97,6 +97,15 @@ def _help(viewer) -> None:
     imgui.end()
 
 
+def _button(viewer, label: str) -> bool:
+    """imgui.button, its window rectangle kept in viewer.ui_rects[label] (x0, y0, x1, y1): a
+    test clicks it there with mouse events as GLFW delivers them."""
+    pressed = imgui.button(label)
+    low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+    viewer.ui_rects[label] = (low.x, low.y, high.x, high.y)
+    return pressed
+
+
 def _hint(text: str) -> None:
     """Greyed text that wraps at the panel's edge (text_disabled alone clips)."""
     imgui.push_text_wrap_pos(0.0)
@@ -132,23 +141,23 @@ def _view(viewer) -> None:
                                  labels)
     if changed and index < len(names):
         viewer.set_up(UP_AXES[names[index]])
-    if imgui.button("frame the model (Home)"):
+    if _button(viewer, "frame the model (Home)"):
         viewer.frame_model()
     imgui.same_line()
-    if imgui.button("reset view (R)"):
+    if _button(viewer, "reset view (R)"):
         viewer.reset_view()
     if viewer.cameras:
         imgui.same_line()
-        if imgui.button("< prev (P)"):
+        if _button(viewer, "< prev (P)"):
             viewer.snap_to_camera(viewer.camera_index - 1)
         imgui.same_line()
-        if imgui.button("next (N) >"):
+        if _button(viewer, "next (N) >"):
             viewer.snap_to_camera(viewer.camera_index + 1)
         names = [c.name for c in viewer.cameras]
         changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
         if changed:
             viewer.snap_to_camera(index)
-    if imgui.button("screenshot (F12)"):
+    if _button(viewer, "screenshot (F12)"):
         viewer.save_screenshot()
 
 
@@ -186,7 +195,7 @@ def _inspect(viewer) -> None:
 
 
 def _flags(viewer) -> None:
-    if imgui.button("flag this view (F)"):
+    if _button(viewer, "flag this view (F)"):
         viewer.flag_current_view()
     _hint("right-click: flag a view aimed at the point")
     _hint(str(viewer.flags_file))
@@ -215,23 +224,23 @@ def _training(viewer) -> None:
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     if run is None or not run.alive:
         _job_settings(viewer.job_settings)
-        if imgui.button("train (new run)"):
+        if _button(viewer, "train (new run)"):
             viewer.start_training()
         if can_resume(viewer.run_dir):
             imgui.same_line()
-            if imgui.button("resume"):
+            if _button(viewer, "resume"):
                 viewer.resume_training()
         imgui.same_line()
-        if imgui.button("Bootstrap flagged views"):
+        if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
     else:
         if run.control.pause.is_set():
-            if imgui.button("continue"):
+            if _button(viewer, "continue"):
                 run.resume()
-        elif imgui.button("pause"):
+        elif _button(viewer, "pause"):
             run.pause()
         imgui.same_line()
-        if imgui.button("stop"):
+        if _button(viewer, "stop"):
             run.control.stop.set()
     if run is None:
         return
@@ -343,16 +352,16 @@ def _edit(viewer) -> None:
         _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)
     _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
     _, settings.min_size = imgui.input_float("or size above", settings.min_size)
-    if imgui.button("select by thresholds"):
+    if _button(viewer, "select by thresholds"):
         viewer.threshold_select()
     imgui.text(f"{int(viewer.edit.selected.sum())} selected")
-    if imgui.button("delete (Del)"):
+    if _button(viewer, "delete (Del)"):
         viewer.delete_selection()
     imgui.same_line()
-    if imgui.button("undo (Ctrl+Z)"):
+    if _button(viewer, "undo (Ctrl+Z)"):
         viewer.undo()
     imgui.same_line()
-    if imgui.button("redo (Ctrl+Y)"):
+    if _button(viewer, "redo (Ctrl+Y)"):
         viewer.redo()
     changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
     if changed:
@@ -360,13 +369,13 @@ def _edit(viewer) -> None:
     if settings.crop_enabled:
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
-        if imgui.button("crop to box"):
+        if _button(viewer, "crop to box"):
             viewer.apply_crop()
         imgui.same_line()
-        if imgui.button("fit to the model"):
+        if _button(viewer, "fit to the model"):
             viewer.fit_crop_box()
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
-    if imgui.button("save PLY"):
+    if _button(viewer, "save PLY"):
         try:
             viewer.save_ply(viewer.save_path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line

@@ -93,6 +93,7 @@ class Viewer:
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
+        self.ui_rects: dict[str, tuple] = {}  # panel button -> where it was last drawn (panels.py)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
