@@ -15,8 +15,9 @@ import numpy as np
 from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
+from .editing import box_handles
 from .frustums import segments_for_cameras
-from .images import visualize
+from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .settings import GL_MODE_NAMES
@@ -40,6 +41,9 @@ TRAINING_COLOR = (0.2, 0.6, 1.0)
 FLAG_COLOR = (1.0, 0.3, 0.2)
 SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
 CROP_COLOR = (0.3, 1.0, 0.3)
+CROP_HANDLE_SIZE = 9.0  # pixels: the face handles one drags
+# Flags closer to the current camera than this many frustum depths are not drawn.
+FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
@@ -73,6 +77,7 @@ class FrameDrawer:
         self.reference = None  # ReferenceWorker, made when the reference mode is first used
         self.reference_psnr: float | None = None
         self.reference_request = None
+        self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
         self.moving_level = 0  # index into MOVING_RENDER_SCALES
 
@@ -104,20 +109,31 @@ class FrameDrawer:
         settings, stats = viewer.settings, viewer.stats
         mode = settings.mode
         camera = viewer.current_camera(scale)
+        photo_index = viewer.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
                camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
-               settings.splat_scale, tuple(settings.background))
+               settings.splat_scale, tuple(settings.background), settings.photo, settings.photo_alpha, photo_index)
+        photo = viewer.training_photo(photo_index) if photo_index is not None else None
         if mode == "reference":
             self.draw_reference(viewer)
         elif key != self.last_render_key:
-            if mode in ("rgb", "opacity", "coverage"):
+            self.reference_shown = None  # the texture is about to hold a splat render
+            if photo is not None:
+                # The render with the nearest training photo: composed on the CPU, then uploaded.
+                image = self.renderer.render(camera, "rgb", background=settings.background,
+                                             sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
+                self.scene_texture.upload(compose_photo(image, photo, settings.photo, settings.photo_alpha))
+            elif mode in ("rgb", "coverage"):
                 # Straight into the texture: draw() renders upright (GL row 0 = image bottom).
                 target = self.scene_texture.ensure(camera.width, camera.height)
                 self.renderer.draw(camera, GL_MODE_NAMES[mode], target, background=settings.background,
                                    sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
                 self.scene_texture.flip_y = False
             else:
-                # depth and normal need normalising for display: read back, map, upload.
+                # depth and normal need normalising for display, and opacity must be the alpha
+                # image itself (draw() would composite it like colour, over the background, with
+                # the colour path's blending: a solid surface read as grey ~0.4): read back, map,
+                # upload, exactly what F12 and `inceptiongs render --mode alpha` write.
                 image = self.renderer.render(camera, GL_MODE_NAMES[mode], sh_degree_cap=settings.sh_degree_cap,
                                              splat_scale=settings.splat_scale)
                 self.scene_texture.upload(visualize(image, mode))
@@ -131,22 +147,24 @@ class FrameDrawer:
         self.scene_texture.blit(screen)
 
     def draw_reference(self, viewer) -> None:
-        """GL and torch at the same reduced camera; the torch image comes from the worker."""
+        """GL and torch at the same reduced camera; the torch image comes from the worker. The
+        comparison is computed once per new result (and view choice), then the texture is reused."""
         settings = viewer.settings
         camera = viewer.current_camera()
         if camera.width > REFERENCE_MAX_WIDTH:
             camera = camera.scaled(camera.width / REFERENCE_MAX_WIDTH)
         if self.reference is None:
             self.reference = ReferenceWorker()
-        arrays = viewer.edit.visible_arrays()
-        result = self.reference.result()
         request_key = (camera.world_to_camera.tobytes(), camera.width, self.uploaded_version,
                        settings.sh_degree_cap)
         if self.reference_request != request_key:
+            arrays = viewer.edit.visible_arrays()
             cap = min(settings.sh_degree_cap, sh_degree_from_count(arrays["sh"].shape[1]))
             self.reference.request(arrays, hash(self.uploaded_version), camera, settings.background, cap)
             self.reference_request = request_key
-        if result is None:
+        result = self.reference.result()
+        self.last_render_key = None  # the texture holds the comparison, not a splat render
+        if result is None or self.reference_shown == (result, settings.reference_view):
             return
         gl = self.renderer.render(result.camera, mode="rgb", background=settings.background,
                                   sh_degree_cap=settings.sh_degree_cap, splat_scale=1.0)
@@ -156,7 +174,15 @@ class FrameDrawer:
         else:
             image = side_by_side(gl, result.rgb)
         self.scene_texture.upload(image)
-        self.last_render_key = None
+        self.reference_shown = (result, settings.reference_view)
+
+    def reference_settled(self) -> bool:
+        """The reference mode has nothing left to draw until something changes."""
+        worker = self.reference
+        if worker is None or not worker.idle:
+            return False
+        return worker.error is not None or (self.reference_shown is not None
+                                            and self.reference_shown[0] is worker.result())
 
     def draw_overlays(self, viewer, screen: moderngl.Framebuffer) -> None:
         settings, edit, flags = viewer.settings, viewer.edit, viewer.flags
@@ -166,15 +192,22 @@ class FrameDrawer:
         if settings.show_training_cameras and viewer.cameras:
             segments = segments_for_cameras(viewer.cameras, depth)
             self.overlay.draw_segments(camera, segments, np.tile(TRAINING_COLOR, (len(segments), 1)))
-        if settings.show_flags and flags:
-            segments = segments_for_cameras([f.camera for f in flags], depth * 1.5)
+        # A flag made where the camera stands would be drawn around the eye, its lines across the
+        # whole window: flags that close are left out until the camera moves away.
+        shown = [i for i, f in enumerate(flags)
+                 if np.linalg.norm(f.camera.center - camera.center) > FLAG_HIDE_DISTANCE * depth]
+        if settings.show_flags and shown:
+            segments = segments_for_cameras([flags[i].camera for i in shown], depth * 1.5)
             colors = np.tile(FLAG_COLOR, (len(segments), 1))
-            if 0 <= viewer.selected_flag < len(flags):
-                colors[8 * viewer.selected_flag: 8 * viewer.selected_flag + 8] = SELECTED_FLAG_COLOR
+            if viewer.selected_flag in shown:
+                slot = shown.index(viewer.selected_flag)
+                colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
         if settings.crop_enabled:
             self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),
                                        np.tile(CROP_COLOR, (12, 1)))
+            self.overlay.draw_points(camera, box_handles(settings.crop_min, settings.crop_max), CROP_COLOR,
+                                     size=CROP_HANDLE_SIZE)
         if edit.selected.any():
             self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
 

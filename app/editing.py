@@ -49,6 +49,47 @@ def select_brush(pixels: np.ndarray, center: tuple[float, float], radius: float)
         return (offset ** 2).sum(axis=1) <= radius * radius
 
 
+def select_lasso(pixels: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """pixels: [N, 2], polygon: [M, 2] screen points (closed implicitly) -> bool [N]: inside by
+    the even-odd rule. Fewer than 3 corners enclose nothing; NaN pixels are never inside."""
+    polygon = np.asarray(polygon, np.float64)
+    inside = np.zeros(len(pixels), bool)
+    if len(polygon) < 3:
+        return inside
+    x, y = pixels[:, 0], pixels[:, 1]
+    for (x0, y0), (x1, y1) in zip(polygon, np.roll(polygon, -1, axis=0)):
+        if y0 == y1:
+            continue  # a horizontal edge crosses no horizontal ray (and would divide by 0)
+        with np.errstate(invalid="ignore"):
+            spans = (y0 > y) != (y1 > y)
+            crossing = x < x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        inside ^= spans & crossing
+    return inside
+
+
+def box_handles(box_min, box_max) -> np.ndarray:
+    """The 6 face centres [6, 3] of a box, in the order -x, +x, -y, +y, -z, +z (handle k moves
+    face k: axis k // 2, the max side when k is odd)."""
+    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    center = 0.5 * (lo + hi)
+    handles = np.repeat(center[None], 6, axis=0)
+    for k in range(6):
+        handles[k, k // 2] = (hi if k % 2 else lo)[k // 2]
+    return handles
+
+
+def drag_box_face(box_min, box_max, handle: int, amount: float) -> tuple[list, list]:
+    """Move face ``handle`` (box_handles order) by ``amount`` along its axis; the face stops at
+    the opposite one (a box never turns inside out)."""
+    lo, hi = [float(v) for v in box_min], [float(v) for v in box_max]
+    axis = handle // 2
+    if handle % 2:
+        hi[axis] = max(hi[axis] + amount, lo[axis])
+    else:
+        lo[axis] = min(lo[axis] + amount, hi[axis])
+    return lo, hi
+
+
 def sigmoid_opacity(opacity_logits: np.ndarray) -> np.ndarray:
     """[N] logits -> opacities in (0, 1); clamped like the renderers so exp() cannot overflow."""
     logits = np.clip(opacity_logits.astype(np.float64), -OPACITY_LOGIT_ABS_MAX, OPACITY_LOGIT_ABS_MAX)
@@ -111,19 +152,28 @@ class EditState:
     def count(self) -> int:
         return int(self.alive.sum())
 
-    def select(self, mask: np.ndarray, mode: str = "replace") -> None:
-        self.selected = combine_selection(self.selected, mask, mode) & self.alive
+    def select(self, mask: np.ndarray, mode: str = "replace", record: bool = True) -> None:
+        """Change the selection; ``record``: as one undo step (a brush stroke records its first
+        dab only, so one undo takes back the whole stroke)."""
+        new = combine_selection(self.selected, mask, mode) & self.alive
+        if record and not np.array_equal(new, self.selected):
+            self._push()
+        self.selected = new
 
     def clear_selection(self) -> None:
         self.selected[:] = False
 
+    def _push(self) -> None:
+        """Remember the current (alive, selected) for undo; a new change forgets the redos."""
+        self.undo_stack.append((self.alive, self.selected.copy()))
+        self.redo_stack.clear()
+
     def _apply(self, new_alive: np.ndarray) -> bool:
         if np.array_equal(new_alive, self.alive):
             return False
-        self.undo_stack.append(self.alive)
-        self.redo_stack.clear()
+        self._push()
         self.alive = new_alive
-        self.selected &= self.alive
+        self.selected = self.selected & self.alive
         self.version += 1
         return True
 
@@ -135,22 +185,25 @@ class EditState:
         """Keep only Gaussians whose mean lies inside the box."""
         return self._apply(self.alive & inside_box(self.base["means"], box_min, box_max))
 
+    def _restore(self, entry) -> None:
+        alive, selected = entry
+        if not np.array_equal(alive, self.alive):
+            self.version += 1
+        self.alive, self.selected = alive, selected
+
     def undo(self) -> bool:
+        """Take back the last deletion, crop or selection change."""
         if not self.undo_stack:
             return False
-        self.redo_stack.append(self.alive)
-        self.alive = self.undo_stack.pop()
-        self.selected &= self.alive
-        self.version += 1
+        self.redo_stack.append((self.alive, self.selected.copy()))
+        self._restore(self.undo_stack.pop())
         return True
 
     def redo(self) -> bool:
         if not self.redo_stack:
             return False
-        self.undo_stack.append(self.alive)
-        self.alive = self.redo_stack.pop()
-        self.selected &= self.alive
-        self.version += 1
+        self.undo_stack.append((self.alive, self.selected.copy()))
+        self._restore(self.redo_stack.pop())
         return True
 
     def visible_arrays(self) -> dict:

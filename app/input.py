@@ -18,6 +18,8 @@ from .window import ui_wants_keyboard, ui_wants_mouse
 # Two left presses within this time and this many pixels form a double-click.
 DOUBLE_CLICK_SECONDS = 0.35
 DOUBLE_CLICK_PIXELS = 4.0
+# The lasso takes a new corner once the cursor has moved this far from the last one.
+LASSO_STEP_PIXELS = 3.0
 
 
 class InputController:
@@ -30,6 +32,8 @@ class InputController:
         self.last_cursor = None
         self.last_click = (-1e9, 0.0, 0.0)
         self.dragging_button = None
+        self.lasso: list[tuple[float, float]] = []  # the lasso being drawn (window positions)
+        self.crop_handle: int | None = None  # the crop-box face being dragged
 
     def install(self, window) -> None:
         glfw.set_key_callback(window, self.on_key)
@@ -66,6 +70,10 @@ class InputController:
             viewer.snap_to_camera(viewer.camera_index - 1)
         elif key == glfw.KEY_R and not ctrl:
             viewer.reset_view()
+        elif key == glfw.KEY_HOME:
+            viewer.frame_model()
+        elif key in (glfw.KEY_H, glfw.KEY_F1):
+            viewer.show_help = not viewer.show_help
         elif key == glfw.KEY_T:
             viewer.settings.show_training_cameras = not viewer.settings.show_training_cameras
         elif key == glfw.KEY_O:
@@ -101,10 +109,16 @@ class InputController:
         dx, dy = x - previous[0], y - previous[1]
         if self.dragging_button == glfw.MOUSE_BUTTON_LEFT:
             tool = viewer.settings.edit_tool
-            if tool == "brush":
-                viewer.brush_select(x, y)
+            if self.crop_handle is not None:
+                viewer.drag_crop_handle(self.crop_handle, previous, (x, y))
+            elif tool == "brush":
+                viewer.brush_select(x, y, stroke_start=False)
             elif tool == "rectangle":
-                pass  # the rectangle is applied on release
+                pass  # the rectangle is applied on release (the panels draw it meanwhile)
+            elif tool == "lasso":
+                last = self.lasso[-1] if self.lasso else (math.inf, math.inf)
+                if math.hypot(x - last[0], y - last[1]) >= LASSO_STEP_PIXELS:
+                    self.lasso.append((x, y))
             elif viewer.settings.orbit:
                 viewer.nav.orbit(dx, dy)
                 viewer.moved()
@@ -121,9 +135,14 @@ class InputController:
             viewer.imgui_impl.io.add_mouse_button_event(button, action == glfw.PRESS)
         x, y = glfw.get_cursor_pos(window) if self.last_cursor is None else self.last_cursor
         if action == glfw.RELEASE:
-            if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button
-                    and viewer.settings.edit_tool == "rectangle" and self.drag_start is not None):
-                viewer.rectangle_select(self.drag_start, (x, y))
+            if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None
+                    and self.crop_handle is None):
+                if viewer.settings.edit_tool == "rectangle":
+                    viewer.rectangle_select(self.drag_start, (x, y))
+                elif viewer.settings.edit_tool == "lasso":
+                    viewer.lasso_select(self.lasso + [(x, y)])
+            self.lasso = []
+            self.crop_handle = None
             self.dragging_button = None
             return
         if ui_wants_mouse(viewer.imgui_impl):
@@ -135,6 +154,9 @@ class InputController:
         self.dragging_button = button
         self.drag_start = (x, y)
         if button == glfw.MOUSE_BUTTON_LEFT:
+            self.crop_handle = viewer.crop_handle_at(x, y)  # a handle wins over tools and looking
+            if self.crop_handle is not None:
+                return
             then, px, py = self.last_click
             now = time.perf_counter()
             if now - then < DOUBLE_CLICK_SECONDS and math.hypot(x - px, y - py) < DOUBLE_CLICK_PIXELS:
@@ -142,6 +164,8 @@ class InputController:
                 now = -1e9  # a third click starts a new pair
             elif viewer.settings.edit_tool == "brush":
                 viewer.brush_select(x, y)
+            elif viewer.settings.edit_tool == "lasso":
+                self.lasso = [(x, y)]
             self.last_click = (now, x, y)
 
     def update_fly(self, seconds: float) -> None:

@@ -1,85 +1,116 @@
-"""Which background job the viewer runs for a source: stage-I training for a scene, stage-II
-bootstrapping of the flagged views for a trained run. Built when the user presses the button,
-so flags made during the session count."""
+"""The jobs the viewer runs on a thread, built from the job dialog's settings: stage-I training
+of the scene into a fresh run folder, "Resume" of the open run from its newest checkpoint, and
+stage-II bootstrapping of the flagged views into a fresh folder beside the run (app/runs.py).
+Built when the user presses the button, so flags made during the session count."""
 
 from __future__ import annotations
 
-import time
+import dataclasses
+import math
+from dataclasses import dataclass
 from pathlib import Path
 
 from inceptiongs.errors import InputError
 
-# A viewer-started training run: a CPU-sized schedule (the CLI's default when only a time
-# budget is given); the user watches it and stops it when it looks good.
-VIEWER_TRAIN_ITERATIONS = 5000
+from .runs import new_bootstrap_dir, new_train_dir
+
+# Without a budget the command line trains 30000 steps; with one, the schedule is this long
+# (`inceptiongs train --minutes M`), and the viewer does the same.
+BUDGET_SCHEDULE_ITERATIONS = 5_000
+# The viewer's jobs evaluate the held-out views this often (the command lines: every 500 steps
+# for stage I, only per round for stage II), so the panel's PSNR curve has points within a
+# few-minute budget. Evaluation time does not count against the training budget.
+VIEWER_EVAL_EVERY = 50
 
 
-def run_dir_of(source) -> Path | None:
-    """The stage-I run folder a source shows (a run, or a scene opened at its newest run)."""
-    if source.kind == "run" and (Path(source.path) / "config.json").is_file():
-        return Path(source.path)
-    model = getattr(source, "model_path", None)
-    if model is not None and (Path(model).parent / "config.json").is_file():
-        return Path(model).parent
-    return None
+@dataclass
+class JobSettings:
+    """The job dialog: the command lines' main settings. minutes: the time budget (None: run
+    the whole schedule); iterations: the schedule length (stage I) or refinement steps per
+    round (stage II)."""
+
+    minutes: float | None = 3.0
+    iterations: int = BUDGET_SCHEDULE_ITERATIONS
+    downscale: int = 2
+    protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
+    strategy: str = "default"       # inceptiongs.train.config.STRATEGIES
+    # Stage II.
+    bootstrap_minutes: float | None = 4.0
+    bootstrap_iterations: int = 300
+    k: int = 0                      # 0: the bootstrap's own default
+    l: int = 0
+    prior_minutes: float = 2.0
+
+    def train_config(self, scene_root: Path):
+        """The stage-I config, its schedule sized to its length as `inceptiongs train` does."""
+        from inceptiongs.train.config import TrainConfig, short_run_schedule
+
+        config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
+                             protocol=self.protocol, iterations=self.iterations, minutes=self.minutes,
+                             strategy=self.strategy)
+        config = short_run_schedule(config.validate("job settings"))
+        return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
+                                   log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))
+
+    def bootstrap_config(self):
+        from inceptiongs.bootstrap.config import BootstrapConfig
+
+        defaults = BootstrapConfig()
+        return BootstrapConfig(iterations=self.bootstrap_iterations, minutes=self.bootstrap_minutes,
+                               k=self.k or None, l=self.l or None, prior_minutes=self.prior_minutes,
+                               eval_every=VIEWER_EVAL_EVERY,
+                               log_every=math.gcd(defaults.log_every, VIEWER_EVAL_EVERY)).validate()
 
 
-def train_job_for(source):
-    """A new stage-I run of the source's scene in <scene work dir>/runs/viewer-<time>."""
-    from inceptiongs.train.config import TrainConfig, short_run_schedule
+def train_job_for(source, settings: JobSettings | None = None):
+    """A new stage-I run of the source's scene in a fresh <scene work dir>/runs/train[_N]."""
     from inceptiongs.train.job import TrainJob
 
     if source.scene is None:
         raise InputError(f"{source.path}: no scene to train (open a scene folder)")
-    config = short_run_schedule(TrainConfig(scene=str(Path(source.scene.root).resolve()),
-                                            iterations=VIEWER_TRAIN_ITERATIONS))
-    run_dir = Path(source.work_dir) / "runs" / time.strftime("viewer-%Y%m%d-%H%M%S")
-    return TrainJob(config=config, run_dir=run_dir)
+    config = (settings or JobSettings()).train_config(source.scene.root)
+    return TrainJob(config=config, run_dir=new_train_dir(source.work_dir))
 
 
-def bootstrap_job_for(source, flags_file: Path, config=None):
-    """Stage II of the source's run on the views flagged in ``flags_file`` (config: a
-    BootstrapConfig, default the command line's defaults)."""
+def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
+    """Continue ``run_dir`` from its newest checkpoint with its stored config (only the time
+    budget may change, as with `inceptiongs train --resume`)."""
+    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.job import TrainJob
+
+    if run_dir is None or latest_checkpoint(Path(run_dir)) is None:
+        raise InputError(f"{run_dir or 'this source'}: no run with a checkpoint to resume")
+    config = TrainConfig.load(Path(run_dir) / "config.json")
+    config = dataclasses.replace(config, minutes=(settings or JobSettings()).minutes)
+    return TrainJob(config=config, run_dir=Path(run_dir), resume=True)
+
+
+def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
+    """Stage II of ``run_dir`` on the views flagged in ``flags_file`` into a fresh folder
+    (config: a BootstrapConfig, default the command line's defaults)."""
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.job import BootstrapJob
     from inceptiongs.io.flags import read_flag_cameras
 
-    run_dir = run_dir_of(source)
     if run_dir is None:
-        raise InputError(f"{source.path}: bootstrapping needs a trained run (train first)")
+        raise InputError("bootstrapping needs a trained run (train first)")
     if not Path(flags_file).is_file() or not read_flag_cameras(flags_file):
         raise InputError("no flagged views: flag the bad views first (F or right-click)")
-    return BootstrapJob(run_dir=run_dir, targets_file=Path(flags_file), config=config or BootstrapConfig())
-
-
-def default_job(source, flags_file: Path):
-    """Bootstrap for a run with flags, else stage-I training of the scene."""
-    if run_dir_of(source) is not None and Path(flags_file).is_file() and read_flags_count(flags_file):
-        return bootstrap_job_for(source, flags_file)
-    return train_job_for(source)
-
-
-def read_flags_count(flags_file: Path) -> int:
-    from inceptiongs.io.flags import read_flag_cameras
-
-    try:
-        return len(read_flag_cameras(flags_file))
-    except InputError:
-        return 0
+    return BootstrapJob(run_dir=Path(run_dir), out_dir=new_bootstrap_dir(run_dir), targets_file=Path(flags_file),
+                        config=config or BootstrapConfig())
 
 
 def start_bootstrap(viewer, config=None) -> None:
-    """The viewer's "Bootstrap" action: run stage II on the flagged views as the live job."""
-    from .live_training import LiveTraining
-
+    """The viewer's "Bootstrap" action: stage II on the flagged views of the open run as the
+    live job (config: default the job dialog's settings)."""
     if viewer.training is not None and viewer.training.alive:
         viewer.status = "a job is running: stop it before bootstrapping"
         return
     try:
-        job = bootstrap_job_for(viewer.source, viewer.flags_file, config)
+        job = bootstrap_job_for(viewer.run_dir, viewer.flags_file, config or viewer.job_settings.bootstrap_config())
     except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
         viewer.status = f"bootstrap could not start: {exc}"
         return
-    viewer.training = LiveTraining(job)
-    viewer.training.start()
-    viewer.status = f"bootstrapping {len(viewer.flags)} flagged view(s) of {job.run_dir}"
+    viewer.start_job(job, job.out_dir, f"bootstrapping {len(viewer.flags)} flagged view(s) of {job.run_dir}")
+

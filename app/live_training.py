@@ -15,6 +15,11 @@ from dataclasses import dataclass, field
 
 from inceptiongs.live import JobControl, Snapshot, SnapshotBox
 
+from .progress import JobPlan, psnr_series
+
+# The job's metrics log is re-read at most this often (a few hundred short JSON lines).
+METRICS_REFRESH_SECONDS = 2.0
+
 
 @dataclass
 class TrainingProgress:
@@ -25,13 +30,16 @@ class TrainingProgress:
     iterations_per_second: float = 0.0
     message: str = ""
     history: dict = field(default_factory=dict)
+    psnr: dict = field(default_factory=dict)  # held-out group -> ([iterations], [dB]), from the log
+    plot_limits: dict = field(default_factory=dict)  # plot title -> the axes' ranges last drawn
 
 
 class LiveTraining:
     """One job run: start / pause / resume / stop, and :meth:`poll` for the newest snapshot."""
 
-    def __init__(self, job, control=None, box: SnapshotBox | None = None) -> None:
+    def __init__(self, job, control=None, box: SnapshotBox | None = None, plan: JobPlan | None = None) -> None:
         self.job = job
+        self.plan = plan or JobPlan()
         self.box = box or SnapshotBox()
         self.control = control if control is not None else JobControl()
         self.progress = TrainingProgress()
@@ -40,12 +48,18 @@ class LiveTraining:
         self._seen_version = 0
         self._seen_gaussians_version = 0
         self._rate_anchor: tuple[float, int] | None = None  # (time, iteration) of the last rate sample
+        self._started: float | None = None
+        self._ended: float | None = None
+        self._paused_at: float | None = None
+        self._paused_s = 0.0
+        self._metrics_read = -1e9
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         if self._thread is not None:
             raise RuntimeError("a job run can be started once")
         self._thread = threading.Thread(target=self._run, name="inceptiongs-training", daemon=True)
+        self._started = time.perf_counter()
         self._thread.start()
 
     def _run(self) -> None:
@@ -54,6 +68,19 @@ class LiveTraining:
         except BaseException as exc:  # noqa: BLE001 - anything the job raises is shown, not fatal
             self.error = f"{type(exc).__name__}: {exc}"
             self.traceback = traceback.format_exc()
+        finally:
+            self._ended = time.perf_counter()
+
+    @property
+    def elapsed_s(self) -> float:
+        """Seconds the job has run, its pauses left out (frozen once it has ended)."""
+        if self._started is None:
+            return 0.0
+        end = self._ended if self._ended is not None else time.perf_counter()
+        paused = self._paused_s
+        if self._paused_at is not None and self._ended is None:
+            paused += end - self._paused_at
+        return max(end - self._started - paused, 0.0)
 
     @property
     def state(self) -> str:
@@ -73,15 +100,20 @@ class LiveTraining:
         return self._thread is not None and self._thread.is_alive()
 
     def pause(self) -> None:
+        if self._paused_at is None:
+            self._paused_at = time.perf_counter()
         self.control.pause.set()
 
     def resume(self) -> None:
+        if self._paused_at is not None:
+            self._paused_s += time.perf_counter() - self._paused_at
+            self._paused_at = None
         self.control.pause.clear()
 
     def stop(self, timeout: float | None = 30.0) -> bool:
         """Ask the job to finish (it writes its checkpoint) and wait; True if it ended."""
         self.control.stop.set()
-        self.control.pause.clear()  # a paused job must wake up to see the stop
+        self.resume()  # a paused job must wake up to see the stop
         if self._thread is None:
             return True
         self._thread.join(timeout)
@@ -96,6 +128,13 @@ class LiveTraining:
         self._seen_version = snapshot.version
         self._record(snapshot)
         return snapshot
+
+    def refresh_scores(self, force: bool = False) -> None:
+        """Re-read the held-out PSNR series from the job's metrics log (throttled)."""
+        now = time.perf_counter()
+        if force or now - self._metrics_read >= METRICS_REFRESH_SECONDS:
+            self._metrics_read = now
+            self.progress.psnr = psnr_series(self.plan.metrics)
 
     def poll_gaussians(self) -> dict | None:
         """Like :meth:`poll`, but returns the newest Gaussians only when they are new to this

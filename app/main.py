@@ -9,27 +9,19 @@ from inceptiongs.errors import InputError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .settings import bindings_text  # noqa: PLC0415 (plain data: keeps --help fast)
+
     parser = argparse.ArgumentParser(
         prog="inceptiongs-viewer",
-        description="View, inspect, flag, train and edit a Gaussian-splat scene.")
+        description="View, inspect, flag, train and edit a Gaussian-splat scene.",
+        epilog="keys and mouse in the window (also H / F1 there):\n" + bindings_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", help="a scene folder, a model .ply or a training run folder")
-    parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (PNG) and exit")
+    parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (format from its extension: .png, .jpg, ...) and exit")
     parser.add_argument("--camera", metavar="JSON", help="camera for --screenshot (default: first training camera)")
     parser.add_argument("--size", metavar="WxH", help="image size for --screenshot / window size")
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     return parser
-
-
-def default_job_factory(source):
-    """The job the "start training" button runs: stage-I training for a scene, stage II
-    (bootstrap) for a run when views are flagged (app/jobs.py). None when the source has
-    neither a scene nor a run (a bare PLY)."""
-    from inceptiongs.io.flags import flags_path  # noqa: PLC0415
-    from .jobs import default_job, run_dir_of  # noqa: PLC0415
-
-    if source.scene is None and run_dir_of(source) is None:
-        return None
-    return lambda src: default_job(src, flags_path(src.work_dir))  # noqa: E731
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
 
         width, height = size or (1280, 720)
         try:
-            viewer = Viewer(source, width, height, job_factory=default_job_factory(source))
+            viewer = Viewer(source, width, height)
         except WindowError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

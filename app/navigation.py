@@ -49,6 +49,45 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
     return out
 
 
+# The up choices the View panel offers.
+UP_AXES = {"+X": (1.0, 0.0, 0.0), "-X": (-1.0, 0.0, 0.0), "+Y": (0.0, 1.0, 0.0), "-Y": (0.0, -1.0, 0.0),
+           "+Z": (0.0, 0.0, 1.0), "-Z": (0.0, 0.0, -1.0)}
+# A plane normal within this angle of a world axis is taken as that axis: models are mostly
+# exported axis-aligned, and an exact axis keeps the horizon level.
+UP_SNAP_DEG = 30.0
+# Which sign of a model's up axis to take when nothing else tells: +X, -Y (COLMAP/OpenCV worlds
+# have y down), +Z (z-up tools). Ties of a tilted normal go to its largest component.
+UP_SIGN_PREFERENCE = np.array([1.0, -1.0, 1.0])
+
+
+def model_up(means: np.ndarray) -> np.ndarray:
+    """World up [3] of a model without cameras: the normal of its dominant plane (the axis of
+    least spread of the central 5-95 % of ``means`` [N, 3]: a ground, a table top, a flat
+    object), snapped to a world axis within UP_SNAP_DEG, signed by UP_SIGN_PREFERENCE. -Y for
+    fewer than 3 points (no plane to fit)."""
+    means = np.asarray(means, np.float64)
+    if len(means) >= 3:
+        lo, hi = np.percentile(means, [5, 95], axis=0)
+        central = means[np.all((means >= lo) & (means <= hi), axis=1)]
+        if len(central) >= 3:
+            centred = central - central.mean(axis=0)
+            _, vectors = np.linalg.eigh(centred.T @ centred)  # eigenvalues ascending
+            normal = vectors[:, 0]
+            axis = int(np.argmax(np.abs(normal)))
+            if abs(normal[axis]) >= math.cos(math.radians(UP_SNAP_DEG)):
+                normal = np.eye(3)[axis] * np.sign(normal[axis])
+            return normal if normal @ UP_SIGN_PREFERENCE >= 0 else -normal
+    return np.array([0.0, -1.0, 0.0])
+
+
+def up_axis_name(up: np.ndarray) -> str | None:
+    """"+Z" etc. when ``up`` is a world axis, else None."""
+    for name, axis in UP_AXES.items():
+        if np.allclose(up, axis, atol=1e-9):
+            return name
+    return None
+
+
 def estimate_up(cameras: list[Camera]) -> np.ndarray:
     """World up [3] as the mean of the cameras' up directions (-y camera axis); -y of the
     world when there are no cameras or they cancel out."""
@@ -159,6 +198,40 @@ class NavigationState:
 
     def scale_speed(self, scroll_steps: float, factor_per_step: float = 1.2) -> None:
         self.speed = float(np.clip(self.speed * factor_per_step ** scroll_steps, 1e-4, 1e4))
+
+
+def robust_bounds(means: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre [3], radius) of the model's robust extent: the median, and half the diagonal of
+    the 2-98 % box (a few far floaters do not shrink the model to a dot). (0, 1) when empty."""
+    if len(means) == 0:
+        return np.zeros(3), 1.0
+    lo, hi = np.percentile(np.asarray(means, np.float64), [2, 98], axis=0)
+    return np.median(means, axis=0), float(max(0.5 * np.linalg.norm(hi - lo), 1e-3))
+
+
+def framed(nav: NavigationState, means: np.ndarray, aspect: float) -> NavigationState:
+    """``nav`` moved back along its viewing direction until the model's robust bounds fit the
+    field of view (the narrower of the two), pivot at the model's centre. aspect: width/height."""
+    center, radius = robust_bounds(means)
+    half_y = math.radians(nav.fov_y_deg) * 0.5
+    half_x = math.atan(math.tan(half_y) * max(aspect, 1e-3))
+    distance = radius / math.sin(min(half_x, half_y))  # the bounding sphere touches the view's sides
+    forward = nav.rotation[2]
+    return NavigationState(center - forward * distance, nav.rotation.copy(), nav.up.copy(), center,
+                           nav.fov_y_deg, speed=max(radius * 0.6, 1e-3))
+
+
+def leveled(nav: NavigationState, up: np.ndarray) -> NavigationState:
+    """``nav`` with a new world ``up``: the same centre and (as nearly as it can be) viewing
+    direction, the horizon level for ``up``."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    forward = nav.rotation[2]
+    if abs(forward @ up) > 0.999:
+        # Looking along the new up: tilt towards the image's own up (perpendicular to forward,
+        # so the sum cannot vanish), ~73 degrees from up, so look_at has a horizon to level.
+        forward = 0.3 * forward - nav.rotation[1]
+    pose = look_at(nav.center, nav.center + forward, up)
+    return replace(nav, rotation=pose[:3, :3], up=up)
 
 
 def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 60.0,

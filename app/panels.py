@@ -6,21 +6,70 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from .settings import RENDER_MODES
+from .drawing import SELECTION_COLOR
+from .jobs import start_bootstrap
+from .navigation import UP_AXES, up_axis_name
+from .progress import eta_seconds, format_duration
+from .runs import can_resume
+from inceptiongs.train.config import STRATEGIES
+
+from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
+
+TOOL_LINE_WIDTH = 2.0
+PANEL_MARGIN = 10
+PANEL_WIDTH = 400
+PANEL_MIN_WIDTH = 300
+
+# The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
+PLOTS = (("training loss", "loss", ("loss", "l1")),
+         ("Gaussians", "count", ("num_gaussians",)))
+
+
+def draw_tool_feedback(viewer) -> None:
+    """What the edit tool will select, drawn over the scene: the rectangle being dragged, the
+    brush circle at the cursor, the lasso's path."""
+    tool, controls = viewer.settings.edit_tool, viewer.input
+    cursor = controls.last_cursor
+    if tool == "none" or cursor is None:
+        return
+    draw = imgui.get_foreground_draw_list()
+    color = imgui.get_color_u32(imgui.ImVec4(*SELECTION_COLOR, 1.0))
+    dragging = controls.dragging_button is not None and controls.drag_start is not None
+    if tool == "rectangle" and dragging:
+        (x0, y0), (x1, y1) = controls.drag_start, cursor
+        draw.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), color,
+                      0.0, TOOL_LINE_WIDTH)
+    elif tool == "brush":
+        # The brush radius is in framebuffer pixels; the cursor in window pixels.
+        scale = viewer.window_to_framebuffer(1.0, 1.0)[0]
+        draw.add_circle(imgui.ImVec2(*cursor), viewer.settings.brush_radius / max(scale, 1e-6), color, 0,
+                        TOOL_LINE_WIDTH)
+    elif tool == "lasso" and dragging and controls.lasso:
+        points = [imgui.ImVec2(x, y) for x, y in controls.lasso + [cursor]]
+        draw.add_polyline(points, color, TOOL_LINE_WIDTH, 0)
 
 
 def draw_panels(viewer) -> None:
-    imgui.set_next_window_pos(imgui.ImVec2(10, 10), imgui.Cond_.first_use_ever)
-    imgui.set_next_window_size(imgui.ImVec2(360, 620), imgui.Cond_.first_use_ever)
+    width, height = imgui.get_io().display_size
+    # The panel follows the window: full height, a width the user may drag, never past the
+    # window; long lines wrap instead of clipping.
+    imgui.set_next_window_pos(imgui.ImVec2(PANEL_MARGIN, PANEL_MARGIN), imgui.Cond_.always)
+    imgui.set_next_window_size_constraints(
+        imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
+        imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
+    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
+    draw_tool_feedback(viewer)
     imgui.begin("InceptionGS")
     _stats(viewer)
+    if imgui.small_button("keys and mouse (H)"):
+        viewer.show_help = not viewer.show_help
     if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
         _view(viewer)
     if imgui.collapsing_header("Inspect", imgui.TreeNodeFlags_.default_open):
         _inspect(viewer)
     if imgui.collapsing_header("Flags", imgui.TreeNodeFlags_.default_open):
         _flags(viewer)
-    if imgui.collapsing_header("Training"):
+    if imgui.collapsing_header("Training", imgui.TreeNodeFlags_.default_open):
         _training(viewer)
     if imgui.collapsing_header("Edit"):
         _edit(viewer)
@@ -28,12 +77,49 @@ def draw_panels(viewer) -> None:
         imgui.separator()
         imgui.text_wrapped(viewer.status)
     imgui.end()
+    if viewer.show_help:
+        _help(viewer)
+
+
+def _help(viewer) -> None:
+    """The key bindings, over the middle of the window (H / F1 or its close button hides it)."""
+    width, height = imgui.get_io().display_size
+    imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+    imgui.set_next_window_bg_alpha(0.92)
+    opened, viewer.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
+    if opened:
+        if imgui.begin_table("bindings", 2):
+            for keys, action in KEY_BINDINGS:
+                imgui.table_next_row()
+                imgui.table_next_column()
+                imgui.text(keys)
+                imgui.table_next_column()
+                imgui.text(action)
+            imgui.end_table()
+    imgui.end()
+
+
+def _button(viewer, label: str) -> bool:
+    """imgui.button, its window rectangle kept in viewer.ui_rects[label] (x0, y0, x1, y1): a
+    test clicks it there with mouse events as GLFW delivers them."""
+    pressed = imgui.button(label)
+    low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+    viewer.ui_rects[label] = (low.x, low.y, high.x, high.y)
+    return pressed
+
+
+def _hint(text: str) -> None:
+    """Greyed text that wraps at the panel's edge (text_disabled alone clips)."""
+    imgui.push_text_wrap_pos(0.0)
+    imgui.text_disabled(text)
+    imgui.pop_text_wrap_pos()
 
 
 def _stats(viewer) -> None:
     s = viewer.stats
-    imgui.text(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  draw {s.draw_ms:5.1f} ms")
-    imgui.text(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+    imgui.text_wrapped(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  "
+                       f"draw {s.draw_ms:5.1f} ms")
+    imgui.text_wrapped(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
     if viewer.last_gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {viewer.last_gl_error}")
 
@@ -50,20 +136,30 @@ def _view(viewer) -> None:
     imgui.same_line()
     _, viewer.settings.show_flags = imgui.checkbox("flags", viewer.settings.show_flags)
     imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
-    if imgui.button("reset view (R)"):
+    names = list(UP_AXES)
+    current = up_axis_name(viewer.up)
+    labels = names if current is not None else names + ["tilted"]
+    changed, index = imgui.combo(f"up, {viewer.up_source}", names.index(current) if current else len(names),
+                                 labels)
+    if changed and index < len(names):
+        viewer.set_up(UP_AXES[names[index]])
+    if _button(viewer, "frame the model (Home)"):
+        viewer.frame_model()
+    imgui.same_line()
+    if _button(viewer, "reset view (R)"):
         viewer.reset_view()
     if viewer.cameras:
         imgui.same_line()
-        if imgui.button("< prev (P)"):
+        if _button(viewer, "< prev (P)"):
             viewer.snap_to_camera(viewer.camera_index - 1)
         imgui.same_line()
-        if imgui.button("next (N) >"):
+        if _button(viewer, "next (N) >"):
             viewer.snap_to_camera(viewer.camera_index + 1)
         names = [c.name for c in viewer.cameras]
         changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
         if changed:
             viewer.snap_to_camera(index)
-    if imgui.button("screenshot (F12)"):
+    if _button(viewer, "screenshot (F12)"):
         viewer.save_screenshot()
 
 
@@ -88,6 +184,16 @@ def _inspect(viewer) -> None:
                        + (" (updating...)" if worker is not None and worker.busy else ""))
         else:
             imgui.text("torch reference rendering...")
+    if viewer.cameras and viewer.source.scene is not None:
+        views = list(PHOTO_VIEWS)
+        changed, index = imgui.combo("training photo", views.index(settings.photo), views)
+        if changed:
+            settings.photo = views[index]
+        if settings.photo != "off":
+            nearest = viewer.nearest_camera_index(viewer.current_camera())
+            _hint(f"nearest training camera: {viewer.cameras[nearest].name}")
+            if settings.photo == "blended":
+                _, settings.photo_alpha = imgui.slider_float("photo weight", settings.photo_alpha, 0.0, 1.0)
     _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)
@@ -108,11 +214,10 @@ def _coverage(viewer) -> None:
 
 
 def _flags(viewer) -> None:
-    if imgui.button("flag this view (F)"):
+    if _button(viewer, "flag this view (F)"):
         viewer.flag_current_view()
-    imgui.same_line()
-    imgui.text_disabled("right-click: flag a view aimed at the point")
-    imgui.text_disabled(str(viewer.flags_file))
+    _hint("right-click: flag a view aimed at the point")
+    _hint(str(viewer.flags_file))
     for index, flag in enumerate(list(viewer.flags)):
         imgui.push_id(f"flag{index}")
         if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
@@ -135,41 +240,129 @@ def _flags(viewer) -> None:
 
 def _training(viewer) -> None:
     run = viewer.training
+    imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     if run is None or not run.alive:
-        if imgui.button("start training"):
+        _job_settings(viewer.job_settings)
+        if _button(viewer, "train (new run)"):
             viewer.start_training()
+        if can_resume(viewer.run_dir):
+            imgui.same_line()
+            if _button(viewer, "resume"):
+                viewer.resume_training()
         imgui.same_line()
-        if imgui.button("Bootstrap flagged views"):
-            from .jobs import start_bootstrap  # noqa: PLC0415
-
+        if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
     else:
         if run.control.pause.is_set():
-            if imgui.button("resume"):
+            if _button(viewer, "continue"):
                 run.resume()
-        elif imgui.button("pause"):
+        elif _button(viewer, "pause"):
             run.pause()
         imgui.same_line()
-        if imgui.button("stop"):
+        if _button(viewer, "stop"):
             run.control.stop.set()
     if run is None:
         return
-    progress = run.progress
-    imgui.text(f"{run.state}: iteration {progress.iteration}, {progress.gaussian_count} Gaussians, "
-               f"{progress.iterations_per_second:.2f} it/s")
-    if progress.message:
-        imgui.text_wrapped(progress.message)
+    settings = viewer.settings
+    _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
+                                                          0.5, MAX_TRAINING_UTILISATION, "%.2f")
+    if viewer.job_out_dir is not None:
+        imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
+    _progress(viewer, run)
+    _plots(run.progress)
+
+
+def _job_settings(settings) -> None:
+    """The job dialog: the command lines' main settings."""
+    if not imgui.tree_node("job settings"):
+        return
+    imgui.text_disabled("stage I (train)")
+    settings.minutes = _optional_minutes("time budget min", "budget", settings.minutes, 3.0)
+    _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
+    settings.iterations = max(settings.iterations, 1)
+    _, settings.downscale = imgui.input_int("downscale", settings.downscale)
+    settings.downscale = max(settings.downscale, 1)
+    protocols = ["none", "unstructured", "llff"]
+    changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
+    if changed:
+        settings.protocol = protocols[index]
+    changed, index = imgui.combo("strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
+    if changed:
+        settings.strategy = STRATEGIES[index]
+    imgui.text_disabled("stage II (bootstrap)")
+    settings.bootstrap_minutes = _optional_minutes("bootstrap budget min", "bootstrap budget",
+                                                   settings.bootstrap_minutes, 4.0)
+    _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
+    settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
+    _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
+    _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
+    settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
+    _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
+    settings.prior_minutes = max(settings.prior_minutes, 0.1)
+    imgui.tree_pop()
+
+
+def _optional_minutes(label: str, checkbox: str, minutes, default: float):
+    """A budget that can be switched off (None: run the whole schedule)."""
+    changed, on = imgui.checkbox(checkbox, minutes is not None)
+    if changed:
+        minutes = default if on else None
+    if minutes is not None:
+        imgui.same_line()
+        imgui.set_next_item_width(120)
+        _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
+        minutes = max(minutes, 0.1)
+    return minutes
+
+
+def _progress(viewer, run) -> None:
+    progress, plan = run.progress, run.plan
+    if not run.alive and viewer.job_reported:
+        imgui.text_wrapped(viewer.status)  # the closing line: time, iteration, final scores
+    else:
+        done = progress.iteration - plan.start_iteration
+        total = plan.steps
+        label = f"{run.state}: iteration {progress.iteration}"
+        if total:
+            label += f" / {plan.end_iteration}"
+            imgui.progress_bar(min(max(done / total, 0.0), 1.0), imgui.ImVec2(-1, 0), f"{done} / {total} steps")
+        imgui.text(label)
+        eta = eta_seconds(progress.iteration, plan, progress.iterations_per_second, run.elapsed_s)
+        budget = "" if plan.budget_s is None else f" of {format_duration(plan.budget_s)}"
+        imgui.text_wrapped(f"elapsed {format_duration(run.elapsed_s)}{budget}  ETA {format_duration(eta)}  "
+                   f"{progress.iterations_per_second:.2f} it/s")
+        imgui.text(f"{progress.gaussian_count} Gaussians")
+        if progress.message:
+            imgui.text_wrapped(progress.message)
     if run.error:
         imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"job failed: {run.error}")
-    if progress.history and implot.begin_plot("losses", imgui.ImVec2(-1, 160)):
-        for name, (iterations, values) in progress.history.items():
-            implot.plot_line(name, np.asarray(iterations, np.float64), np.asarray(values, np.float64))
-        implot.end_plot()
+
+
+def _plots(progress) -> None:
+    """One plot per unit (dB, loss, count), axes refitted to the data every frame."""
+    _plot(progress, "held-out PSNR", "dB", list(progress.psnr.items()), 150)
+    for title, unit, names in PLOTS:
+        _plot(progress, title, unit, [(name, progress.history[name]) for name in names if name in progress.history],
+              120)
+
+
+def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
+    """series: [(name, ([x], [y]))]. The limits drawn are kept in progress.plot_limits[title]
+    ((x min, x max), (y min, y max)), so a test can check that the axes follow the data."""
+    if not series or not implot.begin_plot(title, imgui.ImVec2(-1, height)):
+        return
+    fit = implot.AxisFlags_.auto_fit
+    implot.setup_axes("iteration", unit, fit, fit)
+    for name, (xs, ys) in series:
+        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+    limits = implot.get_plot_limits()
+    progress.plot_limits[title] = ((limits.x.min, limits.x.max), (limits.y.min, limits.y.max))
+    implot.end_plot()
 
 
 def _edit(viewer) -> None:
     settings = viewer.settings
-    tools = ["none", "rectangle", "brush"]
+    tools = list(EDIT_TOOLS)
     changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]
@@ -181,25 +374,30 @@ def _edit(viewer) -> None:
         _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)
     _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
     _, settings.min_size = imgui.input_float("or size above", settings.min_size)
-    if imgui.button("select by thresholds"):
+    if _button(viewer, "select by thresholds"):
         viewer.threshold_select()
     imgui.text(f"{int(viewer.edit.selected.sum())} selected")
-    if imgui.button("delete (Del)"):
+    if _button(viewer, "delete (Del)"):
         viewer.delete_selection()
     imgui.same_line()
-    if imgui.button("undo (Ctrl+Z)"):
+    if _button(viewer, "undo (Ctrl+Z)"):
         viewer.undo()
     imgui.same_line()
-    if imgui.button("redo (Ctrl+Y)"):
+    if _button(viewer, "redo (Ctrl+Y)"):
         viewer.redo()
-    _, settings.crop_enabled = imgui.checkbox("crop box", settings.crop_enabled)
+    changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
+    if changed:
+        viewer.enable_crop(enabled)
     if settings.crop_enabled:
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
-        if imgui.button("crop to box"):
+        if _button(viewer, "crop to box"):
             viewer.apply_crop()
+        imgui.same_line()
+        if _button(viewer, "fit to the model"):
+            viewer.fit_crop_box()
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
-    if imgui.button("save PLY"):
+    if _button(viewer, "save PLY"):
         try:
             viewer.save_ply(viewer.save_path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line

@@ -63,6 +63,12 @@ class ReferenceWorker:
             self._pending = (arrays, model_version, camera, tuple(background), sh_degree)
             self._wake.notify()
 
+    @property
+    def idle(self) -> bool:
+        """Nothing pending and nothing rendering: the newest request's result (or error) is in."""
+        with self._lock:
+            return self._pending is None and not self.busy
+
     def result(self) -> ReferenceResult | None:
         with self._lock:
             return self._result

@@ -14,7 +14,7 @@ import moderngl
 from inceptiongs.camera import Camera, read_camera_json
 from inceptiongs.errors import InputError
 
-from inceptiongs.io.images import write_png
+from inceptiongs.io.images import image_encoding, write_image
 
 from .images import visualize
 from .navigation import default_view, estimate_up
@@ -42,11 +42,16 @@ def resized(camera: Camera, width: int, height: int) -> Camera:
 
 
 def screenshot_camera(source: ViewerSource, camera_path: str | None, size: tuple[int, int] | None) -> Camera:
-    """--camera if given, else the first training camera, else a view of the whole model."""
+    """--camera if given (at its own size unless --size), else the first training camera at the
+    window's default size (its aspect kept: a run's training size may be 96x72), else a view of
+    the whole model."""
     if camera_path is not None:
         camera = read_camera_json(camera_path)
     elif source.cameras:
         camera = source.cameras[0]
+        if size is None:
+            fit = min(DEFAULT_SIZE[0] / camera.width, DEFAULT_SIZE[1] / camera.height)
+            size = (max(int(round(camera.width * fit)), 1), max(int(round(camera.height * fit)), 1))
     else:
         width, height = size or DEFAULT_SIZE
         return default_view(source.gaussians["means"], width, height,
@@ -78,6 +83,7 @@ def take_screenshot(source: ViewerSource, out_path: str | Path, camera_path: str
                     size: tuple[int, int] | None = None, mode: str = "rgb") -> Path:
     from inceptiongs.renderer.splats import SplatRenderer  # noqa: PLC0415
 
+    image_encoding(out_path)  # a bad extension fails before any rendering
     camera = screenshot_camera(source, camera_path, size)
     ctx, cleanup = _context()
     try:
@@ -87,5 +93,5 @@ def take_screenshot(source: ViewerSource, out_path: str | Path, camera_path: str
         renderer.release()
     finally:
         cleanup()
-    write_png(out_path, visualize(image, mode))
+    write_image(out_path, visualize(image, mode))
     return Path(out_path)

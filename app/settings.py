@@ -3,12 +3,46 @@ frame statistics the panel shows. Plain data: every other part of the viewer rea
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference", "coverage")
 # The viewer's mode names -> the GL renderer's. "coverage" draws splats recoloured by their view
 # counts (app/coverage_mode.py) as rgb.
 GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": "alpha", "coverage": "rgb"}
+# training_utilisation is capped here: 1 would leave the viewer no frames at all (and divide by 0).
+MAX_TRAINING_UTILISATION = 0.98
+
+
+EDIT_TOOLS = ("none", "rectangle", "brush", "lasso")
+# How the photo of the nearest training camera is shown with the rgb render (as SIBR does).
+PHOTO_VIEWS = ("off", "blended", "beside")
+# What the keys and buttons do (input.py), shown by the help overlay (H / F1) and --help.
+KEY_BINDINGS = (
+    ("W A S D, Q / E", "fly forward / left / back / right, up / down (Shift: x4)"),
+    ("left drag", "look around (fly) or orbit the pivot (orbit mode); with an edit tool: select"),
+    ("middle drag", "pan"),
+    ("scroll", "fly speed (fly) / zoom to the pivot (orbit)"),
+    ("double-click", "orbit around the surface point under the cursor"),
+    ("O", "orbit mode on / off"),
+    ("Home", "frame the model"),
+    ("R", "reset the view"),
+    ("N / P (PageDown / PageUp)", "next / previous training camera"),
+    ("T", "training-camera frustums on / off"),
+    ("1 2 3 4 5 6", "mode: rgb, depth, normal, opacity, reference, coverage"),
+    ("F", "flag the current view"),
+    ("right-click", "flag a view aimed at the clicked surface"),
+    ("left drag a crop handle", "move that face of the crop box"),
+    ("Delete", "delete the selection"),
+    ("Ctrl+Z / Ctrl+Y", "undo / redo (selections, deletions, crops)"),
+    ("F12", "screenshot of the scene at window size"),
+    ("H / F1", "this help"),
+)
+
+
+def bindings_text(indent: str = "  ") -> str:
+    """KEY_BINDINGS as aligned lines of text."""
+    width = max(len(keys) for keys, _ in KEY_BINDINGS)
+    return "\n".join(f"{indent}{keys:<{width}}  {action}" for keys, action in KEY_BINDINGS)
 
 
 @dataclass
@@ -18,17 +52,23 @@ class ViewSettings:
     sh_degree_cap: int = 3
     splat_scale: float = 1.0
     background: tuple = (0.0, 0.0, 0.0)
+    photo: str = "off"  # one of PHOTO_VIEWS
+    photo_alpha: float = 0.5  # the photo's weight when blended
     show_training_cameras: bool = True
     show_flags: bool = True
     orbit: bool = False
-    edit_tool: str = "none"  # "none" | "rectangle" | "brush"
+    edit_tool: str = "none"  # one of EDIT_TOOLS
     brush_radius: float = 30.0
     selection_mode: str = "replace"
     crop_enabled: bool = False
-    crop_min: list = field(default_factory=lambda: [-1.0, -1.0, -1.0])
-    crop_max: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    crop_min: list | None = None  # None: fitted to the model when the box is first shown
+    crop_max: list | None = None
     max_opacity: float = 0.05
     min_size: float = 0.5
+    # While a job trains, the share of the time the viewer leaves to it: after a frame that
+    # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
+    # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
+    training_utilisation: float = 0.95
 
 
 @dataclass

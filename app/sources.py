@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,12 +14,16 @@ import numpy as np
 from inceptiongs.camera import Camera, camera_from_json_dict
 from inceptiongs.constants import SH_C0, SH_OFFSET
 from inceptiongs.errors import InputError
+from inceptiongs.io.cache import scene_cache_dir
 
 # Sparse points shown as splats get this radius relative to the points' robust extent:
 # small enough to read as points, big enough to be visible at typical viewing distances.
 POINT_SPLAT_RELATIVE_RADIUS = 0.002
 # ... and this opacity (nearly opaque, below the renderers' ALPHA_MAX cap).
 POINT_SPLAT_OPACITY = 0.95
+# Scenes without sparse points are triangulated from photos at most this wide (fern: 20 photos
+# at 504 px, ~2200 points, ~11 s of CPU once; cached).
+TRIANGULATE_MAX_WIDTH = 640
 
 
 @dataclass
@@ -32,6 +37,8 @@ class ViewerSource:
     cameras: list[Camera]
     work_dir: Path
     model_path: Path | None = None
+    run_dir: Path | None = None  # the stage-I/II run folder shown (for Resume and Bootstrap)
+    points_pending: bool = False  # a scene without sparse points: PointsWorker triangulates some
     sparse_points: bool = False
     scene: object = None
     notes: list[str] = field(default_factory=list)
@@ -68,10 +75,33 @@ def newest_ply(folder: Path) -> Path | None:
     return max(plies, key=lambda p: p.stat().st_mtime) if plies else None
 
 
-def _read_ply_arrays(path: Path) -> dict:
+def _read_ply(path: Path):
     from inceptiongs.io.ply import read_ply  # noqa: PLC0415 - keeps `--help` fast
 
-    return read_ply(path).numpy()
+    return read_ply(path)
+
+
+def _read_ply_arrays(path: Path) -> dict:
+    return _read_ply(path).numpy()
+
+
+def _newest_time(run: Path) -> float:
+    return max(p.stat().st_mtime for p in run.iterdir())
+
+
+def newest_model(work_dir: Path) -> Path | None:
+    """The newest model in a scene's work folder: a run's ``config.json`` (a run with a model or
+    a checkpoint; its time is its newest file's) or a PLY outside any run (e.g. one the viewer
+    saved), whichever was written last; None when there is neither."""
+    work_dir = Path(work_dir)
+    if not work_dir.is_dir():
+        return None
+    candidates = [(_newest_time(c.parent), c) for c in work_dir.rglob("config.json")
+                  if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir()]
+    run_dirs = {c.parent for _, c in candidates}
+    candidates += [(p.stat().st_mtime, p) for p in work_dir.rglob("*.ply")
+                   if p.is_file() and not (set(p.parents) & run_dirs)]
+    return max(candidates, key=lambda item: item[0])[1] if candidates else None
 
 
 def _cameras_json(path: Path) -> list[Camera]:
@@ -94,7 +124,7 @@ def _open_run(run_dir: Path) -> ViewerSource:
     gaussians, scene, _config = load_run(run_dir)
     model = run_dir / "model.ply"
     return ViewerSource("run", run_dir, gaussians.numpy(), list(scene.cameras), scene.work_dir,
-                        model_path=model if model.is_file() else None, scene=scene)
+                        model_path=model if model.is_file() else None, run_dir=run_dir, scene=scene)
 
 
 def open_source(path: str | Path) -> ViewerSource:
@@ -104,7 +134,8 @@ def open_source(path: str | Path) -> ViewerSource:
     if path.is_file():
         if path.suffix.lower() != ".ply":
             raise InputError(f"{path}: not a scene folder, a .ply model or a run folder")
-        return ViewerSource("ply", path, _read_ply_arrays(path), [], path.parent / ".inceptiongs",
+        # The folder beside a user's PLY is input too: flags and screenshots go to the cache.
+        return ViewerSource("ply", path, _read_ply_arrays(path), [], scene_cache_dir(path, [path]),
                             model_path=path)
     from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
 
@@ -119,13 +150,60 @@ def open_source(path: str | Path) -> ViewerSource:
                              f"(no .ply inside)") from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
-    runs = [c.parent for c in scene.work_dir.rglob("config.json")
-            if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir()]
-    if runs:
-        newest = max(runs, key=lambda run: max(p.stat().st_mtime for p in run.iterdir()))
-        source = _open_run(newest)
+    newest = newest_model(scene.work_dir)
+    if newest is not None and newest.name == "config.json":
+        source = _open_run(newest.parent)
         source.kind, source.path, source.work_dir = "scene", path, scene.work_dir
+        source.notes.append(f"opened the newest model in {scene.work_dir}: run {newest.parent.name}")
         return source
+    if newest is not None:  # a PLY saved in the work folder (the viewer's "save PLY"): original frame
+        gaussians = scene.normalization.gaussians_to_normalized(_read_ply(newest))
+        return ViewerSource("scene", path, gaussians.numpy(), list(scene.cameras), scene.work_dir,
+                            model_path=newest, scene=scene,
+                            notes=[f"opened the newest model in {scene.work_dir}: {newest.name}"])
+    if len(scene.points) == 0:
+        return ViewerSource("scene", path, points_as_splats(scene.points, None), list(scene.cameras),
+                            scene.work_dir, sparse_points=True, scene=scene, points_pending=True,
+                            notes=["no trained model and no sparse points: triangulating points from the "
+                                   "photos (the cameras are shown meanwhile)..."])
     return ViewerSource("scene", path, points_as_splats(scene.points, scene.point_colors),
                         list(scene.cameras), scene.work_dir, sparse_points=True, scene=scene,
                         notes=["no trained model yet: showing the sparse points"])
+
+
+def triangulated_splats(scene_root: Path) -> tuple[dict | None, str]:
+    """Points triangulated from a scene's photos with its known poses (as stage I starts an
+    LLFF scene; cached in the work folder), as splats, and the status line saying so. (None,
+    reason) when too few points come out. Photos at most TRIANGULATE_MAX_WIDTH wide: the
+    points only need to show where the scene is."""
+    from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
+    from inceptiongs.train.triangulate import cached_triangulation  # noqa: PLC0415
+
+    scene = load_scene(scene_root, max_width=TRIANGULATE_MAX_WIDTH)
+    images = [scene.load_image(i) for i in range(len(scene.cameras))]
+    points, colors, _ = cached_triangulation(scene.work_dir, scene.cameras, images)
+    if len(points) == 0:
+        return None, ("no trained model and no sparse points, and no points could be triangulated from the "
+                      "photos: showing the cameras only (train to get a model)")
+    return (points_as_splats(points, colors),
+            f"no trained model and no sparse points: showing {len(points)} points triangulated from the photos")
+
+
+class PointsWorker:
+    """triangulated_splats on a background thread, so the window opens at once."""
+
+    def __init__(self, scene_root: Path) -> None:
+        self.result: tuple[dict | None, str] | None = None
+        self._thread = threading.Thread(target=self._run, args=(Path(scene_root),), name="inceptiongs-points",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, scene_root: Path) -> None:
+        try:
+            self.result = triangulated_splats(scene_root)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line, the viewer keeps going
+            self.result = (None, f"no sparse points, and triangulating some failed: {type(exc).__name__}: {exc}")
+
+    @property
+    def done(self) -> bool:
+        return self.result is not None

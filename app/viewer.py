@@ -14,29 +14,45 @@ import glfw
 import moderngl
 import numpy as np
 
-from inceptiongs.camera import Camera
+from inceptiongs.camera import Camera, pose_distance
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io import flags as flag_io
-from inceptiongs.io.images import write_png
+from inceptiongs.io.images import write_image
 
 from . import editing, flags as flagging
 from .coverage_mode import SUGGESTED_FLAGS, CoverageMode
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
 from .images import visualize
 from .input import InputController
+from .jobs import JobSettings, resume_job_for, train_job_for
 from .live_training import LiveTraining
-from .navigation import NavigationState, default_view, estimate_up
-from .settings import GL_MODE_NAMES, FrameStats, ViewSettings
-from .sources import ViewerSource
+from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up
+from .progress import closing_line, final_scores, format_duration, plan_of
+from .runs import describe_model, run_dir_of
+from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
+from .sources import PointsWorker, ViewerSource
 from .window import create_imgui, create_window
 
 # While a job trains, its snapshots replace the model at most this often: each one costs a
 # re-render, and the job publishes faster than software GL can draw them.
 TRAINING_REFRESH_SECONDS = 0.3
 # run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
-# (no motion, no refine pending, no job): an idle window costs no frames.
-IDLE_WAIT_SECONDS = 0.5
+# (no motion, no refine pending, no running job, no reference image awaited): an idle window
+# costs no frames. Any input event ends the wait at once; the timeout only refreshes the
+# panel's figures now and then.
+IDLE_WAIT_SECONDS = 2.0
+# A crop-box handle is grabbed within this many pixels of the cursor.
+CROP_HANDLE_PIXELS = 12.0
+# While a job runs the viewer waits at most this long between frames (its snapshots show).
+MAX_TRAINING_WAIT_SECONDS = 0.5
+
+
+def read_framebuffer(screen: moderngl.Framebuffer, width: int, height: int) -> np.ndarray:
+    """The window's back buffer before the swap -> [H, W, 3] float in [0, 1], row 0 = top."""
+    data = screen.read(viewport=(0, 0, width, height), components=3, alignment=1)
+    image = np.frombuffer(data, np.uint8).reshape(height, width, 3)[::-1]
+    return image.astype(np.float32) / 255.0
 
 
 class Viewer:
@@ -57,7 +73,9 @@ class Viewer:
         self.edit = editing.EditState(source.gaussians)
         self.model_version = 1
         self.cameras = source.cameras
-        self.up = estimate_up(self.cameras)
+        # Up: the cameras' mean up, else the model's dominant plane; the View panel may change it.
+        self.up = estimate_up(self.cameras) if self.cameras else model_up(source.gaussians["means"])
+        self.up_source = "from the cameras" if self.cameras else "from the model"
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
@@ -70,16 +88,27 @@ class Viewer:
         self.selected_flag = -1
         self.save_path = str(source.work_dir / "edited.ply")  # the Edit panel's "file" field
         self.last_gl_error: str | None = None
-        self.job_factory = job_factory
+        self.job_factory = job_factory  # source -> job; None: the job dialog's stage-I training
+        self.job_settings = JobSettings()
         self.training: LiveTraining | None = None
+        self.run_dir = run_dir_of(source)  # the open run: what Resume continues, Bootstrap repairs
+        self.job_out_dir: Path | None = None  # where the current (or last) job writes
+        self.job_reported = False  # the closing line of the last job has replaced the status
+        self.show_help = False  # the key-bindings overlay (H / F1)
+        self.ui_rects: dict[str, tuple] = {}  # panel button -> where it was last drawn (panels.py)
+        self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
+        self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
+        self.captured: np.ndarray | None = None
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self.last_motion = -1e9
         self._last_frame_time = time.perf_counter()
         self._frame_times: list[float] = []
         self.with_ui = with_ui
         self.imgui_impl = create_imgui(self.window) if with_ui else None
+        self.points_worker = PointsWorker(source.scene.root) if source.points_pending else None
         self.input = InputController(self)
         self.input.install(self.window)
+        self.update_title()
 
     # --- setup -------------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
@@ -123,6 +152,27 @@ class Viewer:
             return None
         return flagging.unproject_pixel(camera, int(px), int(py), depth)
 
+    # --- training photos ------------------------------------------------------------------------
+    def nearest_camera_index(self, camera: Camera) -> int | None:
+        """The training camera closest to ``camera`` (centre distance + viewing angle), or None."""
+        if not self.cameras:
+            return None
+        distances = [pose_distance(camera.world_to_camera, c.world_to_camera) for c in self.cameras]
+        return int(np.argmin(distances))
+
+    def training_photo(self, index: int) -> np.ndarray | None:
+        """The photo of training camera ``index`` [H, W, 3] in [0, 1] (the last one is kept), or
+        None when the source has no scene photos or the file cannot be read."""
+        if self.source.scene is None:
+            return None
+        if self._photo_cache[0] != index:
+            try:
+                self._photo_cache = (index, self.source.scene.load_image(index))
+            except (InputError, OSError) as exc:
+                self.status = f"training photo not shown: {exc}"
+                self._photo_cache = (index, None)
+        return self._photo_cache[1]
+
     # --- navigation actions ------------------------------------------------------------------
     def snap_to_camera(self, index: int) -> None:
         if not self.cameras:
@@ -135,6 +185,24 @@ class Viewer:
 
     def reset_view(self) -> None:
         self.nav = self.home.copy()
+        self.moved()
+
+    def set_up(self, up) -> None:
+        """A new world up [3] (the View panel's +-X/Y/Z): the view and home are re-levelled."""
+        self.up = np.asarray(up, np.float64)
+        self.up_source = "chosen"
+        if self.cameras:
+            self.nav = leveled(self.nav, self.up)
+            self.home = leveled(self.home, self.up)
+        else:  # no camera to keep: the home view is the default view for the new up
+            self.home = self.initial_view()
+            self.nav = self.home.copy()
+        self.moved()
+
+    def frame_model(self) -> None:
+        """Fit the view to the model's robust bounds, looking the same way; pivot at its centre."""
+        width, height = self.framebuffer_size
+        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width / height)
         self.moved()
 
     def set_pivot_at_pixel(self, x: float, y: float) -> None:
@@ -210,11 +278,19 @@ class Viewer:
         b = self.window_to_framebuffer(*corner_b)
         self.edit.select(editing.select_rectangle(pixels, a, b), self.settings.selection_mode)
 
-    def brush_select(self, x: float, y: float) -> None:
+    def lasso_select(self, points) -> None:
+        """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""
+        pixels, _ = self.projected_means()
+        polygon = np.array([self.window_to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
+        self.edit.select(editing.select_lasso(pixels, polygon), self.settings.selection_mode)
+
+    def brush_select(self, x: float, y: float, stroke_start: bool = True) -> None:
+        """One dab of the brush; a drag's later dabs join its first one's undo step."""
         pixels, _ = self.projected_means()
         center = self.window_to_framebuffer(x, y)
         mode = "add" if self.settings.selection_mode == "replace" else self.settings.selection_mode
-        self.edit.select(editing.select_brush(pixels, center, self.settings.brush_radius), mode)
+        self.edit.select(editing.select_brush(pixels, center, self.settings.brush_radius), mode,
+                         record=stroke_start)
 
     def threshold_select(self) -> None:
         base = self.edit.base
@@ -225,6 +301,49 @@ class Viewer:
     def delete_selection(self) -> None:
         if self.edit.delete_selected():
             self.status = f"deleted; {self.edit.count} Gaussians left"
+
+    def fit_crop_box(self) -> None:
+        """The crop box around the model's robust bounds (2-98 % of the shown means, 5 % margin)."""
+        means = self.edit.visible_arrays()["means"]
+        if len(means) == 0:
+            return
+        lo, hi = np.percentile(means, [2, 98], axis=0)
+        margin = 0.05 * (hi - lo)
+        self.settings.crop_min, self.settings.crop_max = (lo - margin).tolist(), (hi + margin).tolist()
+
+    def enable_crop(self, enabled: bool = True) -> None:
+        """Show the crop box; the first time, fitted to the model (not a fixed +-1)."""
+        if enabled and self.settings.crop_min is None:
+            self.fit_crop_box()
+        self.settings.crop_enabled = enabled and self.settings.crop_min is not None
+
+    def crop_handle_at(self, x: float, y: float) -> int | None:
+        """The crop-box handle (editing.box_handles index) within CROP_HANDLE_PIXELS of window
+        position (x, y), nearest first; None when the box is hidden or none is that close."""
+        if not self.settings.crop_enabled:
+            return None
+        pixels, _ = editing.project_means(editing.box_handles(self.settings.crop_min, self.settings.crop_max),
+                                          self.current_camera())
+        distance = np.hypot(*(pixels - np.array(self.window_to_framebuffer(x, y))).T)
+        distance = np.where(np.isnan(distance), np.inf, distance)
+        best = int(np.argmin(distance))
+        return best if distance[best] <= CROP_HANDLE_PIXELS else None
+
+    def drag_crop_handle(self, handle: int, start, end) -> None:
+        """Move a crop face by the mouse motion start -> end (window positions) projected on the
+        face's axis as the screen shows it."""
+        settings = self.settings
+        point = editing.box_handles(settings.crop_min, settings.crop_max)[handle]
+        axis = np.eye(3)[handle // 2]
+        step = max(float(np.max(np.subtract(settings.crop_max, settings.crop_min))) * 0.01, 1e-6)
+        pixels, _ = editing.project_means(np.stack([point, point + axis * step]), self.current_camera())
+        screen_axis = (pixels[1] - pixels[0]) / step  # pixels per scene unit along the axis
+        length2 = float(screen_axis @ screen_axis)
+        if not np.isfinite(length2) or length2 < 1e-9:
+            return  # the axis points at the eye: no screen direction to drag along
+        motion = np.subtract(self.window_to_framebuffer(*end), self.window_to_framebuffer(*start))
+        settings.crop_min, settings.crop_max = editing.drag_box_face(
+            settings.crop_min, settings.crop_max, handle, float(motion @ screen_axis) / length2)
 
     def apply_crop(self) -> None:
         if self.edit.crop(np.array(self.settings.crop_min), np.array(self.settings.crop_max)):
@@ -266,38 +385,104 @@ class Viewer:
             path = self.source.work_dir / "screenshots" / f"view-{stamp}.png"
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_png(path, self.render_image())
+        write_image(path, self.render_image())  # at window size, in the extension's format
         self.status = f"screenshot saved to {path}"
         return path
 
+    def capture_window(self) -> np.ndarray:
+        """Draw one frame and return the window as shown, panels included: [H, W, 3] float."""
+        self.capture_requested = True
+        self.step()
+        return self.captured
+
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
-        if self.job_factory is None:
-            self.status = "no training job available for this source"
-            return
+        """A new stage-I run (the job dialog's settings) in a fresh run folder."""
         if self.training is not None and self.training.alive:
             return
         try:
-            job = self.job_factory(self.source)
+            job = (self.job_factory(self.source) if self.job_factory is not None
+                   else train_job_for(self.source, self.job_settings))
         except Exception as exc:  # noqa: BLE001 - a job that cannot be built is shown, not fatal
             self.status = f"training could not start: {type(exc).__name__}: {exc}"
             return
-        self.training = LiveTraining(job)
+        out_dir = getattr(job, "run_dir", None)
+        self.start_job(job, out_dir, f"training into {out_dir}" if out_dir else "training")
+
+    def resume_training(self) -> None:
+        """Continue the open run from its newest checkpoint."""
+        if self.training is not None and self.training.alive:
+            return
+        try:
+            job = resume_job_for(self.run_dir, self.job_settings)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line
+            self.status = f"resume could not start: {exc}"
+            return
+        self.start_job(job, job.run_dir, f"resuming {job.run_dir}")
+
+    def start_job(self, job, out_dir: Path | None, message: str) -> None:
+        """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
+        self.training = LiveTraining(job, plan=plan_of(job))
         self.training.start()
+        self.job_reported = False
+        self.job_out_dir = Path(out_dir) if out_dir is not None else None
+        if self.job_out_dir is not None:
+            self.run_dir = self.job_out_dir
+        self.status = message
+        self.update_title()
+
+    def report_job_end(self) -> None:
+        """Replace the running status with the closing line: time, iteration, final scores."""
+        run = self.training
+        run.refresh_scores(force=True)
+        self.job_reported = True
+        if run.error:
+            self.status = f"{run.plan.kind} failed after {format_duration(run.elapsed_s)}: {run.error}"
+            return
+        self.status = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
+                                   final_scores(run.progress.psnr), self.job_out_dir)
+
+    def update_title(self) -> None:
+        """The window names the model shown: the file, or the job folder it comes from."""
+        if self.training is not None and self.job_out_dir is not None:
+            shown = f"{self.job_out_dir} ({self.training.state})"
+        else:
+            shown = describe_model(self.source, self.run_dir)
+        self.title = f"InceptionGS — {shown}"
+        self.title_state = None if self.training is None else self.training.state
+        glfw.set_window_title(self.window, self.title)
+
+    def take_points(self) -> None:
+        """Show the triangulated points of a scene without sparse points once they are in."""
+        worker = self.points_worker
+        if worker is None or not worker.done:
+            return
+        self.points_worker = None
+        splats, self.status = worker.result
+        if splats is not None and self.training is None:
+            self.edit = editing.EditState(splats)
+            self.model_version += 1
+            self.moved()
 
     def take_snapshot(self) -> None:
         if self.training is None:
             return
+        if self.training.state != self.title_state:
+            self.update_title()  # running -> paused -> finished shows in the title
+        self.training.refresh_scores()
         now = time.perf_counter()
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and self.training.alive:
             return
+        ended = not self.training.alive  # read before the poll: the job's last publish is then in
         gaussians = self.training.poll_gaussians()
         if gaussians is not None:
             self.last_snapshot_time = now
             # A new model replaces the edit state: edits are for models at rest.
             self.edit = editing.EditState(gaussians)
             self.model_version += 1
+        if ended and not self.job_reported:
+            self.report_job_end()
 
     # --- the frame loop --------------------------------------------------------------------------
     def step(self) -> None:
@@ -307,6 +492,7 @@ class Viewer:
         seconds = min(now - self._last_frame_time, 0.25)  # a stalled frame must not teleport
         self._last_frame_time = now
         self.input.update_fly(seconds)
+        self.take_points()
         self.take_snapshot()
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
@@ -319,6 +505,13 @@ class Viewer:
         self.drawing.draw_overlays(self, screen)
         if self.imgui_impl is not None:
             self.draw_ui()
+        if self.capture_requested:
+            self.captured = read_framebuffer(screen, width, height)
+            self.capture_requested = False
+            # moderngl's read of the window sets the read buffer to a colour attachment, which GL
+            # refuses for the default framebuffer (the pixels still come from the back buffer):
+            # drop that error so it is neither shown nor raised by imgui's PyOpenGL later.
+            _ = self.ctx.error
         glfw.swap_buffers(self.window)
         self.stats.frames += 1
         self._frame_times.append(time.perf_counter() - now)
@@ -333,16 +526,19 @@ class Viewer:
 
         from .panels import draw_panels  # noqa: PLC0415
 
-        # PyOpenGL (used by imgui's backend) raises on any pending GL error, even one left
-        # by an earlier draw; read it here (which clears it) and show it instead.
-        error = self.ctx.error
-        if error != "GL_NO_ERROR":
-            self.last_gl_error = error
+        self.note_gl_error()
         self.imgui_impl.process_inputs()
         imgui.new_frame()
         draw_panels(self)
         imgui.render()
         self.imgui_impl.render(imgui.get_draw_data())
+
+    def note_gl_error(self) -> None:
+        """PyOpenGL (used by imgui's backend) raises on any pending GL error, even one left by
+        an earlier draw; read it here (which clears it) and show it in the panel instead."""
+        error = self.ctx.error
+        if error != "GL_NO_ERROR":
+            self.last_gl_error = error
 
     def should_close(self) -> bool:
         return bool(glfw.window_should_close(self.window))
@@ -355,15 +551,34 @@ class Viewer:
             return False
         if now - self.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
             return False  # the refine of the last snapshot is still to come
-        if self.training is not None and self.training.alive:
-            return False
-        return self.settings.mode != "reference"
+        if self.job_running():
+            return False  # a paused job is idle: it publishes nothing
+        if self.points_worker is not None:
+            return False  # the triangulated points are to come
+        return self.settings.mode != "reference" or self.drawing.reference_settled()
+
+    def job_running(self) -> bool:
+        """A job is training now (started, not paused, not ended)."""
+        return self.training is not None and self.training.alive and not self.training.control.pause.is_set()
+
+    def training_frame_wait(self) -> float:
+        """Seconds to leave to a running job after a frame (ViewSettings.training_utilisation)."""
+        share = min(max(self.settings.training_utilisation, 0.0), MAX_TRAINING_UTILISATION)
+        return min(self.stats.frame_ms / 1000.0 * share / (1.0 - share), MAX_TRAINING_WAIT_SECONDS)
+
+    def wait_for_next_frame(self) -> None:
+        """Sleep until input arrives or the next frame is due; step() polls what arrived."""
+        if self.is_idle():
+            glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
+        elif self.job_running() and time.perf_counter() - self.last_motion >= STILL_SECONDS:
+            glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
+        elif self.points_worker is not None and time.perf_counter() - self.last_motion >= STILL_SECONDS:
+            glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
 
     def run(self) -> None:
         try:
             while not self.should_close():
-                if self.is_idle():
-                    glfw.wait_events_timeout(IDLE_WAIT_SECONDS)  # step() polls what arrived
+                self.wait_for_next_frame()
                 self.step()
         finally:
             self.close()
@@ -374,6 +589,7 @@ class Viewer:
             self.training.stop(timeout=60.0)
         self.drawing.close()
         if self.imgui_impl is not None:
+            self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
             self.imgui_impl.shutdown()
             self.imgui_impl = None
         if self.window is not None:

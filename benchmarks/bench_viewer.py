@@ -13,7 +13,16 @@ Logs per-frame totals and the renderer's sort/draw times for these situations:
             the splats were redrawn)
 Targets: idle >= 10 FPS, moving >= 20 FPS, training >= 5 FPS.
 
-    DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30]
+With --jobs, the CPU rows (issue 19; the app's own loop, ``run()``'s wait included):
+  job it/s alone        a real stage-I job (the demo scene) on its thread, no viewer: what the
+                        command line gets
+  job it/s, viewer idle the same job with the viewer running its loop on that model, nobody
+                        touching it (target >= 85 % of the alone rate)
+  idle CPU %            process CPU time / wall time of the viewer loop with nothing happening,
+                        with the job paused, and in the reference mode once its image is in
+                        (target < 5 %)
+
+    DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30] [--jobs [--seconds 20]]
 """
 
 from __future__ import annotations
@@ -73,12 +82,91 @@ def _measure(viewer, frames: int, before_frame) -> dict:
             "scale": statistics.median(scales)}
 
 
+def _loop_for(viewer, seconds: float) -> tuple[float, int]:
+    """Run the app's own loop (wait, then step) for ``seconds`` -> (CPU % of one core, frames)."""
+    frames = viewer.stats.frames
+    cpu, wall = time.process_time(), time.perf_counter()
+    while time.perf_counter() - wall < seconds:
+        viewer.wait_for_next_frame()
+        viewer.step()
+    return 100.0 * (time.process_time() - cpu) / (time.perf_counter() - wall), viewer.stats.frames - frames
+
+
+def _job_rate(live, seconds: float, during=None) -> float:
+    """it/s of a started LiveTraining over ``seconds`` after its first snapshot; ``during(seconds)``
+    runs meanwhile (the viewer's loop), else this thread sleeps."""
+    while live.poll() is None or live.progress.iteration == 0:
+        time.sleep(0.05)
+    start_iteration, start = live.progress.iteration, time.perf_counter()
+    if during is None:
+        time.sleep(seconds)
+    else:
+        during(seconds)
+    live.poll()
+    return (live.progress.iteration - start_iteration) / (time.perf_counter() - start)
+
+
+def job_rows(seconds: float) -> list[str]:
+    """The CPU rows: a real training job alone vs with the viewer idle on it; idle CPU."""
+    import tempfile
+
+    from inceptiongs.app.jobs import JobSettings, train_job_for
+    from inceptiongs.app.live_training import LiveTraining
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.scene.demo import write_demo_scene
+
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        scene = write_demo_scene(Path(folder) / "scene", progress=False)
+        source = open_source(scene)
+        settings = JobSettings(minutes=None, iterations=100_000, downscale=1, protocol="none")
+        alone = LiveTraining(train_job_for(source, settings))
+        alone.start()
+        try:
+            rate_alone = _job_rate(alone, seconds)
+        finally:
+            alone.stop(timeout=120)
+        viewer = Viewer(source, 1280, 720)
+        try:
+            viewer.job_settings = settings
+            viewer.start_training()
+            rate_viewer = _job_rate(viewer.training, seconds, lambda s: _loop_for(viewer, s))
+            viewer.training.pause()
+            time.sleep(1.0)
+            paused_cpu, paused_frames = _loop_for(viewer, seconds / 2)
+            viewer.training.stop(timeout=120)
+            _loop_for(viewer, 2.0)  # the last snapshot's refine
+            idle_cpu, idle_frames = _loop_for(viewer, seconds / 2)
+            viewer.settings.mode = "reference"
+            deadline = time.perf_counter() + 120
+            while not viewer.drawing.reference_settled() and time.perf_counter() < deadline:
+                viewer.step()
+            reference_cpu, reference_frames = _loop_for(viewer, seconds / 2)
+        finally:
+            viewer.close()
+    share = 100.0 * rate_viewer / rate_alone if rate_alone > 0 else float("nan")
+    rows.append(f"  job it/s alone (as the CLI)     {rate_alone:6.2f}")
+    rows.append(f"  job it/s, viewer idle on it     {rate_viewer:6.2f}  ({share:.0f} % of alone; target >= 85 %)")
+    for name, cpu, frames in (("idle viewer", idle_cpu, idle_frames), ("paused job", paused_cpu, paused_frames),
+                              ("reference mode, settled", reference_cpu, reference_frames)):
+        verdict = "ok" if cpu < 5.0 else "ABOVE target 5 %"
+        rows.append(f"  CPU {name:24s} {cpu:5.1f} %  ({frames} frames in {seconds / 2:.0f} s) {verdict}")
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ply", type=Path, default=_default_ply())
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--jobs", action="store_true", help="also the job-throughput and idle-CPU rows")
+    parser.add_argument("--seconds", type=float, default=20.0, help="length of each --jobs measurement")
     args = parser.parse_args()
+    if args.jobs:
+        print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
+              "(figures are noisy on a shared machine)")
+        print("\n".join(job_rows(args.seconds)))
     if not args.ply.is_file():
         print(f"benchmark skipped: {args.ply} not found", file=sys.stderr)
         return 0

@@ -196,7 +196,10 @@ def test_delete_undo_redo_crop():
     np.testing.assert_array_equal(state.alive, expected)
     assert state.undo() and np.array_equal(state.alive, ~first)
     assert state.undo() and state.alive.all()
+    assert np.array_equal(state.selected, first)  # undoing a deletion brings its selection back
+    assert state.undo() and not state.selected.any()  # selection changes are undo steps too
     assert not state.undo()
+    assert state.redo() and np.array_equal(state.selected, first) and state.alive.all()
     assert state.redo() and np.array_equal(state.alive, ~first)
     state.select(arrays["means"][:, 1] > 0.9)
     state.delete_selected()  # a new edit drops the redo history
@@ -204,6 +207,16 @@ def test_delete_undo_redo_crop():
     # deleted Gaussians cannot be selected
     state.select(np.ones(200, bool))
     assert not (state.selected & ~state.alive).any()
+
+
+def test_a_brush_stroke_is_one_undo_step():
+    arrays = _arrays()
+    state = editing.EditState(arrays)
+    version = state.version
+    state.select(arrays["means"][:, 0] > 0.5, "add")                          # the stroke's first dab
+    state.select(arrays["means"][:, 1] > 0.5, "add", record=False)            # ... dragged on
+    assert state.version == version  # selecting changes nothing drawn as splats
+    assert state.undo() and not state.selected.any() and not state.undo()
 
 
 def test_selection_modes():
@@ -340,3 +353,23 @@ def test_moving_render_scale_adapts_to_the_budget_and_stays_in_range():
     for _ in range(len(scales) + 2):  # far under budget: back up to the largest, no further
         level = viewer.next_moving_level(level, 0.1 * budget)
     assert level == 0
+
+
+def test_lasso_selects_inside_the_polygon():
+    pixels = np.array([[5.0, 5.0], [15.0, 5.0], [5.0, 15.0], [1.0, 1.0], [np.nan, np.nan]])
+    triangle = [(0.0, 0.0), (20.0, 0.0), (0.0, 20.0)]
+    assert editing.select_lasso(pixels, triangle).tolist() == [True, False, False, True, False]
+    # A concave "C": the notch is outside.
+    c_shape = [(0, 0), (10, 0), (10, 3), (3, 3), (3, 7), (10, 7), (10, 10), (0, 10)]
+    inside = editing.select_lasso(np.array([[1.0, 5.0], [6.0, 5.0], [6.0, 1.0]]), c_shape)
+    assert inside.tolist() == [True, False, True]
+    assert not editing.select_lasso(pixels, triangle[:2]).any()
+
+
+def test_box_handles_and_face_drag():
+    handles = editing.box_handles([0, 0, 0], [2, 4, 6])
+    np.testing.assert_allclose(handles, [[0, 2, 3], [2, 2, 3], [1, 0, 3], [1, 4, 3], [1, 2, 0], [1, 2, 6]])
+    lo, hi = editing.drag_box_face([0, 0, 0], [2, 4, 6], 3, 1.5)
+    assert (lo, hi) == ([0, 0, 0], [2, 5.5, 6])
+    lo, hi = editing.drag_box_face([0, 0, 0], [2, 4, 6], 0, 5.0)  # past the opposite face: stops there
+    assert lo[0] == 2 and hi[0] == 2

@@ -2,8 +2,9 @@
 injected key/mouse events, live training through the snapshot hand-off, and --screenshot
 against the GL renderer run on its own.
 
-Regenerate the golden images (after an intended rendering change, check them by eye):
-    INCEPTIONGS_REGEN_GOLDEN=1 python3 -m pytest -q tests/test_app_viewer.py -k golden
+Golden images are regenerated only by a separate script (after an intended rendering change;
+look at them before committing):
+    DISPLAY=:99 python3 scripts/regen_viewer_golden.py
 """
 
 from __future__ import annotations
@@ -17,12 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inceptiongs.camera import Camera, write_camera_json
-from inceptiongs.gaussians import Gaussians
-from inceptiongs.camera import look_at
+from inceptiongs.camera import write_camera_json
+from viewer_cases import GOLDEN, MovingGridJob, front_camera, open_grid_viewer, write_grid_model
 
-GOLDEN = Path(__file__).resolve().parents[1] / "golden"
-REGENERATE = os.environ.get("INCEPTIONGS_REGEN_GOLDEN") == "1"
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
 GOLDEN_MEAN_ABS_MAX = 1.5 / 255
@@ -31,45 +29,10 @@ GOLDEN_P99_ABS_MAX = 24 / 255
 pytestmark = pytest.mark.gl
 
 
-def synthetic_gaussians(shift: float = 0.0) -> dict:
-    """A 12 x 9 grid of coloured, slightly flattened blobs on the plane z = 0 (x, y in [-1, 1]),
-    plus a second smaller layer behind it so sorting matters. Arrays as Gaussians.numpy()."""
-    xs, ys = np.meshgrid(np.linspace(-1, 1, 12), np.linspace(-0.75, 0.75, 9))
-    front = np.stack([xs.ravel() + shift, ys.ravel(), np.zeros(xs.size)], 1)
-    back = front[::3] * 1.2 + np.array([0.05, 0.05, 0.6])
-    means = np.concatenate([front, back]).astype(np.float32)
-    n = len(means)
-    hue = np.linspace(0, 1, n, endpoint=False)
-    rgb = np.stack([0.5 + 0.4 * np.cos(2 * np.pi * hue), 0.5 + 0.4 * np.cos(2 * np.pi * (hue - 1 / 3)),
-                    0.5 + 0.4 * np.cos(2 * np.pi * (hue - 2 / 3))], 1)
-    log_scales = np.tile(np.log([0.07, 0.05, 0.01]), (n, 1))
-    angle = np.linspace(0, np.pi, n)
-    quats = np.stack([np.cos(angle / 2), np.zeros(n), np.zeros(n), np.sin(angle / 2)], 1)
-    return {"means": means, "log_scales": log_scales.astype(np.float32), "quats": quats.astype(np.float32),
-            "opacity_logits": np.full(n, 2.0, np.float32),
-            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
-
-
-def front_camera(width=160, height=120) -> Camera:
-    pose = look_at(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
-    focal = 0.9 * width
-    return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
-
-
 @pytest.fixture()
 def model(tmp_path) -> Path:
-    from inceptiongs.io.ply import write_ply
+    return write_grid_model(tmp_path / "model.ply")
 
-    path = tmp_path / "model.ply"
-    write_ply(Gaussians.from_numpy(synthetic_gaussians()), path)
-    return path
-
-
-def _viewer(source_path: Path, **kwargs):
-    from inceptiongs.app.sources import open_source
-    from inceptiongs.app.viewer import Viewer
-
-    return Viewer(open_source(source_path), 640, 480, **kwargs)
 
 
 def _run_viewer_cli(*args, env_display=True, timeout=120):
@@ -88,7 +51,7 @@ def _compare(image: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
 # --- screenshots ------------------------------------------------------------------------------
 
 def test_screenshot_golden(xvfb, model, tmp_path):
-    from inceptiongs.io.images import read_png, write_png
+    from inceptiongs.io.images import read_png
 
     camera_path = tmp_path / "cam.json"
     write_camera_json(front_camera(), camera_path)
@@ -98,10 +61,8 @@ def test_screenshot_golden(xvfb, model, tmp_path):
     image = read_png(out)
     assert image.shape == (120, 160, 3)
     golden = GOLDEN / "viewer_grid_160x120.png"
-    if REGENERATE:
-        write_png(golden, image)
     if not golden.exists():
-        pytest.fail(f"{golden} missing: regenerate with INCEPTIONGS_REGEN_GOLDEN=1")
+        pytest.fail(f"{golden} missing: regenerate with scripts/regen_viewer_golden.py")
     mean, p99 = _compare(image, read_png(golden))
     assert mean <= GOLDEN_MEAN_ABS_MAX and p99 <= GOLDEN_P99_ABS_MAX, (mean, p99)
 
@@ -174,7 +135,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
     from inceptiongs.app import editing
     from inceptiongs.io.flags import load_flags
 
-    viewer = _viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         # The F key, as GLFW delivers it.
@@ -207,7 +168,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         assert abs(point[2]) < 0.1
         # Reloaded on start.
         viewer.close()
-        viewer = _viewer(model)
+        viewer = open_grid_viewer(model)
         assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
         viewer.delete_flag(0)
         viewer.rename_flag(0, "bad corner")
@@ -216,28 +177,9 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         viewer.close()
 
 
-class MovingGridJob:
-    """A fake training job (the hand-off is what is tested): publishes the grid shifted a little
-    further each step, then keeps its 'checkpoint' when told to stop."""
-
-    def __init__(self):
-        self.checkpoint_written = False
-        self.steps = 0
-
-    def run(self, box, control):
-        while not control.stop.is_set():
-            if control.pause.is_set():
-                time.sleep(0.01)
-                continue
-            self.steps += 1
-            box.publish(self.steps, synthetic_gaussians(shift=0.1 * self.steps), {"loss": 1.0 / self.steps})
-            time.sleep(0.05)
-        self.checkpoint_written = True
-
-
 def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
     job = MovingGridJob()
-    viewer = _viewer(model, job_factory=lambda source: job)
+    viewer = open_grid_viewer(model, job_factory=lambda source: job)
     try:
         viewer.step()
         viewer.start_training()
@@ -270,7 +212,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
         def run(self, box, control):
             raise ValueError("CUDA out of memory (pretend)")
 
-    viewer = _viewer(model, job_factory=lambda source: Broken())
+    viewer = open_grid_viewer(model, job_factory=lambda source: Broken())
     try:
         viewer.start_training()
         viewer.training._thread.join(10)
@@ -286,7 +228,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
 def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
     from inceptiongs.io.ply import read_ply
 
-    viewer = _viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         total = viewer.edit.count
@@ -312,7 +254,7 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
 def test_navigation_keys_move_the_camera(xvfb, model):
     import glfw
 
-    viewer = _viewer(model)
+    viewer = open_grid_viewer(model)
     try:
         viewer.step()
         start = viewer.nav.center.copy()
@@ -352,3 +294,36 @@ def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
         pytest.skip("no EGL context on this machine")
     assert result.returncode == 0, result.stderr[-2000:]
     assert "renderer" in result.stdout
+
+
+def _click(viewer, label):
+    """Click a panel button with mouse events as GLFW delivers them (a frame between each)."""
+    import glfw
+
+    viewer.step()  # the panel as it is now (a click may have changed which buttons show)
+    x0, y0, x1, y1 = viewer.ui_rects[label]
+    viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+    viewer.step()
+
+
+def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
+    job = MovingGridJob()
+    viewer = open_grid_viewer(model, 900, 900, job_factory=lambda source: job)
+    try:
+        viewer.step()
+        _click(viewer, "train (new run)")
+        assert viewer.training is not None and viewer.training.alive
+        _click(viewer, "pause")
+        assert viewer.training.state == "paused"
+        _click(viewer, "continue")
+        assert viewer.training.state == "running"
+        _click(viewer, "stop")
+        viewer.training.stop()
+        assert viewer.training.state == "stopped" and job.checkpoint_written
+        assert not viewer.edit.selected.any()  # the clicks went to the panel, not to the scene
+    finally:
+        viewer.close()

@@ -53,6 +53,18 @@ def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
         viewer.step()
         assert len(versions) >= 1, "the job's snapshots should reach the renderer"
         assert "bootstrap finished" in viewer.training.progress.message
-        assert (run_dir.with_name("run_bootstrap") / "model.ply").is_file()
+        first = run_dir.with_name("run_bootstrap") / "model.ply"
+        assert first.is_file()
+        assert viewer.run_dir == run_dir.with_name("run_bootstrap")  # the result is the open run now
+        # Bootstrapping again (here: the original run) writes a new folder; the first result stays.
+        first_bytes = first.read_bytes()
+        viewer.run_dir = run_dir
+        start_bootstrap(viewer, BootstrapConfig(iterations=2, k=1, l=2, ddim_steps=1, prior="untrained",
+                                                log_every=1, save_views=0))
+        assert viewer.training.job.out_dir == run_dir.with_name("run_bootstrap_2")
+        assert "run_bootstrap_2" in viewer.title
+        viewer.training.stop(timeout=120)
+        assert first.read_bytes() == first_bytes
+        assert (run_dir.with_name("run_bootstrap") / "checkpoints").is_dir()
     finally:
         viewer.close()

@@ -233,37 +233,6 @@ def test_cli_errors(stage1, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_viewer_jobs_pick_training_or_bootstrap(tmp_path):
-    from types import SimpleNamespace
-
-    from inceptiongs.io.flags import Flag, save_flags
-    from inceptiongs.app.jobs import default_job, start_bootstrap
-    from inceptiongs.app.main import default_job_factory
-    from inceptiongs.bootstrap.job import BootstrapJob
-    from inceptiongs.camera import Camera
-    from inceptiongs.train.job import TrainJob
-
-    run = tmp_path / "run"
-    run.mkdir()
-    (run / "config.json").write_text("{}")
-    scene = SimpleNamespace(root=tmp_path / "scene")
-    source = SimpleNamespace(kind="run", path=run, model_path=None, scene=scene, work_dir=tmp_path)
-    flags_file = tmp_path / "flags.json"
-    # No flags yet: the button trains stage I (a CPU-sized schedule, in the scene's work folder).
-    job = default_job_factory(source)(source)
-    assert isinstance(job, TrainJob) and job.run_dir.parent == tmp_path / "runs"
-    assert job.config.densify_until < 15_000  # short_run_schedule applied
-    viewer = SimpleNamespace(training=None, source=source, flags_file=flags_file, flags=[], status="")
-    start_bootstrap(viewer)
-    assert viewer.training is None and "no flagged views" in viewer.status
-    save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
-    job = default_job(source, flags_file)
-    assert isinstance(job, BootstrapJob) and job.run_dir == run and job.targets_file == flags_file
-    bare = SimpleNamespace(kind="ply", path=tmp_path / "m.ply", model_path=tmp_path / "m.ply", scene=None,
-                           work_dir=tmp_path)
-    assert default_job_factory(bare) is None
-
-
 def test_generated_pixels_can_be_trusted_less():
     from inceptiongs.bootstrap.refine import pixel_weights, virtual_view_loss
 

@@ -1,0 +1,121 @@
+"""What the Training panel says about a running job: its plan (iterations from..to, time budget,
+where it logs), elapsed time without pauses, ETA, the held-out PSNR series read from the job's
+metrics log, and the closing line that replaces the running status. Pure: no GL, no imgui."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from inceptiongs.bootstrap.job import BootstrapJob
+from inceptiongs.errors import InputError
+from inceptiongs.evaluation.report import eval_series, read_metrics
+from inceptiongs.train.checkpoint import list_checkpoints
+from inceptiongs.train.config import TrainConfig
+from inceptiongs.train.job import TrainJob
+
+# Held-out groups the panel plots, in this order (evaluation.report names them).
+PLOTTED_GROUPS = ("scarce", "covered", "all")
+
+
+@dataclass(frozen=True)
+class JobPlan:
+    """start/end: the iterations the job runs from and to; budget_s: its time budget (None:
+    the whole schedule); metrics: the metrics.jsonl it appends to (None: unknown)."""
+
+    start_iteration: int = 0
+    end_iteration: int | None = None
+    budget_s: float | None = None
+    metrics: Path | None = None
+    kind: str = "job"
+
+    @property
+    def steps(self) -> int | None:
+        return None if self.end_iteration is None else self.end_iteration - self.start_iteration
+
+
+def stage1_iteration(run_dir: Path) -> int:
+    """The iteration a run stands at: its newest checkpoint's, else its schedule's end."""
+    found = list_checkpoints(Path(run_dir))
+    if found:
+        return found[-1][0]
+    return TrainConfig.load(Path(run_dir) / "config.json").iterations
+
+
+def plan_of(job) -> JobPlan:
+    """The plan of the viewer's job kinds; an unknown job (a test's stand-in) gets an empty plan."""
+    if isinstance(job, TrainJob):
+        config = job.config
+        start = 0
+        if job.resume:
+            found = list_checkpoints(Path(job.run_dir))
+            start = found[-1][0] if found else 0
+        return JobPlan(start, config.iterations, None if config.minutes is None else 60.0 * config.minutes,
+                       Path(job.run_dir) / "metrics.jsonl", "training")
+    if isinstance(job, BootstrapJob):
+        config = job.config
+        start = stage1_iteration(job.run_dir)
+        out = job.out_dir
+        return JobPlan(start, start + config.rounds * config.iterations,
+                       None if config.minutes is None else 60.0 * config.minutes,
+                       None if out is None else Path(out) / "metrics.jsonl", "bootstrap")
+    return JobPlan()
+
+
+def eta_seconds(iteration: int, plan: JobPlan, rate: float, elapsed_s: float) -> float | None:
+    """Seconds left: the schedule's rest at ``rate`` it/s, or the budget's rest when that is
+    sooner; None when neither is known (no rate yet and no budget)."""
+    candidates = []
+    if plan.end_iteration is not None and rate > 0:  # rate > 0: the division is safe
+        candidates.append(max(plan.end_iteration - iteration, 0) / rate)
+    if plan.budget_s is not None:
+        candidates.append(max(plan.budget_s - elapsed_s, 0.0))
+    return min(candidates) if candidates else None
+
+
+def format_duration(seconds: float | None) -> str:
+    """12 -> "12 s", 75 -> "1 min 15 s", 3725 -> "1 h 02 min"; None -> "?"."""
+    if seconds is None or not math.isfinite(seconds):
+        return "?"
+    seconds = int(round(max(seconds, 0.0)))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {(seconds % 3600) // 60:02d} min"
+
+
+def psnr_series(metrics: Path | None) -> dict[str, tuple[list[float], list[float]]]:
+    """{group: ([iterations], [PSNR dB])} of the held-out evaluations logged so far; {} when
+    the log is absent or unreadable yet (the job may be writing its first line)."""
+    if metrics is None or not Path(metrics).is_file():
+        return {}
+    try:
+        series = eval_series(read_metrics(metrics), str(metrics))
+    except InputError:
+        return {}
+    out = {}
+    for group in PLOTTED_GROUPS:
+        points = [p for p in series.get(group, []) if p.iteration is not None and p.psnr is not None
+                  and math.isfinite(p.psnr)]
+        if points:
+            out[group] = ([float(p.iteration) for p in points], [float(p.psnr) for p in points])
+    return out
+
+
+def final_scores(series: dict[str, tuple[list[float], list[float]]]) -> str:
+    """"scarce 24.10 dB, covered 27.33 dB" from the last point of each group; "" when none."""
+    return ", ".join(f"{group} {values[-1]:.2f} dB" for group, (_, values) in series.items() if values)
+
+
+def closing_line(kind: str, state: str, elapsed_s: float, iteration: int, scores: str,
+                 out_dir: Path | None) -> str:
+    """The status that replaces "training..." once the job has ended."""
+    verb = {"finished": "finished", "stopped": "stopped", "failed": "failed"}.get(state, state)
+    line = f"{kind} {verb} in {format_duration(elapsed_s)} at iteration {iteration}"
+    if scores:
+        line += f"; held-out PSNR {scores}"
+    if out_dir is not None and state != "failed":
+        line += f"; saved in {out_dir}"
+    return line

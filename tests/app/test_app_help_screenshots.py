@@ -1,0 +1,81 @@
+"""Help and screenshots (issue 19): the bindings in --help and in the window (H / F1), the
+screenshot in the format its extension names, a run's screenshot at the window's size."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import glfw
+import numpy as np
+import pytest
+
+from inceptiongs.app.settings import KEY_BINDINGS
+from viewer_cases import open_grid_viewer, write_grid_model
+
+
+def test_help_lists_every_binding():
+    result = subprocess.run([sys.executable, "-m", "inceptiongs.app.main", "--help"], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0
+    for keys, action in KEY_BINDINGS:
+        assert keys in result.stdout and action in result.stdout, keys
+
+
+@pytest.mark.gl
+def test_h_shows_the_help_overlay(xvfb, tmp_path):
+    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 800, 600)
+    try:
+        viewer.step()
+        before = viewer.capture_window()
+        viewer.input.on_key(viewer.window, glfw.KEY_H, 0, glfw.PRESS, 0)
+        assert viewer.show_help
+        viewer.step()  # imgui sizes an auto-resizing window on its first frame, shows it on the next
+        during = viewer.capture_window()
+        # A window over the middle of the screen (right of the panel: x > 420).
+        middle = np.s_[200:400, 430:560]
+        assert np.abs(during[middle] - before[middle]).mean() > 0.05
+        viewer.input.on_key(viewer.window, glfw.KEY_F1, 0, glfw.PRESS, 0)
+        assert not viewer.show_help
+        after = viewer.capture_window()
+        assert np.abs(after[middle] - before[middle]).mean() < 0.01
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+def test_f12_writes_the_format_of_the_extension_at_window_size(xvfb, tmp_path):
+    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 400, 300, with_ui=False)
+    try:
+        viewer.step()
+        jpeg = viewer.save_screenshot(tmp_path / "x.jpg")
+        png = viewer.save_screenshot(tmp_path / "x.png")
+    finally:
+        viewer.close()
+    assert jpeg.read_bytes()[:3] == b"\xff\xd8\xff"        # JPEG data, not PNG data named .jpg
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from inceptiongs.io.images import read_png
+    assert read_png(jpeg).shape == (300, 400, 3)
+
+
+def test_a_run_screenshot_defaults_to_the_window_size(tmp_path):
+    from inceptiongs.app.screenshot import DEFAULT_SIZE, screenshot_camera
+    from inceptiongs.camera import Camera
+    from types import SimpleNamespace
+
+    training = Camera("train", 96, 72, 80.0, 80.0, 48.0, 36.0, np.eye(4))
+    source = SimpleNamespace(cameras=[training], gaussians={"means": np.zeros((1, 3))})
+    camera = screenshot_camera(source, None, None)
+    assert (camera.width, camera.height) == (960, 720) and camera.height <= DEFAULT_SIZE[1]
+    assert camera.fx == pytest.approx(800.0)  # the same view, scaled
+    assert screenshot_camera(source, None, (64, 48)).width == 64  # --size still decides
+
+
+def test_unknown_screenshot_format_is_one_line_error(tmp_path):
+    model = write_grid_model(tmp_path / "model.ply")
+    result = subprocess.run([sys.executable, "-m", "inceptiongs.app.main", str(model), "--screenshot",
+                             str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120,
+                            env={k: v for k, v in __import__("os").environ.items() if k != "DISPLAY"})
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "x.gif" in lines[0] and "unknown image format" in lines[0]

@@ -1,0 +1,253 @@
+"""The viewer's jobs: each writes a folder of its own, Resume continues the open run, the
+schedule is sized as the command line sizes it; the real app under Xvfb on the demo scene."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from inceptiongs.app.jobs import VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, start_bootstrap, train_job_for
+from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
+from inceptiongs.errors import InputError
+
+
+def test_fresh_folder_never_returns_an_existing_one(tmp_path):
+    base = tmp_path / "runs" / "train"
+    assert fresh_folder(base) == base
+    base.mkdir(parents=True)
+    assert fresh_folder(base) == tmp_path / "runs" / "train_2"
+    (tmp_path / "runs" / "train_2").mkdir()
+    (tmp_path / "runs" / "train_3").write_text("a file counts too")
+    assert fresh_folder(base) == tmp_path / "runs" / "train_4"
+    assert new_train_dir(tmp_path) == tmp_path / "runs" / "train_4"
+    run = tmp_path / "runs" / "train"
+    assert new_bootstrap_dir(run) == tmp_path / "runs" / "train_bootstrap"
+    (tmp_path / "runs" / "train_bootstrap").mkdir()
+    assert new_bootstrap_dir(run) == tmp_path / "runs" / "train_bootstrap_2"
+
+
+def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
+    from inceptiongs.commands.train import build_config
+
+    settings = JobSettings(minutes=2.0, iterations=800, downscale=3, protocol="llff", strategy="mcmc")
+    ours = settings.train_config(tmp_path)
+    args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
+                              seed=0, no_pgsr=False, strategy="mcmc", no_free_space=False)
+    cli = build_config(args)
+    # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
+    assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
+    assert ours.eval_every % ours.log_every == 0  # the trainer evaluates on logged steps only
+    assert ours.densify_until < 15_000 and ours.minutes == 2.0
+    boot = JobSettings(bootstrap_minutes=1.5, bootstrap_iterations=40, k=2, l=3, prior_minutes=0.5).bootstrap_config()
+    assert (boot.minutes, boot.iterations, boot.k, boot.l, boot.prior_minutes) == (1.5, 40, 2, 3, 0.5)
+    assert JobSettings().bootstrap_config().k is None  # 0 in the dialog: the bootstrap's own default
+    with pytest.raises(InputError):
+        JobSettings(downscale=0).train_config(tmp_path)
+
+
+def test_jobs_write_fresh_folders(tmp_path):
+    from inceptiongs.io.flags import Flag, save_flags
+    from inceptiongs.camera import Camera
+    from inceptiongs.train.job import TrainJob
+
+    run = tmp_path / "runs" / "train"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    source = SimpleNamespace(kind="scene", path=tmp_path, scene=SimpleNamespace(root=tmp_path), work_dir=tmp_path,
+                             run_dir=run)
+    job = train_job_for(source, JobSettings(iterations=100))
+    assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / "train_2" and not job.resume
+    flags_file = tmp_path / "flags.json"
+    viewer = SimpleNamespace(training=None, run_dir=run, flags_file=flags_file, flags=[], status="",
+                             job_settings=JobSettings())
+    start_bootstrap(viewer)
+    assert viewer.training is None and "no flagged views" in viewer.status
+    save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
+    (tmp_path / "runs" / "train_bootstrap").mkdir()
+    job = bootstrap_job_for(run, flags_file)
+    assert job.run_dir == run and job.targets_file == flags_file
+    assert job.out_dir == tmp_path / "runs" / "train_bootstrap_2"
+    with pytest.raises(InputError, match="trained run"):
+        bootstrap_job_for(None, flags_file)
+    bare = SimpleNamespace(kind="ply", path=tmp_path / "m.ply", scene=None, work_dir=tmp_path, run_dir=None)
+    with pytest.raises(InputError, match="no scene"):
+        train_job_for(bare)
+
+
+# --- the real app ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory) -> Path:
+    from inceptiongs.scene.demo import write_demo_scene
+
+    return write_demo_scene(tmp_path_factory.mktemp("viewer_jobs") / "scene", progress=False)
+
+
+def _wait(viewer, condition, seconds=120.0) -> None:
+    deadline = time.time() + seconds
+    while not condition() and time.time() < deadline:
+        viewer.wait_for_next_frame()  # as run() does: the job gets the CPU between frames
+        viewer.step()
+    assert condition(), viewer.status
+
+
+@pytest.mark.gl
+def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
+    import glfw
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
+
+    viewer = Viewer(open_source(demo_scene), 320, 240)
+    # The scene's work folder is in the cache directory: nothing is written into the scene.
+    runs = viewer.source.work_dir / "runs"
+    assert demo_scene not in runs.parents
+    try:
+        assert "sparse points" in viewer.title
+        # A long schedule, stopped early: what a user does who trains "until it looks good".
+        viewer.job_settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
+        viewer.start_training()
+        assert viewer.job_out_dir == runs / "train" and str(runs / "train") in viewer.title
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        first = latest_checkpoint(runs / "train")
+        assert first is not None
+        first_bytes = first.read_bytes()
+        # A second "train" starts a new run beside the first, leaving it as it was.
+        viewer.start_training()
+        assert viewer.job_out_dir == runs / "train_2"
+        assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert first.read_bytes() == first_bytes
+        stopped_at = list_checkpoints(runs / "train_2")[-1][0]
+        # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
+        assert viewer.run_dir == runs / "train_2"
+        viewer.resume_training()
+        job = viewer.training.job
+        assert job.resume and job.run_dir == runs / "train_2"
+        seen = []
+        _wait(viewer, lambda: (seen.append(viewer.training.progress.iteration) or True)
+              and viewer.training.progress.iteration > stopped_at)
+        viewer.training.stop()
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert viewer.training.error is None, viewer.training.error
+        # A fresh run would show iteration 10 first; the resumed one starts past its checkpoint.
+        assert min(i for i in seen if i > 0) > stopped_at
+        assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
+        viewer.step()
+        assert "stopped" in viewer.title
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene, tmp_path):
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.io.images import write_png
+
+    viewer = Viewer(open_source(demo_scene), 1200, 1000)
+    try:
+        viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
+        viewer.start_training()
+        plan = viewer.training.plan
+        assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
+        _wait(viewer, lambda: viewer.training.progress.iteration >= 30)
+        assert viewer.training.elapsed_s > 0 and viewer.training.progress.iterations_per_second > 0
+        _wait(viewer, lambda: not viewer.training.alive, 300)
+        viewer.step()
+        assert viewer.training.error is None, viewer.training.error
+        psnr = viewer.training.progress.psnr
+        assert psnr and all(len(iterations) >= 3 for iterations, _ in psnr.values())  # 0, 50, 70
+        # The closing line replaced "training into ...": time, iteration and the final scores.
+        assert viewer.status.startswith("training finished in ") and "at iteration 70" in viewer.status
+        last = next(iter(psnr.values()))[1][-1]
+        assert f"{last:.2f} dB" in viewer.status
+        image = viewer.capture_window()
+        write_png(tmp_path / "progress.png", image)
+        # The plots' axes follow the data: every point lies inside the drawn ranges, and the
+        # x range spans the run rather than sitting at its first point.
+        limits = viewer.training.progress.plot_limits
+        (x0, x1), (y0, y1) = limits["held-out PSNR"]
+        for iterations, values in psnr.values():
+            assert x0 <= min(iterations) and max(iterations) <= x1
+            assert y0 <= min(values) and max(values) <= y1
+        assert x1 - x0 >= 60
+        (x0, x1), _ = limits["training loss"]
+        assert x1 - x0 >= 40
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
+    """A PLY saved in the work folder after the runs is what the scene opens next (and says so)."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    source = open_source(demo_scene)
+    if source.run_dir is None:
+        pytest.skip("needs the runs of test_train_twice_then_resume_never_overwrites (same module)")
+    viewer = Viewer(source, 320, 240)
+    try:
+        viewer.edit.select(np.arange(viewer.edit.count) % 2 == 0)
+        viewer.delete_selection()
+        shown = viewer.edit.visible_arrays()["means"]
+        saved = viewer.save_ply(source.work_dir / "edited.ply")
+    finally:
+        viewer.close()
+    reopened = Viewer(open_source(demo_scene), 320, 240)
+    try:
+        assert reopened.source.model_path == saved and "edited.ply" in reopened.title
+        assert reopened.run_dir is None and "edited.ply" in reopened.status
+        np.testing.assert_allclose(reopened.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
+    finally:
+        reopened.close()
+    time.sleep(0.05)
+    # A run written to after the PLY is the newest again.
+    (source.work_dir / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
+    assert open_source(demo_scene).run_dir == source.work_dir / "runs" / "train_2"
+
+
+@pytest.mark.gl
+def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
+    import cv2
+
+    from inceptiongs.app.images import PHOTO_INSET_FRACTION
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    viewer = Viewer(open_source(demo_scene), 384, 288, with_ui=False)
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.snap_to_camera(3)
+        time.sleep(0.2)  # still: the full-resolution frames follow
+        viewer.step()
+        photo = viewer.source.scene.load_image(3)
+        assert viewer.nearest_camera_index(viewer.current_camera()) == 3
+        render = viewer.capture_window()
+        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 1.0
+        blended = viewer.capture_window()
+        expected = cv2.resize(photo, (384, 288), interpolation=cv2.INTER_AREA)
+        assert np.abs(blended - expected).mean() < 0.02           # the photo itself at weight 1
+        assert np.abs(render - expected).mean() > np.abs(blended - expected).mean()
+        viewer.settings.photo = "beside"
+        beside = viewer.capture_window()
+        inset_w = int(384 * PHOTO_INSET_FRACTION)
+        inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
+        inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
+        assert np.abs(beside[-inset_h:, -inset_w:] - inset).mean() < 0.02  # the photo in the corner
+        np.testing.assert_allclose(beside[:100, :150], render[:100, :150], atol=2 / 255)  # the render elsewhere
+    finally:
+        viewer.close()

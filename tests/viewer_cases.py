@@ -1,0 +1,138 @@
+"""Shared pieces of the viewer's tests: a small synthetic model and the real app opened on it."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from inceptiongs.camera import Camera, look_at
+from inceptiongs.gaussians import Gaussians
+
+
+def synthetic_gaussians(shift: float = 0.0) -> dict:
+    """A 12 x 9 grid of coloured, slightly flattened blobs on the plane z = 0 (x, y in [-1, 1]),
+    plus a second smaller layer behind it so sorting matters. Arrays as Gaussians.numpy()."""
+    xs, ys = np.meshgrid(np.linspace(-1, 1, 12), np.linspace(-0.75, 0.75, 9))
+    front = np.stack([xs.ravel() + shift, ys.ravel(), np.zeros(xs.size)], 1)
+    back = front[::3] * 1.2 + np.array([0.05, 0.05, 0.6])
+    means = np.concatenate([front, back]).astype(np.float32)
+    n = len(means)
+    hue = np.linspace(0, 1, n, endpoint=False)
+    rgb = np.stack([0.5 + 0.4 * np.cos(2 * np.pi * hue), 0.5 + 0.4 * np.cos(2 * np.pi * (hue - 1 / 3)),
+                    0.5 + 0.4 * np.cos(2 * np.pi * (hue - 2 / 3))], 1)
+    log_scales = np.tile(np.log([0.07, 0.05, 0.01]), (n, 1))
+    angle = np.linspace(0, np.pi, n)
+    quats = np.stack([np.cos(angle / 2), np.zeros(n), np.zeros(n), np.sin(angle / 2)], 1)
+    return {"means": means, "log_scales": log_scales.astype(np.float32), "quats": quats.astype(np.float32),
+            "opacity_logits": np.full(n, 2.0, np.float32),
+            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
+
+
+def front_camera(width=160, height=120) -> Camera:
+    pose = look_at(np.array([0.3, -0.2, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
+    focal = 0.9 * width
+    return Camera("front", width, height, focal, focal, width / 2, height / 2, pose)
+
+
+def synthetic_table() -> dict:
+    """A grey disc of radius 1 on the plane z = 0 (a table top, its normal +Z) with a red block
+    standing on it at z in [0.1, 0.5]: the model's up is +Z, and an upright view shows the red
+    above the grey. Arrays as Gaussians.numpy()."""
+    rng = np.random.default_rng(3)
+    angle, radius = rng.uniform(0, 2 * np.pi, 900), np.sqrt(rng.uniform(0, 1, 900))
+    disc = np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.normal(0, 0.005, 900)], 1)
+    block = np.stack([rng.uniform(-0.15, 0.15, 200), rng.uniform(-0.15, 0.15, 200), rng.uniform(0.1, 0.5, 200)], 1)
+    means = np.concatenate([disc, block]).astype(np.float32)
+    rgb = np.concatenate([np.full((900, 3), 0.6), np.tile([0.9, 0.1, 0.1], (200, 1))])
+    n = len(means)
+    return {"means": means, "log_scales": np.full((n, 3), np.log(0.05), np.float32),
+            "quats": np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+            "opacity_logits": np.full(n, 3.0, np.float32),
+            "sh": ((rgb - 0.5) / 0.28209479177387814)[:, None, :].astype(np.float32)}
+
+
+def write_table_model(path: Path) -> Path:
+    """synthetic_table() as a PLY at ``path``."""
+    from inceptiongs.io.ply import write_ply
+
+    write_ply(Gaussians.from_numpy(synthetic_table()), path)
+    return path
+
+
+def write_grid_model(path: Path) -> Path:
+    """synthetic_gaussians() as a PLY at ``path``."""
+    from inceptiongs.io.ply import write_ply
+
+    write_ply(Gaussians.from_numpy(synthetic_gaussians()), path)
+    return path
+
+
+def open_viewer(source_path: Path, width: int = 640, height: int = 480, **kwargs):
+    """The real app (a GLFW window; needs the xvfb fixture) on ``source_path``."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    return Viewer(open_source(source_path), width, height, **kwargs)
+
+
+def open_grid_viewer(source_path: Path, width: int = 640, height: int = 480, **kwargs):
+    """open_viewer on the synthetic grid, seen from the front: the grid is a wall (its plane's
+    normal, which the viewer would take as up, is horizontal), so -Y is chosen as up."""
+    viewer = open_viewer(source_path, width, height, **kwargs)
+    viewer.set_up((0.0, -1.0, 0.0))
+    return viewer
+
+
+class MovingGridJob:
+    """A fake training job (the hand-off is what is tested): publishes the grid shifted a little
+    further each step, then keeps its 'checkpoint' when told to stop."""
+
+    def __init__(self):
+        self.checkpoint_written = False
+        self.steps = 0
+
+    def run(self, box, control):
+        while not control.stop.is_set():
+            if control.pause.is_set():
+                time.sleep(0.01)
+                continue
+            self.steps += 1
+            box.publish(self.steps, synthetic_gaussians(shift=0.1 * self.steps), {"loss": 1.0 / self.steps})
+            time.sleep(0.05)
+        self.checkpoint_written = True
+
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+# The real window's pictures that have golden images: file name -> the view settings shown.
+GOLDEN_WINDOW_SIZE = (320, 240)
+
+
+def golden_window_images(model: Path) -> dict:
+    """{golden file name: [H, W, 3] window capture} of the app on ``model`` (no panels), seen
+    from front_camera(): what scripts/regen_viewer_golden.py writes and the tests compare."""
+    from inceptiongs.app.navigation import NavigationState
+
+    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE, with_ui=False)
+    try:
+        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.settings.show_training_cameras = False
+        images = {}
+        viewer.settings.mode = "opacity"
+        images["viewer_window_opacity_320x240.png"] = viewer.capture_window()
+    finally:
+        viewer.close()
+    # Orientation: a model without cameras opens upright (its up from its dominant plane).
+    viewer = open_viewer(write_table_model(Path(model).with_name("table.ply")), *GOLDEN_WINDOW_SIZE, with_ui=False)
+    try:
+        images["viewer_window_table_up_320x240.png"] = viewer.capture_window()
+        # The crop box, fitted to the model, drawn in 3-D with its face handles.
+        viewer.settings.orbit = True
+        viewer.nav.orbit(60.0, 40.0)  # from above at an angle: all three axes show
+        viewer.enable_crop()
+        viewer.frame_model()
+        images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
+    finally:
+        viewer.close()
+    return images
