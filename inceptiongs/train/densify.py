@@ -107,9 +107,11 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
         opacity = torch.sigmoid(params["opacity_logits"])
         prune = opacity < config.prune_opacity
         if prune_large:
-            # New rows have not been rendered yet: no screen size (as in 3DGS).
+            # New rows have not been rendered yet: no screen size (as in 3DGS). Past the growth
+            # window only the world-size rule: what the screen rule removes (a large background
+            # Gaussian, say) no split could cover again.
             radii = torch.cat([stats.max_radii[~split], torch.zeros(len(source) - int((~split).sum()))])
-            prune |= oversized(params, radii, config, extent)
+            prune |= oversized(params, radii if grow else None, config, extent)
         # Never remove every Gaussian: an empty model cannot recover.
         if bool(prune.all()):
             prune[torch.argmax(opacity)] = False
@@ -120,13 +122,13 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
     return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(prune.sum())}
 
 
-def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor, config: TrainConfig,
+def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, config: TrainConfig,
               extent: float) -> torch.Tensor:
     """[N] bool, 3DGS's size rules: a footprint radius above ``prune_screen_radius`` pixels in some
-    view since the last densification (max_radii [N]), or a largest scale above
-    ``prune_world_fraction`` of the scene extent."""
-    too_wide = max_radii > config.prune_screen_radius
-    return too_wide | (params["log_scales"].detach().exp().amax(1) > config.prune_world_fraction * extent)
+    view since the last densification (max_radii [N]; None skips this rule), or a largest scale
+    above ``prune_world_fraction`` of the scene extent."""
+    too_big = params["log_scales"].detach().exp().amax(1) > config.prune_world_fraction * extent
+    return too_big if max_radii is None else too_big | (max_radii > config.prune_screen_radius)
 
 
 def remove_rows(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, remove: torch.Tensor,

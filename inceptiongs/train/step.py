@@ -22,7 +22,7 @@ from ..gaussians import Gaussians
 from . import losses
 from .config import TrainConfig
 from . import strategy as strategies
-from .densify import DensifyStats, accumulate, densify_and_prune, oversized, remove_rows, reset_opacity
+from .densify import DensifyStats, accumulate, densify_and_prune, remove_rows, reset_opacity
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
                          near_bounds, seen_through, sh_rest_mask)
 from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
@@ -367,9 +367,10 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
         state.params["means"].shape[0], dtype=torch.bool)
     counts: dict = {"free_space": int(flags.sum())}
     if config.strategy == "mcmc":
+        # No size rule: the paper's answer to large Gaussians is its scale regulariser, and
+        # relocation (by opacity) never refills what a size rule removes (on the demo it emptied
+        # the sky: 9.2 dB).
         dead = torch.sigmoid(state.params["opacity_logits"].detach()) <= config.mcmc_dead_opacity
-        if prune_large:
-            dead |= oversized(state.params, state.stats.max_radii, config, data.extent)
         dead |= flags
         if growing:
             counts["relocated"] = strategies.relocate(state.params, state.optimizer, dead, state.generator, carried)

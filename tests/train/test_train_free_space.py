@@ -4,7 +4,6 @@ Gaussians go without an opacity reset, and SH bands follow the viewing spread.""
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import torch
