@@ -46,6 +46,8 @@ VARIANTS = {
     "fill-prior": {"fill": "prior"},
     "fill-inpaint": {"fill": "inpaint"},
     "no-conscience": {"conscience_tolerance": None},
+    # Virtual steps learn only from pixels the photos are trusted on (the fill gives no gradient).
+    "masked": {"generated_weight": 0.0},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},
