@@ -24,8 +24,8 @@ import numpy as np
 
 from ..camera import Camera, look_at
 from ..errors import InputError
-from .demo import Textures, camera_rays, checker, check_out_dir, hit_box, hit_plane, mix, sample_points, \
-    write_scene_folder
+from .demo import Textures, checker, check_out_dir, hit_box, hit_plane, mix, nearest_hits, sample_points, \
+    supersampled_photo, write_scene_folder
 
 # size -> (width, height, dense cameras, scarce cameras). "tiny" keeps tests fast.
 COURTYARD_SIZES = {"tiny": (64, 48, 16, 5), "small": (192, 144, 40, 7), "medium": (320, 240, 56, 9)}
@@ -163,9 +163,7 @@ def trace_courtyard(origins: np.ndarray, dirs: np.ndarray, tex: Textures) -> tup
         hit_plane(origins, dirs, 0, -_HALF, lo, hi, 1.0),    # west facade
         hit_box(origins, dirs, *_FOUNTAIN),
     ]
-    ts = np.stack([h[0] for h in hits])               # [S, R]
-    kind = np.argmin(ts, axis=0)
-    t = ts[kind, np.arange(len(dirs))]
+    kind, t = nearest_hits(hits)
     colour = mix((0.50, 0.66, 0.92), (0.85, 0.90, 0.98), 1.0 - np.clip(dirs[:, 2], 0, 1))
     for k, (_, normals) in enumerate(hits):
         mask = (kind == k) & np.isfinite(t)
@@ -187,11 +185,7 @@ def trace_courtyard(origins: np.ndarray, dirs: np.ndarray, tex: Textures) -> tup
 
 def render_courtyard_photo(camera: Camera, tex: Textures) -> np.ndarray:
     """Supersampled photo: [H, W, 3] float in [0, 1]."""
-    s = _SUPERSAMPLE
-    offsets = np.array([((a + 0.5) / s, (b + 0.5) / s) for b in range(s) for a in range(s)])
-    origins, dirs = camera_rays(camera, offsets)
-    colour, _ = trace_courtyard(origins, dirs, tex)
-    return colour.reshape(len(offsets), camera.height, camera.width, 3).mean(axis=0)
+    return supersampled_photo(camera, lambda origins, dirs: trace_courtyard(origins, dirs, tex), _SUPERSAMPLE)
 
 
 def courtyard_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera], list[str], list[str]]:

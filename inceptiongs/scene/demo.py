@@ -175,9 +175,7 @@ def trace(origins: np.ndarray, dirs: np.ndarray, tex: Textures) -> tuple[np.ndar
         hit_sphere(origins, dirs, *_SPHERE_A),
         hit_sphere(origins, dirs, *_SPHERE_B),
     ]
-    ts = np.stack([h[0] for h in hits])              # [S, R]
-    kind = np.argmin(ts, axis=0)
-    t = ts[kind, np.arange(len(dirs))]
+    kind, t = nearest_hits(hits)
     # Sky: brighter towards the horizon.
     colour = mix((0.55, 0.70, 0.95), (0.85, 0.90, 0.98), 1.0 - np.clip(dirs[:, 2], 0, 1))
     for k, (_, normals) in enumerate(hits):
@@ -208,13 +206,26 @@ def camera_rays(camera: Camera, offsets: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.broadcast_to(camera.center, d.shape), d
 
 
-def render_photo(camera: Camera, tex: Textures) -> np.ndarray:
-    """Supersampled photo: [H, W, 3] float in [0, 1]."""
-    s = _SUPERSAMPLE
-    offsets = np.array([((a + 0.5) / s, (b + 0.5) / s) for b in range(s) for a in range(s)])
+def nearest_hits(hits: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """hits: per surface (distance [R] with inf = miss, normals [R, 3]) -> (index of the nearest
+    surface [R], its distance [R]; inf where every surface was missed)."""
+    ts = np.stack([h[0] for h in hits])              # [S, R]
+    kind = np.argmin(ts, axis=0)
+    return kind, ts[kind, np.arange(ts.shape[1])]
+
+
+def supersampled_photo(camera: Camera, trace_fn, samples: int = _SUPERSAMPLE) -> np.ndarray:
+    """[H, W, 3] float in [0, 1]: the mean of samples x samples rays per pixel through
+    trace_fn(origins [R, 3], dirs [R, 3]) -> (colour [R, 3], distance [R])."""
+    offsets = np.array([((a + 0.5) / samples, (b + 0.5) / samples) for b in range(samples) for a in range(samples)])
     origins, dirs = camera_rays(camera, offsets)
-    colour, _ = trace(origins, dirs, tex)
+    colour, _ = trace_fn(origins, dirs)
     return colour.reshape(len(offsets), camera.height, camera.width, 3).mean(axis=0)
+
+
+def render_photo(camera: Camera, tex: Textures) -> np.ndarray:
+    """Supersampled photo of the objects scene: [H, W, 3] float in [0, 1]."""
+    return supersampled_photo(camera, lambda origins, dirs: trace(origins, dirs, tex))
 
 
 def demo_cameras(size: str = "small", seed: int = 0) -> tuple[list[Camera], list[str], list[str]]:
