@@ -74,7 +74,7 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def config(**overrides) -> TrainConfig:
     """A stage-I config for these tiny captures: plain 3DGS terms, every rule on a short schedule."""
-    base = TrainConfig(pgsr=False, iterations=40, densify_from=5, densify_every=5, densify_until=30,
+    base = TrainConfig(pgsr=False, free_space=True, iterations=40, densify_from=5, densify_every=5, densify_until=30,
                        prune_large_from=5, opacity_reset_every=10_000, sh_increase_every=5,
                        max_gaussians=5_000, log_every=10_000)
     return dataclasses.replace(base, **overrides)

@@ -31,8 +31,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--strategy", choices=STRATEGIES, default="default",
                         help="default: 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed budget); "
                              "dropgaussian: random drops with opacity compensation")
-    parser.add_argument("--no-free-space", action="store_true",
-                        help="keep Gaussians at the cameras and before their near bounds (ablation)")
+    parser.add_argument("--free-space", action="store_true",
+                        help="remove Gaussians at the training cameras, before their near bounds (from the "
+                             "sparse points) and those every view looks through")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",
@@ -51,7 +52,7 @@ def build_config(args) -> "TrainConfig":
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
-                         size_to_minutes=sized, free_space=not args.no_free_space)
+                         size_to_minutes=sized, free_space=args.free_space)
     return short_run_schedule(config.validate("command line"))
 
 

@@ -88,7 +88,7 @@ class _StopAt:
 def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy):
     # Every strategy's random draws (drops, MCMC noise and relocation) and its per-Gaussian
     # statistics live in the checkpoint, so a resumed run repeats the uninterrupted one exactly.
-    config = _config(demo_scene, strategy=strategy)
+    config = _config(demo_scene, strategy=strategy, free_space=True)
     straight = train(config, tmp_path / "straight", progress=False)
     stopper = _StopAt(8)
     half = train(config, tmp_path / "resumed", progress=False, control=stopper.control,
