@@ -131,3 +131,24 @@ def test_view_scarcity_ranks_the_lone_view_first():
     sources[7] = True
     assert np.allclose(cov.view_scarcity(directions, visible, sources)[:7], 1.0)
     assert cov.scarcest_views(scores, 2, candidates=[0, 3, 6]) == sorted([0, 3, 6], key=lambda i: -scores[i])[:2]
+
+
+def test_the_hemisphere_map_covers_only_the_region_of_interest():
+    from inceptiongs.evaluation.coverage_map import compute
+
+    # Two patches of points: the west one is watched by cameras to its west, the east one by
+    # cameras to its east; each camera's depth map shows a surface at 4.5 units, so the far
+    # patch behind its own is hidden.
+    rng = np.random.default_rng(0)
+    west = rng.uniform(-0.3, 0.3, (40, 3)) * np.array([1, 1, 0]) + np.array([-5.0, 0, 0])
+    east = rng.uniform(-0.3, 0.3, (40, 3)) * np.array([1, 1, 0]) + np.array([5.0, 0, 0])
+    cameras = ([_camera((-8.0, y, 2.0), target=(-5.0, 0.0, 0.0)) for y in (-1.0, 0.0, 1.0)]
+               + [_camera((8.0, y, 2.0), target=(5.0, 0.0, 0.0)) for y in (-1.0, 0.0, 1.0)])
+    points = np.concatenate([west, east])
+    roi = (np.array([-6.0, -1.0, -1.0]), np.array([-4.0, 1.0, 1.0]))
+    result = compute(points, cameras, np.ones(6, bool), depths=[np.full((48, 64), 4.5)] * 6, roi=roi)
+    assert result.in_region.sum() == 40 and result.counts.tolist() == [3] * 80
+    row, col = np.unravel_index(np.argmax(result.density), result.density.shape)
+    assert math.degrees(result.azimuth[col]) == pytest.approx(180.0, abs=10.0)   # seen from the west
+    east_cells = (np.degrees(result.azimuth) < 45) | (np.degrees(result.azimuth) > 315)
+    assert result.density[:, east_cells].max() < 0.01 * result.density.max()
