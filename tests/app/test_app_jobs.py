@@ -38,7 +38,7 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     settings = JobSettings(minutes=2.0, iterations=800, downscale=3, protocol="llff", strategy="mcmc")
     ours = settings.train_config(tmp_path)
     args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
-                              seed=0, no_pgsr=False, strategy="mcmc", no_free_space=False)
+                              seed=0, no_pgsr=False, strategy="mcmc", free_space=False)
     cli = build_config(args)
     # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
     assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
