@@ -276,18 +276,21 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         """-> make(camera, round, save) -> (VirtualTarget, blend sources): I* at a virtual view
         from ``current`` (its G-buffer, its render for the prior's start, its depth for warping)."""
         gaussians_hash = gaussians_version(current)
-        depth_cache: dict[str, torch.Tensor] = {}
+        # One render per (camera, output) for this model: the warps' depths, the fill, the PNGs.
+        render_cache: dict[tuple[str, str], torch.Tensor] = {}
+
+        def rendered(camera, output: str) -> torch.Tensor:
+            key = (camera.name + str(camera.world_to_camera.tobytes()), output)
+            if key not in render_cache:
+                with torch.no_grad():
+                    render_cache[key] = render_fn(current, camera, outputs=(output,))[output]
+            return render_cache[key]
 
         def render_depth(camera) -> torch.Tensor:
-            key = camera.name + str(camera.world_to_camera.tobytes())
-            if key not in depth_cache:
-                with torch.no_grad():
-                    depth_cache[key] = render_fn(current, camera, outputs=("depth",))["depth"]
-            return depth_cache[key]
+            return rendered(camera, "depth")
 
         def render_rgb(camera) -> torch.Tensor:
-            with torch.no_grad():
-                return render_fn(current, camera, outputs=("rgb",))["rgb"].float().clamp(0.0, 1.0)
+            return rendered(camera, "rgb").float().clamp(0.0, 1.0)
 
         def make(camera, round_number: int, save: bool):
             if prior is not None:
@@ -300,10 +303,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                                        config.blending, config.delta, config.supervision, config.fill, render_rgb)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
             if save:
-                with torch.no_grad():
-                    stage_render = render_fn(current, camera, outputs=("rgb",))["rgb"]
                 write_png(boot_dir / "views" / f"{camera.name}.png",
-                          _view_png(entry.generated, mask, image, stage_render))
+                          _view_png(entry.generated, mask, image, render_rgb(camera)))
             return entry, sources
 
         return make
