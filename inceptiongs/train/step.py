@@ -293,6 +293,20 @@ def wants_view_stats(step: int, state: TrainState, config: TrainConfig) -> bool:
             and (config.free_space or config.sh_spread_deg_per_degree > 0))
 
 
+# The counts maintain() reports: they happen on steps that are rarely logging steps, so the
+# trainer sums them until the next logged line (else most of them never reach metrics.jsonl).
+MAINTENANCE_COUNTS = ("free_space", "cloned", "split", "pruned", "relocated", "added")
+
+
+def add_maintenance_counts(pending: dict[str, int], record: dict) -> dict[str, int]:
+    """``pending`` plus the maintenance counts in one step's ``record`` (a new dict)."""
+    total = dict(pending)
+    for key in MAINTENANCE_COUNTS:
+        if key in record:
+            total[key] = total.get(key, 0) + int(record[key])
+    return total
+
+
 def maintenance_due(step: int, config: TrainConfig) -> bool:
     """Densification (or relocation) and pruning run every ``densify_every`` steps from
     ``densify_from``: growing until ``densify_until``, pruning until the end of the run (so a

@@ -28,8 +28,8 @@ from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoi
 from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
 from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
-from .step import (evaluate_held_out, log_once, new_state, prepare_data, restore_state, sh_degree_at,
-                   supported_sh_degree, train_step, trim_sh)
+from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
+                   sh_degree_at, supported_sh_degree, train_step, trim_sh)
 
 
 # Time-budget sizing (``size_to_minutes``): the first step rate is measured after this many
@@ -164,6 +164,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         rate = steps / seconds if steps > 0 and seconds > 0 else 1.0
         next_check = step + max(BUDGET_CALIBRATION_STEPS, int(rate * BUDGET_CHECK_FRACTION * budget_s))
 
+    pending_counts: dict[str, int] = {}
     try:
         while state.iteration < config.iterations:
             if budget_s is not None and time.perf_counter() - train_clock >= budget_s:
@@ -180,8 +181,11 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             record = train_step(step, state, data, config, sh_max, render_fn, background, log)
             state.iteration = step
             bar.update(1)
+            pending_counts = add_maintenance_counts(pending_counts, record)
 
             if step % config.log_every == 0 or step == config.iterations:
+                record.update(pending_counts)  # every densification since the last logged line
+                pending_counts = {}
                 record.update(iteration=step, wall_s=time.perf_counter() - session_start,
                               train_s=time.perf_counter() - train_clock)
                 if step % config.eval_every == 0 or step == config.iterations:

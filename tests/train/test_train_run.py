@@ -177,3 +177,19 @@ def test_kill_9_then_resume_loses_only_the_steps_since_the_last_checkpoint(demo_
     iterations = [r["iteration"] for r in _records(run) if "loss" in r]
     assert iterations == list(range(1, 25))
     assert (run / "model.ply").is_file()
+
+
+def test_metrics_keep_densification_counts_of_steps_that_are_not_logged(demo_scene, tmp_path):
+    """Densification runs every 4 steps, a line is logged every 5: the counts summed over the
+    logged lines equal those of the same run logged every step (training is deterministic)."""
+    from inceptiongs.train.step import MAINTENANCE_COUNTS
+
+    totals = []
+    for log_every in (1, 5):
+        run = tmp_path / f"log{log_every}"
+        train(_config(demo_scene, iterations=12, log_every=log_every, eval_every=10 ** 6,
+                      checkpoint_every=10 ** 6), run, progress=False)
+        records = _records(run)
+        totals.append({key: sum(r.get(key, 0) for r in records) for key in MAINTENANCE_COUNTS})
+    assert sum(totals[0].values()) > 0  # something was densified
+    assert totals[1] == totals[0]
