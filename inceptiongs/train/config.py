@@ -85,6 +85,9 @@ class TrainConfig(SavedConfig):
     near_margin: float = 0.5
     # A Gaussian whose ellipsoid holds a training camera centre within this many sigmas is removed.
     camera_sigmas: float = 3.0
+    # A Gaussian whose centre lies within this fraction of a training camera's near bound of the
+    # camera centre, in any direction (beside and behind it too), is removed (0: off).
+    camera_ball: float = 0.5
     # A Gaussian seen by at least this many training views, in front of the rendered surface
     # (by ``see_through_tolerance`` of its depth) in every one of them, is see-through floater.
     see_through_min_views: int = 3
@@ -135,6 +138,9 @@ class TrainConfig(SavedConfig):
             raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if not 0.0 <= self.drop_rate_max < 1.0:
             raise InputError(f"{source}: drop_rate_max must be in [0, 1), got {self.drop_rate_max}")
+        if not 0.0 <= self.camera_ball <= 1.0:
+            raise InputError(f"{source}: camera_ball must be in [0, 1] (a fraction of the near bound), "
+                             f"got {self.camera_ball!r}")
         if not 0.0 < self.near_percentile < 100.0 or not 0.0 < self.near_margin <= 1.0:
             raise InputError(f"{source}: near_percentile must be in (0, 100) and near_margin in (0, 1]")
         if self.protocol not in PROTOCOLS:

@@ -24,7 +24,7 @@ from .config import TrainConfig
 from . import strategy as strategies
 from .densify import DensifyStats, accumulate, densify_and_prune, remove_rows, reset_opacity
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
-                         near_bounds, seen_through, sh_rest_mask)
+                         near_a_camera, near_bounds, seen_through, sh_rest_mask)
 from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
@@ -366,6 +366,8 @@ def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig) ->
     flags |= contains_camera(params["means"], params["log_scales"], params["quats"], centers, config.camera_sigmas)
     if state.near is not None:
         flags |= before_near_bound(params["means"], cameras, state.near)
+        if config.camera_ball > 0:
+            flags |= near_a_camera(params["means"], centers, config.camera_ball * state.near)
     if state.view_stats is not None:
         flags |= seen_through(state.view_stats, config.see_through_min_views)
     return flags

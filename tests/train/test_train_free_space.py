@@ -55,6 +55,26 @@ def test_gaussian_at_a_camera_centre_and_one_before_the_near_bound_are_removed()
     assert state.view_stats.seen.shape[0] == len(truth)
 
 
+def test_gaussian_behind_a_camera_within_its_ball_is_removed_and_one_beyond_it_stays():
+    """Behind a camera (no view sees it: neither the near-bound nor the see-through rule can): the
+    camera ball removes it within camera_ball x near bound of the centre, in any direction."""
+    cameras = tc.ring_cameras(6)
+    truth = tc.ball(300)
+    outward = cameras[1].center / np.linalg.norm(cameras[1].center)  # away from the ball: behind camera 1
+    close = (cameras[1].center + 0.3 * outward).tolist()   # the ball here is 0.5 x ~1.0
+    far = (cameras[1].center + 0.8 * outward).tolist()
+    # Flat and small, off every camera's centre: only the ball rule can see it.
+    model = tc.concat(truth, tc.blob(close, 0.01), tc.blob(far, 0.01))
+    for camera_ball, expect_close in ((0.5, False), (0.0, True)):
+        cfg = tc.config(camera_ball=camera_ball)
+        data, state = tc.setup(model, cameras, tc.photos(truth, cameras), cfg, truth.means.numpy())
+        assert 0.4 < float(cfg.camera_ball * state.near[1]) < 0.6 or camera_ball == 0.0
+        maintain(cfg.densify_from, state, data, cfg)
+        means = state.params["means"].detach()
+        assert _has_mean(means, close) == expect_close, camera_ball
+        assert _has_mean(means, far)
+
+
 def test_free_space_rules_can_be_switched_off():
     cameras = tc.ring_cameras(6)
     truth = tc.ball(300)
