@@ -103,9 +103,15 @@ def _button(viewer, label: str) -> bool:
     """imgui.button, its window rectangle kept in viewer.ui_rects[label] (x0, y0, x1, y1): a
     test clicks it there with mouse events as GLFW delivers them."""
     pressed = imgui.button(label)
+    _remember(viewer, label)
+    return pressed
+
+
+def _remember(viewer, label: str) -> None:
+    """Keep the last widget's window rectangle in viewer.ui_rects[label] (x0, y0, x1, y1); for a
+    field with +/- buttons it spans field, buttons and label, the field at its left end."""
     low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
     viewer.ui_rects[label] = (low.x, low.y, high.x, high.y)
-    return pressed
 
 
 def _hint(text: str) -> None:
@@ -242,7 +248,7 @@ def _training(viewer) -> None:
     run = viewer.training
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     if run is None or not run.alive:
-        _job_settings(viewer.job_settings)
+        _job_settings(viewer)
         if _button(viewer, "train (new run)"):
             viewer.start_training()
         if can_resume(viewer.run_dir):
@@ -272,15 +278,21 @@ def _training(viewer) -> None:
     _plots(run.progress)
 
 
-def _job_settings(settings) -> None:
-    """The job dialog: the command lines' main settings."""
-    if not imgui.tree_node("job settings"):
+def _job_settings(viewer) -> None:
+    """The job dialog: the command lines' main settings. Each field's rectangle is kept under its
+    label (_remember), so a test can click into it and type as a user does."""
+    settings = viewer.job_settings
+    opened = imgui.tree_node("job settings")
+    _remember(viewer, "job settings")
+    if not opened:
         return
     imgui.text_disabled("stage I (train)")
-    settings.minutes = _optional_minutes("time budget min", "budget", settings.minutes, 3.0)
+    settings.minutes = _optional_minutes(viewer, "time budget min", "budget", settings.minutes, 3.0)
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
+    _remember(viewer, "schedule iterations")
     settings.iterations = max(settings.iterations, 1)
     _, settings.downscale = imgui.input_int("downscale", settings.downscale)
+    _remember(viewer, "downscale")
     settings.downscale = max(settings.downscale, 1)
     protocols = ["none", "unstructured", "llff"]
     changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
@@ -290,29 +302,41 @@ def _job_settings(settings) -> None:
     if changed:
         settings.strategy = STRATEGIES[index]
     imgui.text_disabled("stage II (bootstrap)")
-    settings.bootstrap_minutes = _optional_minutes("bootstrap budget min", "bootstrap budget",
+    settings.bootstrap_minutes = _optional_minutes(viewer, "bootstrap budget min", "bootstrap budget",
                                                    settings.bootstrap_minutes, 4.0)
     _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
+    _remember(viewer, "refinement steps")
     settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
     _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
+    _remember(viewer, "K nearest views (0: default)")
     _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
+    _remember(viewer, "L poses each (0: default)")
     settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
-    settings.prior_minutes = max(settings.prior_minutes, 0.1)
+    _remember(viewer, "prior min (if none)")
+    settings.prior_minutes = _minutes_typed(settings.prior_minutes)
     imgui.tree_pop()
 
 
-def _optional_minutes(label: str, checkbox: str, minutes, default: float):
+def _optional_minutes(viewer, label: str, checkbox: str, minutes, default: float):
     """A budget that can be switched off (None: run the whole schedule)."""
     changed, on = imgui.checkbox(checkbox, minutes is not None)
+    _remember(viewer, checkbox)
     if changed:
         minutes = default if on else None
     if minutes is not None:
         imgui.same_line()
         imgui.set_next_item_width(120)
         _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
-        minutes = max(minutes, 0.1)
+        _remember(viewer, label)
+        minutes = _minutes_typed(minutes)
     return minutes
+
+
+def _minutes_typed(value: float) -> float:
+    """imgui's float fields hold float32: a typed 0.7 reads back 0.699999988. Rounded to the
+    hundredth (0.6 s, finer than any budget needs) the configs store what the user typed."""
+    return max(round(float(value), 2), 0.1)
 
 
 def _progress(viewer, run) -> None:

@@ -136,3 +136,65 @@ def golden_window_images(model: Path) -> dict:
     finally:
         viewer.close()
     return images
+
+
+# --- a user's mouse and keyboard on the panel, as GLFW delivers them ------------------------------
+
+def click_at(viewer, x: float, y: float) -> None:
+    """Move the cursor to window position (x, y) and click the left button, a frame between each
+    event (imgui reacts to an event on the frame after it)."""
+    import glfw
+
+    viewer.input.on_cursor(viewer.window, x, y)
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+    viewer.step()
+
+
+def click_widget(viewer, label: str) -> None:
+    """Click the middle of a panel widget the panels recorded in viewer.ui_rects."""
+    viewer.step()  # the panel as it is now (a click may have changed which widgets show)
+    x0, y0, x1, y1 = viewer.ui_rects[label]
+    click_at(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+
+
+def _key_of(char: str) -> int:
+    import glfw
+
+    if char.isdigit():
+        return glfw.KEY_0 + int(char)
+    return {".": glfw.KEY_PERIOD, "-": glfw.KEY_MINUS}[char]
+
+
+def press_key(viewer, key: int, mods: int = 0) -> None:
+    import glfw
+
+    viewer.input.on_key(viewer.window, key, 0, glfw.PRESS, mods)
+    viewer.input.on_key(viewer.window, key, 0, glfw.RELEASE, mods)
+
+
+def type_into(viewer, label: str, text: str) -> None:
+    """Click into the panel's text field ``label`` (at its left end: a field with +/- buttons has
+    them on its right), select what it holds (Ctrl+A), type ``text`` key by key (a key event
+    then its char event, as GLFW sends them) and press Enter."""
+    import glfw
+
+    viewer.step()
+    x0, y0, x1, y1 = viewer.ui_rects[label]
+    click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
+    viewer.input.on_key(viewer.window, glfw.KEY_LEFT_CONTROL, 0, glfw.PRESS, glfw.MOD_CONTROL)
+    viewer.step()
+    press_key(viewer, glfw.KEY_A, glfw.MOD_CONTROL)
+    viewer.step()
+    viewer.input.on_key(viewer.window, glfw.KEY_LEFT_CONTROL, 0, glfw.RELEASE, 0)
+    viewer.step()
+    for char in text:
+        viewer.input.on_key(viewer.window, _key_of(char), 0, glfw.PRESS, 0)
+        viewer.input.on_char(viewer.window, ord(char))
+        viewer.input.on_key(viewer.window, _key_of(char), 0, glfw.RELEASE, 0)
+        viewer.step()
+    press_key(viewer, glfw.KEY_ENTER)
+    viewer.step()
+    viewer.step()

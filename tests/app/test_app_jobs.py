@@ -251,3 +251,57 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
         np.testing.assert_allclose(beside[:100, :150], render[:100, :150], atol=2 / 255)  # the render elsewhere
     finally:
         viewer.close()
+
+
+@pytest.mark.gl
+def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
+    """A user opens "job settings", clicks into its fields and types (key and char events as GLFW
+    delivers them, through imgui's GLFW backend), then presses the buttons: the started jobs and
+    their folders' config.json carry what was typed, not the dialog's defaults."""
+    import glfw
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.train.config import TrainConfig
+    from viewer_cases import click_widget, press_key, type_into
+
+    viewer = Viewer(open_source(demo_scene), 1100, 1000)
+    try:
+        defaults = JobSettings()
+        typed = {"time budget min": "1.5", "schedule iterations": "700", "downscale": "3"}
+        assert (defaults.minutes, defaults.iterations, defaults.downscale) != (1.5, 700, 3)
+        viewer.step()
+        click_widget(viewer, "job settings")  # open the dialog (a tree node, closed at first)
+        for label, text in typed.items():
+            type_into(viewer, label, text)
+        assert (viewer.job_settings.minutes, viewer.job_settings.iterations, viewer.job_settings.downscale) == (
+            1.5, 700, 3)
+        click_widget(viewer, "train (new run)")
+        job = viewer.training.job
+        assert (job.config.minutes, job.config.iterations, job.config.downscale) == (1.5, 700, 3)
+        _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.training.progress.iteration >= 10)
+        stored = TrainConfig.load(job.run_dir / "config.json")
+        assert (stored.minutes, stored.iterations, stored.downscale) == (1.5, 700, 3)
+        click_widget(viewer, "stop")
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert viewer.training.error is None, viewer.training.error
+        # The bootstrap's part of the dialog, then "Bootstrap flagged views" on the run just made.
+        press_key(viewer, glfw.KEY_F)  # flag the current view
+        assert viewer.flags, viewer.status
+        boot = {"bootstrap budget min": "0.5", "refinement steps": "25", "K nearest views (0: default)": "2",
+                "L poses each (0: default)": "3", "prior min (if none)": "0.7"}
+        for label, text in boot.items():
+            type_into(viewer, label, text)
+        click_widget(viewer, "Bootstrap flagged views")
+        assert viewer.training is not None and viewer.training.job is not job, viewer.status
+        config = viewer.training.job.config
+        expected = (0.5, 25, 2, 3, 0.7)
+        assert (config.minutes, config.iterations, config.k, config.l, config.prior_minutes) == expected
+        stored_file = viewer.training.job.out_dir / "bootstrap" / "config.json"
+        _wait(viewer, stored_file.is_file)
+        stored = BootstrapConfig.load(stored_file)
+        assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
+        viewer.training.stop()
+    finally:
+        viewer.close()
