@@ -72,6 +72,8 @@ class InputController:
             viewer.reset_view()
         elif key == glfw.KEY_HOME:
             viewer.frame_model()
+        elif key == glfw.KEY_TAB:
+            viewer.settings.show_panel = not viewer.settings.show_panel
         elif key in (glfw.KEY_H, glfw.KEY_F1):
             viewer.show_help = not viewer.show_help
         elif key == glfw.KEY_T:

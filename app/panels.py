@@ -59,6 +59,10 @@ def draw_panels(viewer) -> None:
         imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     draw_tool_feedback(viewer)
+    if not viewer.settings.show_panel:  # Tab hid it: the scene and the tools' outlines only
+        if viewer.show_help:
+            _help(viewer)
+        return
     imgui.begin("InceptionGS")
     _stats(viewer)
     if imgui.small_button("keys and mouse (H)"):

@@ -135,6 +135,64 @@ def golden_window_images(model: Path) -> dict:
         images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
     finally:
         viewer.close()
+    images.update(golden_tool_images(model))
+    return images
+
+
+def golden_tool_images(model: Path) -> dict:
+    """{golden file name: window capture} of the edit tools' outlines while they are used on the
+    grid: the app with its imgui layer (which draws them) and the panel hidden by Tab, the
+    mouse moved and pressed with events as GLFW delivers them."""
+    import glfw
+
+    from inceptiongs.app.navigation import NavigationState
+
+    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE)
+    images = {}
+    try:
+        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.settings.show_training_cameras = False
+        press_key(viewer, glfw.KEY_TAB)  # hide the panel
+        viewer.step()
+        viewer.settings.edit_tool = "rectangle"
+        viewer.input.on_cursor(viewer.window, 70, 50)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        viewer.input.on_cursor(viewer.window, 230, 170)
+        images["viewer_window_rectangle_320x240.png"] = viewer.capture_window()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+        viewer.edit.select(np.zeros(viewer.edit.count, bool))  # the rectangle's selection off again
+        viewer.settings.edit_tool = "brush"
+        viewer.settings.brush_radius = 35.0
+        viewer.input.on_cursor(viewer.window, 200, 110)
+        images["viewer_window_brush_320x240.png"] = viewer.capture_window()
+        viewer.settings.edit_tool = "lasso"
+        path = [(60, 60), (150, 40), (260, 80), (240, 190), (120, 200), (80, 150)]
+        viewer.input.on_cursor(viewer.window, *path[0])
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        for point in path[1:]:
+            viewer.input.on_cursor(viewer.window, *point)
+        images["viewer_window_lasso_320x240.png"] = viewer.capture_window()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+    finally:
+        viewer.close()
+    return images
+
+
+def golden_photo_images(scene: Path) -> dict:
+    """{golden file name: window capture} of the nearest training photo shown with the render
+    (blended at weight 0.5, and as the inset beside it) at the demo scene's camera 3."""
+    viewer = open_viewer(scene, *GOLDEN_WINDOW_SIZE, with_ui=False)
+    images = {}
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.snap_to_camera(3)
+        time.sleep(0.2)  # still: full-resolution frames
+        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 0.5
+        images["viewer_window_photo_blended_320x240.png"] = viewer.capture_window()
+        viewer.settings.photo = "beside"
+        images["viewer_window_photo_beside_320x240.png"] = viewer.capture_window()
+    finally:
+        viewer.close()
     return images
 
 
