@@ -19,6 +19,8 @@ TOOL_LINE_WIDTH = 2.0
 PANEL_MARGIN = 10
 PANEL_WIDTH = 400
 PANEL_MIN_WIDTH = 300
+# A widget beside a long label keeps at least this width (its label may then wrap the panel).
+MIN_ITEM_WIDTH = 60
 
 # The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
 PLOTS = (("training loss", "loss", ("loss", "l1")),
@@ -67,22 +69,41 @@ def draw_panels(viewer) -> None:
     _stats(viewer)
     if imgui.small_button("keys and mouse (H)"):
         viewer.show_help = not viewer.show_help
-    if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "View", imgui.TreeNodeFlags_.default_open):
         _view(viewer)
-    if imgui.collapsing_header("Inspect", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Inspect", imgui.TreeNodeFlags_.default_open):
         _inspect(viewer)
-    if imgui.collapsing_header("Flags", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Flags", imgui.TreeNodeFlags_.default_open):
         _flags(viewer)
-    if imgui.collapsing_header("Training", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Training", imgui.TreeNodeFlags_.default_open):
         _training(viewer)
-    if imgui.collapsing_header("Edit"):
+    if _header(viewer, "Edit"):
         _edit(viewer)
     if viewer.status:
         imgui.separator()
         imgui.text_wrapped(viewer.status)
+    viewer.panel_layout = _layout()
     imgui.end()
     if viewer.show_help:
         _help(viewer)
+
+
+def _header(viewer, label: str, flags: int = 0) -> bool:
+    """imgui.collapsing_header, its rectangle kept under its label (a test opens it with a click)."""
+    opened = imgui.collapsing_header(label, flags)
+    _remember(viewer, label)
+    return opened
+
+
+def _layout() -> dict:
+    """Where the panel is and how far its widgets reach, in window pixels: "rect" (x0, y0, x1, y1)
+    of the panel, "visible_right" (the x its widgets may use up to: the work area, left of the
+    scrollbar) and "content_right" (the furthest x any widget or text reached this frame). A
+    widget running past the visible width would be cut off: content_right > visible_right."""
+    window = imgui.internal.get_current_window()
+    pos, size = window.pos, window.size
+    return {"rect": (pos.x, pos.y, pos.x + size.x, pos.y + size.y), "visible_right": window.work_rect.max.x,
+            "content_right": window.dc.cursor_max_pos.x}
 
 
 def _help(viewer) -> None:
@@ -111,6 +132,24 @@ def _button(viewer, label: str) -> bool:
     return pressed
 
 
+def _fit(label: str) -> None:
+    """The next widget as wide as the panel leaves beside its label (imgui's default, 65 % of the
+    panel, pushed long labels past its edge), at least MIN_ITEM_WIDTH."""
+    shown = label.split("##")[0]
+    label_width = imgui.calc_text_size(shown).x + imgui.get_style().item_inner_spacing.x if shown else 0.0
+    imgui.set_next_item_width(max(imgui.get_content_region_avail().x - label_width, MIN_ITEM_WIDTH))
+
+
+def _same_line_if_fits(label: str) -> None:
+    """Put the button ``label`` on the line of the last widget when it fits before the panel's
+    edge, else start a new line (a fixed row of buttons ran past a narrow panel)."""
+    style = imgui.get_style()
+    width = imgui.calc_text_size(label).x + 2 * style.frame_padding.x
+    right = imgui.get_item_rect_max().x + style.item_spacing.x + width
+    if right <= imgui.internal.get_current_window().work_rect.max.x:
+        imgui.same_line()
+
+
 def _remember(viewer, label: str) -> None:
     """Keep the last widget's window rectangle in viewer.ui_rects[label] (x0, y0, x1, y1); for a
     field with +/- buttons it spans field, buttons and label, the field at its left end."""
@@ -136,6 +175,7 @@ def _stats(viewer) -> None:
 
 def _view(viewer) -> None:
     nav = viewer.nav
+    _fit("field of view")
     changed, fov = imgui.slider_float("field of view", nav.fov_y_deg, 5.0, 150.0)
     if changed:
         nav.set_fov(fov)
@@ -149,23 +189,25 @@ def _view(viewer) -> None:
     names = list(UP_AXES)
     current = up_axis_name(viewer.up)
     labels = names if current is not None else names + ["tilted"]
+    _fit(f"up, {viewer.up_source}")
     changed, index = imgui.combo(f"up, {viewer.up_source}", names.index(current) if current else len(names),
                                  labels)
     if changed and index < len(names):
         viewer.set_up(UP_AXES[names[index]])
     if _button(viewer, "frame the model (Home)"):
         viewer.frame_model()
-    imgui.same_line()
+    _same_line_if_fits("reset view (R)")
     if _button(viewer, "reset view (R)"):
         viewer.reset_view()
     if viewer.cameras:
-        imgui.same_line()
+        _same_line_if_fits("< prev (P)")
         if _button(viewer, "< prev (P)"):
             viewer.snap_to_camera(viewer.camera_index - 1)
-        imgui.same_line()
+        _same_line_if_fits("next (N) >")
         if _button(viewer, "next (N) >"):
             viewer.snap_to_camera(viewer.camera_index + 1)
         names = [c.name for c in viewer.cameras]
+        _fit("camera")
         changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
         if changed:
             viewer.snap_to_camera(index)
@@ -175,6 +217,7 @@ def _view(viewer) -> None:
 
 def _inspect(viewer) -> None:
     settings = viewer.settings
+    _fit(f"mode (1-{len(RENDER_MODES)})")
     changed, index = imgui.combo(f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
                                  list(RENDER_MODES))
     if changed:
@@ -183,6 +226,7 @@ def _inspect(viewer) -> None:
         _coverage(viewer)
     if settings.mode == "reference":
         views = ["heat-map", "side by side"]
+        _fit("show")
         changed, index = imgui.combo("show", views.index(settings.reference_view), views)
         if changed:
             settings.reference_view = views[index]
@@ -196,6 +240,7 @@ def _inspect(viewer) -> None:
             imgui.text("torch reference rendering...")
     if viewer.cameras and viewer.source.scene is not None:
         views = list(PHOTO_VIEWS)
+        _fit("training photo")
         changed, index = imgui.combo("training photo", views.index(settings.photo), views)
         if changed:
             settings.photo = views[index]
@@ -203,8 +248,11 @@ def _inspect(viewer) -> None:
             nearest = viewer.nearest_camera_index(viewer.current_camera())
             _hint(f"nearest training camera: {viewer.cameras[nearest].name}")
             if settings.photo == "blended":
+                _fit("photo weight")
                 _, settings.photo_alpha = imgui.slider_float("photo weight", settings.photo_alpha, 0.0, 1.0)
+    _fit("SH degree cap")
     _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
+    _fit("splat scale")
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)
 
@@ -243,6 +291,7 @@ def _flags(viewer) -> None:
         imgui.pop_id()
     if 0 <= viewer.selected_flag < len(viewer.flags):
         flag = viewer.flags[viewer.selected_flag]
+        _fit("rename")
         changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
         if changed and name.strip():
             viewer.rename_flag(viewer.selected_flag, name.strip())
@@ -256,10 +305,10 @@ def _training(viewer) -> None:
         if _button(viewer, "train (new run)"):
             viewer.start_training()
         if can_resume(viewer.run_dir):
-            imgui.same_line()
+            _same_line_if_fits("resume")
             if _button(viewer, "resume"):
                 viewer.resume_training()
-        imgui.same_line()
+        _same_line_if_fits("Bootstrap flagged views")
         if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
     else:
@@ -268,12 +317,13 @@ def _training(viewer) -> None:
                 run.resume()
         elif _button(viewer, "pause"):
             run.pause()
-        imgui.same_line()
+        _same_line_if_fits("stop")
         if _button(viewer, "stop"):
             run.control.stop.set()
     if run is None:
         return
     settings = viewer.settings
+    _fit("job's share of the CPU")
     _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
                                                           0.5, MAX_TRAINING_UTILISATION, "%.2f")
     if viewer.job_out_dir is not None:
@@ -292,30 +342,38 @@ def _job_settings(viewer) -> None:
         return
     imgui.text_disabled("stage I (train)")
     settings.minutes = _optional_minutes(viewer, "time budget min", "budget", settings.minutes, 3.0)
+    _fit("schedule iterations")
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
     _remember(viewer, "schedule iterations")
     settings.iterations = max(settings.iterations, 1)
+    _fit("downscale")
     _, settings.downscale = imgui.input_int("downscale", settings.downscale)
     _remember(viewer, "downscale")
     settings.downscale = max(settings.downscale, 1)
     protocols = ["none", "unstructured", "llff"]
+    _fit("held-out views")
     changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
     if changed:
         settings.protocol = protocols[index]
+    _fit("strategy")
     changed, index = imgui.combo("strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
     if changed:
         settings.strategy = STRATEGIES[index]
     imgui.text_disabled("stage II (bootstrap)")
     settings.bootstrap_minutes = _optional_minutes(viewer, "bootstrap budget min", "bootstrap budget",
                                                    settings.bootstrap_minutes, 4.0)
+    _fit("refinement steps")
     _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
     _remember(viewer, "refinement steps")
     settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
+    _fit("K nearest views (0: default)")
     _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
     _remember(viewer, "K nearest views (0: default)")
+    _fit("L poses each (0: default)")
     _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
     _remember(viewer, "L poses each (0: default)")
     settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
+    _fit("prior min (if none)")
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
     _remember(viewer, "prior min (if none)")
     settings.prior_minutes = _minutes_typed(settings.prior_minutes)
@@ -330,7 +388,7 @@ def _optional_minutes(viewer, label: str, checkbox: str, minutes, default: float
         minutes = default if on else None
     if minutes is not None:
         imgui.same_line()
-        imgui.set_next_item_width(120)
+        _fit(label)
         _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
         _remember(viewer, label)
         minutes = _minutes_typed(minutes)
@@ -391,39 +449,47 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
 def _edit(viewer) -> None:
     settings = viewer.settings
     tools = list(EDIT_TOOLS)
+    _fit("tool (left mouse)")
     changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]
     modes = ["replace", "add", "subtract"]
+    _fit("selection")
     changed, index = imgui.combo("selection", modes.index(settings.selection_mode), modes)
     if changed:
         settings.selection_mode = modes[index]
     if settings.edit_tool == "brush":
+        _fit("brush radius px")
         _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)
+    _fit("opacity below")
     _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
+    _fit("or size above")
     _, settings.min_size = imgui.input_float("or size above", settings.min_size)
     if _button(viewer, "select by thresholds"):
         viewer.threshold_select()
     imgui.text(f"{int(viewer.edit.selected.sum())} selected")
     if _button(viewer, "delete (Del)"):
         viewer.delete_selection()
-    imgui.same_line()
+    _same_line_if_fits("undo (Ctrl+Z)")
     if _button(viewer, "undo (Ctrl+Z)"):
         viewer.undo()
-    imgui.same_line()
+    _same_line_if_fits("redo (Ctrl+Y)")
     if _button(viewer, "redo (Ctrl+Y)"):
         viewer.redo()
     changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
     if changed:
         viewer.enable_crop(enabled)
     if settings.crop_enabled:
+        _fit("min")
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
+        _fit("max")
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
         if _button(viewer, "crop to box"):
             viewer.apply_crop()
-        imgui.same_line()
+        _same_line_if_fits("fit to the model")
         if _button(viewer, "fit to the model"):
             viewer.fit_crop_box()
+    _fit("file")
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
     if _button(viewer, "save PLY"):
         try:

@@ -32,7 +32,7 @@ from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
 from .sources import PointsWorker, ViewerSource
-from .window import create_imgui, create_window
+from .window import create_imgui, create_window, destroy_imgui
 
 # While a job trains, its snapshots replace the model at most this often: each one costs a
 # re-render, and the job publishes faster than software GL can draw them.
@@ -96,6 +96,7 @@ class Viewer:
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
         self.ui_rects: dict[str, tuple] = {}  # panel button -> where it was last drawn (panels.py)
+        self.panel_layout: dict = {}  # the panel's rectangle and how far its widgets reach (panels.py)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
@@ -590,7 +591,7 @@ class Viewer:
         self.drawing.close()
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
-            self.imgui_impl.shutdown()
+            destroy_imgui(self.imgui_impl)
             self.imgui_impl = None
         if self.window is not None:
             self.renderer.release()

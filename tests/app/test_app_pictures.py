@@ -1,6 +1,6 @@
 """What the real window shows is right (issue 19, "correct pictures"): opacity mode equals
 `inceptiongs render --mode alpha`; golden images of the window (regenerated only by
-scripts/regen_viewer_golden.py)."""
+scripts/regen_viewer_golden.py); the panel follows the window and never clips."""
 
 from __future__ import annotations
 
@@ -54,12 +54,76 @@ def test_window_matches_its_golden_images(xvfb, tmp_path):
     _assert_golden(golden_window_images(write_grid_model(tmp_path / "model.ply")))
 
 
-def test_training_photo_matches_its_golden_images(xvfb, tmp_path):
-    """The nearest training camera's photo blended over the render and beside it (demo scene)."""
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory):
+    """The demo scene without runs (a scene opens its newest run: the goldens show its points)."""
     from inceptiongs.scene.demo import write_demo_scene
+
+    return write_demo_scene(tmp_path_factory.mktemp("pictures") / "demo", progress=False)
+
+
+def test_training_photo_matches_its_golden_images(xvfb, demo_scene):
+    """The nearest training camera's photo blended over the render and beside it (demo scene)."""
     from viewer_cases import golden_photo_images
 
-    _assert_golden(golden_photo_images(write_demo_scene(tmp_path / "demo", progress=False)))
+    _assert_golden(golden_photo_images(demo_scene))
+
+
+def _assert_panel_fits(viewer, width: int, height: int, what: str) -> None:
+    from inceptiongs.app.panels import PANEL_MARGIN
+
+    layout = viewer.panel_layout
+    x0, y0, x1, y1 = layout["rect"]
+    # The panel follows the window: as tall as it (less the margins), never past its edges.
+    assert (y0, y1) == (PANEL_MARGIN, height - PANEL_MARGIN), (what, width, height, layout)
+    assert 0 <= x0 and x1 <= width, (what, width, height, layout)
+    # No widget or text runs past what the panel shows.
+    assert layout["content_right"] <= layout["visible_right"] + 0.5, (what, width, height, layout)
+
+
+def test_panel_follows_the_window_and_never_clips(xvfb, demo_scene):
+    """Every section open (View with the camera row, Inspect with the training photo, a flag being
+    renamed, the job dialog, Edit with the brush and crop box; then a running job's progress and
+    plots), the window resized through three sizes: the panel is as tall as the window and no
+    widget runs past its visible width (a fixed 360x620 panel ran past an 800x600 window, and its
+    rows of buttons and labelled fields past its own edge)."""
+    import glfw
+
+    from viewer_cases import MovingGridJob, click_widget, open_viewer, press_key
+
+    sizes = ((1600, 1000), (1280, 720), (800, 600))
+    job = MovingGridJob()
+    viewer = open_viewer(demo_scene, *sizes[0], job_factory=lambda source: job)
+    try:
+        viewer.step()
+        _assert_panel_fits(viewer, *sizes[0], "as opened")
+        press_key(viewer, glfw.KEY_F)  # a flag, selected: its rename field shows
+        viewer.selected_flag = 0
+        viewer.settings.photo = "blended"
+        viewer.settings.edit_tool = "brush"
+        viewer.enable_crop()
+        viewer.step()
+        click_widget(viewer, "Edit")
+        click_widget(viewer, "job settings")
+        assert "crop to box" in viewer.ui_rects, "the Edit section should be open"
+        assert "refinement steps" in viewer.ui_rects, "the job dialog should be open"
+        for width, height in sizes:
+            glfw.set_window_size(viewer.window, width, height)
+            viewer.step()
+            viewer.step()
+            assert viewer.framebuffer_size == (width, height)
+            _assert_panel_fits(viewer, width, height, "idle, every section open")
+        viewer.start_training()  # (its button, below the open sections, is tested elsewhere)
+        for _ in range(5):
+            viewer.step()
+        assert viewer.training is not None and viewer.training.progress.history.get("loss"), viewer.status
+        for width, height in reversed(sizes):
+            glfw.set_window_size(viewer.window, width, height)
+            viewer.step()
+            viewer.step()
+            _assert_panel_fits(viewer, width, height, "a job running")
+    finally:
+        viewer.close()
 
 
 def test_opacity_mode_equals_render_mode_alpha(xvfb, tmp_path):
