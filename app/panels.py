@@ -300,6 +300,7 @@ def _flags(viewer) -> None:
 def _training(viewer) -> None:
     run = viewer.training
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
+    _runs(viewer)
     if run is None or not run.alive:
         _job_settings(viewer)
         if _button(viewer, "train (new run)"):
@@ -330,6 +331,21 @@ def _training(viewer) -> None:
         imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
     _progress(viewer, run)
     _plots(run.progress)
+
+
+def _runs(viewer) -> None:
+    """The scene's runs (its jobs' and the command line's ./runs/NAME), newest last; choosing one
+    shows it and makes it the open run."""
+    runs = viewer.source.runs
+    if not runs:
+        return
+    names = [f"{run.name}  ({run.parent})" for run in runs]
+    current = runs.index(viewer.run_dir) if viewer.run_dir in runs else -1
+    _fit("runs of this scene")
+    changed, index = imgui.combo("runs of this scene", current, names)
+    _remember(viewer, "runs of this scene")
+    if changed and 0 <= index < len(runs) and runs[index] != viewer.run_dir:
+        viewer.open_run(runs[index])
 
 
 def _job_settings(viewer) -> None:

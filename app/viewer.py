@@ -31,7 +31,7 @@ from .navigation import NavigationState, default_view, estimate_up, framed, leve
 from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
-from .sources import PointsWorker, ViewerSource
+from .sources import PointsWorker, ViewerSource, open_scene_run
 from .window import create_imgui, create_window, destroy_imgui
 
 # While a job trains, its snapshots replace the model at most this often: each one costs a
@@ -396,6 +396,27 @@ class Viewer:
         self.step()
         return self.captured
 
+    # --- the scene's runs ----------------------------------------------------------------------
+    def open_run(self, run_dir: Path) -> None:
+        """Show another run of the open scene (the Training panel's list): its model replaces the
+        shown one, and it becomes the open run (Resume, Bootstrap). Not while a job runs."""
+        if self.training is not None and self.training.alive:
+            self.status = "a job is running: stop it before opening another run"
+            return
+        source = self.source
+        try:
+            opened = open_scene_run(source.path, source.work_dir, source.runs, Path(run_dir))
+        except (InputError, OSError) as exc:
+            self.status = f"run not opened: {exc}"
+            return
+        self.source, self.training, self.job_out_dir = opened, None, None
+        self.edit = editing.EditState(opened.gaussians)
+        self.model_version += 1
+        self.run_dir = run_dir_of(opened)
+        self.status = f"opened run {run_dir}"
+        self.update_title()
+        self.moved()
+
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
         """A new stage-I run (the job dialog's settings) in a fresh run folder."""
@@ -429,6 +450,8 @@ class Viewer:
         self.job_out_dir = Path(out_dir) if out_dir is not None else None
         if self.job_out_dir is not None:
             self.run_dir = self.job_out_dir
+            if self.source.kind == "scene" and self.job_out_dir not in self.source.runs:
+                self.source.runs.append(self.job_out_dir)  # the panel's list of the scene's runs
         self.status = message
         self.update_title()
 

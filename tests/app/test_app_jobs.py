@@ -221,6 +221,56 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
 
 
 @pytest.mark.gl
+def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, monkeypatch):
+    """`inceptiongs train SCENE` (no --out) writes ./runs/NAME in the current folder; the viewer
+    opened on SCENE from that folder lists it with the viewer's own runs and, the newest, opens it."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    from inceptiongs.app.runs import new_train_dir
+    from inceptiongs.train.trainer import train
+
+    # A run of the viewer's own (in the scene's work folder), then the command line's, newer.
+    work_dir = open_source(demo_scene).work_dir
+    train(JobSettings(minutes=None, iterations=5, downscale=4).train_config(demo_scene), new_train_dir(work_dir),
+          progress=False)
+    monkeypatch.chdir(tmp_path)
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "train", str(demo_scene), "--iterations", "10",
+                             "--downscale", "4", "--protocol", "unstructured"], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stderr[-2000:]
+    cli_run = tmp_path / "runs" / demo_scene.name
+    assert (cli_run / "model.ply").is_file()
+    # A run of another scene whose folder name starts the same is not this scene's.
+    stranger = tmp_path / "runs" / f"{demo_scene.name}_other"
+    (stranger / "checkpoints").mkdir(parents=True)
+    (stranger / "config.json").write_text(json.dumps({"scene": str(tmp_path / "elsewhere")}))
+    viewer = Viewer(open_source(demo_scene), 640, 480)
+    try:
+        runs = viewer.source.runs
+        assert cli_run in runs and stranger not in runs
+        assert any(work_dir in run.parents for run in runs), "the viewer's own runs are listed too"
+        assert runs[-1] == cli_run and viewer.run_dir == cli_run  # the newest is the one opened
+        assert str(cli_run) in viewer.title and str(cli_run) in viewer.status
+        shown = viewer.edit.base["means"].copy()
+        older = runs[0]
+        viewer.open_run(older)  # what the panel's "runs of this scene" list does
+        assert viewer.run_dir == older and str(older) in viewer.title
+        assert viewer.edit.base["means"].shape != shown.shape or not np.allclose(viewer.edit.base["means"], shown)
+        viewer.step()
+        assert "runs of this scene" in viewer.ui_rects  # the list is in the Training panel
+    finally:
+        viewer.close()
+    monkeypatch.chdir(demo_scene.parent)  # from elsewhere, the command line's ./runs is not looked at
+    assert cli_run not in open_source(demo_scene).runs
+
+
+@pytest.mark.gl
 def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
     import cv2
 
