@@ -150,6 +150,26 @@ def _same_line_if_fits(label: str) -> None:
         imgui.same_line()
 
 
+def _combo(viewer, label: str, current: int, items: list) -> tuple[bool, int]:
+    """imgui.combo sized by _fit, its frame kept under ``label`` and, while open, each choice under
+    "label/choice" (_remember): a test opens it and picks a choice with mouse clicks as a user
+    does. -> (changed, chosen index)."""
+    _fit(label)
+    items = [str(item) for item in items]
+    opened = imgui.begin_combo(label, items[current] if 0 <= current < len(items) else "")
+    _remember(viewer, label)
+    changed, chosen = False, current
+    if opened:
+        for index, item in enumerate(items):
+            imgui.push_id(index)
+            if imgui.selectable(item, index == current)[0]:
+                changed, chosen = index != current, index
+            _remember(viewer, f"{label}/{item}")
+            imgui.pop_id()
+        imgui.end_combo()
+    return changed, chosen
+
+
 def _remember(viewer, label: str) -> None:
     """Keep the last widget's window rectangle in viewer.ui_rects[label] (x0, y0, x1, y1); for a
     field with +/- buttons it spans field, buttons and label, the field at its left end."""
@@ -189,9 +209,8 @@ def _view(viewer) -> None:
     names = list(UP_AXES)
     current = up_axis_name(viewer.up)
     labels = names if current is not None else names + ["tilted"]
-    _fit(f"up, {viewer.up_source}")
-    changed, index = imgui.combo(f"up, {viewer.up_source}", names.index(current) if current else len(names),
-                                 labels)
+    changed, index = _combo(viewer, f"up, {viewer.up_source}", names.index(current) if current else len(names),
+                            labels)
     if changed and index < len(names):
         viewer.set_up(UP_AXES[names[index]])
     if _button(viewer, "frame the model (Home)"):
@@ -207,8 +226,7 @@ def _view(viewer) -> None:
         if _button(viewer, "next (N) >"):
             viewer.snap_to_camera(viewer.camera_index + 1)
         names = [c.name for c in viewer.cameras]
-        _fit("camera")
-        changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
+        changed, index = _combo(viewer, "camera", max(viewer.camera_index, 0), names)
         if changed:
             viewer.snap_to_camera(index)
     if _button(viewer, "screenshot (F12)"):
@@ -217,17 +235,15 @@ def _view(viewer) -> None:
 
 def _inspect(viewer) -> None:
     settings = viewer.settings
-    _fit(f"mode (1-{len(RENDER_MODES)})")
-    changed, index = imgui.combo(f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
-                                 list(RENDER_MODES))
+    changed, index = _combo(viewer, f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
+                            list(RENDER_MODES))
     if changed:
         settings.mode = RENDER_MODES[index]
     if settings.mode == "coverage":
         _coverage(viewer)
     if settings.mode == "reference":
         views = ["heat-map", "side by side"]
-        _fit("show")
-        changed, index = imgui.combo("show", views.index(settings.reference_view), views)
+        changed, index = _combo(viewer, "show", views.index(settings.reference_view), views)
         if changed:
             settings.reference_view = views[index]
         worker = viewer.drawing.reference
@@ -240,8 +256,7 @@ def _inspect(viewer) -> None:
             imgui.text("torch reference rendering...")
     if viewer.cameras and viewer.source.scene is not None:
         views = list(PHOTO_VIEWS)
-        _fit("training photo")
-        changed, index = imgui.combo("training photo", views.index(settings.photo), views)
+        changed, index = _combo(viewer, "training photo", views.index(settings.photo), views)
         if changed:
             settings.photo = views[index]
         if settings.photo != "off":
@@ -341,9 +356,7 @@ def _runs(viewer) -> None:
         return
     names = [f"{run.name}  ({run.parent})" for run in runs]
     current = runs.index(viewer.run_dir) if viewer.run_dir in runs else -1
-    _fit("runs of this scene")
-    changed, index = imgui.combo("runs of this scene", current, names)
-    _remember(viewer, "runs of this scene")
+    changed, index = _combo(viewer, "runs of this scene", current, names)
     if changed and 0 <= index < len(runs) and runs[index] != viewer.run_dir:
         viewer.open_run(runs[index])
 
@@ -367,12 +380,10 @@ def _job_settings(viewer) -> None:
     _remember(viewer, "downscale")
     settings.downscale = max(settings.downscale, 1)
     protocols = ["none", "unstructured", "llff"]
-    _fit("held-out views")
-    changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
+    changed, index = _combo(viewer, "held-out views", protocols.index(settings.protocol), protocols)
     if changed:
         settings.protocol = protocols[index]
-    _fit("strategy")
-    changed, index = imgui.combo("strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
+    changed, index = _combo(viewer, "strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
     if changed:
         settings.strategy = STRATEGIES[index]
     imgui.text_disabled("stage II (bootstrap)")
@@ -465,13 +476,11 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
 def _edit(viewer) -> None:
     settings = viewer.settings
     tools = list(EDIT_TOOLS)
-    _fit("tool (left mouse)")
-    changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
+    changed, index = _combo(viewer, "tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]
     modes = ["replace", "add", "subtract"]
-    _fit("selection")
-    changed, index = imgui.combo("selection", modes.index(settings.selection_mode), modes)
+    changed, index = _combo(viewer, "selection", modes.index(settings.selection_mode), modes)
     if changed:
         settings.selection_mode = modes[index]
     if settings.edit_tool == "brush":
@@ -493,6 +502,7 @@ def _edit(viewer) -> None:
     if _button(viewer, "redo (Ctrl+Y)"):
         viewer.redo()
     changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
+    _remember(viewer, "crop box (drag its handles)")
     if changed:
         viewer.enable_crop(enabled)
     if settings.crop_enabled:

@@ -209,6 +209,7 @@ def click_at(viewer, x: float, y: float) -> None:
     viewer.step()
     viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
     viewer.step()
+    viewer.step()  # imgui lets the widget go (no longer active: keys reach the viewer again)
 
 
 def click_widget(viewer, label: str) -> None:

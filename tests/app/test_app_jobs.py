@@ -101,11 +101,13 @@ def _wait(viewer, condition, seconds=120.0) -> None:
 def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
     import glfw
 
+    from viewer_cases import click_widget
+
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
 
-    viewer = Viewer(open_source(demo_scene), 320, 240)
+    viewer = Viewer(open_source(demo_scene), 900, 1000)
     # The scene's work folder is in the cache directory: nothing is written into the scene.
     runs = viewer.source.work_dir / "runs"
     assert demo_scene not in runs.parents
@@ -121,8 +123,8 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         first = latest_checkpoint(runs / "train")
         assert first is not None
         first_bytes = first.read_bytes()
-        # A second "train" starts a new run beside the first, leaving it as it was.
-        viewer.start_training()
+        # A second "train" (its button, clicked) starts a new run beside the first, leaving it as it was.
+        click_widget(viewer, "train (new run)")
         assert viewer.job_out_dir == runs / "train_2"
         assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
         _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
@@ -132,7 +134,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         stopped_at = list_checkpoints(runs / "train_2")[-1][0]
         # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
         assert viewer.run_dir == runs / "train_2"
-        viewer.resume_training()
+        click_widget(viewer, "resume")
         job = viewer.training.job
         assert job.resume and job.run_dir == runs / "train_2"
         seen = []
@@ -156,11 +158,12 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.io.images import write_png
+    from viewer_cases import click_widget
 
     viewer = Viewer(open_source(demo_scene), 1200, 1000)
     try:
         viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
-        viewer.start_training()
+        click_widget(viewer, "train (new run)")
         plan = viewer.training.plan
         assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
         _wait(viewer, lambda: viewer.training.progress.iteration >= 30)

@@ -168,3 +168,31 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
         assert (image.max(axis=2) > 0.05).mean() > 0.05  # not black: points cover the view
     finally:
         viewer.close()
+
+
+def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
+    """Inspect's "training photo" combo, opened and chosen with mouse clicks: the nearest
+    training camera's photo appears in the window's bottom-right corner."""
+    import time
+
+    import cv2
+
+    from inceptiongs.app.images import PHOTO_INSET_FRACTION
+    from viewer_cases import click_widget, open_viewer
+
+    viewer = open_viewer(demo_scene, 900, 700)
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.step()
+        click_widget(viewer, "training photo")
+        click_widget(viewer, "training photo/beside")
+        assert viewer.settings.photo == "beside"
+        time.sleep(0.2)  # still: the full-resolution frame
+        window = viewer.capture_window()
+        photo = viewer.source.scene.load_image(viewer.nearest_camera_index(viewer.current_camera()))
+        inset_w = int(900 * PHOTO_INSET_FRACTION)
+        inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
+        inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
+        assert np.abs(window[-inset_h:, -inset_w:] - inset).mean() < 0.02
+    finally:
+        viewer.close()
