@@ -15,6 +15,7 @@ pytestmark = pytest.mark.gl
 
 def _drag(viewer, start, end, steps: int = 6, button=glfw.MOUSE_BUTTON_LEFT) -> None:
     viewer.input.on_cursor(viewer.window, *start)
+    viewer.step()  # imgui sees the cursor leave the panel before the press, as between a user's events
     viewer.input.on_mouse_button(viewer.window, button, glfw.PRESS, 0)
     for t in np.linspace(0, 1, steps)[1:]:
         viewer.input.on_cursor(viewer.window, *(np.add(start, t * np.subtract(end, start))))
@@ -67,7 +68,7 @@ def test_orbit_key_and_drag_stay_level_and_the_up_combo_turns_the_world(xvfb, tm
         viewer.close()
 
 
-def test_edit_panel_tool_combo_and_crop_checkbox(xvfb, tmp_path):
+def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
     viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 900, 1000)
     try:
         viewer.step()
@@ -80,5 +81,17 @@ def test_edit_panel_tool_combo_and_crop_checkbox(xvfb, tmp_path):
         assert viewer.settings.crop_enabled
         lo, hi = np.array(viewer.settings.crop_min), np.array(viewer.settings.crop_max)
         assert lo[0] < -0.9 and hi[0] > 0.9 and hi[2] - lo[2] < 1.5  # fitted to the grid, not +-1
+        # Rectangle over the right half of the window, the Delete key, then Ctrl+Z.
+        click_widget(viewer, "crop box (drag its handles)")  # the box off again
+        click_widget(viewer, "tool (left mouse)")
+        click_widget(viewer, "tool (left mouse)/rectangle")
+        total = viewer.edit.count
+        _drag(viewer, (480, 5), (895, 995))
+        selected = int(viewer.edit.selected.sum())
+        assert 0 < selected < total
+        press_key(viewer, glfw.KEY_DELETE)
+        assert viewer.edit.count == total - selected
+        press_key(viewer, glfw.KEY_Z, glfw.MOD_CONTROL)
+        assert viewer.edit.count == total
     finally:
         viewer.close()
