@@ -196,3 +196,21 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
         assert np.abs(window[-inset_h:, -inset_w:] - inset).mean() < 0.02
     finally:
         viewer.close()
+
+
+def test_training_frustums_at_the_eye_draw_no_lines_across_the_window(xvfb, demo_scene):
+    """At a training camera its own frustum and its close neighbours' were drawn around the eye:
+    blue lines across the whole window. Frustums that close are left out."""
+    from viewer_cases import open_viewer
+
+    viewer = open_viewer(demo_scene, 640, 480, with_ui=False)
+    try:
+        for index in range(4):
+            viewer.snap_to_camera(index)
+            image = viewer.capture_window()
+            blue = (image[..., 2] > 0.9) & (image[..., 0] < 0.35) & (np.abs(image[..., 1] - 0.6) < 0.15)
+            # No frustum line runs along most of a row or a column (the far frustums are small).
+            assert blue.sum(axis=0).max() < 0.5 * 480 and blue.sum(axis=1).max() < 0.5 * 640, index
+            assert blue.any(), "the farther training cameras are still drawn"
+    finally:
+        viewer.close()
