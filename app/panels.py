@@ -370,7 +370,7 @@ def _job_settings(viewer) -> None:
     if not opened:
         return
     imgui.text_disabled("stage I (train)")
-    settings.minutes = _optional_minutes(viewer, "time budget min", "budget", settings.minutes, 3.0)
+    settings.minutes = _optional_minutes(viewer, "time budget min", "time budget", settings.minutes, 3.0)
     _fit("schedule iterations")
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
     _remember(viewer, "schedule iterations")
@@ -407,17 +407,19 @@ def _job_settings(viewer) -> None:
     imgui.tree_pop()
 
 
-def _optional_minutes(viewer, label: str, checkbox: str, minutes, default: float):
-    """A budget that can be switched off (None: run the whole schedule)."""
+def _optional_minutes(viewer, key: str, checkbox: str, minutes, default: float):
+    """A budget that can be switched off (None: run the whole schedule): the checkbox, then the
+    minutes labelled "min" beside it (its rectangle kept under ``key``)."""
     changed, on = imgui.checkbox(checkbox, minutes is not None)
     _remember(viewer, checkbox)
     if changed:
         minutes = default if on else None
     if minutes is not None:
         imgui.same_line()
+        label = f"min##{key}"  # the checkbox names the budget; "##": a widget id of its own
         _fit(label)
         _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
-        _remember(viewer, label)
+        _remember(viewer, key)
         minutes = _minutes_typed(minutes)
     return minutes
 
