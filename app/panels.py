@@ -22,6 +22,9 @@ PANEL_MIN_WIDTH = 300
 # A widget beside a long label keeps at least this width (its label may then wrap the panel).
 MIN_ITEM_WIDTH = 60
 
+# Series with fewer points than this are drawn with a marker at each point (a bootstrap's curve
+# starts with its single first evaluation, which a line alone does not show).
+SHORT_SERIES_POINTS = 4
 # The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
 PLOTS = (("training loss", "loss", ("loss", "l1")),
          ("Gaussians", "count", ("num_gaussians",)))
@@ -469,7 +472,10 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
     fit = implot.AxisFlags_.auto_fit
     implot.setup_axes("iteration", unit, fit, fit)
     for name, (xs, ys) in series:
-        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+        spec = implot.Spec()
+        if len(xs) < SHORT_SERIES_POINTS:  # a line needs two points: the first ones show as dots
+            spec.marker, spec.marker_size = implot.Marker_.circle, 3.0
+        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64), spec)
     limits = implot.get_plot_limits()
     progress.plot_limits[title] = ((limits.x.min, limits.x.max), (limits.y.min, limits.y.max))
     implot.end_plot()
