@@ -368,6 +368,9 @@ def _job_settings(viewer) -> None:
     """The job dialog: the command lines' main settings. Each field's rectangle is kept under its
     label (_remember), so a test can click into it and type as a user does."""
     settings = viewer.job_settings
+    if viewer.fold_job_settings:  # a job started: its progress, then its closing line, show first
+        imgui.set_next_item_open(False, imgui.Cond_.always)
+        viewer.fold_job_settings = False
     opened = imgui.tree_node("job settings")
     _remember(viewer, "job settings")
     if not opened:

@@ -95,6 +95,7 @@ class Viewer:
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
+        self.fold_job_settings = False  # panels.py closes the job dialog once a job has started
         self.ui_rects: dict[str, tuple] = {}  # panel button -> where it was last drawn (panels.py)
         self.panel_layout: dict = {}  # the panel's rectangle and how far its widgets reach (panels.py)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
@@ -446,6 +447,7 @@ class Viewer:
         """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
         self.training = LiveTraining(job, plan=plan_of(job))
         self.training.start()
+        self.fold_job_settings = True  # the dialog closes: the job's progress is what to watch
         self.job_reported = False
         self.job_out_dir = Path(out_dir) if out_dir is not None else None
         if self.job_out_dir is not None:

@@ -342,6 +342,10 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         # The bootstrap's part of the dialog, then "Bootstrap flagged views" on the run just made.
         press_key(viewer, glfw.KEY_F)  # flag the current view
         assert viewer.flags, viewer.status
+        viewer.ui_rects.clear()
+        viewer.step()
+        assert "refinement steps" not in viewer.ui_rects  # the dialog closed when the job started
+        click_widget(viewer, "job settings")  # ... and the user opens it again
         boot = {"bootstrap budget min": "0.5", "refinement steps": "25", "K nearest views (0: default)": "2",
                 "L poses each (0: default)": "3", "prior min (if none)": "0.7"}
         for label, text in boot.items():
