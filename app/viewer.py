@@ -44,6 +44,10 @@ TRAINING_REFRESH_SECONDS = 0.3
 IDLE_WAIT_SECONDS = 2.0
 # A crop-box handle is grabbed within this many pixels of the cursor.
 CROP_HANDLE_PIXELS = 12.0
+# After any input event the viewer draws frames for this long before it may sleep: imgui shows
+# some answers a frame or two later (the help window, sized on its first frame, appears on the
+# next; an opened combo; a hover), which an idle wait of up to IDLE_WAIT_SECONDS held back.
+UI_SETTLE_SECONDS = 0.25
 # While a job runs the viewer waits at most this long between frames (its snapshots show).
 MAX_TRAINING_WAIT_SECONDS = 0.5
 
@@ -575,6 +579,8 @@ class Viewer:
         now = time.perf_counter()
         if now - self.last_motion < STILL_SECONDS + 0.1 or self.input.keys_down:
             return False
+        if now - self.input.last_event < UI_SETTLE_SECONDS:
+            return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
         if now - self.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
             return False  # the refine of the last snapshot is still to come
         if self.job_running():
