@@ -219,6 +219,12 @@ def click_widget(viewer, label: str) -> None:
     click_at(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
 
 
+def choose(viewer, combo: str, choice: str) -> None:
+    """Open the panel's combo ``combo`` and click its ``choice``, as a user picks from a list."""
+    click_widget(viewer, combo)
+    click_widget(viewer, f"{combo}/{choice}")
+
+
 def _key_of(char: str) -> int:
     import glfw
 

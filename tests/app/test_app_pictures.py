@@ -178,14 +178,13 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
     import cv2
 
     from inceptiongs.app.images import PHOTO_INSET_FRACTION
-    from viewer_cases import click_widget, open_viewer
+    from viewer_cases import choose, open_viewer
 
     viewer = open_viewer(demo_scene, 900, 700)
     try:
         viewer.settings.show_training_cameras = False
         viewer.step()
-        click_widget(viewer, "training photo")
-        click_widget(viewer, "training photo/beside")
+        choose(viewer, "training photo", "beside")
         assert viewer.settings.photo == "beside"
         time.sleep(0.2)  # still: the full-resolution frame
         window = viewer.capture_window()

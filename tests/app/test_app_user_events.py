@@ -4,13 +4,26 @@ real app"): keys, mouse drags, panel combos and checkboxes, each an event as GLF
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import click_widget, open_grid_viewer, open_viewer, press_key, write_grid_model, write_table_model
+from viewer_cases import (choose, click_widget, open_grid_viewer, open_viewer, press_key, write_grid_model,
+                          write_table_model)
 
 pytestmark = pytest.mark.gl
+
+
+@contextmanager
+def _opened(opener, *args):
+    """The real app opened by ``opener(*args)``, closed afterwards whatever happens."""
+    viewer = opener(*args)
+    try:
+        yield viewer
+    finally:
+        viewer.close()
 
 
 def _drag(viewer, start, end, steps: int = 6, button=glfw.MOUSE_BUTTON_LEFT) -> None:
@@ -27,29 +40,24 @@ def _drag(viewer, start, end, steps: int = 6, button=glfw.MOUSE_BUTTON_LEFT) -> 
 def test_mode_keys_mode_combo_and_f12(xvfb, tmp_path):
     from inceptiongs.io.images import read_png
 
-    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 900, 700)
-    try:
+    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.step()
         press_key(viewer, glfw.KEY_4)
         assert viewer.settings.mode == "opacity"
         alpha = viewer.render_image()
         assert alpha.max() > 0.9 and np.allclose(alpha[..., 0], alpha[..., 2])  # the alpha image, grey
-        click_widget(viewer, "mode (1-6)")          # open the combo ...
-        click_widget(viewer, "mode (1-6)/normal")   # ... and choose
+        choose(viewer, "mode (1-6)", "normal")
         assert viewer.settings.mode == "normal"
         press_key(viewer, glfw.KEY_1)
         press_key(viewer, glfw.KEY_F12)
         shots = list((viewer.source.work_dir / "screenshots").glob("view-*.png"))
         assert len(shots) == 1, viewer.status
         assert read_png(shots[0]).shape == (700, 900, 3)  # the window's size, the scene alone
-    finally:
-        viewer.close()
 
 
 def test_orbit_key_and_drag_stay_level_and_the_up_combo_turns_the_world(xvfb, tmp_path):
-    viewer = open_viewer(write_table_model(tmp_path / "table.ply"), 900, 700)
-    try:
+    with _opened(open_viewer, write_table_model(tmp_path / "table.ply"), 900, 700) as viewer:
         viewer.step()
         np.testing.assert_array_equal(viewer.up, [0, 0, 1])
         press_key(viewer, glfw.KEY_O)
@@ -60,21 +68,16 @@ def test_orbit_key_and_drag_stay_level_and_the_up_combo_turns_the_world(xvfb, tm
         assert np.abs(viewer.nav.rotation - before).max() > 0.1, "the drag should orbit the camera"
         assert abs(viewer.nav.rotation[0] @ viewer.up) < 1e-6  # the horizon stays level: no tumbling
         assert np.linalg.norm(viewer.nav.center - viewer.nav.pivot) == pytest.approx(distance, rel=1e-6)
-        click_widget(viewer, "up, from the model")
-        click_widget(viewer, "up, from the model/-Z")
+        choose(viewer, "up, from the model", "-Z")
         np.testing.assert_array_equal(viewer.up, [0, 0, -1])
         assert viewer.up_source == "chosen"
-    finally:
-        viewer.close()
 
 
 def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
-    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 900, 1000)
-    try:
+    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
         viewer.step()
         click_widget(viewer, "Edit")
-        click_widget(viewer, "tool (left mouse)")
-        click_widget(viewer, "tool (left mouse)/brush")
+        choose(viewer, "tool (left mouse)", "brush")
         assert viewer.settings.edit_tool == "brush"
         assert viewer.settings.crop_min is None
         click_widget(viewer, "crop box (drag its handles)")
@@ -83,8 +86,7 @@ def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
         assert lo[0] < -0.9 and hi[0] > 0.9 and hi[2] - lo[2] < 1.5  # fitted to the grid, not +-1
         # Rectangle over the right half of the window, the Delete key, then Ctrl+Z.
         click_widget(viewer, "crop box (drag its handles)")  # the box off again
-        click_widget(viewer, "tool (left mouse)")
-        click_widget(viewer, "tool (left mouse)/rectangle")
+        choose(viewer, "tool (left mouse)", "rectangle")
         total = viewer.edit.count
         _drag(viewer, (480, 5), (895, 995))
         selected = int(viewer.edit.selected.sum())
@@ -93,5 +95,3 @@ def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
         assert viewer.edit.count == total - selected
         press_key(viewer, glfw.KEY_Z, glfw.MOD_CONTROL)
         assert viewer.edit.count == total
-    finally:
-        viewer.close()
