@@ -345,6 +345,7 @@ def _training(viewer) -> None:
     _fit("job's share of the CPU")
     _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
                                                           0.5, MAX_TRAINING_UTILISATION, "%.2f")
+    _remember(viewer, "job's share of the CPU")
     if viewer.job_out_dir is not None:
         imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
     _progress(viewer, run)

@@ -95,3 +95,22 @@ def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
         assert viewer.edit.count == total - selected
         press_key(viewer, glfw.KEY_Z, glfw.MOD_CONTROL)
         assert viewer.edit.count == total
+
+
+def test_the_jobs_share_of_the_cpu_is_a_slider_the_user_drags(xvfb, tmp_path):
+    """The training-utilisation setting (as nerfview's): a click at the slider's left end sets its
+    minimum, and the viewer then leaves the job less time between frames."""
+    from viewer_cases import MovingGridJob
+
+    job = MovingGridJob()
+    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
+        viewer.job_factory = lambda source: job
+        viewer.step()
+        click_widget(viewer, "train (new run)")
+        for _ in range(3):
+            viewer.step()
+        default_wait = viewer.training_frame_wait()
+        x0, y0, _, y1 = viewer.ui_rects["job's share of the CPU"]
+        _drag(viewer, (x0 + 40, 0.5 * (y0 + y1)), (x0 - 30, 0.5 * (y0 + y1)))  # to the left end
+        assert viewer.settings.training_utilisation == pytest.approx(0.5)
+        assert viewer.training_frame_wait() < default_wait
