@@ -16,7 +16,7 @@ from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .editing import box_handles
-from .frustums import segments_for_cameras
+from .frustums import away_from, segments_for_cameras
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
@@ -42,7 +42,8 @@ FLAG_COLOR = (1.0, 0.3, 0.2)
 SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
 CROP_COLOR = (0.3, 1.0, 0.3)
 CROP_HANDLE_SIZE = 9.0  # pixels: the face handles one drags
-# Flags closer to the current camera than this many frustum depths are not drawn.
+# Flags and training cameras closer to the current camera than this many frustum depths are not
+# drawn (frustums.away_from): around the eye their lines run across the whole window.
 FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
@@ -189,13 +190,13 @@ class FrameDrawer:
         camera = viewer.current_camera()
         screen.use()
         depth = max(viewer.nav.speed * 0.1, 1e-3)
-        if settings.show_training_cameras and viewer.cameras:
-            segments = segments_for_cameras(viewer.cameras, depth)
+        training = away_from(viewer.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
+        if settings.show_training_cameras and training:
+            segments = segments_for_cameras([viewer.cameras[i] for i in training], depth)
             self.overlay.draw_segments(camera, segments, np.tile(TRAINING_COLOR, (len(segments), 1)))
         # A flag made where the camera stands would be drawn around the eye, its lines across the
         # whole window: flags that close are left out until the camera moves away.
-        shown = [i for i, f in enumerate(flags)
-                 if np.linalg.norm(f.camera.center - camera.center) > FLAG_HIDE_DISTANCE * depth]
+        shown = away_from([f.camera for f in flags], camera.center, FLAG_HIDE_DISTANCE * depth)
         if settings.show_flags and shown:
             segments = segments_for_cameras([flags[i].camera for i in shown], depth * 1.5)
             colors = np.tile(FLAG_COLOR, (len(segments), 1))

@@ -27,3 +27,10 @@ def segments_for_cameras(cameras: list[Camera], depth: float) -> np.ndarray:
     if not cameras:
         return np.zeros((0, 2, 3))
     return np.concatenate([frustum_segments(c, depth) for c in cameras])
+
+
+def away_from(cameras: list[Camera], eye: np.ndarray, min_distance: float) -> list[int]:
+    """Indices of the cameras whose centre is farther than ``min_distance`` from ``eye`` [3]: a
+    frustum drawn around the eye (the camera one stands at, or a neighbour a step away) has its
+    lines across the whole window, so those are left out until the eye moves away."""
+    return [i for i, c in enumerate(cameras) if np.linalg.norm(c.center - eye) > min_distance]

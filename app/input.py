@@ -28,6 +28,7 @@ class InputController:
     def __init__(self, viewer) -> None:
         self.viewer = viewer
         self.keys_down: set[int] = set()
+        self.last_event = -1e9  # perf_counter() of the last input event (Viewer.is_idle)
         self.drag_start = None
         self.last_cursor = None
         self.last_click = (-1e9, 0.0, 0.0)
@@ -43,6 +44,7 @@ class InputController:
         glfw.set_scroll_callback(window, self.on_scroll)
 
     def on_key(self, window, key, scancode, action, mods) -> None:
+        self.last_event = time.perf_counter()
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.keyboard_callback(window, key, scancode, action, mods)
@@ -72,6 +74,8 @@ class InputController:
             viewer.reset_view()
         elif key == glfw.KEY_HOME:
             viewer.frame_model()
+        elif key == glfw.KEY_TAB:
+            viewer.settings.show_panel = not viewer.settings.show_panel
         elif key in (glfw.KEY_H, glfw.KEY_F1):
             viewer.show_help = not viewer.show_help
         elif key == glfw.KEY_T:
@@ -84,10 +88,12 @@ class InputController:
             viewer.settings.mode = RENDER_MODES[key - glfw.KEY_1]
 
     def on_char(self, window, codepoint) -> None:
+        self.last_event = time.perf_counter()
         if self.viewer.imgui_impl is not None:
             self.viewer.imgui_impl.char_callback(window, codepoint)
 
     def on_scroll(self, window, x_offset, y_offset) -> None:
+        self.last_event = time.perf_counter()
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.scroll_callback(window, x_offset, y_offset)
@@ -100,6 +106,7 @@ class InputController:
         viewer.moved()
 
     def on_cursor(self, window, x, y) -> None:
+        self.last_event = time.perf_counter()
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.io.add_mouse_pos_event(x, y)
@@ -130,6 +137,7 @@ class InputController:
             viewer.moved()
 
     def on_mouse_button(self, window, button, action, mods) -> None:
+        self.last_event = time.perf_counter()
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.io.add_mouse_button_event(button, action == glfw.PRESS)

@@ -19,7 +19,12 @@ TOOL_LINE_WIDTH = 2.0
 PANEL_MARGIN = 10
 PANEL_WIDTH = 400
 PANEL_MIN_WIDTH = 300
+# A widget beside a long label keeps at least this width (its label may then wrap the panel).
+MIN_ITEM_WIDTH = 60
 
+# Series with fewer points than this are drawn with a marker at each point (a bootstrap's curve
+# starts with its single first evaluation, which a line alone does not show).
+SHORT_SERIES_POINTS = 4
 # The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
 PLOTS = (("training loss", "loss", ("loss", "l1")),
          ("Gaussians", "count", ("num_gaussians",)))
@@ -59,26 +64,49 @@ def draw_panels(viewer) -> None:
         imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     draw_tool_feedback(viewer)
+    if not viewer.settings.show_panel:  # Tab hid it: the scene and the tools' outlines only
+        if viewer.show_help:
+            _help(viewer)
+        return
     imgui.begin("InceptionGS")
     _stats(viewer)
     if imgui.small_button("keys and mouse (H)"):
         viewer.show_help = not viewer.show_help
-    if imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "View", imgui.TreeNodeFlags_.default_open):
         _view(viewer)
-    if imgui.collapsing_header("Inspect", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Inspect", imgui.TreeNodeFlags_.default_open):
         _inspect(viewer)
-    if imgui.collapsing_header("Flags", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Flags", imgui.TreeNodeFlags_.default_open):
         _flags(viewer)
-    if imgui.collapsing_header("Training", imgui.TreeNodeFlags_.default_open):
+    if _header(viewer, "Training", imgui.TreeNodeFlags_.default_open):
         _training(viewer)
-    if imgui.collapsing_header("Edit"):
+    if _header(viewer, "Edit"):
         _edit(viewer)
     if viewer.status:
         imgui.separator()
         imgui.text_wrapped(viewer.status)
+    viewer.panel_layout = _layout()
     imgui.end()
     if viewer.show_help:
         _help(viewer)
+
+
+def _header(viewer, label: str, flags: int = 0) -> bool:
+    """imgui.collapsing_header, its rectangle kept under its label (a test opens it with a click)."""
+    opened = imgui.collapsing_header(label, flags)
+    _remember(viewer, label)
+    return opened
+
+
+def _layout() -> dict:
+    """Where the panel is and how far its widgets reach, in window pixels: "rect" (x0, y0, x1, y1)
+    of the panel, "visible_right" (the x its widgets may use up to: the work area, left of the
+    scrollbar) and "content_right" (the furthest x any widget or text reached this frame). A
+    widget running past the visible width would be cut off: content_right > visible_right."""
+    window = imgui.internal.get_current_window()
+    pos, size = window.pos, window.size
+    return {"rect": (pos.x, pos.y, pos.x + size.x, pos.y + size.y), "visible_right": window.work_rect.max.x,
+            "content_right": window.dc.cursor_max_pos.x}
 
 
 def _help(viewer) -> None:
@@ -103,9 +131,53 @@ def _button(viewer, label: str) -> bool:
     """imgui.button, its window rectangle kept in viewer.ui_rects[label] (x0, y0, x1, y1): a
     test clicks it there with mouse events as GLFW delivers them."""
     pressed = imgui.button(label)
+    _remember(viewer, label)
+    return pressed
+
+
+def _fit(label: str) -> None:
+    """The next widget as wide as the panel leaves beside its label (imgui's default, 65 % of the
+    panel, pushed long labels past its edge), at least MIN_ITEM_WIDTH."""
+    shown = label.split("##")[0]
+    label_width = imgui.calc_text_size(shown).x + imgui.get_style().item_inner_spacing.x if shown else 0.0
+    imgui.set_next_item_width(max(imgui.get_content_region_avail().x - label_width, MIN_ITEM_WIDTH))
+
+
+def _same_line_if_fits(label: str) -> None:
+    """Put the button ``label`` on the line of the last widget when it fits before the panel's
+    edge, else start a new line (a fixed row of buttons ran past a narrow panel)."""
+    style = imgui.get_style()
+    width = imgui.calc_text_size(label).x + 2 * style.frame_padding.x
+    right = imgui.get_item_rect_max().x + style.item_spacing.x + width
+    if right <= imgui.internal.get_current_window().work_rect.max.x:
+        imgui.same_line()
+
+
+def _combo(viewer, label: str, current: int, items: list) -> tuple[bool, int]:
+    """imgui.combo sized by _fit, its frame kept under ``label`` and, while open, each choice under
+    "label/choice" (_remember): a test opens it and picks a choice with mouse clicks as a user
+    does. -> (changed, chosen index)."""
+    _fit(label)
+    items = [str(item) for item in items]
+    opened = imgui.begin_combo(label, items[current] if 0 <= current < len(items) else "")
+    _remember(viewer, label)
+    changed, chosen = False, current
+    if opened:
+        for index, item in enumerate(items):
+            imgui.push_id(index)
+            if imgui.selectable(item, index == current)[0]:
+                changed, chosen = index != current, index
+            _remember(viewer, f"{label}/{item}")
+            imgui.pop_id()
+        imgui.end_combo()
+    return changed, chosen
+
+
+def _remember(viewer, label: str) -> None:
+    """Keep the last widget's window rectangle in viewer.ui_rects[label] (x0, y0, x1, y1); for a
+    field with +/- buttons it spans field, buttons and label, the field at its left end."""
     low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
     viewer.ui_rects[label] = (low.x, low.y, high.x, high.y)
-    return pressed
 
 
 def _hint(text: str) -> None:
@@ -126,6 +198,7 @@ def _stats(viewer) -> None:
 
 def _view(viewer) -> None:
     nav = viewer.nav
+    _fit("field of view")
     changed, fov = imgui.slider_float("field of view", nav.fov_y_deg, 5.0, 150.0)
     if changed:
         nav.set_fov(fov)
@@ -139,24 +212,24 @@ def _view(viewer) -> None:
     names = list(UP_AXES)
     current = up_axis_name(viewer.up)
     labels = names if current is not None else names + ["tilted"]
-    changed, index = imgui.combo(f"up, {viewer.up_source}", names.index(current) if current else len(names),
-                                 labels)
+    changed, index = _combo(viewer, f"up, {viewer.up_source}", names.index(current) if current else len(names),
+                            labels)
     if changed and index < len(names):
         viewer.set_up(UP_AXES[names[index]])
     if _button(viewer, "frame the model (Home)"):
         viewer.frame_model()
-    imgui.same_line()
+    _same_line_if_fits("reset view (R)")
     if _button(viewer, "reset view (R)"):
         viewer.reset_view()
     if viewer.cameras:
-        imgui.same_line()
+        _same_line_if_fits("< prev (P)")
         if _button(viewer, "< prev (P)"):
             viewer.snap_to_camera(viewer.camera_index - 1)
-        imgui.same_line()
+        _same_line_if_fits("next (N) >")
         if _button(viewer, "next (N) >"):
             viewer.snap_to_camera(viewer.camera_index + 1)
         names = [c.name for c in viewer.cameras]
-        changed, index = imgui.combo("camera", max(viewer.camera_index, 0), names)
+        changed, index = _combo(viewer, "camera", max(viewer.camera_index, 0), names)
         if changed:
             viewer.snap_to_camera(index)
     if _button(viewer, "screenshot (F12)"):
@@ -165,15 +238,15 @@ def _view(viewer) -> None:
 
 def _inspect(viewer) -> None:
     settings = viewer.settings
-    changed, index = imgui.combo(f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
-                                 list(RENDER_MODES))
+    changed, index = _combo(viewer, f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
+                            list(RENDER_MODES))
     if changed:
         settings.mode = RENDER_MODES[index]
     if settings.mode == "coverage":
         _coverage(viewer)
     if settings.mode == "reference":
         views = ["heat-map", "side by side"]
-        changed, index = imgui.combo("show", views.index(settings.reference_view), views)
+        changed, index = _combo(viewer, "show", views.index(settings.reference_view), views)
         if changed:
             settings.reference_view = views[index]
         worker = viewer.drawing.reference
@@ -186,15 +259,18 @@ def _inspect(viewer) -> None:
             imgui.text("torch reference rendering...")
     if viewer.cameras and viewer.source.scene is not None:
         views = list(PHOTO_VIEWS)
-        changed, index = imgui.combo("training photo", views.index(settings.photo), views)
+        changed, index = _combo(viewer, "training photo", views.index(settings.photo), views)
         if changed:
             settings.photo = views[index]
         if settings.photo != "off":
             nearest = viewer.nearest_camera_index(viewer.current_camera())
             _hint(f"nearest training camera: {viewer.cameras[nearest].name}")
             if settings.photo == "blended":
+                _fit("photo weight")
                 _, settings.photo_alpha = imgui.slider_float("photo weight", settings.photo_alpha, 0.0, 1.0)
+    _fit("SH degree cap")
     _, settings.sh_degree_cap = imgui.slider_int("SH degree cap", settings.sh_degree_cap, 0, 3)
+    _fit("splat scale")
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)
 
@@ -233,6 +309,7 @@ def _flags(viewer) -> None:
         imgui.pop_id()
     if 0 <= viewer.selected_flag < len(viewer.flags):
         flag = viewer.flags[viewer.selected_flag]
+        _fit("rename")
         changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
         if changed and name.strip():
             viewer.rename_flag(viewer.selected_flag, name.strip())
@@ -241,15 +318,16 @@ def _flags(viewer) -> None:
 def _training(viewer) -> None:
     run = viewer.training
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
+    _runs(viewer)
     if run is None or not run.alive:
-        _job_settings(viewer.job_settings)
+        _job_settings(viewer)
         if _button(viewer, "train (new run)"):
             viewer.start_training()
         if can_resume(viewer.run_dir):
-            imgui.same_line()
+            _same_line_if_fits("resume")
             if _button(viewer, "resume"):
                 viewer.resume_training()
-        imgui.same_line()
+        _same_line_if_fits("Bootstrap flagged views")
         if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
     else:
@@ -258,61 +336,105 @@ def _training(viewer) -> None:
                 run.resume()
         elif _button(viewer, "pause"):
             run.pause()
-        imgui.same_line()
+        _same_line_if_fits("stop")
         if _button(viewer, "stop"):
             run.control.stop.set()
     if run is None:
         return
     settings = viewer.settings
+    _fit("job's share of the CPU")
     _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
                                                           0.5, MAX_TRAINING_UTILISATION, "%.2f")
+    _remember(viewer, "job's share of the CPU")
     if viewer.job_out_dir is not None:
         imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
     _progress(viewer, run)
     _plots(run.progress)
 
 
-def _job_settings(settings) -> None:
-    """The job dialog: the command lines' main settings."""
-    if not imgui.tree_node("job settings"):
+def _runs(viewer) -> None:
+    """The scene's runs (its jobs' and the command line's ./runs/NAME), newest last; choosing one
+    shows it and makes it the open run."""
+    runs = viewer.source.runs
+    if not runs:
+        return
+    names = [f"{run.name}  ({run.parent})" for run in runs]
+    current = runs.index(viewer.run_dir) if viewer.run_dir in runs else -1
+    changed, index = _combo(viewer, "runs of this scene", current, names)
+    if changed and 0 <= index < len(runs) and runs[index] != viewer.run_dir:
+        viewer.open_run(runs[index])
+
+
+def _job_settings(viewer) -> None:
+    """The job dialog: the command lines' main settings. Each field's rectangle is kept under its
+    label (_remember), so a test can click into it and type as a user does."""
+    settings = viewer.job_settings
+    if viewer.fold_job_settings:  # a job started: its progress, then its closing line, show first
+        imgui.set_next_item_open(False, imgui.Cond_.always)
+        viewer.fold_job_settings = False
+    opened = imgui.tree_node("job settings")
+    _remember(viewer, "job settings")
+    if not opened:
         return
     imgui.text_disabled("stage I (train)")
-    settings.minutes = _optional_minutes("time budget min", "budget", settings.minutes, 3.0)
+    settings.minutes = _optional_minutes(viewer, "time budget min", "time budget", settings.minutes, 3.0)
+    _fit("schedule iterations")
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
+    _remember(viewer, "schedule iterations")
     settings.iterations = max(settings.iterations, 1)
+    _fit("downscale")
     _, settings.downscale = imgui.input_int("downscale", settings.downscale)
+    _remember(viewer, "downscale")
     settings.downscale = max(settings.downscale, 1)
     protocols = ["none", "unstructured", "llff"]
-    changed, index = imgui.combo("held-out views", protocols.index(settings.protocol), protocols)
+    changed, index = _combo(viewer, "held-out views", protocols.index(settings.protocol), protocols)
     if changed:
         settings.protocol = protocols[index]
-    changed, index = imgui.combo("strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
+    changed, index = _combo(viewer, "strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
     if changed:
         settings.strategy = STRATEGIES[index]
     imgui.text_disabled("stage II (bootstrap)")
-    settings.bootstrap_minutes = _optional_minutes("bootstrap budget min", "bootstrap budget",
+    settings.bootstrap_minutes = _optional_minutes(viewer, "bootstrap budget min", "bootstrap budget",
                                                    settings.bootstrap_minutes, 4.0)
+    _fit("refinement steps")
     _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
+    _remember(viewer, "refinement steps")
     settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
+    _fit("K nearest views (0: default)")
     _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
+    _remember(viewer, "K nearest views (0: default)")
+    _fit("L poses each (0: default)")
     _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
+    _remember(viewer, "L poses each (0: default)")
     settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
+    _fit("prior min (if none)")
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
-    settings.prior_minutes = max(settings.prior_minutes, 0.1)
+    _remember(viewer, "prior min (if none)")
+    settings.prior_minutes = _minutes_typed(settings.prior_minutes)
     imgui.tree_pop()
 
 
-def _optional_minutes(label: str, checkbox: str, minutes, default: float):
-    """A budget that can be switched off (None: run the whole schedule)."""
+def _optional_minutes(viewer, key: str, checkbox: str, minutes, default: float):
+    """A budget that can be switched off (None: run the whole schedule): the checkbox, then the
+    minutes labelled "min" beside it (its rectangle kept under ``key``)."""
     changed, on = imgui.checkbox(checkbox, minutes is not None)
+    _remember(viewer, checkbox)
     if changed:
         minutes = default if on else None
     if minutes is not None:
         imgui.same_line()
-        imgui.set_next_item_width(120)
+        label = f"min##{key}"  # the checkbox names the budget; "##": a widget id of its own
+        _fit(label)
         _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
-        minutes = max(minutes, 0.1)
+        _remember(viewer, key)
+        minutes = _minutes_typed(minutes)
     return minutes
+
+
+def _minutes_typed(value: float) -> float:
+    """imgui's float fields hold float32: a typed 0.7 reads back 0.699999988. Rounded to the
+    hundredth (0.6 s, finer than any budget needs) the configs store what the user typed."""
+    return max(round(float(value), 2), 0.1)
 
 
 def _progress(viewer, run) -> None:
@@ -354,7 +476,10 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
     fit = implot.AxisFlags_.auto_fit
     implot.setup_axes("iteration", unit, fit, fit)
     for name, (xs, ys) in series:
-        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+        spec = implot.Spec()
+        if len(xs) < SHORT_SERIES_POINTS:  # a line needs two points: the first ones show as dots
+            spec.marker, spec.marker_size = implot.Marker_.circle, 3.0
+        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64), spec)
     limits = implot.get_plot_limits()
     progress.plot_limits[title] = ((limits.x.min, limits.x.max), (limits.y.min, limits.y.max))
     implot.end_plot()
@@ -363,39 +488,46 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
 def _edit(viewer) -> None:
     settings = viewer.settings
     tools = list(EDIT_TOOLS)
-    changed, index = imgui.combo("tool (left mouse)", tools.index(settings.edit_tool), tools)
+    changed, index = _combo(viewer, "tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]
     modes = ["replace", "add", "subtract"]
-    changed, index = imgui.combo("selection", modes.index(settings.selection_mode), modes)
+    changed, index = _combo(viewer, "selection", modes.index(settings.selection_mode), modes)
     if changed:
         settings.selection_mode = modes[index]
     if settings.edit_tool == "brush":
+        _fit("brush radius px")
         _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)
+    _fit("opacity below")
     _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
+    _fit("or size above")
     _, settings.min_size = imgui.input_float("or size above", settings.min_size)
     if _button(viewer, "select by thresholds"):
         viewer.threshold_select()
     imgui.text(f"{int(viewer.edit.selected.sum())} selected")
     if _button(viewer, "delete (Del)"):
         viewer.delete_selection()
-    imgui.same_line()
+    _same_line_if_fits("undo (Ctrl+Z)")
     if _button(viewer, "undo (Ctrl+Z)"):
         viewer.undo()
-    imgui.same_line()
+    _same_line_if_fits("redo (Ctrl+Y)")
     if _button(viewer, "redo (Ctrl+Y)"):
         viewer.redo()
     changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
+    _remember(viewer, "crop box (drag its handles)")
     if changed:
         viewer.enable_crop(enabled)
     if settings.crop_enabled:
+        _fit("min")
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
+        _fit("max")
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
         if _button(viewer, "crop to box"):
             viewer.apply_crop()
-        imgui.same_line()
+        _same_line_if_fits("fit to the model")
         if _button(viewer, "fit to the model"):
             viewer.fit_crop_box()
+    _fit("file")
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
     if _button(viewer, "save PLY"):
         try:

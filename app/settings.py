@@ -35,6 +35,7 @@ KEY_BINDINGS = (
     ("Delete", "delete the selection"),
     ("Ctrl+Z / Ctrl+Y", "undo / redo (selections, deletions, crops)"),
     ("F12", "screenshot of the scene at window size"),
+    ("Tab", "hide / show the panel"),
     ("H / F1", "this help"),
 )
 
@@ -56,6 +57,7 @@ class ViewSettings:
     photo_alpha: float = 0.5  # the photo's weight when blended
     show_training_cameras: bool = True
     show_flags: bool = True
+    show_panel: bool = True  # Tab: the scene alone, the edit tools' outlines still drawn
     orbit: bool = False
     edit_tool: str = "none"  # one of EDIT_TOOLS
     brush_radius: float = 30.0

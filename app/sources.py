@@ -42,6 +42,7 @@ class ViewerSource:
     sparse_points: bool = False
     scene: object = None
     notes: list[str] = field(default_factory=list)
+    runs: list[Path] = field(default_factory=list)  # a scene's runs (sources.scene_runs), oldest first
 
 
 def points_as_splats(points: np.ndarray, colors: np.ndarray | None) -> dict:
@@ -89,18 +90,36 @@ def _newest_time(run: Path) -> float:
     return max(p.stat().st_mtime for p in run.iterdir())
 
 
-def newest_model(work_dir: Path) -> Path | None:
-    """The newest model in a scene's work folder: a run's ``config.json`` (a run with a model or
-    a checkpoint; its time is its newest file's) or a PLY outside any run (e.g. one the viewer
-    saved), whichever was written last; None when there is neither."""
+def work_dir_runs(work_dir: Path) -> list[Path]:
+    """Run folders (config.json with a model or checkpoints) anywhere in a scene's work folder:
+    the viewer's jobs (runs/train[_N], their _bootstrap folders)."""
     work_dir = Path(work_dir)
     if not work_dir.is_dir():
-        return None
-    candidates = [(_newest_time(c.parent), c) for c in work_dir.rglob("config.json")
-                  if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir()]
-    run_dirs = {c.parent for _, c in candidates}
-    candidates += [(p.stat().st_mtime, p) for p in work_dir.rglob("*.ply")
-                   if p.is_file() and not (set(p.parents) & run_dirs)]
+        return []
+    return sorted(c.parent for c in work_dir.rglob("config.json")
+                  if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir())
+
+
+def scene_runs(scene) -> list[Path]:
+    """Every run of a scene the viewer knows of, oldest first: its jobs' in the work folder and
+    the command line's under ./runs/NAME (`inceptiongs train` without --out, the bootstrap's
+    NAME_bootstrap beside it; only runs whose config names this scene)."""
+    from inceptiongs.train.run_folder import cli_run_dirs  # noqa: PLC0415
+
+    runs = set(work_dir_runs(scene.work_dir)) | set(cli_run_dirs(scene.root))
+    return sorted(runs, key=_newest_time)
+
+
+def newest_model(work_dir: Path, runs: list[Path] | None = None) -> Path | None:
+    """The newest model of a scene: a run's ``config.json`` (``runs``, default those in the work
+    folder; a run's time is its newest file's) or a PLY in the work folder outside any run (e.g.
+    one the viewer saved), whichever was written last; None when there is neither."""
+    work_dir = Path(work_dir)
+    runs = work_dir_runs(work_dir) if runs is None else list(runs)
+    candidates = [(_newest_time(run), run / "config.json") for run in runs]
+    if work_dir.is_dir():
+        candidates += [(p.stat().st_mtime, p) for p in work_dir.rglob("*.ply")
+                       if p.is_file() and not (set(p.parents) & set(runs))]
     return max(candidates, key=lambda item: item[0])[1] if candidates else None
 
 
@@ -127,6 +146,13 @@ def _open_run(run_dir: Path) -> ViewerSource:
                         model_path=model if model.is_file() else None, run_dir=run_dir, scene=scene)
 
 
+def open_scene_run(scene_path: Path, work_dir: Path, runs: list[Path], run_dir: Path) -> ViewerSource:
+    """A scene folder shown at one of its runs (``runs``: all of them, for the panel's list)."""
+    source = _open_run(Path(run_dir))
+    source.kind, source.path, source.work_dir, source.runs = "scene", Path(scene_path), Path(work_dir), list(runs)
+    return source
+
+
 def open_source(path: str | Path) -> ViewerSource:
     path = Path(path)
     if not path.exists():
@@ -150,24 +176,24 @@ def open_source(path: str | Path) -> ViewerSource:
                              f"(no .ply inside)") from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
-    newest = newest_model(scene.work_dir)
+    runs = scene_runs(scene)
+    newest = newest_model(scene.work_dir, runs)
     if newest is not None and newest.name == "config.json":
-        source = _open_run(newest.parent)
-        source.kind, source.path, source.work_dir = "scene", path, scene.work_dir
-        source.notes.append(f"opened the newest model in {scene.work_dir}: run {newest.parent.name}")
+        source = open_scene_run(path, scene.work_dir, runs, newest.parent)
+        source.notes.append(f"opened the newest of {len(runs)} run(s) of this scene: {newest.parent}")
         return source
     if newest is not None:  # a PLY saved in the work folder (the viewer's "save PLY"): original frame
         gaussians = scene.normalization.gaussians_to_normalized(_read_ply(newest))
         return ViewerSource("scene", path, gaussians.numpy(), list(scene.cameras), scene.work_dir,
-                            model_path=newest, scene=scene,
+                            model_path=newest, scene=scene, runs=runs,
                             notes=[f"opened the newest model in {scene.work_dir}: {newest.name}"])
     if len(scene.points) == 0:
         return ViewerSource("scene", path, points_as_splats(scene.points, None), list(scene.cameras),
-                            scene.work_dir, sparse_points=True, scene=scene, points_pending=True,
+                            scene.work_dir, sparse_points=True, scene=scene, points_pending=True, runs=runs,
                             notes=["no trained model and no sparse points: triangulating points from the "
                                    "photos (the cameras are shown meanwhile)..."])
     return ViewerSource("scene", path, points_as_splats(scene.points, scene.point_colors),
-                        list(scene.cameras), scene.work_dir, sparse_points=True, scene=scene,
+                        list(scene.cameras), scene.work_dir, sparse_points=True, scene=scene, runs=runs,
                         notes=["no trained model yet: showing the sparse points"])
 
 

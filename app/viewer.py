@@ -31,8 +31,8 @@ from .navigation import NavigationState, default_view, estimate_up, framed, leve
 from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, run_dir_of
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, ViewSettings
-from .sources import PointsWorker, ViewerSource
-from .window import create_imgui, create_window
+from .sources import PointsWorker, ViewerSource, open_scene_run
+from .window import create_imgui, create_window, destroy_imgui
 
 # While a job trains, its snapshots replace the model at most this often: each one costs a
 # re-render, and the job publishes faster than software GL can draw them.
@@ -44,6 +44,10 @@ TRAINING_REFRESH_SECONDS = 0.3
 IDLE_WAIT_SECONDS = 2.0
 # A crop-box handle is grabbed within this many pixels of the cursor.
 CROP_HANDLE_PIXELS = 12.0
+# After any input event the viewer draws frames for this long before it may sleep: imgui shows
+# some answers a frame or two later (the help window, sized on its first frame, appears on the
+# next; an opened combo; a hover), which an idle wait of up to IDLE_WAIT_SECONDS held back.
+UI_SETTLE_SECONDS = 0.25
 # While a job runs the viewer waits at most this long between frames (its snapshots show).
 MAX_TRAINING_WAIT_SECONDS = 0.5
 
@@ -95,7 +99,9 @@ class Viewer:
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
+        self.fold_job_settings = False  # panels.py closes the job dialog once a job has started
         self.ui_rects: dict[str, tuple] = {}  # panel button -> where it was last drawn (panels.py)
+        self.panel_layout: dict = {}  # the panel's rectangle and how far its widgets reach (panels.py)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
@@ -395,6 +401,27 @@ class Viewer:
         self.step()
         return self.captured
 
+    # --- the scene's runs ----------------------------------------------------------------------
+    def open_run(self, run_dir: Path) -> None:
+        """Show another run of the open scene (the Training panel's list): its model replaces the
+        shown one, and it becomes the open run (Resume, Bootstrap). Not while a job runs."""
+        if self.training is not None and self.training.alive:
+            self.status = "a job is running: stop it before opening another run"
+            return
+        source = self.source
+        try:
+            opened = open_scene_run(source.path, source.work_dir, source.runs, Path(run_dir))
+        except (InputError, OSError) as exc:
+            self.status = f"run not opened: {exc}"
+            return
+        self.source, self.training, self.job_out_dir = opened, None, None
+        self.edit = editing.EditState(opened.gaussians)
+        self.model_version += 1
+        self.run_dir = run_dir_of(opened)
+        self.status = f"opened run {run_dir}"
+        self.update_title()
+        self.moved()
+
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
         """A new stage-I run (the job dialog's settings) in a fresh run folder."""
@@ -424,10 +451,13 @@ class Viewer:
         """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
         self.training = LiveTraining(job, plan=plan_of(job))
         self.training.start()
+        self.fold_job_settings = True  # the dialog closes: the job's progress is what to watch
         self.job_reported = False
         self.job_out_dir = Path(out_dir) if out_dir is not None else None
         if self.job_out_dir is not None:
             self.run_dir = self.job_out_dir
+            if self.source.kind == "scene" and self.job_out_dir not in self.source.runs:
+                self.source.runs.append(self.job_out_dir)  # the panel's list of the scene's runs
         self.status = message
         self.update_title()
 
@@ -549,6 +579,8 @@ class Viewer:
         now = time.perf_counter()
         if now - self.last_motion < STILL_SECONDS + 0.1 or self.input.keys_down:
             return False
+        if now - self.input.last_event < UI_SETTLE_SECONDS:
+            return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
         if now - self.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
             return False  # the refine of the last snapshot is still to come
         if self.job_running():
@@ -590,7 +622,7 @@ class Viewer:
         self.drawing.close()
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
-            self.imgui_impl.shutdown()
+            destroy_imgui(self.imgui_impl)
             self.imgui_impl = None
         if self.window is not None:
             self.renderer.release()

@@ -57,10 +57,27 @@ def create_imgui(window):
     from imgui_bundle import imgui, implot  # noqa: PLC0415 (no imgui unless there is a UI)
     from imgui_bundle.python_backends.glfw_backend import GlfwRenderer  # noqa: PLC0415
 
-    imgui.create_context()
-    implot.create_context()
+    # create_context makes a context current only when none is: a second window in the same
+    # process (the tests open many) would share the first one's context, its mouse and active
+    # widget included. Each window gets its own, destroyed by destroy_imgui.
+    context = imgui.create_context()
+    imgui.set_current_context(context)
+    plot_context = implot.create_context()
+    implot.set_current_context(plot_context)
     imgui.get_io().set_ini_filename("")  # no imgui.ini littering the working folder
-    return GlfwRenderer(window, attach_callbacks=False)
+    renderer = GlfwRenderer(window, attach_callbacks=False)
+    renderer.contexts = (context, plot_context)
+    return renderer
+
+
+def destroy_imgui(renderer) -> None:
+    """Shut the backend down and destroy the contexts create_imgui made for it."""
+    from imgui_bundle import imgui, implot  # noqa: PLC0415
+
+    renderer.shutdown()
+    context, plot_context = renderer.contexts
+    implot.destroy_context(plot_context)
+    imgui.destroy_context(context)
 
 
 def ui_wants_mouse(imgui_impl) -> bool:

@@ -9,6 +9,7 @@ committing them:
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
@@ -17,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from viewer_cases import GOLDEN, golden_window_images, write_grid_model  # noqa: E402
+from viewer_cases import GOLDEN, golden_photo_images, golden_window_images, write_grid_model  # noqa: E402
 
 from inceptiongs.camera import write_camera_json  # noqa: E402
 from inceptiongs.io.images import write_png  # noqa: E402
@@ -27,6 +28,7 @@ from viewer_cases import front_camera  # noqa: E402
 def main() -> int:
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
+        os.environ["INCEPTIONGS_CACHE_DIR"] = str(folder / "cache")  # the scene's work folder: thrown away
         model = write_grid_model(folder / "model.ply")
         camera = folder / "cam.json"
         write_camera_json(front_camera(), camera)
@@ -34,7 +36,10 @@ def main() -> int:
         subprocess.run([sys.executable, "-m", "inceptiongs.app.main", str(model), "--screenshot", str(shot),
                         "--camera", str(camera), "--size", "160x120"], check=True)
         print(f"wrote {shot}")
-        for name, image in golden_window_images(model).items():
+        from inceptiongs.scene.demo import write_demo_scene
+
+        scene = write_demo_scene(folder / "demo", progress=False)
+        for name, image in {**golden_window_images(model), **golden_photo_images(scene)}.items():
             write_png(GOLDEN / name, image)
             print(f"wrote {GOLDEN / name}")
     return 0

@@ -135,4 +135,131 @@ def golden_window_images(model: Path) -> dict:
         images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
     finally:
         viewer.close()
+    images.update(golden_tool_images(model))
     return images
+
+
+def golden_tool_images(model: Path) -> dict:
+    """{golden file name: window capture} of the edit tools' outlines while they are used on the
+    grid: the app with its imgui layer (which draws them) and the panel hidden by Tab, the
+    mouse moved and pressed with events as GLFW delivers them."""
+    import glfw
+
+    from inceptiongs.app.navigation import NavigationState
+
+    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE)
+    images = {}
+    try:
+        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.settings.show_training_cameras = False
+        press_key(viewer, glfw.KEY_TAB)  # hide the panel
+        viewer.step()
+        viewer.settings.edit_tool = "rectangle"
+        viewer.input.on_cursor(viewer.window, 70, 50)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        viewer.input.on_cursor(viewer.window, 230, 170)
+        images["viewer_window_rectangle_320x240.png"] = viewer.capture_window()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+        viewer.edit.select(np.zeros(viewer.edit.count, bool))  # the rectangle's selection off again
+        viewer.settings.edit_tool = "brush"
+        viewer.settings.brush_radius = 35.0
+        viewer.input.on_cursor(viewer.window, 200, 110)
+        images["viewer_window_brush_320x240.png"] = viewer.capture_window()
+        viewer.settings.edit_tool = "lasso"
+        path = [(60, 60), (150, 40), (260, 80), (240, 190), (120, 200), (80, 150)]
+        viewer.input.on_cursor(viewer.window, *path[0])
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        for point in path[1:]:
+            viewer.input.on_cursor(viewer.window, *point)
+        images["viewer_window_lasso_320x240.png"] = viewer.capture_window()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+    finally:
+        viewer.close()
+    return images
+
+
+def golden_photo_images(scene: Path) -> dict:
+    """{golden file name: window capture} of the nearest training photo shown with the render
+    (blended at weight 0.5, and as the inset beside it) at the demo scene's camera 3."""
+    viewer = open_viewer(scene, *GOLDEN_WINDOW_SIZE, with_ui=False)
+    images = {}
+    try:
+        viewer.settings.show_training_cameras = False
+        viewer.snap_to_camera(3)
+        time.sleep(0.2)  # still: full-resolution frames
+        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 0.5
+        images["viewer_window_photo_blended_320x240.png"] = viewer.capture_window()
+        viewer.settings.photo = "beside"
+        images["viewer_window_photo_beside_320x240.png"] = viewer.capture_window()
+    finally:
+        viewer.close()
+    return images
+
+
+# --- a user's mouse and keyboard on the panel, as GLFW delivers them ------------------------------
+
+def click_at(viewer, x: float, y: float) -> None:
+    """Move the cursor to window position (x, y) and click the left button, a frame between each
+    event (imgui reacts to an event on the frame after it)."""
+    import glfw
+
+    viewer.input.on_cursor(viewer.window, x, y)
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+    viewer.step()
+    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+    viewer.step()
+    viewer.step()  # imgui lets the widget go (no longer active: keys reach the viewer again)
+
+
+def click_widget(viewer, label: str) -> None:
+    """Click the middle of a panel widget the panels recorded in viewer.ui_rects."""
+    viewer.step()  # the panel as it is now (a click may have changed which widgets show)
+    x0, y0, x1, y1 = viewer.ui_rects[label]
+    click_at(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+
+
+def choose(viewer, combo: str, choice: str) -> None:
+    """Open the panel's combo ``combo`` and click its ``choice``, as a user picks from a list."""
+    click_widget(viewer, combo)
+    click_widget(viewer, f"{combo}/{choice}")
+
+
+def _key_of(char: str) -> int:
+    import glfw
+
+    if char.isdigit():
+        return glfw.KEY_0 + int(char)
+    return {".": glfw.KEY_PERIOD, "-": glfw.KEY_MINUS}[char]
+
+
+def press_key(viewer, key: int, mods: int = 0) -> None:
+    import glfw
+
+    viewer.input.on_key(viewer.window, key, 0, glfw.PRESS, mods)
+    viewer.input.on_key(viewer.window, key, 0, glfw.RELEASE, mods)
+
+
+def type_into(viewer, label: str, text: str) -> None:
+    """Click into the panel's text field ``label`` (at its left end: a field with +/- buttons has
+    them on its right), select what it holds (Ctrl+A), type ``text`` key by key (a key event
+    then its char event, as GLFW sends them) and press Enter."""
+    import glfw
+
+    viewer.step()
+    x0, y0, x1, y1 = viewer.ui_rects[label]
+    click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
+    viewer.input.on_key(viewer.window, glfw.KEY_LEFT_CONTROL, 0, glfw.PRESS, glfw.MOD_CONTROL)
+    viewer.step()
+    press_key(viewer, glfw.KEY_A, glfw.MOD_CONTROL)
+    viewer.step()
+    viewer.input.on_key(viewer.window, glfw.KEY_LEFT_CONTROL, 0, glfw.RELEASE, 0)
+    viewer.step()
+    for char in text:
+        viewer.input.on_key(viewer.window, _key_of(char), 0, glfw.PRESS, 0)
+        viewer.input.on_char(viewer.window, ord(char))
+        viewer.input.on_key(viewer.window, _key_of(char), 0, glfw.RELEASE, 0)
+        viewer.step()
+    press_key(viewer, glfw.KEY_ENTER)
+    viewer.step()
+    viewer.step()

@@ -119,13 +119,15 @@ def generate_cached(prior, gaussians: Gaussians, camera: Camera, seed: int, step
 
 def obtain_prior(run_dir: Path, out_dir: Path, gaussians: Gaussians, cameras: list[Camera],
                  load_image: Callable[[int], np.ndarray], mode: str, seed: int,
-                 minutes: float | None, steps: int | None, log: Callable[[str], None]):
+                 minutes: float | None, steps: int | None, log: Callable[[str], None],
+                 should_stop: Callable[[], bool] | None = None):
     """The prior used for generation -> (Prior, one-line description).
 
     mode "untrained": a randomly initialised prior (the ablation). "trained": RUN/prior/prior.pt
     when the stage-I run has one, else RUN2/prior/prior.pt from an earlier bootstrap into the
     same folder, else a short training (``minutes`` / ``steps``) on the training photos,
-    saved to RUN2/prior/prior.pt.
+    saved to RUN2/prior/prior.pt. should_stop() ends that training early (before any step):
+    the bootstrap's wall-clock share of its budget, or the user's stop.
     """
     from ..prior.model import Prior, PriorConfig
     from ..prior.trainer import CHECKPOINT_NAME, PriorTrainer, load_prior, prior_dir
@@ -143,7 +145,7 @@ def obtain_prior(run_dir: Path, out_dir: Path, gaussians: Gaussians, cameras: li
         + (f"{steps} steps" if steps is not None else ""))
     trainer = PriorTrainer(Prior.for_gaussians(PriorConfig(seed=seed), gaussians), gaussians,
                            cameras, load_image)
-    trainer.train(steps=steps, minutes=minutes, run_dir=out_dir, progress=False)
+    trainer.train(steps=steps, minutes=minutes, run_dir=out_dir, progress=False, should_stop=should_stop)
     return trainer.prior, (f"prior trained here for {trainer.step_count} steps "
                            f"({prior_dir(out_dir) / CHECKPOINT_NAME})")
 

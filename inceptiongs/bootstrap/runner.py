@@ -194,6 +194,16 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     def now() -> float:
         return time.perf_counter() - clock_start
 
+    def out_of_time() -> bool:
+        return config.minutes is not None and now() >= 60.0 * config.minutes
+
+    def wait_or_stop() -> bool:
+        """Honour pause; True when asked to stop."""
+        nonlocal clock_start
+        stop, paused_s = wait_while_paused(control)
+        clock_start += paused_s
+        return stop
+
     eval_s = 0.0
 
     def evaluate_now(extra: dict) -> dict:
@@ -219,13 +229,21 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     elif not baseline:
         began = time.perf_counter()
         train_cams = [cameras[i] for i in split.train]
-        # A short prior training may take at most half of a time budget: generation and
-        # refinement need the rest.
-        prior_minutes = config.prior_minutes if config.minutes is None else min(config.prior_minutes,
-                                                                               config.minutes / 2)
+        # The budget covers the whole job: a short prior training may take at most half of what
+        # is left of it when the prior starts (loading and the first evaluation have already
+        # spent some), in wall-clock seconds, so generation and refinement keep the rest. A stop
+        # (or pause) from the user is honoured between the prior's steps too.
+        prior_s = 60.0 * config.prior_minutes
+        if config.minutes is not None:
+            prior_s = min(prior_s, max(60.0 * config.minutes - now(), 0.0) / 2.0)
+        prior_end = now() + prior_s
+
+        def prior_should_stop() -> bool:
+            return wait_or_stop() or now() >= prior_end
+
         prior, prior_text = obtain_prior(
             run_dir, out_dir, gaussians0, train_cams, lambda k: data.images[split.train[k]].numpy(),
-            config.prior, config.seed, prior_minutes, config.prior_steps, log)
+            config.prior, config.seed, prior_s / 60.0, config.prior_steps, log, should_stop=prior_should_stop)
         prior.eval()
         prior_hash = prior_version(prior)
         summary["prior"] = {"description": prior_text, "version": prior_hash,
@@ -254,16 +272,6 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     rounds_done = 0
     bar = tqdm(total=config.rounds * config.iterations, desc="bootstrap", file=sys.stderr,
                dynamic_ncols=True, disable=not progress, unit="it")
-
-    def out_of_time() -> bool:
-        return config.minutes is not None and now() >= 60.0 * config.minutes
-
-    def wait_or_stop() -> bool:
-        """Honour pause; True when asked to stop."""
-        nonlocal clock_start
-        stop, paused_s = wait_while_paused(control)
-        clock_start += paused_s
-        return stop
 
     def checkpoint_now(round_index: int) -> None:
         state.wall_s, state.train_s = now(), now() - eval_s

@@ -56,16 +56,9 @@ def build_config(args) -> "TrainConfig":
     return short_run_schedule(config.validate("command line"))
 
 
-def default_run_dir(scene: Path) -> Path:
-    """./runs/NAME for the scene folder (or transforms.json file) ``scene``: in the current
-    folder, never in the scene's."""
-    resolved = scene.resolve()
-    name = resolved.parent.name if resolved.is_file() else resolved.name
-    return Path.cwd() / "runs" / (name or "scene")
-
-
 def run(args) -> int:
     from ..train.config import TrainConfig
+    from ..train.run_folder import default_run_dir
     from ..train.trainer import train
 
     scene = Path(args.scene)

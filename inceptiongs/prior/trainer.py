@@ -183,13 +183,15 @@ class PriorTrainer:
               run_dir: str | Path | None = None, checkpoint_every: int = 200,
               progress: bool = True, log_every: int = 20,
               evaluate: Callable[["Prior"], dict] | None = None,
-              evaluate_every_s: float | None = None) -> list[float]:
+              evaluate_every_s: float | None = None,
+              should_stop: Callable[[], bool] | None = None) -> list[float]:
         """Train for ``steps`` steps and/or ``minutes`` minutes of training time (whichever ends
         first), checkpointing into RUN/prior/ every ``checkpoint_every`` steps and at the end when
         run_dir is given, logging to RUN/prior/metrics.jsonl every ``log_every`` steps.
         evaluate(prior) -> scores ({"generated": {"scarce": {"psnr": .., "ssim": ..}, ..}}) runs
         at the start, every ``evaluate_every_s`` training seconds and at the end; its time is
-        not training time (it does not count against ``minutes``)."""
+        not training time (it does not count against ``minutes``). should_stop() is asked before
+        each step: True ends the training there (a caller's wall-clock budget, a user's stop)."""
         if steps is None and minutes is None:
             raise ValueError("give steps or minutes")
         budget_s = None if minutes is None else 60.0 * minutes
@@ -208,6 +210,8 @@ class PriorTrainer:
         try:
             maybe_evaluate()
             while (steps is None or done < steps) and (budget_s is None or self.train_s - start_s < budget_s):
+                if should_stop is not None and should_stop():
+                    break
                 loss = self.step()
                 done += 1
                 bar.update(1)

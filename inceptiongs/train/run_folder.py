@@ -107,6 +107,43 @@ def next_free_folder(folder: str | Path) -> Path:
     return folder.with_name(f"{folder.name}_{index}")
 
 
+# `inceptiongs train` without --out writes ./runs/NAME (NAME: the scene folder's name), in the
+# current folder, never in the scene's; `inceptiongs bootstrap` then writes NAME_bootstrap beside it.
+CLI_RUNS_FOLDER = "runs"
+
+
+def default_run_dir(scene: str | Path, cwd: str | Path | None = None) -> Path:
+    """./runs/NAME for the scene folder (or transforms.json file) ``scene``: in ``cwd`` (default:
+    the current folder), never in the scene's."""
+    resolved = Path(scene).resolve()
+    name = resolved.parent.name if resolved.is_file() else resolved.name
+    return Path(cwd if cwd is not None else Path.cwd()) / CLI_RUNS_FOLDER / (name or "scene")
+
+
+def is_run_of(run_dir: str | Path, scene_root: str | Path) -> bool:
+    """Whether ``run_dir`` is a run (config.json with a model or checkpoints) of the scene at
+    ``scene_root``: its config names that scene. An unreadable config is not a run of anything."""
+    run_dir = Path(run_dir)
+    if not ((run_dir / "model.ply").is_file() or (run_dir / "checkpoints").is_dir()):
+        return False
+    try:
+        scene = json.loads((run_dir / "config.json").read_text()).get("scene")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return isinstance(scene, str) and Path(scene).resolve() == Path(scene_root).resolve()
+
+
+def cli_run_dirs(scene_root: str | Path, cwd: str | Path | None = None) -> list[Path]:
+    """The runs the command line wrote for a scene with its default folders: ./runs/NAME,
+    NAME_2 ..., NAME_bootstrap ... (every folder of ./runs whose name starts with NAME and whose
+    config names this scene), sorted by name."""
+    default = default_run_dir(scene_root, cwd)
+    if not default.parent.is_dir():
+        return []
+    return sorted(folder for folder in default.parent.iterdir()
+                  if folder.is_dir() and folder.name.startswith(default.name) and is_run_of(folder, scene_root))
+
+
 def load_run(run_dir: str | Path):
     """RUN -> (Gaussians in the normalised frame (float32, CPU), Scene, TrainConfig).
 

@@ -79,3 +79,33 @@ def test_unknown_screenshot_format_is_one_line_error(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "x.gif" in lines[0] and "unknown image format" in lines[0]
+
+
+@pytest.mark.gl
+def test_the_help_appears_at_once_in_an_idle_window(xvfb, tmp_path):
+    """As run() draws: an idle window sleeps up to 2 s between frames, and imgui shows the help
+    window on the frame after the key (it sizes it first); the frames after an input event come
+    at once, so the help shows within a fraction of a second, not up to 2 s later."""
+    import time
+
+    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 800, 600)
+    try:
+        viewer.step()
+        deadline = time.perf_counter() + 10
+        while not viewer.is_idle() and time.perf_counter() < deadline:
+            viewer.step()
+        assert viewer.is_idle()
+        before = viewer.capture_window()
+        viewer.input.on_key(viewer.window, glfw.KEY_H, 0, glfw.PRESS, 0)
+        viewer.input.on_key(viewer.window, glfw.KEY_H, 0, glfw.RELEASE, 0)
+        began = time.perf_counter()
+        frames = viewer.stats.frames
+        while time.perf_counter() - began < 0.5:  # run()'s loop for half a second
+            viewer.wait_for_next_frame()
+            viewer.step()
+        assert viewer.stats.frames >= frames + 2, "the frames after the key should not wait"
+        during = viewer.capture_window()
+        middle = np.s_[200:400, 430:560]
+        assert np.abs(during[middle] - before[middle]).mean() > 0.05
+    finally:
+        viewer.close()

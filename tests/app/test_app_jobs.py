@@ -101,11 +101,13 @@ def _wait(viewer, condition, seconds=120.0) -> None:
 def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
     import glfw
 
+    from viewer_cases import click_widget
+
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
 
-    viewer = Viewer(open_source(demo_scene), 320, 240)
+    viewer = Viewer(open_source(demo_scene), 900, 1000)
     # The scene's work folder is in the cache directory: nothing is written into the scene.
     runs = viewer.source.work_dir / "runs"
     assert demo_scene not in runs.parents
@@ -121,8 +123,8 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         first = latest_checkpoint(runs / "train")
         assert first is not None
         first_bytes = first.read_bytes()
-        # A second "train" starts a new run beside the first, leaving it as it was.
-        viewer.start_training()
+        # A second "train" (its button, clicked) starts a new run beside the first, leaving it as it was.
+        click_widget(viewer, "train (new run)")
         assert viewer.job_out_dir == runs / "train_2"
         assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
         _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
@@ -132,7 +134,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         stopped_at = list_checkpoints(runs / "train_2")[-1][0]
         # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
         assert viewer.run_dir == runs / "train_2"
-        viewer.resume_training()
+        click_widget(viewer, "resume")
         job = viewer.training.job
         assert job.resume and job.run_dir == runs / "train_2"
         seen = []
@@ -156,11 +158,12 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.io.images import write_png
+    from viewer_cases import click_widget
 
     viewer = Viewer(open_source(demo_scene), 1200, 1000)
     try:
         viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
-        viewer.start_training()
+        click_widget(viewer, "train (new run)")
         plan = viewer.training.plan
         assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
         _wait(viewer, lambda: viewer.training.progress.iteration >= 30)
@@ -221,6 +224,56 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
 
 
 @pytest.mark.gl
+def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, monkeypatch):
+    """`inceptiongs train SCENE` (no --out) writes ./runs/NAME in the current folder; the viewer
+    opened on SCENE from that folder lists it with the viewer's own runs and, the newest, opens it."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+
+    from inceptiongs.app.runs import new_train_dir
+    from inceptiongs.train.trainer import train
+
+    # A run of the viewer's own (in the scene's work folder), then the command line's, newer.
+    work_dir = open_source(demo_scene).work_dir
+    train(JobSettings(minutes=None, iterations=5, downscale=4).train_config(demo_scene), new_train_dir(work_dir),
+          progress=False)
+    monkeypatch.chdir(tmp_path)
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "train", str(demo_scene), "--iterations", "10",
+                             "--downscale", "4", "--protocol", "unstructured"], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stderr[-2000:]
+    cli_run = tmp_path / "runs" / demo_scene.name
+    assert (cli_run / "model.ply").is_file()
+    # A run of another scene whose folder name starts the same is not this scene's.
+    stranger = tmp_path / "runs" / f"{demo_scene.name}_other"
+    (stranger / "checkpoints").mkdir(parents=True)
+    (stranger / "config.json").write_text(json.dumps({"scene": str(tmp_path / "elsewhere")}))
+    viewer = Viewer(open_source(demo_scene), 640, 480)
+    try:
+        runs = viewer.source.runs
+        assert cli_run in runs and stranger not in runs
+        assert any(work_dir in run.parents for run in runs), "the viewer's own runs are listed too"
+        assert runs[-1] == cli_run and viewer.run_dir == cli_run  # the newest is the one opened
+        assert str(cli_run) in viewer.title and str(cli_run) in viewer.status
+        shown = viewer.edit.base["means"].copy()
+        older = runs[0]
+        viewer.open_run(older)  # what the panel's "runs of this scene" list does
+        assert viewer.run_dir == older and str(older) in viewer.title
+        assert viewer.edit.base["means"].shape != shown.shape or not np.allclose(viewer.edit.base["means"], shown)
+        viewer.step()
+        assert "runs of this scene" in viewer.ui_rects  # the list is in the Training panel
+    finally:
+        viewer.close()
+    monkeypatch.chdir(demo_scene.parent)  # from elsewhere, the command line's ./runs is not looked at
+    assert cli_run not in open_source(demo_scene).runs
+
+
+@pytest.mark.gl
 def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
     import cv2
 
@@ -249,5 +302,63 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
         inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
         assert np.abs(beside[-inset_h:, -inset_w:] - inset).mean() < 0.02  # the photo in the corner
         np.testing.assert_allclose(beside[:100, :150], render[:100, :150], atol=2 / 255)  # the render elsewhere
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
+    """A user opens "job settings", clicks into its fields and types (key and char events as GLFW
+    delivers them, through imgui's GLFW backend), then presses the buttons: the started jobs and
+    their folders' config.json carry what was typed, not the dialog's defaults."""
+    import glfw
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.train.config import TrainConfig
+    from viewer_cases import click_widget, press_key, type_into
+
+    viewer = Viewer(open_source(demo_scene), 1100, 1000)
+    try:
+        defaults = JobSettings()
+        typed = {"time budget min": "1.5", "schedule iterations": "700", "downscale": "3"}
+        assert (defaults.minutes, defaults.iterations, defaults.downscale) != (1.5, 700, 3)
+        viewer.step()
+        click_widget(viewer, "job settings")  # open the dialog (a tree node, closed at first)
+        for label, text in typed.items():
+            type_into(viewer, label, text)
+        assert (viewer.job_settings.minutes, viewer.job_settings.iterations, viewer.job_settings.downscale) == (
+            1.5, 700, 3)
+        click_widget(viewer, "train (new run)")
+        job = viewer.training.job
+        assert (job.config.minutes, job.config.iterations, job.config.downscale) == (1.5, 700, 3)
+        _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.training.progress.iteration >= 10)
+        stored = TrainConfig.load(job.run_dir / "config.json")
+        assert (stored.minutes, stored.iterations, stored.downscale) == (1.5, 700, 3)
+        click_widget(viewer, "stop")
+        _wait(viewer, lambda: not viewer.training.alive)
+        assert viewer.training.error is None, viewer.training.error
+        # The bootstrap's part of the dialog, then "Bootstrap flagged views" on the run just made.
+        press_key(viewer, glfw.KEY_F)  # flag the current view
+        assert viewer.flags, viewer.status
+        viewer.ui_rects.clear()
+        viewer.step()
+        assert "refinement steps" not in viewer.ui_rects  # the dialog closed when the job started
+        click_widget(viewer, "job settings")  # ... and the user opens it again
+        boot = {"bootstrap budget min": "0.5", "refinement steps": "25", "K nearest views (0: default)": "2",
+                "L poses each (0: default)": "3", "prior min (if none)": "0.7"}
+        for label, text in boot.items():
+            type_into(viewer, label, text)
+        click_widget(viewer, "Bootstrap flagged views")
+        assert viewer.training is not None and viewer.training.job is not job, viewer.status
+        config = viewer.training.job.config
+        expected = (0.5, 25, 2, 3, 0.7)
+        assert (config.minutes, config.iterations, config.k, config.l, config.prior_minutes) == expected
+        stored_file = viewer.training.job.out_dir / "bootstrap" / "config.json"
+        _wait(viewer, stored_file.is_file)
+        stored = BootstrapConfig.load(stored_file)
+        assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
+        viewer.training.stop()
     finally:
         viewer.close()

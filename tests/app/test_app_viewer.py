@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import GOLDEN, MovingGridJob, front_camera, open_grid_viewer, write_grid_model
+from viewer_cases import GOLDEN, MovingGridJob, click_widget, front_camera, open_grid_viewer, write_grid_model
 
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
@@ -296,32 +296,18 @@ def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
     assert "renderer" in result.stdout
 
 
-def _click(viewer, label):
-    """Click a panel button with mouse events as GLFW delivers them (a frame between each)."""
-    import glfw
-
-    viewer.step()  # the panel as it is now (a click may have changed which buttons show)
-    x0, y0, x1, y1 = viewer.ui_rects[label]
-    viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
-    viewer.step()
-    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
-    viewer.step()
-    viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
-    viewer.step()
-
-
 def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
     job = MovingGridJob()
     viewer = open_grid_viewer(model, 900, 900, job_factory=lambda source: job)
     try:
         viewer.step()
-        _click(viewer, "train (new run)")
+        click_widget(viewer, "train (new run)")
         assert viewer.training is not None and viewer.training.alive
-        _click(viewer, "pause")
+        click_widget(viewer, "pause")
         assert viewer.training.state == "paused"
-        _click(viewer, "continue")
+        click_widget(viewer, "continue")
         assert viewer.training.state == "running"
-        _click(viewer, "stop")
+        click_widget(viewer, "stop")
         viewer.training.stop()
         assert viewer.training.state == "stopped" and job.checkpoint_written
         assert not viewer.edit.selected.any()  # the clicks went to the panel, not to the scene

@@ -297,3 +297,54 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
 def checks_at(checks: list, iteration: int) -> float:
     """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
     return [scale for step, _, scale in checks if step <= iteration][-1]
+
+
+# The budget ends the work; what follows it is bounded by one unit of work and the closing steps:
+# one virtual view's generation, the closing evaluation, the checkpoint and model.ply. On this
+# 48x36 scene that is ~0.5 s (measured 2026-11-24); the slack leaves room for a loaded machine.
+BUDGET_SLACK_S = 3.0
+
+
+def test_a_tiny_budget_covers_the_whole_bootstrap(stage1, tmp_path):
+    """A prior is trained (the run has none), then views are generated and refined: the budget is
+    the whole job's, so the job ends within it plus the slack, the prior took at most half of it,
+    and the refinement's long schedule was cut by it."""
+    import time
+
+    budget_s = 6.0
+    config = _config(minutes=budget_s / 60.0, prior_minutes=1.0, prior_steps=None, iterations=100_000)
+    began = time.perf_counter()
+    result = run_bootstrap(stage1, tmp_path / "out", _targets(stage1), config, progress=False)
+    wall = time.perf_counter() - began
+    summary = json.loads((tmp_path / "out" / "bootstrap" / "summary.json").read_text())
+    assert wall <= budget_s + BUDGET_SLACK_S, (wall, summary["prior"], summary["rounds"])
+    assert summary["prior"]["seconds"] <= budget_s / 2 + 1.0, summary["prior"]   # + one prior step
+    assert "prior trained here" in summary["prior"]["description"]
+    assert not result.finished and result.iteration - result.start_iteration < 100_000
+    assert (tmp_path / "out" / "model.ply").is_file()  # a budget that ran out is an end: the model is saved
+
+
+def test_a_stop_during_the_prior_training_ends_the_bootstrap(stage1, tmp_path):
+    """The viewer's "stop" while the prior trains (no budget, a one-minute prior): the job ends
+    within seconds, not when the prior's minute is over."""
+    import threading
+    import time
+
+    from inceptiongs.live import JobControl
+
+    control = JobControl()
+    config = _config(prior_minutes=1.0, prior_steps=None)
+    logged: list[str] = []
+
+    def stop_once_the_prior_trains():
+        while not any("training one for" in line for line in logged):
+            time.sleep(0.05)
+        time.sleep(1.0)
+        control.stop.set()
+
+    threading.Thread(target=stop_once_the_prior_trains, daemon=True).start()
+    began = time.perf_counter()
+    result = run_bootstrap(stage1, tmp_path / "out", _targets(stage1), config, control=control, progress=False,
+                           log=logged.append)
+    assert time.perf_counter() - began < 30.0, logged
+    assert not result.finished and result.iteration == result.start_iteration
