@@ -10,7 +10,7 @@ from .drawing import SELECTION_COLOR
 from .jobs import start_bootstrap
 from .navigation import UP_AXES, up_axis_name
 from .progress import eta_seconds, format_duration
-from .runs import can_resume
+from .runs import can_resume, resume_blocked_reason
 from inceptiongs.train.config import STRATEGIES
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
@@ -323,13 +323,21 @@ def _training(viewer) -> None:
         _job_settings(viewer)
         if _button(viewer, "train (new run)"):
             viewer.start_training()
-        if can_resume(viewer.run_dir):
+        blocked = resume_blocked_reason(viewer.run_dir)
+        if can_resume(viewer.run_dir) or blocked is not None:
             _same_line_if_fits("resume")
+            imgui.begin_disabled(blocked is not None)  # shown, greyed, with the reason: not hidden
             if _button(viewer, "resume"):
                 viewer.resume_training()
+            imgui.end_disabled()
+            if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+                imgui.set_tooltip(blocked)
         _same_line_if_fits("Bootstrap flagged views")
         if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
+        if blocked is not None:
+            _hint(f"no resume here: {blocked}")
+            _remember(viewer, "why no resume")
     else:
         if run.control.pause.is_set():
             if _button(viewer, "continue"):
