@@ -285,7 +285,7 @@ def _coverage(viewer) -> None:
         imgui.color_button(f"##bar{step}", imgui.ImVec4(*colour.tolist(), 1.0), 0, imgui.ImVec2(24, 12))
         imgui.same_line(0, 0)
     imgui.new_line()
-    if imgui.button("suggest flags (the 3 scarcest views)"):
+    if _button(viewer, "suggest flags (the 3 scarcest views)"):
         viewer.suggest_flags()
 
 
@@ -294,15 +294,22 @@ def _flags(viewer) -> None:
         viewer.flag_current_view()
     _hint("right-click: flag a view aimed at the point")
     _hint(str(viewer.flags_file))
+    # Each row's widgets are kept under "flag N/name", "flag N/go", "flag N/delete" (N from 1).
     for index, flag in enumerate(list(viewer.flags)):
         imgui.push_id(f"flag{index}")
+        row = f"flag {index + 1}"
         if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
             viewer.selected_flag = index
+        _remember(viewer, f"{row}/name")
         imgui.same_line()
-        if imgui.small_button("go"):
+        go = imgui.small_button("go")
+        _remember(viewer, f"{row}/go")
+        if go:
             viewer.jump_to_flag(index)
         imgui.same_line()
-        if imgui.small_button("delete"):
+        delete = imgui.small_button("delete")
+        _remember(viewer, f"{row}/delete")
+        if delete:
             viewer.delete_flag(index)
             imgui.pop_id()
             break
@@ -311,6 +318,7 @@ def _flags(viewer) -> None:
         flag = viewer.flags[viewer.selected_flag]
         _fit("rename")
         changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
+        _remember(viewer, "rename")
         if changed and name.strip():
             viewer.rename_flag(viewer.selected_flag, name.strip())
 
@@ -537,6 +545,7 @@ def _edit(viewer) -> None:
             viewer.fit_crop_box()
     _fit("file")
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
+    _remember(viewer, "file")
     if _button(viewer, "save PLY"):
         try:
             viewer.save_ply(viewer.save_path)

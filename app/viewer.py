@@ -266,7 +266,12 @@ class Viewer:
         self.save_flags()
 
     def delete_flag(self, index: int) -> None:
+        """Delete flag ``index``; the selection stays on the flag it was on (none if deleted)."""
         del self.flags[index]
+        if self.selected_flag == index:
+            self.selected_flag = -1
+        elif self.selected_flag > index:
+            self.selected_flag -= 1  # the selected flag moved up one row
         self.save_flags()
 
     def jump_to_flag(self, index: int) -> None:
@@ -367,8 +372,12 @@ class Viewer:
         original frame, like the trainer's model.ply."""
         from inceptiongs.io.ply import write_ply  # noqa: PLC0415
 
-        gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         scene = self.source.scene
+        path = Path(path).expanduser()
+        if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
+            raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
+                             f"save elsewhere (the default is the work folder {self.source.work_dir})")
+        gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         if scene is not None:  # everything shown for a scene or run is in its normalised frame
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         write_ply(gaussians, path)

@@ -4,14 +4,15 @@ real app"): keys, mouse drags, panel combos and checkboxes, each an event as GLF
 
 from __future__ import annotations
 
+import time
 from contextlib import contextmanager
 
 import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (choose, click_widget, open_grid_viewer, open_viewer, press_key, write_grid_model,
-                          write_table_model)
+from viewer_cases import (choose, click_widget, open_grid_viewer, open_viewer, press_key, type_into,
+                          write_grid_model, write_table_model)
 
 pytestmark = pytest.mark.gl
 
@@ -114,3 +115,113 @@ def test_the_jobs_share_of_the_cpu_is_a_slider_the_user_drags(xvfb, tmp_path):
         _drag(viewer, (x0 + 40, 0.5 * (y0 + y1)), (x0 - 30, 0.5 * (y0 + y1)))  # to the left end
         assert viewer.settings.training_utilisation == pytest.approx(0.5)
         assert viewer.training_frame_wait() < default_wait
+
+
+def _collapse(viewer, *headers: str) -> None:
+    """Close panel sections (a click on each header) so the ones below fit a small window."""
+    for header in headers:
+        click_widget(viewer, header)
+
+
+def _hover(viewer, x: float, y: float) -> None:
+    """The cursor to window position (x, y), then the frames imgui takes to see it there (it
+    takes its queued events one kind per frame, as they arrive between a user's frames)."""
+    viewer.input.on_cursor(viewer.window, x, y)
+    for _ in range(3):
+        viewer.step()
+
+
+def _press(viewer, x: float, y: float, button=glfw.MOUSE_BUTTON_LEFT) -> None:
+    """A press then a release of ``button`` at window position (x, y), no frame between."""
+    viewer.input.on_cursor(viewer.window, x, y)
+    viewer.input.on_mouse_button(viewer.window, button, glfw.PRESS, 0)
+    viewer.input.on_mouse_button(viewer.window, button, glfw.RELEASE, 0)
+
+
+def test_flag_list_go_rename_and_delete_by_clicks_and_typing(xvfb, tmp_path):
+    from inceptiongs.io.flags import load_flags
+
+    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        viewer.step()
+        _collapse(viewer, "View", "Inspect")
+        _hover(viewer, 450, 240)                            # the mouse over the scene, off the panel
+        press_key(viewer, glfw.KEY_F)                       # flag 1 at the opening view
+        first = viewer.nav.copy()
+        _drag(viewer, (450, 240), (560, 200))               # look elsewhere
+        press_key(viewer, glfw.KEY_F)                       # flag 2 there
+        second = viewer.nav.copy()
+        assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
+        assert np.abs(first.rotation - second.rotation).max() > 0.05
+        click_widget(viewer, "flag 1/go")
+        np.testing.assert_allclose(viewer.nav.rotation, first.rotation, atol=1e-6)
+        np.testing.assert_allclose(viewer.nav.center, first.center, atol=1e-6)
+        click_widget(viewer, "flag 2/go")
+        np.testing.assert_allclose(viewer.nav.rotation, second.rotation, atol=1e-6)
+        # Select flag 1 (a click on its name), type a new name into "rename", Enter.
+        click_widget(viewer, "flag 1/name")
+        assert viewer.selected_flag == 0
+        type_into(viewer, "rename", "doorway")
+        assert [f.name for f in viewer.flags] == ["doorway", "flag 2"]
+        assert [f.name for f in load_flags(viewer.flags_file)] == ["doorway", "flag 2"]  # saved at once
+        # With flag 2 selected, deleting flag 1 keeps the selection on flag 2 (it moved up a row).
+        click_widget(viewer, "flag 2/name")
+        click_widget(viewer, "flag 1/delete")
+        assert [f.name for f in viewer.flags] == ["flag 2"] and viewer.selected_flag == 0
+        assert [f.name for f in load_flags(viewer.flags_file)] == ["flag 2"]
+        click_widget(viewer, "flag 1/delete")                # the selected flag itself: no selection left
+        assert viewer.flags == [] and viewer.selected_flag == -1
+        assert load_flags(viewer.flags_file) == []
+
+
+def test_scroll_zooms_towards_the_pivot_and_double_click_sets_it(xvfb, tmp_path):
+    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        press_key(viewer, glfw.KEY_TAB)                      # no panel: the whole window is the scene
+        viewer.step()
+        viewer.input.on_cursor(viewer.window, 320, 240)
+        viewer.step()
+        # Without orbit, the wheel sets the fly speed; with orbit (O) it zooms to the pivot.
+        speed = viewer.nav.speed
+        viewer.input.on_scroll(viewer.window, 0.0, 2.0)
+        assert viewer.nav.speed == pytest.approx(speed * 1.2 ** 2)
+        press_key(viewer, glfw.KEY_O)
+        pivot = viewer.nav.pivot.copy()
+        distance = np.linalg.norm(viewer.nav.center - pivot)
+        viewer.input.on_scroll(viewer.window, 0.0, 1.0)
+        viewer.step()
+        closer = np.linalg.norm(viewer.nav.center - pivot)
+        assert closer == pytest.approx(distance * 0.85)
+        viewer.input.on_scroll(viewer.window, 0.0, -2.0)
+        assert np.linalg.norm(viewer.nav.center - pivot) > distance
+        # Double-click on the grid (z = 0, in front of the layer at z = 0.6): the pivot jumps there.
+        viewer.frame_model()
+        viewer.step()
+        camera = viewer.current_camera()
+        target = np.array([0.5, 0.25, 0.0])
+        x, y = _window_pixel(viewer, camera, target)
+        before = viewer.nav.pivot.copy()
+        _press(viewer, x, y)
+        viewer.step()
+        np.testing.assert_array_equal(viewer.nav.pivot, before)  # one click is no double-click
+        _press(viewer, x, y)
+        viewer.step()
+        assert viewer.status == "orbit pivot set"
+        assert abs(viewer.nav.pivot[2]) < 0.1 and np.linalg.norm(viewer.nav.pivot[:2] - target[:2]) < 0.15
+        assert not np.allclose(viewer.nav.pivot, before)
+        # A double-click on empty space leaves the pivot and says why.
+        pivot = viewer.nav.pivot.copy()
+        time.sleep(0.4)  # not a third click of the pair
+        _press(viewer, 3, 3)
+        _press(viewer, 3, 3)
+        viewer.step()
+        np.testing.assert_array_equal(viewer.nav.pivot, pivot)
+        assert "no surface" in viewer.status
+
+
+def _window_pixel(viewer, camera, point) -> tuple[float, float]:
+    """Window position of world ``point`` [3] seen by ``camera`` (the current view)."""
+    from inceptiongs.app.editing import project_means
+
+    pixels, _ = project_means(np.asarray(point, np.float64)[None], camera)
+    window_w, _ = glfw.get_window_size(viewer.window)
+    scale = window_w / viewer.framebuffer_size[0]
+    return float(pixels[0, 0] * scale), float(pixels[0, 1] * scale)
