@@ -536,8 +536,10 @@ def _edit(viewer) -> None:
     if settings.crop_enabled:
         _fit("min")
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
+        _remember(viewer, "min")  # x's field at its left end
         _fit("max")
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
+        _remember(viewer, "max")
         if _button(viewer, "crop to box"):
             viewer.apply_crop()
         _same_line_if_fits("fit to the model")

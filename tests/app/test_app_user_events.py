@@ -131,6 +131,20 @@ def _hover(viewer, x: float, y: float) -> None:
         viewer.step()
 
 
+def _scroll_panel(viewer, label: str) -> None:
+    """Turn the mouse wheel over the panel until its widget ``label`` is inside the window, as a
+    user scrolls a panel longer than the window."""
+    _hover(viewer, 200, 200)
+    height = glfw.get_window_size(viewer.window)[1]
+    for _ in range(20):
+        if viewer.ui_rects[label][3] <= height - 5:
+            return
+        viewer.input.on_scroll(viewer.window, 0.0, -1.0)
+        viewer.step()
+        viewer.step()
+    raise AssertionError(f"{label!r} stays below the window: {viewer.ui_rects[label]}")
+
+
 def _press(viewer, x: float, y: float, button=glfw.MOUSE_BUTTON_LEFT) -> None:
     """A press then a release of ``button`` at window position (x, y), no frame between."""
     viewer.input.on_cursor(viewer.window, x, y)
@@ -225,3 +239,119 @@ def _window_pixel(viewer, camera, point) -> tuple[float, float]:
     window_w, _ = glfw.get_window_size(viewer.window)
     scale = window_w / viewer.framebuffer_size[0]
     return float(pixels[0, 0] * scale), float(pixels[0, 1] * scale)
+
+
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory):
+    """The procedural demo scene (28 cameras, sparse points): a scene folder with cameras."""
+    from inceptiongs.scene.demo import write_demo_scene
+
+    return write_demo_scene(tmp_path_factory.mktemp("user_events") / "scene", progress=False)
+
+
+def test_n_and_p_keys_step_through_the_training_cameras(xvfb, demo_scene):
+    with _opened(open_viewer, demo_scene, 320, 240) as viewer:
+        cameras = viewer.cameras
+        assert len(cameras) > 2 and viewer.camera_index == 0
+        press_key(viewer, glfw.KEY_N)
+        viewer.step()
+        assert viewer.camera_index == 1
+        np.testing.assert_allclose(viewer.nav.center, cameras[1].center, atol=1e-9)
+        np.testing.assert_allclose(viewer.nav.rotation[2], cameras[1].rotation[2], atol=1e-9)  # its viewing direction
+        press_key(viewer, glfw.KEY_P)
+        press_key(viewer, glfw.KEY_P)  # before the first: the last
+        viewer.step()
+        assert viewer.camera_index == len(cameras) - 1
+        np.testing.assert_allclose(viewer.nav.center, cameras[-1].center, atol=1e-9)
+
+
+def test_reference_and_coverage_modes_from_the_combo_and_suggest_flags(xvfb, demo_scene):
+    from inceptiongs.io.flags import load_flags
+
+    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+        viewer.step()
+        _collapse(viewer, "View")
+        choose(viewer, "mode (1-6)", "reference")
+        assert viewer.settings.mode == "reference"
+        deadline = time.time() + 60
+        while viewer.drawing.reference_psnr is None and time.time() < deadline:
+            viewer.step()
+        # The torch reference of the same view came back and was compared with the GL picture.
+        assert viewer.drawing.reference_psnr is not None and viewer.drawing.reference_psnr > 15
+        choose(viewer, "mode (1-6)", "coverage")
+        assert viewer.settings.mode == "coverage"
+        viewer.step()
+        assert viewer.coverage.vmax > 0  # the counts were computed for the drawn colours
+        assert not viewer.flags
+        click_widget(viewer, "suggest flags (the 3 scarcest views)")
+        names = [f.name for f in viewer.flags]
+        assert names == ["scarce 1", "scarce 2", "scarce 3"], viewer.status
+        assert [f.name for f in load_flags(viewer.flags_file)] == names
+        assert viewer.settings.mode == "coverage"  # the suggestion leaves the mode as it was
+        # Each suggested flag is one of the training views, named in the status line.
+        centers = [c.center for c in viewer.cameras]
+        for flag in viewer.flags:
+            assert min(np.linalg.norm(flag.camera.center - c) for c in centers) < 1e-6
+        assert viewer.status.startswith("flagged the scarcest views")
+
+
+def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
+    from inceptiongs.io.ply import read_ply
+
+    model = write_grid_model(tmp_path / "model.ply")
+    with _opened(open_grid_viewer, model, 640, 480) as viewer:
+        viewer.step()
+        _collapse(viewer, "View", "Inspect", "Flags", "Training")
+        click_widget(viewer, "Edit")
+        click_widget(viewer, "crop box (drag its handles)")
+        total = viewer.edit.count
+        full_box = np.array(viewer.settings.crop_max) - np.array(viewer.settings.crop_min)
+        type_into(viewer, "max", "0")                        # the box's max x typed: 0
+        assert viewer.settings.crop_max[0] == 0.0
+        click_widget(viewer, "crop to box")
+        kept = viewer.edit.visible_arrays()["means"]
+        assert 0 < viewer.edit.count < total and kept[:, 0].max() <= 1e-6
+        click_widget(viewer, "fit to the model")             # the box around what is left
+        fitted = np.array(viewer.settings.crop_max) - np.array(viewer.settings.crop_min)
+        assert fitted[0] < 0.7 * full_box[0] and viewer.settings.crop_max[0] < 0.1
+        # Save PLY: typed file name, a valid PLY with what is shown; the model's folder untouched.
+        out = tmp_path / "out" / "cropped.ply"
+        out.parent.mkdir()
+        _scroll_panel(viewer, "file")                        # the panel's end, below a 480-pixel window
+        type_into(viewer, "file", str(out))
+        click_widget(viewer, "save PLY")
+        assert out.is_file(), (viewer.status, viewer.save_path, viewer.ui_rects["file"], viewer.ui_rects["save PLY"])
+        saved = read_ply(out)
+        assert len(saved) == viewer.edit.count, viewer.status
+        np.testing.assert_allclose(saved.numpy()["means"], kept, atol=1e-6)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["model.ply", "out"]
+        # "frame the model (Home)": the model's centre mid-window, every kept splat in view.
+        click_widget(viewer, "View")
+        viewer.nav.orbit(80.0, 30.0)
+        click_widget(viewer, "frame the model (Home)")
+        camera = viewer.current_camera()
+        from inceptiongs.app.editing import project_means
+
+        pixels, _ = project_means(kept, camera)
+        assert np.all((pixels >= 0) & (pixels <= [camera.width, camera.height]))
+        np.testing.assert_allclose(viewer.nav.pivot, np.median(kept, axis=0), atol=1e-6)
+
+
+def test_save_ply_of_a_scene_goes_to_its_work_folder_never_the_scene_folder(xvfb, demo_scene):
+    from inceptiongs.io.ply import read_ply
+
+    before = sorted(p.relative_to(demo_scene) for p in demo_scene.rglob("*"))
+    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+        viewer.step()
+        _collapse(viewer, "View", "Inspect", "Flags", "Training")
+        click_widget(viewer, "Edit")
+        click_widget(viewer, "save PLY")                     # the default file: in the work folder
+        default = viewer.source.work_dir / "edited.ply"
+        assert len(read_ply(default)) == viewer.edit.count, viewer.status
+        assert demo_scene not in default.parents
+        inside = demo_scene / "edited.ply"
+        type_into(viewer, "file", str(inside))
+        click_widget(viewer, "save PLY")
+        assert not inside.exists()
+        assert "scene folder" in viewer.status and str(inside) in viewer.status
+    assert sorted(p.relative_to(demo_scene) for p in demo_scene.rglob("*")) == before
