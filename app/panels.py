@@ -8,7 +8,7 @@ from imgui_bundle import imgui, implot
 
 from .drawing import SELECTION_COLOR
 from .jobs import start_bootstrap
-from .navigation import UP_AXES, up_axis_name
+from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
 from inceptiongs.train.config import STRATEGIES
@@ -211,7 +211,7 @@ def _view(viewer) -> None:
     imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
     names = list(UP_AXES)
     current = up_axis_name(viewer.up)
-    labels = names if current is not None else names + ["tilted"]
+    labels = names if current is not None else names + [up_label(viewer.up)]
     changed, index = _combo(viewer, f"up, {viewer.up_source}", names.index(current) if current else len(names),
                             labels)
     if changed and index < len(names):

@@ -11,7 +11,7 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (choose, click_widget, open_grid_viewer, open_viewer, press_key, type_into,
+from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, press_key, type_into,
                           write_grid_model, write_table_model)
 
 pytestmark = pytest.mark.gl
@@ -355,3 +355,23 @@ def test_save_ply_of_a_scene_goes_to_its_work_folder_never_the_scene_folder(xvfb
         assert not inside.exists()
         assert "scene folder" in viewer.status and str(inside) in viewer.status
     assert sorted(p.relative_to(demo_scene) for p in demo_scene.rglob("*")) == before
+
+
+def test_demo_scene_opens_z_up_shown_as_plus_z_and_orbits_level(xvfb, demo_scene):
+    """The demo scene is built z up (inceptiongs/scene/demo.py) with level cameras on part of a
+    circle: its up control shows "+Z" (it showed "tilted": the cameras' mean up leaned 13 deg),
+    and an orbit drag keeps the horizon level about +Z."""
+    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+        viewer.step()
+        np.testing.assert_array_equal(viewer.up, [0.0, 0.0, 1.0])
+        click_widget(viewer, "up, from the cameras")           # open the control, as a user looks
+        choices = [label.split("/", 1)[1] for label in viewer.ui_rects if label.startswith("up, from the cameras/")]
+        assert sorted(choices) == sorted(["+X", "-X", "+Y", "-Y", "+Z", "-Z"]), choices  # no "tilted" entry
+        click_at(viewer, 600, 300)                               # a click beside it closes the list
+        _hover(viewer, 600, 300)
+        press_key(viewer, glfw.KEY_O)
+        assert viewer.settings.orbit
+        before = viewer.nav.rotation.copy()
+        _drag(viewer, (520, 300), (630, 300))
+        assert np.abs(viewer.nav.rotation - before).max() > 0.1
+        assert abs(viewer.nav.rotation[0] @ [0.0, 0.0, 1.0]) < 1e-6  # the camera's right axis stays level
