@@ -260,6 +260,11 @@ class Viewer:
         self.status = f"flagged a view aimed at {np.round(point, 3).tolist()} as {name!r}"
 
     def rename_flag(self, index: int, name: str) -> None:
+        """Rename flag ``index``, unless another flag has that name (the bootstrap names its
+        targets and their files after the flags: two of one name would mix up)."""
+        if any(other.name == name for number, other in enumerate(self.flags) if number != index):
+            self.status = f"not renamed: a flag named {name!r} exists"
+            return
         flag = self.flags[index]
         self.flags[index] = flag_io.Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name),
                                           flag.created)

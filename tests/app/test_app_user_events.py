@@ -177,6 +177,9 @@ def test_flag_list_go_rename_and_delete_by_clicks_and_typing(xvfb, tmp_path):
         type_into(viewer, "rename", "doorway")
         assert [f.name for f in viewer.flags] == ["doorway", "flag 2"]
         assert [f.name for f in load_flags(viewer.flags_file)] == ["doorway", "flag 2"]  # saved at once
+        click_widget(viewer, "flag 2/name")
+        type_into(viewer, "rename", "doorway")               # a name taken: refused, said why
+        assert [f.name for f in viewer.flags] == ["doorway", "flag 2"] and "exists" in viewer.status
         # With flag 2 selected, deleting flag 1 keeps the selection on flag 2 (it moved up a row).
         click_widget(viewer, "flag 2/name")
         click_widget(viewer, "flag 1/delete")
