@@ -12,7 +12,7 @@ from pathlib import Path
 
 from inceptiongs.errors import InputError
 
-from .runs import new_bootstrap_dir, new_train_dir
+from .runs import new_bootstrap_dir, new_train_dir, resume_blocked_reason
 
 # Without a budget the command line trains 30000 steps; with one, the schedule is this long
 # (`inceptiongs train --minutes M`), and the viewer does the same.
@@ -81,6 +81,9 @@ def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
 
     if run_dir is None or latest_checkpoint(Path(run_dir)) is None:
         raise InputError(f"{run_dir or 'this source'}: no run with a checkpoint to resume")
+    blocked = resume_blocked_reason(run_dir)
+    if blocked is not None:
+        raise InputError(f"{run_dir}: a bootstrap result; {blocked}")
     config = TrainConfig.load(Path(run_dir) / "config.json")
     config = dataclasses.replace(config, minutes=(settings or JobSettings()).minutes)
     return TrainJob(config=config, run_dir=Path(run_dir), resume=True)

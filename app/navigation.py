@@ -58,6 +58,14 @@ UP_SNAP_DEG = 30.0
 # Which sign of a model's up axis to take when nothing else tells: +X, -Y (COLMAP/OpenCV worlds
 # have y down), +Z (z-up tools). Ties of a tilted normal go to its largest component.
 UP_SIGN_PREFERENCE = np.array([1.0, -1.0, 1.0])
+# A camera-derived up within this angle of a world axis is that axis (rounding of the poses;
+# a rig a degree off level): the horizon is then exactly level in the world's own frame.
+UP_CAMERA_SNAP_DEG = 1.0
+# The cameras' right axes span a plane (the horizontal one) when their second-largest spread,
+# the mean square of the component off the dominant right axis, is at least this: yaws spread
+# over about +-20 deg, well above a hand-held roll of a degree or two (fern, forward-facing:
+# 0.010, whose plane normal came out 3 deg off its cameras' mean up; bonsai 0.37).
+RIGHT_AXES_MIN_SPREAD = 0.05
 
 
 def model_up(means: np.ndarray) -> np.ndarray:
@@ -89,15 +97,46 @@ def up_axis_name(up: np.ndarray) -> str | None:
 
 
 def estimate_up(cameras: list[Camera]) -> np.ndarray:
-    """World up [3] as the mean of the cameras' up directions (-y camera axis); -y of the
-    world when there are no cameras or they cancel out."""
-    if cameras:
-        ups = np.stack([-c.rotation[1] for c in cameras])
-        mean = ups.mean(axis=0)
-        norm = np.linalg.norm(mean)
-        if norm > 1e-6:
-            return mean / norm
-    return np.array([0.0, -1.0, 0.0])
+    """World up [3] of a capture: cameras are held level (no roll), so each camera's right axis
+    is horizontal and up is the direction perpendicular to all of them (the least-spread axis
+    of the right axes, [3] unit), signed like the cameras' mean up (-y camera axis). The mean up
+    alone leans towards whatever the cameras look down at (13 deg on the demo scene, whose
+    cameras cover part of a circle). Cameras that all face one way (forward-facing, their right
+    axes nearly parallel) do not fix that plane: there the mean up made perpendicular to the
+    common right axis. Within UP_CAMERA_SNAP_DEG of a world axis: that axis, exactly. -y of the
+    world when there are no cameras or their ups cancel out."""
+    if not cameras:
+        return np.array([0.0, -1.0, 0.0])
+    rights = np.stack([c.rotation[0] for c in cameras]).astype(np.float64)
+    mean_up = np.stack([-c.rotation[1] for c in cameras]).astype(np.float64).mean(axis=0)
+    values, vectors = np.linalg.eigh(rights.T @ rights / len(rights))  # eigenvalues ascending
+    if values[1] >= RIGHT_AXES_MIN_SPREAD:  # the right axes span a plane: its normal is up
+        up = vectors[:, 0]
+    else:
+        common_right = vectors[:, 2]
+        up = mean_up - (mean_up @ common_right) * common_right
+    norm = float(np.linalg.norm(up))
+    if norm < 1e-6 or np.linalg.norm(mean_up) < 1e-6:
+        return np.array([0.0, -1.0, 0.0])  # nothing to go by (ups that cancel out)
+    up = up / norm  # norm >= 1e-6: safe
+    if up @ mean_up < 0:
+        up = -up
+    axis = int(np.argmax(np.abs(up)))
+    if abs(up[axis]) >= math.cos(math.radians(UP_CAMERA_SNAP_DEG)):
+        up = np.eye(3)[axis] * np.sign(up[axis])
+    return up
+
+
+def up_label(up: np.ndarray) -> str:
+    """What the View panel's up control shows: "+Z" etc. for a world axis, else how far up is
+    from the nearest one ("tilted 14 deg from +Z"), so a user sees which axis to pick."""
+    name = up_axis_name(up)
+    if name is not None:
+        return name
+    up = np.asarray(up, np.float64)
+    nearest = max(UP_AXES, key=lambda axis: float(up @ UP_AXES[axis]))
+    cosine = float(np.clip(up @ UP_AXES[nearest] / max(np.linalg.norm(up), 1e-12), -1.0, 1.0))
+    return f"tilted {math.degrees(math.acos(cosine)):.0f} deg from {nearest}"
 
 
 @dataclass

@@ -8,9 +8,9 @@ from imgui_bundle import imgui, implot
 
 from .drawing import SELECTION_COLOR
 from .jobs import start_bootstrap
-from .navigation import UP_AXES, up_axis_name
+from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
-from .runs import can_resume
+from .runs import can_resume, resume_blocked_reason
 from inceptiongs.train.config import STRATEGIES
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
@@ -211,7 +211,7 @@ def _view(viewer) -> None:
     imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
     names = list(UP_AXES)
     current = up_axis_name(viewer.up)
-    labels = names if current is not None else names + ["tilted"]
+    labels = names if current is not None else names + [up_label(viewer.up)]
     changed, index = _combo(viewer, f"up, {viewer.up_source}", names.index(current) if current else len(names),
                             labels)
     if changed and index < len(names):
@@ -285,7 +285,7 @@ def _coverage(viewer) -> None:
         imgui.color_button(f"##bar{step}", imgui.ImVec4(*colour.tolist(), 1.0), 0, imgui.ImVec2(24, 12))
         imgui.same_line(0, 0)
     imgui.new_line()
-    if imgui.button("suggest flags (the 3 scarcest views)"):
+    if _button(viewer, "suggest flags (the 3 scarcest views)"):
         viewer.suggest_flags()
 
 
@@ -294,15 +294,22 @@ def _flags(viewer) -> None:
         viewer.flag_current_view()
     _hint("right-click: flag a view aimed at the point")
     _hint(str(viewer.flags_file))
+    # Each row's widgets are kept under "flag N/name", "flag N/go", "flag N/delete" (N from 1).
     for index, flag in enumerate(list(viewer.flags)):
         imgui.push_id(f"flag{index}")
+        row = f"flag {index + 1}"
         if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
             viewer.selected_flag = index
+        _remember(viewer, f"{row}/name")
         imgui.same_line()
-        if imgui.small_button("go"):
+        go = imgui.small_button("go")
+        _remember(viewer, f"{row}/go")
+        if go:
             viewer.jump_to_flag(index)
         imgui.same_line()
-        if imgui.small_button("delete"):
+        delete = imgui.small_button("delete")
+        _remember(viewer, f"{row}/delete")
+        if delete:
             viewer.delete_flag(index)
             imgui.pop_id()
             break
@@ -311,6 +318,7 @@ def _flags(viewer) -> None:
         flag = viewer.flags[viewer.selected_flag]
         _fit("rename")
         changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
+        _remember(viewer, "rename")
         if changed and name.strip():
             viewer.rename_flag(viewer.selected_flag, name.strip())
 
@@ -323,13 +331,21 @@ def _training(viewer) -> None:
         _job_settings(viewer)
         if _button(viewer, "train (new run)"):
             viewer.start_training()
-        if can_resume(viewer.run_dir):
+        blocked = resume_blocked_reason(viewer.run_dir)
+        if can_resume(viewer.run_dir) or blocked is not None:
             _same_line_if_fits("resume")
+            imgui.begin_disabled(blocked is not None)  # shown, greyed, with the reason: not hidden
             if _button(viewer, "resume"):
                 viewer.resume_training()
+            imgui.end_disabled()
+            if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+                imgui.set_tooltip(blocked)
         _same_line_if_fits("Bootstrap flagged views")
         if _button(viewer, "Bootstrap flagged views"):
             start_bootstrap(viewer)
+        if blocked is not None:
+            _hint(f"no resume here: {blocked}")
+            _remember(viewer, "why no resume")
     else:
         if run.control.pause.is_set():
             if _button(viewer, "continue"):
@@ -520,8 +536,10 @@ def _edit(viewer) -> None:
     if settings.crop_enabled:
         _fit("min")
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
+        _remember(viewer, "min")  # x's field at its left end
         _fit("max")
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
+        _remember(viewer, "max")
         if _button(viewer, "crop to box"):
             viewer.apply_crop()
         _same_line_if_fits("fit to the model")
@@ -529,6 +547,7 @@ def _edit(viewer) -> None:
             viewer.fit_crop_box()
     _fit("file")
     _, viewer.save_path = imgui.input_text("file", viewer.save_path)
+    _remember(viewer, "file")
     if _button(viewer, "save PLY"):
         try:
             viewer.save_ply(viewer.save_path)

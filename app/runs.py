@@ -44,9 +44,28 @@ def run_dir_of(source) -> Path | None:
 
 
 def can_resume(run_dir: Path | None) -> bool:
-    """A run folder with a config and a checkpoint to continue from."""
+    """A stage-I run folder with a config and a checkpoint to continue from (a bootstrap's
+    result has both, but is not one: resume_blocked_reason)."""
     return (run_dir is not None and (Path(run_dir) / "config.json").is_file()
-            and latest_checkpoint(Path(run_dir)) is not None)
+            and latest_checkpoint(Path(run_dir)) is not None and not is_bootstrap_run(run_dir))
+
+
+def is_bootstrap_run(run_dir: Path | None) -> bool:
+    """A stage-II result: a run folder with the bootstrap's own folder (its config) inside."""
+    from inceptiongs.bootstrap.runner import BOOTSTRAP_DIR  # noqa: PLC0415 (torch only when asked)
+
+    return run_dir is not None and (Path(run_dir) / BOOTSTRAP_DIR / "config.json").is_file()
+
+
+def resume_blocked_reason(run_dir: Path | None) -> str | None:
+    """Why "resume" is disabled for ``run_dir``, or None when it is offered (or not relevant).
+    A bootstrap's result holds a stage-I config and checkpoints, so resuming it would continue
+    stage-I training on the repaired model, undoing what the virtual views taught it, and the
+    bootstrap itself cannot continue from a checkpoint."""
+    if is_bootstrap_run(run_dir):
+        return ("resume continues stage-I training, which would undo this bootstrap's repair: "
+                "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
+    return None
 
 
 def describe_model(source, run_dir: Path | None) -> str:

@@ -260,13 +260,23 @@ class Viewer:
         self.status = f"flagged a view aimed at {np.round(point, 3).tolist()} as {name!r}"
 
     def rename_flag(self, index: int, name: str) -> None:
+        """Rename flag ``index``, unless another flag has that name (the bootstrap names its
+        targets and their files after the flags: two of one name would mix up)."""
+        if any(other.name == name for number, other in enumerate(self.flags) if number != index):
+            self.status = f"not renamed: a flag named {name!r} exists"
+            return
         flag = self.flags[index]
         self.flags[index] = flag_io.Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name),
                                           flag.created)
         self.save_flags()
 
     def delete_flag(self, index: int) -> None:
+        """Delete flag ``index``; the selection stays on the flag it was on (none if deleted)."""
         del self.flags[index]
+        if self.selected_flag == index:
+            self.selected_flag = -1
+        elif self.selected_flag > index:
+            self.selected_flag -= 1  # the selected flag moved up one row
         self.save_flags()
 
     def jump_to_flag(self, index: int) -> None:
@@ -367,8 +377,12 @@ class Viewer:
         original frame, like the trainer's model.ply."""
         from inceptiongs.io.ply import write_ply  # noqa: PLC0415
 
-        gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         scene = self.source.scene
+        path = Path(path).expanduser()
+        if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
+            raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
+                             f"save elsewhere (the default is the work folder {self.source.work_dir})")
+        gaussians = Gaussians.from_numpy(self.edit.visible_arrays())
         if scene is not None:  # everything shown for a scene or run is in its normalised frame
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         write_ply(gaussians, path)

@@ -226,11 +226,16 @@ def choose(viewer, combo: str, choice: str) -> None:
 
 
 def _key_of(char: str) -> int:
+    """The GLFW key a US keyboard types ``char`` with (imgui takes the text from the char event;
+    the key event is what GLFW sends with it)."""
     import glfw
 
     if char.isdigit():
         return glfw.KEY_0 + int(char)
-    return {".": glfw.KEY_PERIOD, "-": glfw.KEY_MINUS}[char]
+    if char.isascii() and char.isalpha():
+        return glfw.KEY_A + ord(char.lower()) - ord("a")
+    return {".": glfw.KEY_PERIOD, "-": glfw.KEY_MINUS, "_": glfw.KEY_MINUS, "/": glfw.KEY_SLASH,
+            " ": glfw.KEY_SPACE}[char]
 
 
 def press_key(viewer, key: int, mods: int = 0) -> None:

@@ -12,7 +12,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, start_bootstrap, train_job_for
+from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, resume_job_for, start_bootstrap,
+                                  train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.errors import InputError
 
@@ -359,6 +360,58 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         _wait(viewer, stored_file.is_file)
         stored = BootstrapConfig.load(stored_file)
         assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
+        viewer.training.stop()
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scene, tmp_path):
+    """A bootstrap's result holds a stage-I config and checkpoints, so "resume" there would go on
+    with stage-I training on the repaired model. Its button is shown disabled with the reason;
+    clicked, nothing starts. The same click on the stage-I run it came from does resume."""
+    import shutil
+
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.train.checkpoint import list_checkpoints
+    from inceptiongs.train.trainer import train
+    from viewer_cases import click_widget
+
+    run = tmp_path / "run"
+    config = dataclasses.replace(JobSettings(minutes=None, iterations=4, downscale=4).train_config(demo_scene),
+                                 checkpoint_every=2, log_every=2, eval_every=2)
+    train(config, run, progress=False)
+    assert list_checkpoints(run)
+    # A bootstrap's result as run_bootstrap writes it: the run's files plus bootstrap/config.json.
+    boot = tmp_path / "run_bootstrap"
+    shutil.copytree(run, boot)
+    (boot / "bootstrap").mkdir()
+    BootstrapConfig().save(boot / "bootstrap" / "config.json")
+    before = sorted(p.name for p in (boot / "checkpoints").iterdir())
+    viewer = Viewer(open_source(boot), 900, 1000)
+    try:
+        assert viewer.run_dir == boot
+        viewer.step()
+        assert "resume" in viewer.ui_rects and "why no resume" in viewer.ui_rects
+        click_widget(viewer, "resume")
+        for _ in range(3):
+            viewer.step()
+        assert viewer.training is None, "resume must not start stage-I training on a bootstrap result"
+        assert sorted(p.name for p in (boot / "checkpoints").iterdir()) == before
+        viewer.resume_training()  # the action itself refuses too, in the status line
+        assert viewer.training is None and "bootstrap" in viewer.status
+        with pytest.raises(InputError, match="bootstrap"):
+            resume_job_for(boot)
+    finally:
+        viewer.close()
+    viewer = Viewer(open_source(run), 900, 1000)
+    try:
+        viewer.step()
+        assert "why no resume" not in viewer.ui_rects
+        click_widget(viewer, "resume")
+        assert viewer.training is not None and viewer.training.job.resume, viewer.status
         viewer.training.stop()
     finally:
         viewer.close()

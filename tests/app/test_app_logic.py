@@ -95,6 +95,53 @@ def test_estimate_up_from_cameras():
     np.testing.assert_allclose(navigation.estimate_up([]), [0.0, -1.0, 0.0])
 
 
+def _arc_rig(turn=np.eye(3), azimuths=np.linspace(0, 150, 12), height=1.5, rolls_deg=None) -> list[Camera]:
+    """Level cameras (world +Z up) on part of a circle of radius 4 at ``height``, looking down at
+    the origin (as the demo scene's), the whole rig turned by ``turn`` [3, 3]; camera i then
+    rolled by rolls_deg[i] about its own viewing axis (a hand-held capture)."""
+    cams = []
+    rolls_deg = np.zeros(len(azimuths)) if rolls_deg is None else rolls_deg
+    for azimuth, roll_deg in zip(np.radians(azimuths), rolls_deg):
+        eye = np.array([4 * np.cos(azimuth), 4 * np.sin(azimuth), height])
+        pose = look_at(turn @ eye, np.zeros(3), turn @ np.array([0.0, 0.0, 1.0]))
+        c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+        pose[:3, :] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ pose[:3, :]
+        cams.append(Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, pose))
+    return cams
+
+
+def test_estimate_up_is_level_for_cameras_looking_down_from_part_of_a_circle():
+    """The cameras' mean up leans towards what they look down at when they cover part of a
+    circle (the demo scene's up showed as "tilted"); their right axes are level, so the up
+    perpendicular to them is the world's +Z exactly."""
+    cams = _arc_rig()
+    mean = np.mean([-c.rotation[1] for c in cams], axis=0)
+    assert math.degrees(math.acos(mean[2] / np.linalg.norm(mean))) > 5  # the plain mean is off
+    np.testing.assert_array_equal(navigation.estimate_up(cams), [0.0, 0.0, 1.0])
+    assert navigation.up_label(navigation.estimate_up(cams)) == "+Z"
+    # A world that is really tilted (the rig turned 20 deg about x) keeps its tilt, and says so.
+    angle = math.radians(20.0)
+    turn = np.array([[1, 0, 0], [0, math.cos(angle), -math.sin(angle)], [0, math.sin(angle), math.cos(angle)]])
+    up = navigation.estimate_up(_arc_rig(turn))
+    np.testing.assert_allclose(up, turn @ [0.0, 0.0, 1.0], atol=1e-9)
+    assert navigation.up_label(up) == "tilted 20 deg from +Z"
+
+
+def test_estimate_up_of_forward_facing_cameras_is_their_mean_up_made_level():
+    """Cameras that all face one way (LLFF) do not fix a horizontal plane: up is their mean up,
+    perpendicular to their common right axis, not the noise of a plane fit."""
+    cams = [_camera(eye=(x, -0.3, -4.0), target=(x * 0.2, 0.0, 0.0)) for x in (-0.3, -0.1, 0.1, 0.3)]
+    up = navigation.estimate_up(cams)
+    mean = np.mean([-c.rotation[1] for c in cams], axis=0)
+    assert np.linalg.norm(up) == pytest.approx(1.0)
+    assert max(abs(up @ c.rotation[0]) for c in cams) < 0.1  # level: perpendicular to the right axes
+    assert up @ mean / np.linalg.norm(mean) > 0.99
+    # Hand-held: each camera of the arc rolled up to 3 deg either way; the up stays within a degree.
+    rolls = np.random.default_rng(0).uniform(-3.0, 3.0, 12)
+    rolled = navigation.estimate_up(_arc_rig(rolls_deg=rolls))
+    assert rolled @ [0.0, 0.0, 1.0] > math.cos(math.radians(1.0))
+
+
 # --- flags --------------------------------------------------------------------------------
 
 def test_flags_round_trip_and_format(tmp_path):
