@@ -14,9 +14,9 @@ from inceptiongs.errors import InputError
 
 from .runs import new_bootstrap_dir, new_train_dir, resume_blocked_reason
 
-# Without a budget the command line trains 30000 steps; with one, the schedule is this long
-# (`inceptiongs train --minutes M`), and the viewer does the same.
-BUDGET_SCHEDULE_ITERATIONS = 5_000
+# The dialog's "schedule iterations" when the schedule is sized to the time budget, as
+# `inceptiongs train --minutes M` without --iterations (a typed length is a fixed schedule).
+SIZED_TO_BUDGET = 0
 # The viewer's jobs evaluate the held-out views this often (the command lines: every 500 steps
 # for stage I, only per round for stage II), so the panel's PSNR curve has points within a
 # few-minute budget. Evaluation time does not count against the training budget.
@@ -26,11 +26,12 @@ VIEWER_EVAL_EVERY = 50
 @dataclass
 class JobSettings:
     """The job dialog: the command lines' main settings. minutes: the time budget (None: run
-    the whole schedule); iterations: the schedule length (stage I) or refinement steps per
-    round (stage II)."""
+    the whole schedule); iterations: the stage-I schedule length, SIZED_TO_BUDGET (0) to size it
+    to the budget from the measured step rate (no budget: the command line's default length);
+    bootstrap_iterations: refinement steps per round (stage II)."""
 
     minutes: float | None = 3.0
-    iterations: int = BUDGET_SCHEDULE_ITERATIONS
+    iterations: int = SIZED_TO_BUDGET
     downscale: int = 2
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
     strategy: str = "default"       # inceptiongs.train.config.STRATEGIES
@@ -42,12 +43,15 @@ class JobSettings:
     prior_minutes: float = 2.0
 
     def train_config(self, scene_root: Path):
-        """The stage-I config, its schedule sized to its length as `inceptiongs train` does."""
-        from inceptiongs.train.config import TrainConfig, short_run_schedule
+        """The stage-I config as `inceptiongs train` builds it: a typed length is a fixed schedule
+        (--iterations); 0 with a budget starts from the command line's first guess and lets the
+        trainer re-size it to the budget (--minutes alone); 0 without one: the default length."""
+        from inceptiongs.train.config import TrainConfig, schedule_length, short_run_schedule
 
+        iterations, sized = schedule_length(self.iterations or None, self.minutes)
         config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
-                             protocol=self.protocol, iterations=self.iterations, minutes=self.minutes,
-                             strategy=self.strategy)
+                             protocol=self.protocol, iterations=iterations, minutes=self.minutes,
+                             strategy=self.strategy, size_to_minutes=sized)
         config = short_run_schedule(config.validate("job settings"))
         return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
                                    log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))

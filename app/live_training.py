@@ -12,10 +12,11 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from inceptiongs.live import JobControl, Snapshot, SnapshotBox
 
-from .progress import JobPlan, psnr_series
+from .progress import JobPlan, followed_plan, planned_iterations, psnr_series
 
 # The job's metrics log is re-read at most this often (a few hundred short JSON lines).
 METRICS_REFRESH_SECONDS = 2.0
@@ -53,6 +54,7 @@ class LiveTraining:
         self._paused_at: float | None = None
         self._paused_s = 0.0
         self._metrics_read = -1e9
+        self._config_seen: tuple[int, int] | None = None  # (mtime ns, size) of the config last read
 
     # --- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
@@ -135,6 +137,24 @@ class LiveTraining:
         if force or now - self._metrics_read >= METRICS_REFRESH_SECONDS:
             self._metrics_read = now
             self.progress.psnr = psnr_series(self.plan.metrics)
+
+    def refresh_plan(self) -> None:
+        """Follow the schedule the trainer re-sized to the budget: re-read the run's config.json
+        when it changed (a stat a frame; read only on a new mtime or size)."""
+        config = self.plan.config
+        if config is None:
+            return
+        try:
+            info = Path(config).stat()
+        except OSError:  # not written yet
+            return
+        seen = (info.st_mtime_ns, info.st_size)
+        if seen == self._config_seen:
+            return
+        iterations = planned_iterations(config)
+        if iterations is not None:  # a half-written file is read again on its next change
+            self._config_seen = seen
+            self.plan = followed_plan(self.plan, iterations)
 
     def poll_gaussians(self) -> dict | None:
         """Like :meth:`poll`, but returns the newest Gaussians only when they are new to this

@@ -7,11 +7,11 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from .drawing import SELECTION_COLOR
-from .jobs import start_bootstrap
+from .jobs import SIZED_TO_BUDGET, start_bootstrap
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
-from inceptiongs.train.config import STRATEGIES
+from inceptiongs.train.config import STRATEGIES, schedule_length
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
 
@@ -397,7 +397,8 @@ def _job_settings(viewer) -> None:
     _fit("schedule iterations")
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
     _remember(viewer, "schedule iterations")
-    settings.iterations = max(settings.iterations, 1)
+    settings.iterations = max(settings.iterations, SIZED_TO_BUDGET)
+    _hint(_schedule_hint(settings))
     _fit("downscale")
     _, settings.downscale = imgui.input_int("downscale", settings.downscale)
     _remember(viewer, "downscale")
@@ -428,6 +429,16 @@ def _job_settings(viewer) -> None:
     _remember(viewer, "prior min (if none)")
     settings.prior_minutes = _minutes_typed(settings.prior_minutes)
     imgui.tree_pop()
+
+
+def _schedule_hint(settings) -> str:
+    """What "schedule iterations" does with the value it holds (as `inceptiongs train`)."""
+    if settings.iterations != SIZED_TO_BUDGET:
+        return "a fixed schedule (0: sized to the budget)"
+    if settings.minutes is None:
+        return f"0: the default {schedule_length(None, None)[0]} steps (no budget)"
+    return (f"0: sized to the budget (first guess {schedule_length(None, settings.minutes)[0]} steps, "
+            "re-sized from the measured rate)")
 
 
 def _optional_minutes(viewer, key: str, checkbox: str, minutes, default: float):
@@ -463,6 +474,8 @@ def _progress(viewer, run) -> None:
         label = f"{run.state}: iteration {progress.iteration}"
         if total:
             label += f" / {plan.end_iteration}"
+            if plan.config is not None:
+                label += " (sized to the budget)"
             imgui.progress_bar(min(max(done / total, 0.0), 1.0), imgui.ImVec2(-1, 0), f"{done} / {total} steps")
         imgui.text(label)
         eta = eta_seconds(progress.iteration, plan, progress.iterations_per_second, run.elapsed_s)

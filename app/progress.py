@@ -4,6 +4,8 @@ metrics log, and the closing line that replaces the running status. Pure: no GL,
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,13 +24,16 @@ PLOTTED_GROUPS = ("scarce", "covered", "all")
 @dataclass(frozen=True)
 class JobPlan:
     """start/end: the iterations the job runs from and to; budget_s: its time budget (None:
-    the whole schedule); metrics: the metrics.jsonl it appends to (None: unknown)."""
+    the whole schedule); metrics: the metrics.jsonl it appends to (None: unknown); config: the
+    run's config.json, whose ``iterations`` is the end when the trainer re-sizes the schedule
+    to the budget (None: the end is fixed)."""
 
     start_iteration: int = 0
     end_iteration: int | None = None
     budget_s: float | None = None
     metrics: Path | None = None
     kind: str = "job"
+    config: Path | None = None
 
     @property
     def steps(self) -> int | None:
@@ -52,7 +57,8 @@ def plan_of(job) -> JobPlan:
             found = list_checkpoints(Path(job.run_dir))
             start = found[-1][0] if found else 0
         return JobPlan(start, config.iterations, None if config.minutes is None else 60.0 * config.minutes,
-                       Path(job.run_dir) / "metrics.jsonl", "training")
+                       Path(job.run_dir) / "metrics.jsonl", "training",
+                       Path(job.run_dir) / "config.json" if config.size_to_minutes else None)
     if isinstance(job, BootstrapJob):
         config = job.config
         start = stage1_iteration(job.run_dir)
@@ -61,6 +67,24 @@ def plan_of(job) -> JobPlan:
                        None if config.minutes is None else 60.0 * config.minutes,
                        None if out is None else Path(out) / "metrics.jsonl", "bootstrap")
     return JobPlan()
+
+
+def planned_iterations(config_file: Path) -> int | None:
+    """The schedule length stored in a run's config.json (the trainer re-saves it when it
+    re-sizes the schedule to the budget); None while it is missing, half-written or odd."""
+    try:
+        value = json.loads(Path(config_file).read_text(encoding="utf-8")).get("iterations")
+    except (OSError, ValueError, AttributeError):  # absent, not JSON yet, not an object
+        return None
+    return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
+
+
+def followed_plan(plan: JobPlan, iterations: int | None) -> JobPlan:
+    """``plan`` ending at the stored schedule's end; unchanged when that is unknown (None) or
+    before the start (a stale file from before a resume)."""
+    if iterations is None or iterations < plan.start_iteration or iterations == plan.end_iteration:
+        return plan
+    return dataclasses.replace(plan, end_iteration=iterations)
 
 
 def eta_seconds(iteration: int, plan: JobPlan, rate: float, elapsed_s: float) -> float | None:

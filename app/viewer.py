@@ -479,6 +479,7 @@ class Viewer:
         """Replace the running status with the closing line: time, iteration, final scores."""
         run = self.training
         run.refresh_scores(force=True)
+        run.refresh_plan()
         self.job_reported = True
         if run.error:
             self.status = f"{run.plan.kind} failed after {format_duration(run.elapsed_s)}: {run.error}"
@@ -514,6 +515,7 @@ class Viewer:
         if self.training.state != self.title_state:
             self.update_title()  # running -> paused -> finished shows in the title
         self.training.refresh_scores()
+        self.training.refresh_plan()  # the end of a schedule the trainer re-sized to its budget
         now = time.perf_counter()
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and self.training.alive:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-from ..train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES
+from ..train.config import STRATEGIES
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
@@ -44,11 +44,9 @@ def add_arguments(parser) -> None:
 
 
 def build_config(args) -> "TrainConfig":
-    from ..train.config import TrainConfig, short_run_schedule
+    from ..train.config import TrainConfig, schedule_length, short_run_schedule
 
-    sized = args.minutes is not None and args.iterations is None
-    iterations = (args.iterations if args.iterations is not None
-                  else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes)) if sized else 30_000)
+    iterations, sized = schedule_length(args.iterations, args.minutes)
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,

@@ -167,6 +167,18 @@ SHORT_RUN_MIN_GAUSSIANS = 100_000
 
 
 # The milestones short_run_schedule scales (from the 30k-step defaults).
+def schedule_length(iterations: int | None, minutes: float | None) -> tuple[int, bool]:
+    """(first schedule length, sized to the budget?) as `inceptiongs train` chooses them: given
+    iterations are a fixed schedule; a budget without them starts from
+    BUDGET_STEPS_PER_MINUTE_GUESS a minute and is re-sized by the trainer; neither: the
+    no-budget default (TrainConfig's)."""
+    if iterations is not None:
+        return iterations, False
+    if minutes is not None:
+        return max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * minutes)), True
+    return TrainConfig().iterations, False
+
+
 SCHEDULE_FIELDS = ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "max_gaussians",
                    "sh_increase_every", "normal_from", "multiview_from", "prune_large_from")
 

@@ -52,6 +52,68 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
         JobSettings(downscale=0).train_config(tmp_path)
 
 
+def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
+    """0 in "schedule iterations" is `inceptiongs train --minutes M` (sized, re-sized by the
+    trainer); a typed length is `--iterations N` (fixed); no budget and 0: the default length."""
+    from inceptiongs.commands.train import build_config
+    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, TrainConfig
+
+    def cli(minutes, iterations):
+        return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
+                                               downscale=2, protocol="unstructured", seed=0, no_pgsr=False,
+                                               strategy="default", free_space=False))
+
+    def viewer(**fields):
+        config = JobSettings(**fields).train_config(tmp_path)
+        assert config.eval_every == VIEWER_EVAL_EVERY
+        return dataclasses.replace(config, eval_every=TrainConfig.eval_every, log_every=TrainConfig.log_every)
+
+    sized = viewer(minutes=2.5)
+    assert JobSettings().iterations == 0 and JobSettings().minutes is not None  # sized by default
+    assert sized == cli(2.5, None)
+    assert sized.size_to_minutes and sized.iterations == round(BUDGET_STEPS_PER_MINUTE_GUESS * 2.5)
+    fixed = viewer(minutes=None, iterations=700)
+    assert fixed == cli(None, 700) and not fixed.size_to_minutes and fixed.iterations == 700
+    # A typed length with a budget stays fixed: the budget only stops it (as the viewer always did).
+    capped = JobSettings(minutes=2.5, iterations=700).train_config(tmp_path)
+    assert (capped.iterations, capped.minutes, capped.size_to_minutes) == (700, 2.5, False)
+    unbounded = viewer(minutes=None)
+    assert unbounded == cli(None, None) and unbounded.iterations == TrainConfig().iterations
+    assert not unbounded.size_to_minutes
+
+
+def test_plan_follows_the_stored_schedule_and_survives_bad_files(tmp_path):
+    """The panel's end iteration follows RUN/config.json (re-read on change only); a missing,
+    half-written or odd file keeps the plan it had."""
+    from inceptiongs.app.live_training import LiveTraining
+    from inceptiongs.app.progress import JobPlan, followed_plan, planned_iterations
+
+    config = tmp_path / "config.json"
+    assert planned_iterations(config) is None
+    for text in ('{"iterations": 12', "[1, 2]", '{"iterations": "40"}', '{"iterations": 0}', '{"iterations": true}'):
+        config.write_text(text)
+        assert planned_iterations(config) is None, text
+    config.write_text('{"iterations": 345, "minutes": 0.5}')
+    assert planned_iterations(config) == 345
+    plan = JobPlan(100, 140, 30.0, None, "training", config)
+    assert followed_plan(plan, None) is plan and followed_plan(plan, 50) is plan  # unknown / before the start
+    assert followed_plan(plan, 345).end_iteration == 345 and followed_plan(plan, 345).steps == 245
+
+    config.unlink()
+    run = LiveTraining(SimpleNamespace(), plan=plan)
+    run.refresh_plan()
+    assert run.plan.end_iteration == 140  # not written yet
+    config.write_text('{"iterations": 2')  # half-written
+    run.refresh_plan()
+    assert run.plan.end_iteration == 140
+    config.write_text('{"iterations": 260}')
+    run.refresh_plan()
+    assert run.plan.end_iteration == 260
+    fixed = LiveTraining(SimpleNamespace(), plan=dataclasses.replace(plan, config=None))
+    fixed.refresh_plan()
+    assert fixed.plan.end_iteration == 140  # a fixed schedule never follows the file
+
+
 def test_jobs_write_fresh_folders(tmp_path):
     from inceptiongs.io.flags import Flag, save_flags
     from inceptiongs.camera import Camera
@@ -190,6 +252,49 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
         assert x1 - x0 >= 60
         (x0, x1), _ = limits["training loss"]
         assert x1 - x0 >= 40
+    finally:
+        viewer.close()
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypatch):
+    """A viewer job with a budget and the default "schedule iterations" (0): the trainer re-sizes
+    the schedule from its measured rate and re-saves config.json; the panel's plan follows it,
+    and the run ends at the re-sized schedule's end (learning rate decayed), not a fraction of a
+    fixed one. The first guess is made far too high (100 steps a second, no CPU here trains
+    that fast), so the re-size happens on any machine: the case the viewer's old fixed
+    5000-step schedule was, stopping at a few percent of it."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.checkpoint import list_checkpoints
+    from inceptiongs.train.trainer import BUDGET_FREEZE
+    from viewer_cases import click_widget
+
+    minutes = 0.2
+    monkeypatch.setattr("inceptiongs.train.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
+    viewer = Viewer(open_source(demo_scene), 1100, 1000)
+    try:
+        viewer.job_settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
+        click_widget(viewer, "train (new run)")
+        job = viewer.training.job
+        guess = job.config.iterations
+        assert job.config.size_to_minutes and guess == round(6000 * minutes)
+        assert viewer.training.plan.end_iteration == guess
+        _wait(viewer, lambda: not viewer.training.alive, 180)
+        viewer.step()
+        assert viewer.training.error is None, viewer.training.error
+        stored = TrainConfig.load(job.run_dir / "config.json")
+        assert stored.iterations < guess / 2  # re-sized to the measured rate
+        assert viewer.training.plan.end_iteration == stored.iterations
+        # The milestones were re-sized with it (densification ends inside the run).
+        assert stored.densify_until < stored.iterations
+        last = list_checkpoints(job.run_dir)[-1][0]
+        assert last == viewer.training.progress.iteration
+        # Decayed: the schedule's end, or (rate fell late in the run) within the frozen slack.
+        assert last >= (1.0 - BUDGET_FREEZE) * stored.iterations, (last, stored.iterations)
+        assert f"at iteration {last}" in viewer.status
     finally:
         viewer.close()
 
