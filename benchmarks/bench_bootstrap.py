@@ -1,13 +1,14 @@
 """Stage II against stage I continued for the same total time, and the paper's ablations.
 
     python benchmarks/bench_bootstrap.py [--scenes demo statuette] [--out runs/bench_bootstrap]
-        [--stage1-iterations 300] [--stage1-minutes 10] [--bootstrap-iterations 200]
+        [--stage1-iterations 300] [--stage1-minutes 10] [--stage1-run RUN] [--bootstrap-iterations 200]
         [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior no-regeneration]
 
 Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/data/statuette
 or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
 
-1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply);
+1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply;
+   ``--stage1-run RUN`` copies an existing run there instead, e.g. one trained to its budget);
 2. the prior, trained once into OUT/<scene>/run/prior (shared by every variant but the
    untrained-prior ablation; its time is counted in every variant's total);
 3. each variant: `run_bootstrap` on j* into OUT/<scene>/<variant> (held-out PSNR/SSIM logged
@@ -48,6 +49,13 @@ VARIANTS = {
     "no-conscience": {"conscience_tolerance": None},
     # Virtual steps learn only from pixels the photos are trusted on (the fill gives no gradient).
     "masked": {"generated_weight": 0.0},
+    # Virtual steps learn only where the photos contradict the render (supervision.informative_mask),
+    # and only views with such pixels are sampled; no informative view: a photo step.
+    "informative": {"virtual_pixels": "informative"},
+    # ... with uniform sampling (no pose gradient per virtual step: cheaper).
+    "informative-uniform": {"virtual_pixels": "informative", "sampling": "uniform"},
+    # ... added to a photo step's gradient instead of replacing the photo step.
+    "informative-additive": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},
@@ -65,7 +73,31 @@ def data_root() -> Path | None:
     return None
 
 
-def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int) -> Path:
+def copy_stage1(source: Path, run_dir: Path) -> None:
+    """An existing stage-I run copied to ``run_dir`` (read-only input stays untouched: a prior
+    trained for the benchmark is written beside the copy). Copies config.json, split.json,
+    model.ply and the newest checkpoint (its Adam moments are what the continuation resumes)."""
+    import shutil
+
+    from inceptiongs.errors import InputError
+    from inceptiongs.train.checkpoint import latest_checkpoint
+
+    for name in ("config.json", "split.json", "model.ply"):
+        if not (source / name).is_file():
+            raise InputError(f"{source / name}: --stage1-run needs a finished run (config.json, split.json, model.ply)")
+    tmp = run_dir.with_name(run_dir.name + ".copying")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "checkpoints").mkdir(parents=True)
+    for name in ("config.json", "split.json", "model.ply"):
+        shutil.copy2(source / name, tmp / name)
+    checkpoint = latest_checkpoint(source)
+    if checkpoint is not None:
+        shutil.copy2(checkpoint, tmp / "checkpoints" / checkpoint.name)
+    tmp.rename(run_dir)  # whole or absent: a half copy is never reused
+
+
+def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int, source: Path | None = None) -> Path:
     from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.train.config import TrainConfig
     from inceptiongs.train.trainer import train
@@ -74,6 +106,11 @@ def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int)
     run_dir = out / name / "run"
     if (run_dir / "model.ply").is_file():
         print(f"[{name}] reusing stage I {run_dir}", flush=True)
+        return run_dir
+    if source is not None:
+        run_dir.parent.mkdir(parents=True, exist_ok=True)
+        copy_stage1(source, run_dir)
+        print(f"[{name}] stage I copied from {source}", flush=True)
         return run_dir
     if name == "demo":
         scene, downscale = write_demo_scene(out / name / "scene", progress=False), 2
@@ -145,7 +182,12 @@ def bench_scene(name: str, args) -> dict:
     from inceptiongs.bootstrap.runner import baseline_run, load_stage1, resolve_targets, run_bootstrap
 
     out = Path(args.out)
-    run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed)
+    source = None
+    if args.stage1_run:
+        if len(args.scenes) != 1:
+            raise SystemExit("--stage1-run names one run: give exactly one --scenes")
+        source = Path(args.stage1_run)
+    run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed, source)
     configs = {variant: dataclasses.replace(base_config(args), **VARIANTS[variant]) for variant in args.variants}
     prior_s = 0.0
     if any(c.needs_prior() and c.prior != "untrained" for c in configs.values()):
@@ -204,6 +246,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stage1-iterations", type=int, default=300)
     parser.add_argument("--stage1-minutes", type=float, default=10.0)
+    parser.add_argument("--stage1-run", default=None, metavar="RUN",
+                        help="start from this existing stage-I run (copied to OUT/<scene>/run; one scene) "
+                             "instead of training one")
     parser.add_argument("--bootstrap-iterations", type=int, default=200)
     parser.add_argument("--prior-minutes", type=float, default=2.0)
     parser.add_argument("--ddim-steps", type=int, default=10)

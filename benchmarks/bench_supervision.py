@@ -14,15 +14,19 @@ each ingredient on its own:
 - ``+lumi``: lumigraph weights instead of the uniform mean;
 - ``+expo``: and exposure matching (the full photo supervision), over the render;
 - ``inpaint``: the full photo supervision with the inpainting fill;
+- ``+inform``: the blend only on the informative pixels (trusted, depth confirmed, the photos
+  disagreeing with the render by more than among themselves), the render elsewhere: what a
+  virtual step with ``virtual_pixels="informative"`` pulls towards;
 - ``repair``: the prior's repair of the render (needs a prior: RUN/prior/prior.pt or --prior-run);
 - ``I*blend``: the bootstrap's default I*: the paper's blending over the repair;
 - ``I*photo``: the photo supervision over the repair (``--supervision photo --fill prior``).
 
 Trusted-pixel columns compare the photos with the render *on the pixels the supervision
 trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
-there, or blending cannot help.
+there, or blending cannot help (``inform``: the informative pixels).
 
     python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
+        [--search 0.1] [--steps 21] [--views N]
 
 Prints a table per group (mean over views) and writes nothing. No photo of a held-out view is
 used for anything but its score.
@@ -41,9 +45,9 @@ sys.path.insert(0, str(REPO))
 import inceptiongs  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch  # noqa: E402
 
-WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint")
+WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint", "+inform")
 WITH_PRIOR = ("repair", "I*blend", "I*photo")
-TRUSTED = ("blend", "photo")
+TRUSTED = ("blend", "photo", "inform")
 
 
 def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
@@ -72,7 +76,8 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
                                       render_depth, True, args.delta)
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
-    photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta, **kw)  # noqa: E731
+    photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta,  # noqa: E731
+                                       search=args.search, steps=args.steps, **kw)
 
     began = time.perf_counter()
     images = {"render": rendered}
@@ -82,6 +87,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     full = photo_run(fill="render")
     images["+expo"] = full.target
     images["inpaint"] = photo_run(fill="inpaint").target
+    images["+inform"] = (full.informative * full.blended + (1.0 - full.informative) * rendered).clamp(0, 1)
     row = {"photo_s": time.perf_counter() - began}
     if prior is not None:
         with torch.no_grad():
@@ -90,7 +96,8 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
         images["I*blend"], _ = blend(images["repair"])
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
-    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5)):
+    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
+                       ("inform", full.informative[..., 0] > 0)):
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
             warped = images["blend"] if name == "blend" else full.blended
@@ -102,6 +109,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
 def main(argv=None) -> int:
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
+    from inceptiongs.bootstrap.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
     from inceptiongs.bootstrap.warp import DEFAULT_DELTA
     from inceptiongs.evaluation.scoring import GROUPS, group_of
     from inceptiongs.prior.trainer import load_prior
@@ -115,6 +123,10 @@ def main(argv=None) -> int:
     parser.add_argument("--k", type=int, default=DEFAULT_K, help="training photos warped into each view")
     parser.add_argument("--delta", type=float, default=DEFAULT_DELTA, help="the warp's depth tolerance")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--search", type=float, default=DEFAULT_SEARCH,
+                        help="depth sweep: relative half-width around the stage-I depth")
+    parser.add_argument("--steps", type=int, default=DEFAULT_STEPS, help="depth sweep: hypotheses")
+    parser.add_argument("--views", type=int, default=None, help="score only the first N held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
 
@@ -125,7 +137,7 @@ def main(argv=None) -> int:
     if prior is None:
         print(f"{prior_run}: no prior/prior.pt: the prior rows (repair, I*) are left out")
     rows, depths = {}, {}
-    for view in split.test:
+    for view in split.test[:args.views]:
         rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths)
         print(f"  {scene.cameras[view].name} ({group_of(view, split)}): "
               + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}" for s in sources)

@@ -164,7 +164,8 @@ class VirtualTarget:
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],
                  photos: dict[int, torch.Tensor], render_depth: Callable[[Camera], torch.Tensor],
                  blending: bool, delta: float | None, supervision: str = "blend", fill: str = "prior",
-                 render_rgb: Callable[[Camera], torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 render_rgb: Callable[[Camera], torch.Tensor] | None = None,
+                 pixels: str = "all") -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -172,7 +173,9 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     generated image (the paper's blending); ``"photo"``: photo-consistent depth, exposure
     matching, lumigraph weights and a soft mask over ``fill`` (supervision.py; needs
     ``render_rgb`` for the render fill and the inpainting's surroundings). ``blending=False``
-    (ablation) keeps the generated image and an all-zero mask.
+    (ablation) keeps the generated image and an all-zero mask. ``pixels="informative"`` (photo
+    supervision only) returns the informative mask instead of the trust mask: the pixels where
+    the photos contradict the render (supervision.informative_mask).
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
@@ -188,7 +191,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
         out = supervise(camera, render, dst_depth,
                         [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
                         generated=generated_t, fill=fill, delta=delta)
-        return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
+        mask = out.informative if pixels == "informative" else out.mask
+        return out.target.detach().float().clamp(0.0, 1.0), mask.detach().float()
     warps = []
     for index in sources:
         warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,
