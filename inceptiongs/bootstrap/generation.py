@@ -174,8 +174,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     matching, lumigraph weights and a soft mask over ``fill`` (supervision.py; needs
     ``render_rgb`` for the render fill and the inpainting's surroundings). ``blending=False``
     (ablation) keeps the generated image and an all-zero mask. ``pixels="informative"`` (photo
-    supervision only) returns the informative mask instead of the trust mask: the pixels where
-    the photos contradict the render (supervision.informative_mask).
+    supervision only) returns the informative mask instead of the trust mask (the pixels where
+    the photos contradict the render: supervision.informative_mask) and the blended photos there.
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
@@ -191,8 +191,12 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
         out = supervise(camera, render, dst_depth,
                         [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
                         generated=generated_t, fill=fill, delta=delta)
-        mask = out.informative if pixels == "informative" else out.mask
-        return out.target.detach().float().clamp(0.0, 1.0), mask.detach().float()
+        if pixels == "informative":
+            # The blend itself on the informative pixels (not I*, whose soft mask may give the
+            # photos almost no weight where the best witness is far off in angle), the fill elsewhere.
+            target = out.informative * out.blended + (1.0 - out.informative) * out.fill
+            return target.detach().float().clamp(0.0, 1.0), out.informative.detach().float()
+        return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
     warps = []
     for index in sources:
         warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,

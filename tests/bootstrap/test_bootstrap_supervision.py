@@ -174,3 +174,20 @@ def test_informative_mask_needs_confirmed_depth_and_a_residual_above_the_sources
     out = informative_mask(covered, confirmed, blended, render, spread)
     assert float(out[0, 0]) == 1.0 and float(out[1, 1]) == 0.0  # (1, 1): render agrees
     assert float(out[0, 1]) == 0.0 and float(out[0, 2]) == 0.0 and float(out[1, 0]) == 0.0
+
+
+def test_informative_target_holds_the_blended_photos_where_the_mask_is_on(plane_views):
+    from inceptiongs.bootstrap.generation import blend_target
+
+    virtual, sources, truth, blurred, prior_depth = plane_views
+    cameras = [s.camera for s in sources] + [virtual]
+    photos = {i: s.photo for i, s in enumerate(sources)}
+    depth_of = lambda camera: prior_depth  # noqa: E731  (every view sees the plane at that depth)
+    target, mask = blend_target(blurred.numpy(), virtual, [0, 1, 2], cameras, photos, depth_of, True, None,
+                                "photo", "render", lambda camera: blurred, pixels="informative")
+    full = supervise(virtual, blurred, prior_depth, sources, fill="render")
+    on = mask[..., 0] > 0
+    assert torch.equal(mask, full.informative) and int(on.sum()) > 50
+    assert torch.allclose(target[on], full.blended[on].clamp(0, 1)) and torch.allclose(target[~on], blurred[~on])
+    # The informative target is closer to the truth than the blurred render where it is on.
+    assert float(psnr(target, truth, on[..., None])) > float(psnr(blurred, truth, on[..., None])) + 3.0
