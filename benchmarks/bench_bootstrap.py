@@ -57,6 +57,9 @@ VARIANTS = {
     "informative-uniform": {"virtual_pixels": "informative", "sampling": "uniform"},
     # ... added to a photo step's gradient instead of replacing the photo step.
     "informative-additive": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
+    # ... with twice the virtual weight (lambda_virtual 1.0: an informative pixel pulls as hard as a photo's).
+    "informative-additive-x2": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+                                "lambda_virtual": 1.0},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},
