@@ -60,6 +60,9 @@ VARIANTS = {
     # ... with twice the virtual weight (lambda_virtual 1.0: an informative pixel pulls as hard as a photo's).
     "informative-additive-x2": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
                                 "lambda_virtual": 1.0},
+    # ... and a residual floor of 0.1 (only where the render is grossly wrong).
+    "informative-strict": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+                           "lambda_virtual": 1.0, "residual_floor": 0.1},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},

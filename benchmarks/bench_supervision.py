@@ -23,10 +23,11 @@ each ingredient on its own:
 
 Trusted-pixel columns compare the photos with the render *on the pixels the supervision
 trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
-there, or blending cannot help (``inform``: the informative pixels).
+there, or blending cannot help (``inform``: the informative pixels; ``inform-flat``: those
+more than 2 px from a depth edge of the render).
 
     python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
-        [--search 0.1] [--steps 21] [--views N]
+        [--search 0.1] [--steps 21] [--residual-floor F] [--views N]
 
 Prints a table per group (mean over views) and writes nothing. No photo of a held-out view is
 used for anything but its score.
@@ -47,7 +48,26 @@ import torch  # noqa: E402
 
 WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint", "+inform")
 WITH_PRIOR = ("repair", "I*blend", "I*photo")
-TRUSTED = ("blend", "photo", "inform")
+TRUSTED = ("blend", "photo", "inform", "inform-flat")
+
+
+# A relative depth jump above this between neighbouring pixels is an occlusion edge ...
+EDGE_JUMP = 0.05
+# ... and pixels within this many pixels of one are "near" it (the 5 x 5 NCC window's radius).
+EDGE_RADIUS = 2
+
+
+def near_depth_edges(depth: torch.Tensor) -> torch.Tensor:
+    """depth [h, w] camera z -> [h, w] bool: within EDGE_RADIUS pixels of a relative depth jump
+    above EDGE_JUMP (or of a pixel without depth). A diagnostic: where do the warps fail?"""
+    valid = depth > 0
+    safe = torch.where(valid, depth, torch.ones_like(depth))  # no division by 0 below
+    jump = torch.zeros_like(depth, dtype=torch.bool)
+    jump[:, 1:] |= (safe[:, 1:] - safe[:, :-1]).abs() > EDGE_JUMP * torch.minimum(safe[:, 1:], safe[:, :-1])
+    jump[1:] |= (safe[1:] - safe[:-1]).abs() > EDGE_JUMP * torch.minimum(safe[1:], safe[:-1])
+    jump |= ~valid
+    size = 2 * EDGE_RADIUS + 1
+    return torch.nn.functional.max_pool2d(jump.float()[None, None], size, 1, EDGE_RADIUS)[0, 0] > 0
 
 
 def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
@@ -77,7 +97,8 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
     photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta,  # noqa: E731
-                                       search=args.search, steps=args.steps, **kw)
+                                       search=args.search, steps=args.steps,
+                                       residual_floor=args.residual_floor, **kw)
 
     began = time.perf_counter()
     images = {"render": rendered}
@@ -96,8 +117,10 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
         images["I*blend"], _ = blend(images["repair"])
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
+    edges = near_depth_edges(dst_depth[..., 0])
     for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
-                       ("inform", full.informative[..., 0] > 0)):
+                       ("inform", full.informative[..., 0] > 0),
+                       ("inform-flat", (full.informative[..., 0] > 0) & ~edges)):
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
             warped = images["blend"] if name == "blend" else full.blended
@@ -110,6 +133,7 @@ def main(argv=None) -> int:
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
     from inceptiongs.bootstrap.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
+    from inceptiongs.bootstrap.supervision import RESIDUAL_FLOOR
     from inceptiongs.bootstrap.warp import DEFAULT_DELTA
     from inceptiongs.evaluation.scoring import GROUPS, group_of
     from inceptiongs.prior.trainer import load_prior
@@ -126,6 +150,8 @@ def main(argv=None) -> int:
     parser.add_argument("--search", type=float, default=DEFAULT_SEARCH,
                         help="depth sweep: relative half-width around the stage-I depth")
     parser.add_argument("--steps", type=int, default=DEFAULT_STEPS, help="depth sweep: hypotheses")
+    parser.add_argument("--residual-floor", type=float, default=RESIDUAL_FLOOR,
+                        help="informative pixels: the residual floor (supervision.RESIDUAL_FLOOR)")
     parser.add_argument("--views", type=int, default=None, help="score only the first N held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)

@@ -74,6 +74,9 @@ class BootstrapConfig(SavedConfig):
     # themselves, supervision.informative_mask; L1 + D-SSIM of that residual, nothing elsewhere).
     # A view without informative pixels is not sampled; when no view has any, the step is a photo step.
     virtual_pixels: str = "all"
+    # The informative mask's residual floor (None: supervision.RESIDUAL_FLOOR, 4/255): a higher
+    # floor keeps only pixels where the render is grossly wrong (see docs/bootstrap.md).
+    residual_floor: float | None = None
     # "alternate": every ``virtual_every``-th step is a virtual view instead of a photo; "additive":
     # that step is a photo step whose gradient also holds the virtual view's loss (one Adam step,
     # so the photos lose no step to the virtual views).
@@ -131,6 +134,8 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")
         if self.virtual_pixels == "informative" and self.supervision != "photo":
             raise InputError(f"{source}: virtual_pixels 'informative' needs supervision 'photo'")
+        if self.residual_floor is not None and not self.residual_floor >= 0:
+            raise InputError(f"{source}: residual_floor must be >= 0, got {self.residual_floor}")
         if self.virtual_mode not in ("alternate", "additive"):
             raise InputError(f"{source}: virtual_mode must be 'alternate' or 'additive', got {self.virtual_mode!r}")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:

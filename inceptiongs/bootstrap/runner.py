@@ -303,7 +303,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             sources = _blend_sources(camera, cameras, split.train, config)
             image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                        config.blending, config.delta, config.supervision, config.fill, render_rgb,
-                                       config.virtual_pixels)
+                                       config.virtual_pixels, config.residual_floor)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
             if save:
                 write_png(boot_dir / "views" / f"{camera.name}.png",

@@ -173,14 +173,16 @@ def inpaint(image: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
 def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, sources: Sequence[Source],
               generated: torch.Tensor | None = None, fill: str = "prior", refine_depth: bool = True,
               lumigraph: bool = True, exposure: bool = True, delta: float = DEFAULT_DELTA,
-              search: float = DEFAULT_SEARCH, steps: int = DEFAULT_STEPS) -> Supervision:
+              search: float = DEFAULT_SEARCH, steps: int = DEFAULT_STEPS,
+              residual_floor: float = RESIDUAL_FLOOR) -> Supervision:
     """I* and its mask at the virtual ``camera`` (see the module doc).
 
     render: [h, w, 3] the stage-I render; render_depth: [h, w, 1] its camera z (0 = none);
     generated: [h, w, 3] the prior's repair (``fill="prior"``; the render when None).
     ``refine_depth``, ``lumigraph``, ``exposure`` switch the ingredients (off: stage-I depth,
     a uniform mean, no correction) so each can be measured alone; ``search`` and ``steps`` set
-    the depth sweep (relative half-width, hypotheses: photo_depth.py)."""
+    the depth sweep (relative half-width, hypotheses: photo_depth.py); ``residual_floor`` the
+    informative mask's floor (:func:`informative_mask`)."""
     if fill not in FILLS:
         raise ValueError(f"fill must be one of {FILLS}, got {fill!r}")
     render = torch.as_tensor(render).detach().float()
@@ -218,7 +220,7 @@ def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, 
         smooth_blend = box_mean(blended)
         spread = source_spread(box_mean(stacked), weights, smooth_blend)
         informative = informative_mask(covered, depth.confidence >= DEFAULT_CONFIDENCE_MIN, smooth_blend,
-                                       box_mean(render), spread)
+                                       box_mean(render), spread, floor=residual_floor)
     else:
         weights, covered = None, torch.zeros(h, w, 1, dtype=torch.bool)
         blended, mask = torch.zeros_like(render), torch.zeros(h, w, 1)
