@@ -273,32 +273,6 @@ def test_prior_version_covers_the_weights_and_how_the_prior_samples():
     assert prior_version(same) != prior_version(prior)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("fill", ["prior", "inpaint"])
-def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):
-    out = tmp_path / f"photo_{fill}"
-    result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=8, supervision="photo", fill=fill, conscience_every=2, save_views=0,
-                                   regenerate_every=0),
-                           progress=False)
-    assert result.finished and (out / "model.ply").is_file()
-    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
-    masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
-    # The soft mask: some photo trust, never more than full trust.
-    assert any(0 < m for m in masks) and all(0 <= m <= 1 for m in masks)
-    # Only the prior fill needs a prior; the inpainting fill generates nothing.
-    assert (out / "prior" / "prior.pt").is_file() == (fill == "prior")
-    assert ("nothing is generated" in summary["prior"]["description"]) == (fill != "prior")
-    checks = summary["conscience"]["checks"]
-    assert len(checks) == 4 and summary["conscience"]["baseline"] == checks[0][1] > 0
-    assert all(r["virtual_scale"] == checks_at(checks, r["iteration"]) for r in _records(out) if "virtual_scale" in r)
-
-
-def checks_at(checks: list, iteration: int) -> float:
-    """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
-    return [scale for step, _, scale in checks if step <= iteration][-1]
-
-
 def test_informative_views_and_the_additive_step():
     """Views without informative pixels are not sampled; an additive step's Adam step sees the
     photo gradient plus the virtual one."""
@@ -372,3 +346,30 @@ def test_informative_additive_loop_keeps_every_photo_step(stage1, tmp_path):
     # The informative mask is 0/1 and a subset of the covered pixels.
     masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
     assert all(0 <= m <= 1 for m in masks) and any(m > 0 for m in masks)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fill", ["prior", "inpaint"])
+def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):
+    out = tmp_path / f"photo_{fill}"
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=8, supervision="photo", fill=fill, conscience_every=2, save_views=0,
+                                   regenerate_every=0),
+                           progress=False)
+    assert result.finished and (out / "model.ply").is_file()
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
+    # The soft mask: some photo trust, never more than full trust.
+    assert any(0 < m for m in masks) and all(0 <= m <= 1 for m in masks)
+    # Only the prior fill needs a prior; the inpainting fill generates nothing.
+    assert (out / "prior" / "prior.pt").is_file() == (fill == "prior")
+    assert ("nothing is generated" in summary["prior"]["description"]) == (fill != "prior")
+    checks = summary["conscience"]["checks"]
+    assert len(checks) == 4 and summary["conscience"]["baseline"] == checks[0][1] > 0
+    assert all(r["virtual_scale"] == checks_at(checks, r["iteration"]) for r in _records(out) if "virtual_scale" in r)
+
+
+def checks_at(checks: list, iteration: int) -> float:
+    """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
+    return [scale for step, _, scale in checks if step <= iteration][-1]
+
