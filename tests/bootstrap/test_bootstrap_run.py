@@ -372,4 +372,3 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
 def checks_at(checks: list, iteration: int) -> float:
     """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
     return [scale for step, _, scale in checks if step <= iteration][-1]
-
