@@ -1,19 +1,21 @@
 """Stage II against stage I continued for the same total time, and the paper's ablations.
 
     python benchmarks/bench_bootstrap.py [--scenes demo statuette] [--out runs/bench_bootstrap]
-        [--stage1-iterations 300] [--stage1-minutes 10] [--bootstrap-iterations 200]
+        [--stage1-iterations 300] [--stage1-minutes 10] [--stage1-run RUN] [--bootstrap-iterations 200]
         [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior no-regeneration]
 
 Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/data/statuette
 or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
 
-1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply);
+1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply;
+   ``--stage1-run RUN`` copies an existing run there instead, e.g. one trained to its budget);
 2. the prior, trained once into OUT/<scene>/run/prior (shared by every variant but the
    untrained-prior ablation; its time is counted in every variant's total);
 3. each variant: `run_bootstrap` on j* into OUT/<scene>/<variant> (held-out PSNR/SSIM logged
    over time: quality against bootstrap time);
 4. the baseline: the same continuation of stage I on the photos alone (`baseline_run`) for the
-   full method's total time (prior + generation + refinement).
+   longest variant's total time (prior + generation + refinement); each variant is compared with
+   the baseline's final scores (d) and with its curve at the variant's own time (d@time).
 
 Prints the table and writes OUT/bench.json. Targets (issue 7): scarce PSNR >= +1.0 dB over the
 baseline, scarce SSIM up, covered PSNR >= -0.2 dB.
@@ -48,6 +50,19 @@ VARIANTS = {
     "no-conscience": {"conscience_tolerance": None},
     # Virtual steps learn only from pixels the photos are trusted on (the fill gives no gradient).
     "masked": {"generated_weight": 0.0},
+    # Virtual steps learn only where the photos contradict the render (supervision.informative_mask),
+    # and only views with such pixels are sampled; no informative view: a photo step.
+    "informative": {"virtual_pixels": "informative"},
+    # ... with uniform sampling (no pose gradient per virtual step: cheaper).
+    "informative-uniform": {"virtual_pixels": "informative", "sampling": "uniform"},
+    # ... added to a photo step's gradient instead of replacing the photo step.
+    "informative-additive": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
+    # ... with twice the virtual weight (lambda_virtual 1.0: an informative pixel pulls as hard as a photo's).
+    "informative-additive-x2": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+                                "lambda_virtual": 1.0},
+    # ... and a residual floor of 0.1 (only where the render is grossly wrong).
+    "informative-strict": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+                           "lambda_virtual": 1.0, "residual_floor": 0.1},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},
@@ -65,7 +80,31 @@ def data_root() -> Path | None:
     return None
 
 
-def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int) -> Path:
+def copy_stage1(source: Path, run_dir: Path) -> None:
+    """An existing stage-I run copied to ``run_dir`` (read-only input stays untouched: a prior
+    trained for the benchmark is written beside the copy). Copies config.json, split.json,
+    model.ply and the newest checkpoint (its Adam moments are what the continuation resumes)."""
+    import shutil
+
+    from inceptiongs.errors import InputError
+    from inceptiongs.train.checkpoint import latest_checkpoint
+
+    for name in ("config.json", "split.json", "model.ply"):
+        if not (source / name).is_file():
+            raise InputError(f"{source / name}: --stage1-run needs a finished run (config.json, split.json, model.ply)")
+    tmp = run_dir.with_name(run_dir.name + ".copying")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "checkpoints").mkdir(parents=True)
+    for name in ("config.json", "split.json", "model.ply"):
+        shutil.copy2(source / name, tmp / name)
+    checkpoint = latest_checkpoint(source)
+    if checkpoint is not None:
+        shutil.copy2(checkpoint, tmp / "checkpoints" / checkpoint.name)
+    tmp.rename(run_dir)  # whole or absent: a half copy is never reused
+
+
+def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int, source: Path | None = None) -> Path:
     from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.train.config import TrainConfig
     from inceptiongs.train.trainer import train
@@ -74,6 +113,11 @@ def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int)
     run_dir = out / name / "run"
     if (run_dir / "model.ply").is_file():
         print(f"[{name}] reusing stage I {run_dir}", flush=True)
+        return run_dir
+    if source is not None:
+        run_dir.parent.mkdir(parents=True, exist_ok=True)
+        copy_stage1(source, run_dir)
+        print(f"[{name}] stage I copied from {source}", flush=True)
         return run_dir
     if name == "demo":
         scene, downscale = write_demo_scene(out / name / "scene", progress=False), 2
@@ -145,7 +189,12 @@ def bench_scene(name: str, args) -> dict:
     from inceptiongs.bootstrap.runner import baseline_run, load_stage1, resolve_targets, run_bootstrap
 
     out = Path(args.out)
-    run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed)
+    source = None
+    if args.stage1_run:
+        if len(args.scenes) != 1:
+            raise SystemExit("--stage1-run names one run: give exactly one --scenes")
+        source = Path(args.stage1_run)
+    run_dir = stage1_run(name, out, args.stage1_iterations, args.stage1_minutes, args.seed, source)
     configs = {variant: dataclasses.replace(base_config(args), **VARIANTS[variant]) for variant in args.variants}
     prior_s = 0.0
     if any(c.needs_prior() and c.prior != "untrained" for c in configs.values()):
@@ -162,16 +211,36 @@ def bench_scene(name: str, args) -> dict:
         extra = prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
         rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
         curves[variant] = eval_curve(out / name / variant)
-    if "full" in rows:
-        total_s = rows["full"]["seconds"]
-        step_s = real_step_seconds(out / name / "full")
+    if configs:
+        # The baseline runs as long as the longest variant; each variant is also compared with
+        # the baseline's curve at its own time (at_same_time).
+        longest = max(configs, key=lambda v: rows[v]["seconds"])
+        total_s = rows[longest]["seconds"]
+        step_s = real_step_seconds(out / name / longest)
         iterations = max(1, int(total_s / max(step_s, 1e-3)))
-        print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
-        result = baseline_run(run_dir, out / name / "baseline", total_s / 60.0, iterations, seed=args.seed,
-                              progress=False, eval_every=max(iterations // 4, 1), overwrite=True)
-        rows["baseline (same time)"] = {"seconds": result.wall_s, **scores(out / name / "baseline")}
+        baseline_dir = out / name / "baseline"
+        if args.reuse_baseline and (baseline_dir / "model.ply").is_file():
+            seconds = eval_curve(baseline_dir)[-1]["wall_s"]
+            print(f"[{name}] baseline reused ({seconds:.0f} s; this run's longest variant: {total_s:.0f} s)", flush=True)
+        else:
+            print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
+            seconds = baseline_run(run_dir, baseline_dir, total_s / 60.0, iterations, seed=args.seed, progress=False,
+                                   eval_every=max(iterations // 4, 1), overwrite=True).wall_s
+        rows["baseline (same time)"] = {"seconds": seconds, **scores(baseline_dir)}
         curves["baseline (same time)"] = eval_curve(out / name / "baseline")
     return {"rows": rows, "curves": curves, "prior_s": prior_s}
+
+
+def at_same_time(curve: list[dict], seconds: float, key: str) -> float | None:
+    """The baseline's ``key`` at ``seconds``, linear between its logged evaluations (held at
+    the last one beyond them); None without evaluations."""
+    points = [(p["wall_s"], p[key]) for p in curve if key in p]
+    if not points:
+        return None
+    for (t0, v0), (t1, v1) in zip(points, points[1:]):
+        if t0 <= seconds <= t1:
+            return v0 if t1 <= t0 else v0 + (v1 - v0) * (seconds - t0) / (t1 - t0)
+    return points[0][1] if seconds < points[0][0] else points[-1][1]
 
 
 def table(name: str, result: dict) -> str:
@@ -179,14 +248,17 @@ def table(name: str, result: dict) -> str:
     baseline = rows.get("baseline (same time)")
     lines = [f"{name}: held-out PSNR (dB) / SSIM; deltas against the same-time baseline",
              f"{'variant':<22}{'total s':>9}{'scarce':>9}{'ssim':>8}{'covered':>9}{'ssim':>8}"
-             f"{'d scarce':>10}{'d covered':>11}"]
+             f"{'d scarce':>10}{'d covered':>11}{'d@time sc/cov':>15}"]
+    curve = result["curves"].get("baseline (same time)", [])
     for variant, row in rows.items():
         delta = lambda key: "" if baseline is None else f"{row[key] - baseline[key]:+.2f}"  # noqa: E731
+        same = [at_same_time(curve, row["seconds"], key) for key in ("scarce_psnr", "covered_psnr")]
+        at_time = "" if None in same else f"{row['scarce_psnr'] - same[0]:+.2f}/{row['covered_psnr'] - same[1]:+.2f}"
         lines.append(f"{variant:<22}{row['seconds']:>9.0f}{row['scarce_psnr']:>9.2f}{row['scarce_ssim']:>8.4f}"
                      f"{row['covered_psnr']:>9.2f}{row['covered_ssim']:>8.4f}{delta('scarce_psnr'):>10}"
-                     f"{delta('covered_psnr'):>11}")
+                     f"{delta('covered_psnr'):>11}{at_time:>15}")
     if baseline is not None and "full" in rows:
-        full = rows["full"]
+        full = rows["full"]  # the targets are checked for the default; other variants: the d columns
         checks = [("scarce PSNR >= baseline + 1.0 dB", full["scarce_psnr"] - baseline["scarce_psnr"] >= 1.0),
                   ("scarce SSIM rises", full["scarce_ssim"] > baseline["scarce_ssim"]),
                   ("covered PSNR >= baseline - 0.2 dB", full["covered_psnr"] - baseline["covered_psnr"] >= -0.2)]
@@ -204,11 +276,17 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stage1-iterations", type=int, default=300)
     parser.add_argument("--stage1-minutes", type=float, default=10.0)
+    parser.add_argument("--stage1-run", default=None, metavar="RUN",
+                        help="start from this existing stage-I run (copied to OUT/<scene>/run; one scene) "
+                             "instead of training one")
     parser.add_argument("--bootstrap-iterations", type=int, default=200)
     parser.add_argument("--prior-minutes", type=float, default=2.0)
     parser.add_argument("--ddim-steps", type=int, default=10)
     parser.add_argument("--k", type=int, default=None, help="nearest training views per target (default A's K)")
     parser.add_argument("--l", type=int, default=None, help="poses per training view (default A's L)")
+    parser.add_argument("--reuse-baseline", action="store_true",
+                        help="reuse OUT/<scene>/baseline from an earlier invocation (same stage I) instead of "
+                             "running it again; compare by the d@time column when its time differs")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     args = parser.parse_args(argv)
     torch.set_num_threads(min(2, os.cpu_count() or 1))

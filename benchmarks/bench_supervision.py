@@ -14,15 +14,20 @@ each ingredient on its own:
 - ``+lumi``: lumigraph weights instead of the uniform mean;
 - ``+expo``: and exposure matching (the full photo supervision), over the render;
 - ``inpaint``: the full photo supervision with the inpainting fill;
+- ``+inform``: the blend only on the informative pixels (trusted, depth confirmed, the photos
+  disagreeing with the render by more than among themselves), the render elsewhere: what a
+  virtual step with ``virtual_pixels="informative"`` pulls towards;
 - ``repair``: the prior's repair of the render (needs a prior: RUN/prior/prior.pt or --prior-run);
 - ``I*blend``: the bootstrap's default I*: the paper's blending over the repair;
 - ``I*photo``: the photo supervision over the repair (``--supervision photo --fill prior``).
 
 Trusted-pixel columns compare the photos with the render *on the pixels the supervision
 trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
-there, or blending cannot help.
+there, or blending cannot help (``inform``: the informative pixels; ``inform-flat``: those
+more than 2 px from a depth edge of the render).
 
     python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
+        [--search 0.1] [--steps 21] [--residual-floor F] [--views N]
 
 Prints a table per group (mean over views) and writes nothing. No photo of a held-out view is
 used for anything but its score.
@@ -41,9 +46,28 @@ sys.path.insert(0, str(REPO))
 import inceptiongs  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch  # noqa: E402
 
-WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint")
+WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint", "+inform")
 WITH_PRIOR = ("repair", "I*blend", "I*photo")
-TRUSTED = ("blend", "photo")
+TRUSTED = ("blend", "photo", "inform", "inform-flat")
+
+
+# A relative depth jump above this between neighbouring pixels is an occlusion edge ...
+EDGE_JUMP = 0.05
+# ... and pixels within this many pixels of one are "near" it (the 5 x 5 NCC window's radius).
+EDGE_RADIUS = 2
+
+
+def near_depth_edges(depth: torch.Tensor) -> torch.Tensor:
+    """depth [h, w] camera z -> [h, w] bool: within EDGE_RADIUS pixels of a relative depth jump
+    above EDGE_JUMP (or of a pixel without depth). A diagnostic: where do the warps fail?"""
+    valid = depth > 0
+    safe = torch.where(valid, depth, torch.ones_like(depth))  # no division by 0 below
+    jump = torch.zeros_like(depth, dtype=torch.bool)
+    jump[:, 1:] |= (safe[:, 1:] - safe[:, :-1]).abs() > EDGE_JUMP * torch.minimum(safe[:, 1:], safe[:, :-1])
+    jump[1:] |= (safe[1:] - safe[:-1]).abs() > EDGE_JUMP * torch.minimum(safe[1:], safe[:-1])
+    jump |= ~valid
+    size = 2 * EDGE_RADIUS + 1
+    return torch.nn.functional.max_pool2d(jump.float()[None, None], size, 1, EDGE_RADIUS)[0, 0] > 0
 
 
 def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
@@ -72,7 +96,9 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
                                       render_depth, True, args.delta)
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
-    photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta, **kw)  # noqa: E731
+    photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta,  # noqa: E731
+                                       search=args.search, steps=args.steps,
+                                       residual_floor=args.residual_floor, **kw)
 
     began = time.perf_counter()
     images = {"render": rendered}
@@ -82,6 +108,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     full = photo_run(fill="render")
     images["+expo"] = full.target
     images["inpaint"] = photo_run(fill="inpaint").target
+    images["+inform"] = (full.informative * full.blended + (1.0 - full.informative) * rendered).clamp(0, 1)
     row = {"photo_s": time.perf_counter() - began}
     if prior is not None:
         with torch.no_grad():
@@ -90,7 +117,10 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
         images["I*blend"], _ = blend(images["repair"])
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
-    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5)):
+    edges = near_depth_edges(dst_depth[..., 0])
+    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
+                       ("inform", full.informative[..., 0] > 0),
+                       ("inform-flat", (full.informative[..., 0] > 0) & ~edges)):
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
             warped = images["blend"] if name == "blend" else full.blended
@@ -102,6 +132,8 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
 def main(argv=None) -> int:
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
+    from inceptiongs.bootstrap.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
+    from inceptiongs.bootstrap.supervision import RESIDUAL_FLOOR
     from inceptiongs.bootstrap.warp import DEFAULT_DELTA
     from inceptiongs.evaluation.scoring import GROUPS, group_of
     from inceptiongs.prior.trainer import load_prior
@@ -115,6 +147,12 @@ def main(argv=None) -> int:
     parser.add_argument("--k", type=int, default=DEFAULT_K, help="training photos warped into each view")
     parser.add_argument("--delta", type=float, default=DEFAULT_DELTA, help="the warp's depth tolerance")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--search", type=float, default=DEFAULT_SEARCH,
+                        help="depth sweep: relative half-width around the stage-I depth")
+    parser.add_argument("--steps", type=int, default=DEFAULT_STEPS, help="depth sweep: hypotheses")
+    parser.add_argument("--residual-floor", type=float, default=RESIDUAL_FLOOR,
+                        help="informative pixels: the residual floor (supervision.RESIDUAL_FLOOR)")
+    parser.add_argument("--views", type=int, default=None, help="score only the first N held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
 
@@ -125,7 +163,7 @@ def main(argv=None) -> int:
     if prior is None:
         print(f"{prior_run}: no prior/prior.pt: the prior rows (repair, I*) are left out")
     rows, depths = {}, {}
-    for view in split.test:
+    for view in split.test[:args.views]:
         rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths)
         print(f"  {scene.cameras[view].name} ({group_of(view, split)}): "
               + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}" for s in sources)

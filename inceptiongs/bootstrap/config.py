@@ -68,6 +68,19 @@ class BootstrapConfig(SavedConfig):
     # Weight of generated (untrusted) pixels against pixels trusted from warped photos in a
     # virtual view's loss; 1 is the paper's loss on I*. Lower trusts a weak prior less.
     generated_weight: float = 1.0
+    # Which pixels of a virtual view carry loss: "all" (trusted pixels 1, the fill
+    # ``generated_weight``; the paper's loss on I*) or "informative" (photo supervision only: the
+    # trusted pixels where the photos contradict the render by more than they disagree among
+    # themselves, supervision.informative_mask; L1 + D-SSIM of that residual, nothing elsewhere).
+    # A view without informative pixels is not sampled; when no view has any, the step is a photo step.
+    virtual_pixels: str = "all"
+    # The informative mask's residual floor (None: supervision.RESIDUAL_FLOOR, 4/255): a higher
+    # floor keeps only pixels where the render is grossly wrong (see docs/bootstrap.md).
+    residual_floor: float | None = None
+    # "alternate": every ``virtual_every``-th step is a virtual view instead of a photo; "additive":
+    # that step is a photo step whose gradient also holds the virtual view's loss (one Adam step,
+    # so the photos lose no step to the virtual views).
+    virtual_mode: str = "alternate"
     lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
     # The conscience (conscience.py): every ``conscience_every`` steps the L1 of the training photos
     # nearest the targets is measured; above its start value by more than this (relative) the
@@ -117,6 +130,14 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: supervision must be 'blend' or 'photo', got {self.supervision!r}")
         if self.fill not in ("prior", "inpaint", "render"):
             raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
+        if self.virtual_pixels not in ("all", "informative"):
+            raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")
+        if self.virtual_pixels == "informative" and self.supervision != "photo":
+            raise InputError(f"{source}: virtual_pixels 'informative' needs supervision 'photo'")
+        if self.residual_floor is not None and not self.residual_floor >= 0:
+            raise InputError(f"{source}: residual_floor must be >= 0, got {self.residual_floor}")
+        if self.virtual_mode not in ("alternate", "additive"):
+            raise InputError(f"{source}: virtual_mode must be 'alternate' or 'additive', got {self.virtual_mode!r}")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
             raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:

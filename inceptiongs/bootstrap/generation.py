@@ -166,7 +166,8 @@ class VirtualTarget:
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],
                  photos: dict[int, torch.Tensor], render_depth: Callable[[Camera], torch.Tensor],
                  blending: bool, delta: float | None, supervision: str = "blend", fill: str = "prior",
-                 render_rgb: Callable[[Camera], torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 render_rgb: Callable[[Camera], torch.Tensor] | None = None,
+                 pixels: str = "all", residual_floor: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -174,7 +175,10 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     generated image (the paper's blending); ``"photo"``: photo-consistent depth, exposure
     matching, lumigraph weights and a soft mask over ``fill`` (supervision.py; needs
     ``render_rgb`` for the render fill and the inpainting's surroundings). ``blending=False``
-    (ablation) keeps the generated image and an all-zero mask.
+    (ablation) keeps the generated image and an all-zero mask. ``pixels="informative"`` (photo
+    supervision only) returns the informative mask instead of the trust mask (the pixels where
+    the photos contradict the render: supervision.informative_mask, whose floor ``residual_floor``
+    overrides) and the blended photos there.
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
@@ -184,12 +188,18 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     delta = DEFAULT_DELTA if delta is None else delta
     dst_depth = render_depth(camera)
     if supervision == "photo":
-        from .supervision import Source, supervise
+        from .supervision import RESIDUAL_FLOOR, Source, supervise
 
         render = render_rgb(camera) if render_rgb is not None else generated_t
         out = supervise(camera, render, dst_depth,
                         [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
-                        generated=generated_t, fill=fill, delta=delta)
+                        generated=generated_t, fill=fill, delta=delta,
+                        residual_floor=RESIDUAL_FLOOR if residual_floor is None else residual_floor)
+        if pixels == "informative":
+            # The blend itself on the informative pixels (not I*, whose soft mask may give the
+            # photos almost no weight where the best witness is far off in angle), the fill elsewhere.
+            target = out.informative * out.blended + (1.0 - out.informative) * out.fill
+            return target.detach().float().clamp(0.0, 1.0), out.informative.detach().float()
         return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
     warps = []
     for index in sources:

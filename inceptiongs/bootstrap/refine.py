@@ -88,14 +88,17 @@ class ViewSampler:
         self.rng = np.random.default_rng(seed)
         self.pose: np.ndarray | None = None
         self._poses: np.ndarray | None = None
-        self._pool_size = -1
+        self._pool_names: tuple[str, ...] = ()
 
     def _pool_poses(self, pool: Sequence[VirtualTarget]) -> np.ndarray:
         from .langevin import pose_to_vector
 
-        if self._pool_size != len(pool):
+        # Keyed on the members, not the size: the views that may be sampled change as a view's
+        # informative pixels come and go.
+        names = tuple(v.name for v in pool)
+        if self._pool_names != names:
             self._poses = np.stack([pose_to_vector(v.camera.world_to_camera) for v in pool])
-            self._pool_size = len(pool)
+            self._pool_names = names
         return self._poses
 
     def choose(self, pool: Sequence[VirtualTarget], loss_at: Callable[[int, torch.Tensor], torch.Tensor]
@@ -125,21 +128,52 @@ class ViewSampler:
         return ViewChoice(chosen, 1.0 / p, p)  # p >= 1: the division is safe
 
 
-def pixel_weights(mask: torch.Tensor, generated_weight: float) -> torch.Tensor | None:
+# A virtual view whose informative mask sums to less than this many pixels has nothing to teach.
+MIN_INFORMATIVE_PIXELS = 16.0
+
+
+def pixel_weights(mask: torch.Tensor, generated_weight: float, virtual_pixels: str = "all") -> torch.Tensor | None:
     """[H, W, 1] confidence: 1 on pixels trusted from warped photos, ``generated_weight`` on
-    generated ones (None when that is 1: the paper's unweighted loss)."""
+    generated ones (None when that is 1: the paper's unweighted loss). ``virtual_pixels=
+    "informative"``: the mask itself (it is then the informative mask: no weight elsewhere)."""
+    if virtual_pixels == "informative":
+        return mask
     if generated_weight == 1.0:
         return None
     return mask + generated_weight * (1.0 - mask)
+
+
+def active_views(pool: Sequence[VirtualTarget], virtual_pixels: str) -> list[int]:
+    """Indices of the pool's views that can take a virtual step: all of them, or with
+    ``"informative"`` those with at least MIN_INFORMATIVE_PIXELS informative pixels."""
+    if virtual_pixels != "informative":
+        return list(range(len(pool)))
+    return [i for i, view in enumerate(pool) if float(view.mask.sum()) >= MIN_INFORMATIVE_PIXELS]
+
+
+def informative_loss(rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, dict]:
+    """rgb, target [H, W, 3], mask [H, W, 1] (informative) -> (loss, record): the L1 of the box
+    means (supervision.box_mean, the scale the informative mask was judged at) weighted by the
+    mask, averaged over all pixels like a photo's L1, so an informative pixel is pulled as a
+    photo would pull it. The warps' resampling blur below that scale is not taught; SSIM and
+    the perceptual branch are left out (the residual is zero outside a few pixels)."""
+    from .supervision import box_mean
+
+    l1 = (mask * (box_mean(rgb) - box_mean(target)).abs()).mean()
+    value = float(l1.detach())
+    return l1, {"virtual_l1": value, "virtual_loss": value, "virtual_branch": "informative_l1"}
 
 
 def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: BootstrapConfig,
                       lambda_dssim: float, lpips=None, weights: torch.Tensor | None = None
                       ) -> tuple[torch.Tensor, dict]:
     """rgb, target: [H, W, 3] -> (loss, record). Perceptual when 1 - SSIM <= tau, else L1 + D-SSIM.
-    weights: optional [H, W, 1] per-pixel confidence (pixel_weights)."""
+    weights: optional [H, W, 1] per-pixel confidence (pixel_weights). With ``virtual_pixels=
+    "informative"``: :func:`informative_loss` (weights = the informative mask)."""
     from .perceptual import perceptual_distance
 
+    if config.virtual_pixels == "informative":
+        return informative_loss(rgb, target, weights)
     if weights is not None:
         # Scaling the residual by the per-pixel confidence W gives L1 = mean(W |r - I*|) and an
         # SSIM of the same down-weighted residual; W = 1 everywhere is the plain loss.
@@ -157,22 +191,49 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
     return loss, record
 
 
+def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
+                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0
+                 ) -> tuple[torch.Tensor, dict, dict]:
+    """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual)
+    -> (loss, the render's outputs, log record); no backward, no optimiser step."""
+    sh_degree = sh_degree_at(step, train_config, sh_max)
+    gaussians = gaussians_from_params(state.params)
+    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree)
+    loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
+                                     pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
+    total = config.lambda_virtual * choice.weight * scale * loss
+    record.update(view=view.name, weight=choice.weight, p=choice.p, sh_degree=sh_degree)
+    return total, out, record
+
+
 def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
                  choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0) -> dict:
     """One optimisation step on a virtual view (weighted by choice.weight and the conscience's
     ``scale``); the log record."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, train_config, data.extent))
-    sh_degree = sh_degree_at(step, train_config, sh_max)
-    gaussians = gaussians_from_params(state.params)
-    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree)
-    loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
-                                     pixel_weights(view.mask, config.generated_weight))
-    total = config.lambda_virtual * choice.weight * scale * loss
+    total, out, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, render_fn, lpips,
+                                      scale)
     if train_config.pgsr:
         total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
-    record.update(kind="virtual", view=view.name, weight=choice.weight, p=choice.p,
-                  loss=float(total.detach()), sh_degree=sh_degree)
+    record.update(kind="virtual", loss=float(total.detach()))
     record.update(optimizer_step(step, total, out, view.camera, state, data, train_config))
+    return record
+
+
+def additive_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
+                  choice: ViewChoice, config: BootstrapConfig, render_fn, photo_step: Callable[[], dict],
+                  lpips=None, scale: float = 1.0) -> dict:
+    """A photo step whose gradient also holds a virtual view's loss: the virtual loss is
+    back-propagated first (gradients accumulate in the parameters' .grad), then ``photo_step``
+    (the stage-I trainer's step) adds its own and takes the one Adam step, which zeroes them.
+    The photos lose no step; the virtual view costs one render and backward."""
+    total, _, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, render_fn, lpips,
+                                    scale)
+    total.backward()
+    virtual_record = {f"virtual_{key}" if not key.startswith("virtual_") else key: value
+                      for key, value in record.items()}
+    record = photo_step()
+    record.update(virtual_record, kind="additive", virtual_total=float(total.detach()))
     return record
 
 

@@ -154,7 +154,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     from ..train.run_folder import append_metrics, to_original_frame
     from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
                               supported_sh_degree, train_step, trim_sh)
-    from .refine import ViewSampler, continuation_config, render_l1, virtual_step
+    from .refine import ViewSampler, active_views, additive_step, continuation_config, render_l1, virtual_step
 
     if render_fn is None:
         from ..rasterizer.rasterize import render as render_fn
@@ -265,7 +265,9 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                                for i in nearest_training_views(t.camera, cameras, list(split.train), config.k or DEFAULT_K)})
     conscience = Conscience(config.conscience_tolerance) if (config.conscience_tolerance is not None
                                                              and conscience_views) else None
-    step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0}   # what each refinement step was
+    # What each refinement step was ("additive": a photo step carrying a virtual loss, also
+    # counted by its virtual branch; "idle": a virtual slot with no informative view, a photo step).
+    step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0, "informative_l1": 0, "additive": 0, "idle": 0}
     view_use: dict[str, int] = {}                               # how often each virtual view was chosen
     finished = True
     last_eval = initial_eval
@@ -308,7 +310,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
             image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
-                                       config.blending, config.delta, config.supervision, config.fill, render_rgb)
+                                       config.blending, config.delta, config.supervision, config.fill, render_rgb,
+                                       config.virtual_pixels, config.residual_floor)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
             if save:
                 write_png(boot_dir / "views" / f"{camera.name}.png",
@@ -374,15 +377,26 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     loss = photo_loss(render_fn, gaussians_from_params(state.params).detach(), cameras, data.images,
                                       conscience_views, sh_degree_at(step, train_config, sh_max))
                     conscience.update(step, loss)
-                if pool and step % config.virtual_every == 0:
+                active = [pool[i] for i in active_views(pool, config.virtual_pixels)] if pool else []
+                if pool and step % config.virtual_every == 0 and not active:
+                    step_counts["idle"] += 1
+                if active and step % config.virtual_every == 0:
                     sh_degree = sh_degree_at(step, train_config, sh_max)
                     frozen = gaussians_from_params(state.params).detach()
-                    choice = sampler.choose(pool, lambda i, w2c: render_l1(render_fn, frozen, pool[i], sh_degree, w2c))
-                    record = virtual_step(step, state, data, train_config, sh_max, pool[choice.index], choice,
-                                          config, render_fn, lpips,
-                                          scale=conscience.scale if conscience is not None else 1.0)
+                    choice = sampler.choose(active, lambda i, w2c: render_l1(render_fn, frozen, active[i], sh_degree, w2c))
+                    scale = conscience.scale if conscience is not None else 1.0
+                    if config.virtual_mode == "additive":
+                        record = additive_step(step, state, data, train_config, sh_max, active[choice.index], choice,
+                                               config, render_fn,
+                                               lambda: train_step(step, state, data, train_config, sh_max, render_fn,
+                                                                  None, log),
+                                               lpips, scale=scale)
+                        step_counts["additive"] += 1
+                    else:
+                        record = virtual_step(step, state, data, train_config, sh_max, active[choice.index], choice,
+                                              config, render_fn, lpips, scale=scale)
                     step_counts[record["virtual_branch"]] += 1
-                    view_use[pool[choice.index].name] = view_use.get(pool[choice.index].name, 0) + 1
+                    view_use[active[choice.index].name] = view_use.get(active[choice.index].name, 0) + 1
                 else:
                     record = train_step(step, state, data, train_config, sh_max, render_fn, None, log)
                     record["kind"] = "real"

@@ -9,7 +9,13 @@
    uniform mean;
 5. a soft trust mask M in [0, 1]: the best witness's lumigraph weight times the depth's trust;
 6. what no photo covers (1 - M) filled with the prior's repair, a classical inpainting of the
-   blended photos, or the render itself (``fill``).
+   blended photos, or the render itself (``fill``);
+7. the *informative* mask: the trusted pixels (depth confirmed by the photos) where the photos
+   disagree with the render by more than they disagree among themselves (plus a noise floor),
+   both compared over the NCC window (a box mean): bilinear resampling blurs every warp alike,
+   so at single pixels the photos would "agree" on a blur that a sharp, correct render does
+   not show. Only there can a virtual view add information the photo steps do not already
+   give; the refinement may restrict its virtual loss to them (``BootstrapConfig.virtual_pixels``).
 
 I* = M * blended + (1 - M) * fill. Every intermediate is returned, so the benchmark
 (benchmarks/bench_supervision.py) can score each ingredient on its own.
@@ -26,7 +32,8 @@ import torch
 from ..camera import Camera
 from .exposure import apply_affine_colour, fit_affine_colour
 from .lumigraph import lumigraph_weights
-from .photo_depth import DEFAULT_CONFIDENCE_MIN, PhotoDepth, photo_consistent_depth
+from .photo_depth import DEFAULT_CONFIDENCE_MIN, DEFAULT_RADIUS, DEFAULT_SEARCH, DEFAULT_STEPS, PhotoDepth, \
+    photo_consistent_depth, window_mean
 from .warp import DEFAULT_DELTA, WarpResult, unproject, warp_to_view
 
 FILLS = ("prior", "inpaint", "render")
@@ -36,6 +43,17 @@ FILLS = ("prior", "inpaint", "render")
 TRUST_WITHOUT_EVIDENCE = 0.5
 # Inpainting radius in pixels (OpenCV Telea): the neighbourhood a missing pixel is filled from.
 INPAINT_RADIUS = 3
+# Informative pixels: the photos' blend must differ from the render (mean absolute difference
+# over the channels) by more than this floor -- two 8-bit quantisation steps plus the warp's
+# bilinear resampling error on smooth texture -- ...
+RESIDUAL_FLOOR = 4.0 / 255.0
+# ... and by more than this many times the sources' own spread around their blend (their
+# disagreement is what the blend is uncertain by: misplacement, view-dependent colour).
+RESIDUAL_SPREAD_FACTOR = 2.0
+# Informative pixels are judged on box means over the NCC window (radius 2: 5 x 5): the scale at
+# which the sweep matched the photos. On the analytic plane a correct render differs from the
+# warps' blend by 0.014 median per pixel (resampling blur), by 0.003 over 5 x 5 means.
+SMOOTH_RADIUS = DEFAULT_RADIUS
 
 
 @dataclass
@@ -53,7 +71,10 @@ class Supervision:
     """target: I* [h, w, 3]; mask: M [h, w, 1] in [0, 1]; blended: the lumigraph blend of the
     corrected warps [h, w, 3] (0 where no source); fill: [h, w, 3]; depth: the refined
     :class:`PhotoDepth`; warps: per source the warp with the refined depth (before exposure
-    correction); weights: [S, h, w, 1] lumigraph weights; covered: [h, w, 1] any source trusted."""
+    correction); weights: [S, h, w, 1] lumigraph weights; covered: [h, w, 1] any source trusted;
+    informative: [h, w, 1] 0/1, where the photos say something the render does not
+    (:func:`informative_mask`); spread: [h, w, 1] the sources' weighted mean absolute
+    deviation from the blend over the NCC window (0 where fewer than two)."""
 
     target: torch.Tensor
     mask: torch.Tensor
@@ -63,6 +84,8 @@ class Supervision:
     warps: list[WarpResult] = field(default_factory=list)
     weights: torch.Tensor | None = None
     covered: torch.Tensor | None = None
+    informative: torch.Tensor | None = None
+    spread: torch.Tensor | None = None
 
 
 def depth_trust(depth: PhotoDepth, confidence_min: float = DEFAULT_CONFIDENCE_MIN) -> torch.Tensor:
@@ -74,6 +97,43 @@ def depth_trust(depth: PhotoDepth, confidence_min: float = DEFAULT_CONFIDENCE_MI
     partial = TRUST_WITHOUT_EVIDENCE * (depth.confidence / confidence_min).clamp(0.0, 1.0)
     return torch.where(confirmed, torch.ones_like(partial),
                        torch.where(undefined, torch.full_like(partial, TRUST_WITHOUT_EVIDENCE), partial))
+
+
+def box_mean(image: torch.Tensor, radius: int = SMOOTH_RADIUS) -> torch.Tensor:
+    """[..., h, w, C] -> the same shape, each pixel the mean over its (2 radius + 1)^2 window
+    (edges replicate). Differentiable (the informative loss compares renders through it)."""
+    lead, (h, w, c) = image.shape[:-3], image.shape[-3:]
+    planes = image.reshape(-1, h, w, c).permute(0, 3, 1, 2).reshape(-1, h, w)
+    smoothed = window_mean(planes, radius)
+    return smoothed.reshape(-1, c, h, w).permute(0, 2, 3, 1).reshape(*lead, h, w, c)
+
+
+def source_spread(images: torch.Tensor, weights: torch.Tensor, blended: torch.Tensor) -> torch.Tensor:
+    """images [S, h, w, 3], weights [S, h, w, 1] (summing to 1 or 0 over S), blended [h, w, 3]
+    -> [h, w, 1] the weighted mean absolute deviation of the sources from their blend (channel
+    mean). 0 where one source or none is trusted: a lone witness has no measured spread, which
+    the depth-confirmation requirement of :func:`informative_mask` makes up for."""
+    deviation = (images - blended[None]).abs().mean(dim=-1, keepdim=True)          # [S, h, w, 1]
+    return (weights * deviation).sum(0)
+
+
+def informative_mask(covered: torch.Tensor, confirmed: torch.Tensor, blended: torch.Tensor, render: torch.Tensor,
+                     spread: torch.Tensor, floor: float = RESIDUAL_FLOOR,
+                     spread_factor: float = RESIDUAL_SPREAD_FACTOR) -> torch.Tensor:
+    """[h, w, 1] float, 1 where a source is trusted (``covered``, [h, w, 1] bool), the
+    photo-consistent depth is ``confirmed`` ([h, w, 1] bool) and the residual |blended - render|
+    (channel mean; give both box-filtered, :func:`box_mean`, see the module doc) exceeds
+    ``floor + spread_factor * spread``: the photos agree with each other better than with the
+    render, so the render is what is wrong there; else 0. Elsewhere a virtual view would only
+    teach the Gaussians what the photo steps teach them anyway (or the warps' own errors).
+
+    Not scaled by the soft mask's lumigraph weight: that says how good the best witness is in
+    absolute terms (a source 30 degrees off weighs e^-9), while here the photos are judged
+    against the render, which at a poorly observed view is worse still (courtyard, scarce
+    views: the photos 16.7 dB, the render 12.9 dB on the pixels where both exist)."""
+    residual = (blended - render).abs().mean(dim=-1, keepdim=True)
+    disagrees = residual > floor + spread_factor * spread
+    return (disagrees & confirmed & covered).float()
 
 
 def match_exposures(images: list[torch.Tensor], masks: list[torch.Tensor],
@@ -112,20 +172,25 @@ def inpaint(image: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
 
 def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, sources: Sequence[Source],
               generated: torch.Tensor | None = None, fill: str = "prior", refine_depth: bool = True,
-              lumigraph: bool = True, exposure: bool = True, delta: float = DEFAULT_DELTA) -> Supervision:
+              lumigraph: bool = True, exposure: bool = True, delta: float = DEFAULT_DELTA,
+              search: float = DEFAULT_SEARCH, steps: int = DEFAULT_STEPS,
+              residual_floor: float = RESIDUAL_FLOOR) -> Supervision:
     """I* and its mask at the virtual ``camera`` (see the module doc).
 
     render: [h, w, 3] the stage-I render; render_depth: [h, w, 1] its camera z (0 = none);
     generated: [h, w, 3] the prior's repair (``fill="prior"``; the render when None).
     ``refine_depth``, ``lumigraph``, ``exposure`` switch the ingredients (off: stage-I depth,
-    a uniform mean, no correction) so each can be measured alone."""
+    a uniform mean, no correction) so each can be measured alone; ``search`` and ``steps`` set
+    the depth sweep (relative half-width, hypotheses: photo_depth.py); ``residual_floor`` the
+    informative mask's floor (:func:`informative_mask`)."""
     if fill not in FILLS:
         raise ValueError(f"fill must be one of {FILLS}, got {fill!r}")
     render = torch.as_tensor(render).detach().float()
     render_depth = torch.as_tensor(render_depth).detach().float()
     h, w = render.shape[:2]
     if refine_depth:
-        depth = photo_consistent_depth(render_depth, camera, [(s.photo, s.camera) for s in sources])
+        depth = photo_consistent_depth(render_depth, camera, [(s.photo, s.camera) for s in sources],
+                                       search=search, steps=steps)
     else:
         depth = PhotoDepth(render_depth, torch.zeros(h, w, 1), torch.full((h, w, 1), -1.0))
 
@@ -149,11 +214,17 @@ def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, 
             counts = valid.sum(0, keepdim=True).clamp_min(1)[..., None].float()
             weights = valid[..., None].float() / counts
             best = covered.float()
-        blended = (weights * torch.stack(images)).sum(0)
+        stacked = torch.stack(images)
+        blended = (weights * stacked).sum(0)
         mask = best * depth_trust(depth) * covered.float()
+        smooth_blend = box_mean(blended)
+        spread = source_spread(box_mean(stacked), weights, smooth_blend)
+        informative = informative_mask(covered, depth.confidence >= DEFAULT_CONFIDENCE_MIN, smooth_blend,
+                                       box_mean(render), spread, floor=residual_floor)
     else:
         weights, covered = None, torch.zeros(h, w, 1, dtype=torch.bool)
         blended, mask = torch.zeros_like(render), torch.zeros(h, w, 1)
+        spread, informative = torch.zeros(h, w, 1), torch.zeros(h, w, 1)
 
     if fill == "render":
         fill_image = render
@@ -164,4 +235,4 @@ def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, 
         # in the image (so the fill stays continuous with what the photos show).
         fill_image = inpaint(torch.where(covered, blended, render), covered[..., 0] | (render_depth[..., 0] <= 0))
     target = (mask * blended + (1.0 - mask) * fill_image).clamp(0.0, 1.0)
-    return Supervision(target, mask, blended, fill_image, depth, warps, weights, covered)
+    return Supervision(target, mask, blended, fill_image, depth, warps, weights, covered, informative, spread)

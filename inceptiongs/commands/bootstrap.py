@@ -61,6 +61,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"matching, lumigraph weights, soft mask; default {d.supervision})")
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
                         help=f"with --supervision photo: what fills pixels no photo covers (default {d.fill})")
+    parser.add_argument("--virtual-pixels", choices=("all", "informative"), default=d.virtual_pixels,
+                        help="which pixels of a virtual view carry loss: 'all' (I*; generated ones weighted by "
+                             "--generated-weight) or 'informative' (with --supervision photo: only where the "
+                             f"photos contradict the render; default {d.virtual_pixels})")
+    parser.add_argument("--virtual-mode", choices=("alternate", "additive"), default=d.virtual_mode,
+                        help="'alternate': a virtual step replaces a photo step; 'additive': the virtual loss "
+                             f"is added to a photo step's gradient (default {d.virtual_mode})")
     parser.add_argument("--conscience-tolerance", type=float, default=d.conscience_tolerance, metavar="T",
                         help="lower the virtual views' weight when the nearest photos' L1 rises above its start "
                              f"by more than T (relative; default {d.conscience_tolerance}; a negative T: off)")
@@ -78,7 +85,8 @@ def config_from_args(args):
         prior="untrained" if args.untrained_prior else "trained", lpips_weights=args.lpips_weights,
         generated_weight=args.generated_weight, densify=args.densify,
         regenerate_every=args.regenerate_every, include_target=args.include_target,
-        supervision=args.supervision, fill=args.fill,
+        supervision=args.supervision, fill=args.fill, virtual_pixels=args.virtual_pixels,
+        virtual_mode=args.virtual_mode,
         conscience_tolerance=None if args.conscience_tolerance < 0 else args.conscience_tolerance,
     ).validate("arguments")
 

@@ -273,6 +273,81 @@ def test_prior_version_covers_the_weights_and_how_the_prior_samples():
     assert prior_version(same) != prior_version(prior)
 
 
+def test_informative_views_and_the_additive_step():
+    """Views without informative pixels are not sampled; an additive step's Adam step sees the
+    photo gradient plus the virtual one."""
+    from types import SimpleNamespace
+
+    from inceptiongs.bootstrap.generation import VirtualTarget
+    from inceptiongs.bootstrap.refine import MIN_INFORMATIVE_PIXELS, ViewChoice, active_views, additive_step
+
+    size = (16, 16)
+    target = torch.full((*size, 3), 0.8)
+    some = torch.zeros(*size, 1)
+    some[:4] = 1.0                                         # 64 informative pixels
+    few = torch.zeros(*size, 1)
+    few[0, : int(MIN_INFORMATIVE_PIXELS) - 1] = 1.0
+    views = [VirtualTarget(name, None, target, mask, target, False, 1)
+             for name, mask in (("none", torch.zeros(*size, 1)), ("some", some), ("few", few))]
+    assert active_views(views, "informative") == [1]
+    assert active_views(views, "all") == [0, 1, 2]
+
+    params = {"means": torch.zeros(1, 3, requires_grad=True), "log_scales": torch.zeros(1, 3, requires_grad=True),
+              "quats": torch.tensor([[1.0, 0, 0, 0]], requires_grad=True),
+              "opacity_logits": torch.zeros(1, requires_grad=True),
+              "sh_dc": torch.full((1, 1, 3), 0.1, requires_grad=True)}
+    state = SimpleNamespace(params=params)
+
+    def render_fn(gaussians, camera, outputs, sh_degree):  # a flat image of the one colour
+        return {"rgb": gaussians.sh[0, 0].expand(*size, 3)}
+
+    photo = torch.full((*size, 3), 0.05)
+
+    def photo_loss():
+        return (render_fn(SimpleNamespace(sh=params["sh_dc"]), None, (), 0)["rgb"] - photo).abs().mean()
+
+    seen = {}
+
+    def photo_step():
+        photo_loss().backward()
+        seen["grad"] = params["sh_dc"].grad.clone()
+        params["sh_dc"].grad = None
+        return {"loss": 0.0}
+
+    config = BootstrapConfig(supervision="photo", fill="render", virtual_pixels="informative", virtual_mode="additive")
+    train_config = TrainConfig(scene="unused")
+    record = additive_step(10, state, None, train_config, 0, views[1], ViewChoice(1, 1.0, 1.0), config, render_fn,
+                           photo_step)
+    assert record["kind"] == "additive" and record["virtual_branch"] == "informative_l1"
+    photo_only = torch.autograd.grad(photo_loss(), params["sh_dc"])[0]
+    # The virtual loss pulls the colour up (towards 0.8 on its informative pixels), the photo down (0.05).
+    assert float(seen["grad"].sum()) < float(photo_only.sum())
+    assert float(photo_only.sum()) > 0
+
+
+def test_informative_additive_loop_keeps_every_photo_step(stage1, tmp_path):
+    out = tmp_path / "informative"
+    iterations = 6
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=iterations, supervision="photo", fill="render", save_views=0,
+                                   regenerate_every=0, virtual_pixels="informative", virtual_mode="additive",
+                                   sampling="uniform"),
+                           progress=False)
+    assert result.finished
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    steps = summary["steps"]
+    # Every step is a photo step; the virtual slots carry an informative loss or find no view.
+    assert steps["real"] + steps["additive"] == iterations
+    assert steps["additive"] + steps["idle"] == iterations // 2 and steps["additive"] == steps["informative_l1"]
+    # A 20-step stage I renders the demo badly: the photos contradict it somewhere.
+    assert steps["additive"] > 0
+    additive = [r for r in _records(out) if r.get("kind") == "additive"]
+    assert additive and all(r["virtual_branch"] == "informative_l1" and r["virtual_l1"] >= 0 for r in additive)
+    # The informative mask is 0/1 and a subset of the covered pixels.
+    masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
+    assert all(0 <= m <= 1 for m in masks) and any(m > 0 for m in masks)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("fill", ["prior", "inpaint"])
 def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):

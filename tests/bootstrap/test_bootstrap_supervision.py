@@ -10,6 +10,7 @@ import torch
 
 from inceptiongs.bootstrap.exposure import apply_affine_colour, fit_affine_colour
 from inceptiongs.bootstrap.lumigraph import lumigraph_weights, ray_angles
+from inceptiongs.bootstrap.photo_depth import DEFAULT_CONFIDENCE_MIN
 from inceptiongs.bootstrap.supervision import FILLS, Source, inpaint, match_exposures, supervise
 from inceptiongs.evaluation.metrics import psnr
 
@@ -135,3 +136,58 @@ def test_no_sources_gives_the_fill_and_a_zero_mask(plane_views):
     virtual, _, _, render, prior_depth = plane_views
     out = supervise(virtual, render, prior_depth, [], generated=render * 0.5, fill="prior")
     assert float(out.mask.max()) == 0.0 and torch.allclose(out.target, render * 0.5)
+
+
+def test_informative_pixels_are_where_the_photos_contradict_the_render(plane_views):
+    virtual, sources, truth, blurred, prior_depth = plane_views
+    wrong = supervise(virtual, blurred, prior_depth, sources, fill="render")
+    right = supervise(virtual, truth, prior_depth, sources, fill="render")
+    textured = textured_inner() & wrong.covered
+    # A blurred render is contradicted by the photos on the textured half: most of it is
+    # informative, and only where a photo is trusted and the depth confirmed.
+    assert float(wrong.informative[textured].gt(0).float().mean()) > 0.5
+    assert not bool(wrong.informative[~wrong.covered].any())
+    assert not bool(wrong.informative[wrong.depth.confidence < DEFAULT_CONFIDENCE_MIN].any())
+    # A render that already shows what the photos show has (almost) nothing to learn from them.
+    assert float(right.informative.gt(0).float().mean()) < 0.02
+    assert float(right.informative.gt(0).float().mean()) < 0.1 * float(wrong.informative.gt(0).float().mean())
+
+
+def test_informative_mask_needs_confirmed_depth_and_a_residual_above_the_sources_spread():
+    from inceptiongs.bootstrap.supervision import RESIDUAL_FLOOR, informative_mask, source_spread
+
+    render = torch.full((2, 3, 3), 0.5)
+    blended = render.clone()
+    blended[0, 0] += 0.2                                 # contradicted, sources agree
+    blended[0, 1] += 0.2                                 # contradicted, but the sources disagree more
+    blended[0, 2] += 0.5 * RESIDUAL_FLOOR                # within the noise floor
+    blended[1, 0] += 0.2                                 # contradicted, depth not confirmed
+    images = torch.stack([blended.clone(), blended.clone()])
+    images[0, 0, 1] += 0.3
+    images[1, 0, 1] -= 0.3
+    weights = torch.full((2, 2, 3, 1), 0.5)
+    spread = source_spread(images, weights, blended)      # given unfiltered images: judged per pixel
+    assert float(spread[0, 0]) == pytest.approx(0.0) and float(spread[0, 1]) == pytest.approx(0.3)
+    confirmed = torch.ones(2, 3, 1, dtype=torch.bool)
+    confirmed[1, 0] = False
+    covered = torch.ones(2, 3, 1, dtype=torch.bool)
+    out = informative_mask(covered, confirmed, blended, render, spread)
+    assert float(out[0, 0]) == 1.0 and float(out[1, 1]) == 0.0  # (1, 1): render agrees
+    assert float(out[0, 1]) == 0.0 and float(out[0, 2]) == 0.0 and float(out[1, 0]) == 0.0
+
+
+def test_informative_target_holds_the_blended_photos_where_the_mask_is_on(plane_views):
+    from inceptiongs.bootstrap.generation import blend_target
+
+    virtual, sources, truth, blurred, prior_depth = plane_views
+    cameras = [s.camera for s in sources] + [virtual]
+    photos = {i: s.photo for i, s in enumerate(sources)}
+    depth_of = lambda camera: prior_depth  # noqa: E731  (every view sees the plane at that depth)
+    target, mask = blend_target(blurred.numpy(), virtual, [0, 1, 2], cameras, photos, depth_of, True, None,
+                                "photo", "render", lambda camera: blurred, pixels="informative")
+    full = supervise(virtual, blurred, prior_depth, sources, fill="render")
+    on = mask[..., 0] > 0
+    assert torch.equal(mask, full.informative) and int(on.sum()) > 50
+    assert torch.allclose(target[on], full.blended[on].clamp(0, 1)) and torch.allclose(target[~on], blurred[~on])
+    # The informative target is closer to the truth than the blurred render where it is on.
+    assert float(psnr(target, truth, on[..., None])) > float(psnr(blurred, truth, on[..., None])) + 3.0
