@@ -2,7 +2,7 @@
 
     python benchmarks/bench_train.py [--scene ../shared/data/fern | demo] [--protocol llff]
         [--minutes 10] [--iterations 700] [--eval-every 100] [--out /tmp/bench_train]
-        [--strategies default,mcmc,dropgaussian] [--free-space] [--plot F.png]
+        [--strategies default,mcmc,dropgaussian] [--no-free-space] [--plot F.png]
         [--profile-steps N]
 
 Trains each strategy with the CLI's defaults on the same scene and seed, one after the other,
@@ -43,7 +43,8 @@ def main() -> int:
                         help="schedule length (default: sized to --minutes from the measured step rate)")
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--no-pgsr", action="store_true")
-    parser.add_argument("--free-space", action="store_true", help="the free-space rules (off by default)")
+    parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,
+                        help="the free-space rules (on by default, as the train command)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 from pathlib import Path
 
@@ -31,9 +32,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--strategy", choices=STRATEGIES, default="default",
                         help="default: 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed budget); "
                              "dropgaussian: random drops with opacity compensation")
-    parser.add_argument("--free-space", action="store_true",
-                        help="remove Gaussians at the training cameras, before their near bounds (from the "
-                             "sparse points) and those every view looks through")
+    parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,
+                        help="remove Gaussians at and around the training cameras, before their near bounds "
+                             "(from the sparse points) and those every view looks through (default: on; "
+                             "--no-free-space turns the rules off)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",
