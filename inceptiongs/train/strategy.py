@@ -8,7 +8,8 @@ checkpoints, the PGSR terms, the free-space and size rules are shared.
   relocated onto live ones sampled by opacity, with the opacity and scale of the N copies
   corrected so that together they render like the source (:func:`relocation_correction`); the
   count grows by at least 5 % per relocation up to a fixed budget (``max_gaussians``), faster
-  in a short run so that it still reaches the budget (:func:`growth_rate`); an L1 regulariser
+  in a short run so that it still reaches the budget (:func:`growth_rate`; a run sized to a time
+  budget gets the budget its time affords, train/budget.py); an L1 regulariser
   on opacities and scales (:func:`mcmc_regularisers`) keeps Gaussians from hiding unused.
 * ``dropgaussian``: DropGaussian (Park et al. 2025): 3DGS, but each training render drops
   Gaussians at random with rate r_t = r_max t / T and renders the kept ones with opacity
@@ -33,6 +34,10 @@ MCMC_MAX_COPIES = 51
 # Noise gate: sigmoid(k (1 - o - x0)) is ~1 for o below 1 - x0 = 0.005 and ~0 for opaque ones.
 MCMC_NOISE_K = 100.0
 MCMC_NOISE_X0 = 0.995
+# At most this fractional growth per relocation: a growth window shortened late (a re-sized
+# schedule) would otherwise multiply the count, and the step cost, several times at once
+# (statuette: 6 649 -> 25 785 -> 100 000 in two relocations) where no budget check can react.
+MCMC_MAX_GROWTH = 0.5
 # A corrected opacity stays inside (dead threshold, 1): its logit must be finite.
 _OPACITY_CEIL = 1.0 - 1e-6
 
@@ -116,10 +121,11 @@ def growth_rate(count: int, budget: int, minimum: float, relocations_left: int) 
     """Fractional growth for this relocation: the paper's ``minimum`` (5 % per 100 steps, which
     reaches the budget within its 25k-step window), or faster when that cannot reach ``budget``
     from ``count`` in the ``relocations_left`` a short run has: geometric, arriving at the end
-    of the growth window. count, budget >= 1."""
+    of the growth window; never above MCMC_MAX_GROWTH. count, budget >= 1."""
     if count >= budget:
         return 0.0
-    return max(minimum, (budget / max(count, 1)) ** (1.0 / max(relocations_left, 1)) - 1.0)
+    needed = (budget / max(count, 1)) ** (1.0 / max(relocations_left, 1)) - 1.0
+    return min(MCMC_MAX_GROWTH, max(minimum, needed))
 
 
 def _sample_by_opacity(opacity: torch.Tensor, candidates: torch.Tensor, count: int,

@@ -10,6 +10,7 @@ and densifies on schedule.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import sys
 import time
@@ -24,35 +25,14 @@ from ..errors import InputError
 from ..io.atomic import OutputError, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
+from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
+                     affordable_count, budget_iterations, far_off, fit_step_cost, growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
 from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
 from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
                    sh_degree_at, supported_sh_degree, train_step, trim_sh)
-
-
-# Time-budget sizing (``size_to_minutes``): the first step rate is measured after this many
-# steps, then the schedule is re-checked every BUDGET_CHECK_FRACTION of the budget and re-sized
-# when the steps the recent rate predicts differ from the planned ones by more than
-# BUDGET_RESIZE_TOLERANCE; the plan fills BUDGET_FILL of the time left (the rate falls as the
-# model grows) and is frozen in the last BUDGET_FREEZE of the budget (a late re-size would
-# jump the decayed learning rate).
-BUDGET_CALIBRATION_STEPS = 10
-BUDGET_CHECK_FRACTION = 0.1
-BUDGET_RESIZE_TOLERANCE = 0.25
-BUDGET_FILL = 0.95
-BUDGET_FREEZE = 0.15
-
-
-def budget_iterations(step: int, planned: int, rate: float, remaining_s: float) -> int | None:
-    """The schedule length that fits ``remaining_s`` seconds at ``rate`` steps/s after ``step``,
-    or None when the ``planned`` length is within BUDGET_RESIZE_TOLERANCE of it."""
-    wanted = step + max(1, int(rate * remaining_s * BUDGET_FILL))
-    left_planned = max(planned - step, 1)
-    if abs((wanted - step) - left_planned) <= BUDGET_RESIZE_TOLERANCE * left_planned:
-        return None
-    return wanted
 
 
 @dataclass
@@ -145,31 +125,63 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
 
     sizing = config.size_to_minutes and budget_s is not None
     rate_mark = (state.iteration, time.perf_counter() - train_clock)   # (step, train seconds) of the last check
-    next_check = state.iteration + BUDGET_CALIBRATION_STEPS
+    # (step, train seconds) from which the next check is due: both must have passed.
+    next_check = (state.iteration + BUDGET_CALIBRATION_STEPS, 0.0)
+
+    cost_points: list[tuple[int, float]] = []   # (Gaussians, s/step) at each check of this session
+
+    def plan(step: int, rate: float, remaining_s: float) -> tuple[int | None, int | None]:
+        """(new schedule length or None, new Gaussian budget or None) at this check."""
+        count = state.params["means"].shape[0]
+        cost_points.append((count, 1.0 / rate))
+        if step >= config.densify_until:
+            return budget_iterations(step, config.iterations, rate, remaining_s), None
+        # The model still grows: size the schedule at the mean cost of growing to the budget (MCMC
+        # does, on its plan; densification may), with the budget where a step costs
+        # BUDGET_COST_RATIO times one of the session's first model.
+        cost = fit_step_cost(cost_points)
+        first_count = cost_points[0][0]
+        limit = sized_schedule(config, config.iterations).max_gaussians
+        budget = min(limit, max(count, affordable_count(
+            cost, BUDGET_COST_RATIO * (cost[0] + cost[1] * first_count))))
+        growth_fraction = config.densify_until / max(config.iterations, 1)
+        wanted = growing_budget_iterations(step, cost, count, budget, growth_fraction, remaining_s)
+        return far_off(step, config.iterations, wanted), budget
 
     def resize(step: int) -> None:
         nonlocal config, rate_mark, next_check
         elapsed = time.perf_counter() - train_clock
         steps, seconds = step - rate_mark[0], elapsed - rate_mark[1]
-        if steps > 0 and seconds > 0:  # a rate needs both
-            wanted = budget_iterations(step, config.iterations, steps / seconds, budget_s - elapsed)
-            if wanted is not None and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:
+        if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:  # a rate needs both
+            wanted, grow_budget = plan(step, steps / seconds, budget_s - elapsed)
+            changed = wanted is not None or (grow_budget is not None and grow_budget != config.max_gaussians)
+            if wanted is not None:
                 log(f"time budget: {steps / seconds:.2f} steps/s at {state.params['means'].shape[0]} Gaussians, "
                     f"schedule re-sized from {config.iterations} to {wanted} iterations")
-                config = sized_schedule(config, wanted)
+                # A budget the time set stays (past the growth window it is not re-planned).
+                resized = sized_schedule(config, wanted)
+                config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians, config.max_gaussians))
+            if grow_budget is not None and grow_budget != config.max_gaussians:
+                config = dataclasses.replace(config, max_gaussians=grow_budget)
+                if wanted is not None:
+                    log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "
+                        f"{BUDGET_COST_RATIO:g}x the cost of the first model's)")
+            if changed:
                 config.save(run_dir / "config.json")
                 bar.total = config.iterations
         rate_mark = (step, elapsed)
-        # The next look once another slice of the budget has passed, in steps at this rate.
-        rate = steps / seconds if steps > 0 and seconds > 0 else 1.0
-        next_check = step + max(BUDGET_CALIBRATION_STEPS, int(rate * BUDGET_CHECK_FRACTION * budget_s))
+        # The next look once another slice of the budget has passed, in training time: counted
+        # in steps at this rate it came 25 minutes late on fern (3.3 steps/s at 30k Gaussians
+        # became 0.35 at 300k), and the schedule never shrank to what the budget could finish.
+        next_check = (step + BUDGET_CALIBRATION_STEPS, elapsed + BUDGET_CHECK_FRACTION * budget_s)
 
     pending_counts: dict[str, int] = {}
     try:
         while state.iteration < config.iterations:
             if budget_s is not None and time.perf_counter() - train_clock >= budget_s:
                 break
-            if sizing and state.iteration >= next_check:
+            if (sizing and state.iteration >= next_check[0]
+                    and time.perf_counter() - train_clock >= next_check[1]):
                 resize(state.iteration)
             stop, paused_s = wait_while_paused(control)
             session_start += paused_s

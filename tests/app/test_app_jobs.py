@@ -269,7 +269,7 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.train.config import TrainConfig
     from inceptiongs.train.checkpoint import list_checkpoints
-    from inceptiongs.train.trainer import BUDGET_FREEZE
+    from inceptiongs.train.budget import BUDGET_FREEZE
     from viewer_cases import click_widget
 
     minutes = 0.2

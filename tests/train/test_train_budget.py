@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 import pytest
 
@@ -11,7 +12,8 @@ from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
 from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.train.config import TrainConfig, short_run_schedule, sized_schedule
-from inceptiongs.train.trainer import budget_iterations, train
+from inceptiongs.train.budget import budget_iterations
+from inceptiongs.train.trainer import train
 
 
 def _args(*argv: str):
@@ -45,8 +47,13 @@ def test_sized_schedule_rescales_the_milestones_from_the_defaults():
     assert resized == short_run_schedule(TrainConfig(iterations=600, lambda_dssim=0.3))
 
 
-def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path):
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+@pytest.fixture(scope="module")
+def demo_scene(tmp_path_factory):
+    return write_demo_scene(tmp_path_factory.mktemp("budget") / "scene", progress=False)
+
+
+def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path, demo_scene):
+    scene = demo_scene
     # 5000 steps in 5 seconds is out of reach on any machine: the trainer must re-size.
     config = short_run_schedule(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000,
                                             minutes=0.08, size_to_minutes=True, pgsr=False, eval_every=10_000,
@@ -57,3 +64,49 @@ def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path):
     assert any("schedule re-sized from 5000" in m for m in messages)
     assert stored["iterations"] < 1000 and stored["densify_until"] < 500
     assert result.iteration <= stored["iterations"]
+
+
+def test_step_cost_line_is_fitted_from_two_counts_and_falls_back_to_proportional():
+    from inceptiongs.train.budget import affordable_count, fit_step_cost
+
+    fixed, per = fit_step_cost([(1_000, 0.3 + 1e-4 * 1_000), (5_000, 0.3 + 1e-4 * 5_000)])
+    assert fixed == pytest.approx(0.3) and per == pytest.approx(1e-4)
+    assert affordable_count((fixed, per), 1.3) == pytest.approx(10_000, abs=1)
+    # One count only (or counts too close): all cost per Gaussian, the smallest budget.
+    assert fit_step_cost([(2_000, 0.4)]) == pytest.approx((0.0, 0.4 / 2_000))
+    assert fit_step_cost([(2_000, 0.4), (2_050, 0.8)]) == pytest.approx((0.0, 0.8 / 2_050))
+    # A noisy line with a negative fixed part is not trusted either.
+    assert fit_step_cost([(1_000, 1.0), (2_000, 3.0)]) == pytest.approx((0.0, 3.0 / 2_000))
+
+
+def test_a_growing_plan_is_sized_at_its_mean_cost():
+    from inceptiongs.train.budget import BUDGET_FILL, growing_budget_iterations, mean_planned_count
+
+    assert mean_planned_count(1_000, 1_000, 50, 100) == 1_000
+    assert mean_planned_count(1_000, 8_000, 0, 100) == 1_000          # the window is over: no growth
+    ramp = mean_planned_count(1_000, 8_000, 100, 100)
+    assert 1_000 < ramp < 4_500                                       # an exponential ramp's mean
+    assert ramp == pytest.approx(7_000 / math.log(8.0))
+    cost = (0.0, 1e-3)                                                # 1 s a step at 1 000 Gaussians
+    flat = growing_budget_iterations(0, cost, 1_000, 1_000, 0.5, 1_000.0)
+    assert flat == int(1_000 * BUDGET_FILL)
+    grown = growing_budget_iterations(0, cost, 1_000, 8_000, 0.5, 1_000.0)
+    # Half the run on the ramp, half at 8 000: the plan's time is its length at the mean cost.
+    mean = mean_planned_count(1_000, 8_000, int(0.5 * grown), grown)
+    assert grown < flat / 3
+    assert grown * 1e-3 * mean == pytest.approx(1_000 * BUDGET_FILL, rel=0.02)
+
+
+def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene):
+    scene = demo_scene
+    config = short_run_schedule(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000,
+                                            minutes=0.1, size_to_minutes=True, pgsr=False, eval_every=10_000,
+                                            checkpoint_every=10_000, strategy="mcmc"))
+    messages = []
+    result = train(config, tmp_path / "run", progress=False, log=messages.append)
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())
+    unbudgeted = sized_schedule(TrainConfig(**{**stored, "max_gaussians": TrainConfig().max_gaussians}),
+                                stored["iterations"]).max_gaussians
+    assert any("grows to at most" in m for m in messages), messages
+    assert stored["max_gaussians"] < unbudgeted
+    assert result.num_gaussians <= stored["max_gaussians"]

@@ -143,3 +143,11 @@ def test_mcmc_growth_reaches_the_budget_within_a_short_window():
     assert growth_rate(90_000, 100_000, 0.05, 100) == 0.05            # the paper's rate is enough
     rate = growth_rate(3_000, 100_000, 0.05, 10)
     assert 3_000 * (1 + rate) ** 10 == pytest.approx(100_000)
+
+
+def test_mcmc_growth_per_relocation_is_capped_when_the_window_shrinks():
+    from inceptiongs.train.strategy import MCMC_MAX_GROWTH, growth_rate
+
+    # Two relocations left to go from 6 649 to 100 000 would need x3.9 each.
+    assert growth_rate(6_649, 100_000, 0.05, 2) == MCMC_MAX_GROWTH
+    assert growth_rate(6_649, 7_000, 0.05, 2) < MCMC_MAX_GROWTH
