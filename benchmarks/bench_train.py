@@ -45,6 +45,8 @@ def main() -> int:
     parser.add_argument("--no-pgsr", action="store_true")
     parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,
                         help="the free-space rules (on by default, as the train command)")
+    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=False,
+                        help="the sky shell (off by default, as the train command)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
@@ -71,7 +73,8 @@ def main() -> int:
         config = short_run_schedule(TrainConfig(
             scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
             iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
-            size_to_minutes=sized, free_space=args.free_space))
+            size_to_minutes=sized, free_space=args.free_space,
+            sky_shell=args.sky_shell))
         return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
                                    checkpoint_every=max(args.eval_every, 500))
 

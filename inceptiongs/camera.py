@@ -17,6 +17,7 @@ import numpy as np
 from .io.atomic import atomic_write_text
 from .io.config_json import read_json_object
 from .io.limits import check_image_size
+from .constants import NEAR_PLANE
 from .errors import InputError
 
 # Below this |sin(angle)| slerp falls back to normalised lerp: the slerp weights
@@ -93,6 +94,19 @@ class Camera:
             "cy": float(self.cy),
             "world_to_camera": self.world_to_camera.tolist(),
         }
+
+
+def project_points(points: np.ndarray, camera: "Camera") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World points [P, 3] -> (pixels [P, 2] as (u, v), camera depth z [P], inside [P] bool: in
+    front of the near plane and within the image). Pixels are only meaningful where inside."""
+    local = np.asarray(points, np.float64).reshape(-1, 3) @ camera.rotation.T + camera.world_to_camera[:3, 3]
+    z = local[:, 2]
+    front = z > NEAR_PLANE
+    safe_z = np.where(front, z, 1.0)        # divided by only where front (z > NEAR_PLANE > 0)
+    u = camera.fx * local[:, 0] / safe_z + camera.cx
+    v = camera.fy * local[:, 1] / safe_z + camera.cy
+    inside = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    return np.stack([u, v], 1), z, inside
 
 
 def rigid_inverse(pose: np.ndarray) -> np.ndarray:

@@ -36,6 +36,9 @@ def add_arguments(parser) -> None:
                         help="remove Gaussians at and around the training cameras, before their near bounds "
                              "(from the sparse points) and those every view looks through (default: on; "
                              "--no-free-space turns the rules off)")
+    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=False,
+                        help="add a shell of far Gaussians where the photos see past every sparse point, "
+                             "for the sky (docs/training.md)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",
@@ -52,7 +55,8 @@ def build_config(args) -> "TrainConfig":
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
-                         size_to_minutes=sized, free_space=args.free_space)
+                         size_to_minutes=sized, free_space=args.free_space,
+                         sky_shell=args.sky_shell)
     return short_run_schedule(config.validate("command line"))
 
 

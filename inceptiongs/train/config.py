@@ -81,6 +81,9 @@ class TrainConfig(SavedConfig):
     # the scarce, covered and all groups against the same run without the rules, no training-view
     # floater pixels; at 2400 steps covered 22.42 dB (18.82 before any rule; docs/training.md).
     free_space: bool = True
+    # A shell of Gaussians far beyond the scene where the photos show no sparse point
+    # (inceptiongs.train.sky): a place for the sky other than disks beside the cameras.
+    sky_shell: bool = False
     near_percentile: float = 2.0
     near_margin: float = 0.5
     # A Gaussian whose ellipsoid holds a training camera centre within this many sigmas is removed.

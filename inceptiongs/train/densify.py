@@ -60,11 +60,13 @@ def _rotation_matrices(quats: torch.Tensor) -> torch.Tensor:
 def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, stats: DensifyStats,
                       config: TrainConfig, extent: float, prune_large: bool,
                       generator: torch.Generator, grow: bool = True,
-                      carried: dict[str, torch.Tensor] | None = None) -> dict[str, int]:
+                      carried: dict[str, torch.Tensor] | None = None,
+                      background: torch.Tensor | None = None) -> dict[str, int]:
     """Clone / split where the mean gradient exceeds the threshold (only with ``grow``), then
     prune. In place on ``params`` and the optimizer; every tensor in ``carried`` (per-row
     statistics, [N, ...]) is re-selected the same way (a clone or split child copies its
-    source's row). Returns counts {"cloned", "split", "pruned"}."""
+    source's row). ``background`` ([N] bool) marks Gaussians the size rules leave alone (the sky
+    shell's: large by design). Returns counts {"cloned", "split", "pruned"}."""
     with torch.no_grad():
         mean_grad = stats.grad_sum / stats.count.clamp_min(1.0)  # never-seen Gaussians: 0
         n = params["means"].shape[0]
@@ -111,7 +113,9 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
             # window only the world-size rule: what the screen rule removes (a large background
             # Gaussian, say) no split could cover again.
             radii = torch.cat([stats.max_radii[~split], torch.zeros(len(source) - int((~split).sum()))])
-            prune |= oversized(params, radii if grow else None, config, extent)
+            exempt = (torch.zeros(len(source), dtype=torch.bool) if background is None
+                      else background[source])
+            prune |= oversized(params, radii if grow else None, config, extent) & ~exempt
         # Never remove every Gaussian: an empty model cannot recover.
         if bool(prune.all()):
             prune[torch.argmax(opacity)] = False

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..camera import Camera
+from ..camera import Camera, project_points
 from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN, SH_MAX_DEGREE
 
 # A camera needs this many sparse points in its image for a percentile to mean anything;
@@ -40,13 +40,7 @@ def _camera_block(n: int) -> int:
 
 def camera_depths(points: np.ndarray, camera: Camera) -> np.ndarray:
     """Camera z of the ``points`` [P, 3] that project inside ``camera``'s image in front of it: [Q]."""
-    local = points @ camera.rotation.T + camera.world_to_camera[:3, 3]
-    z = local[:, 2]
-    front = z > NEAR_PLANE
-    safe_z = np.where(front, z, 1.0)  # only used where front (z > NEAR_PLANE > 0)
-    u = camera.fx * local[:, 0] / safe_z + camera.cx
-    v = camera.fy * local[:, 1] / safe_z + camera.cy
-    inside = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    _, z, inside = project_points(points, camera)
     return z[inside]
 
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import torch
 
-from ..camera import Camera
-from ..constants import NEAR_PLANE, SH_C0, SH_OFFSET, sh_coeff_count
+from ..camera import Camera, project_points
+from ..constants import SH_C0, SH_OFFSET, sh_coeff_count
 from ..gaussians import Gaussians
 
 INITIAL_OPACITY = 0.1
@@ -127,17 +127,10 @@ def sparse_depth_samples(camera: Camera, image: np.ndarray, points: np.ndarray, 
     Returns (points [M, 3], colours [M, 3] uint8, scales [M]) with M = count, or empty
     arrays when no point projects into the view.
     """
-    camera_points = points @ camera.rotation.T + camera.world_to_camera[:3, 3]
-    z = camera_points[:, 2]
-    in_front = z > NEAR_PLANE
-    # z > NEAR_PLANE > 0 where used.
-    safe_z = np.where(in_front, z, 1.0)
-    u = camera.fx * camera_points[:, 0] / safe_z + camera.cx
-    v = camera.fy * camera_points[:, 1] / safe_z + camera.cy
-    inside = in_front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    pixels_of_points, z, inside = project_points(points, camera)
     if inside.sum() < neighbours:
         return np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0)
-    projected = np.stack([u[inside], v[inside]], 1)
+    projected = pixels_of_points[inside]
     depths = z[inside]
     pixels = np.stack([generator.uniform(0, camera.width, count), generator.uniform(0, camera.height, count)], 1)
     squared = ((pixels[:, None, :] - projected[None, :, :]) ** 2).sum(-1)          # [M, P]

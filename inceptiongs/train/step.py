@@ -8,6 +8,7 @@ refinement (:mod:`inceptiongs.bootstrap`) both drive these.
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 from dataclasses import dataclass
 from typing import Callable
@@ -25,8 +26,9 @@ from . import strategy as strategies
 from .densify import DensifyStats, accumulate, densify_and_prune, remove_rows, reset_opacity
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
                          near_a_camera, near_bounds, seen_through, sh_rest_mask)
-from .init_gaussians import gaussians_from_sparse_depth, initial_gaussians, scene_extent
+from .init_gaussians import gaussians_from_points, gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
+from .sky import SKY_OPACITY, in_background, sky_shell
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
                     position_learning_rate, set_learning_rate)
 from .triangulate import training_points
@@ -102,6 +104,8 @@ class TrainState:
     # bounds [len(train)]; None in a state built without them (a stage-II state from a model).
     view_stats: ViewStats | None = None
     near: torch.Tensor | None = None
+    # The sky shell's sphere [4] (centre, radius); None without one.
+    sky: torch.Tensor | None = None
 
     def payload(self, config: TrainConfig) -> dict:
         extra = {}
@@ -109,6 +113,8 @@ class TrainState:
             extra["view_stats"] = {k: v.clone() for k, v in self.view_stats.tensors().items()}
         if self.near is not None:
             extra["near"] = self.near.clone()
+        if self.sky is not None:
+            extra["sky"] = self.sky.clone()
         return {**extra,
             "iteration": self.iteration, "wall_s": self.wall_s, "train_s": self.train_s,
             "params": {k: v.detach().clone() for k, v in self.params.items()},
@@ -130,6 +136,9 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     else:
         gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
     log(message)
+    sky = None
+    if config.sky_shell:
+        gaussians, sky = with_sky_shell(gaussians, cameras, [data.images[i].numpy() for i in data.train], points, log)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)
@@ -140,7 +149,20 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
             f"{float(near.max()):.3g} (scene units)")
     return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), 0, 0.0, 0.0,
                       np.random.default_rng(config.seed), generator, [], 0, set(),
-                      ViewStats.zeros(len(gaussians)), near)
+                      ViewStats.zeros(len(gaussians)), near, sky)
+
+
+def with_sky_shell(gaussians: Gaussians, cameras: list[Camera], images: list[np.ndarray], points: np.ndarray,
+                   log) -> tuple[Gaussians, torch.Tensor]:
+    """``gaussians`` and the sky shell's after them, and the shell's sphere [4]."""
+    means, colours, scales, sphere = sky_shell(cameras, images, points)
+    shell = gaussians_from_points(means, colours, gaussians.sh_degree, dtype=gaussians.dtype, scales=scales)
+    shell.opacity_logits.fill_(math.log(SKY_OPACITY / (1.0 - SKY_OPACITY)))   # 0 < SKY_OPACITY < 1
+    log(f"sky shell: {len(shell)} Gaussians at radius {sphere[3]:.3g} where the training photos show no "
+        f"sparse point")
+    merged = Gaussians(**{name: torch.cat([getattr(gaussians, name), getattr(shell, name)])
+                          for name in gaussians.tensors()})
+    return merged, torch.as_tensor(sphere, dtype=torch.float64)
 
 
 def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainState:
@@ -155,9 +177,10 @@ def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainS
     # Checkpoints written before the view statistics existed restore without them (rules off).
     view_stats = ViewStats(**payload["view_stats"]) if "view_stats" in payload else None
     near = payload.get("near")
+    sky = payload.get("sky")
     return TrainState(params, optimizer, stats, int(payload["iteration"]), float(payload["wall_s"]),
                       float(payload["train_s"]), view_rng, generator, list(payload["order"]),
-                      int(payload["order_pos"]), set(payload["logged"]), view_stats, near)
+                      int(payload["order_pos"]), set(payload["logged"]), view_stats, near, sky)
 
 
 def next_view(state: TrainState, data: TrainData) -> int:
@@ -407,7 +430,8 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
             state.stats = DensifyStats(*(t[keep_stats] for t in state.stats.tensors().values()))
         counts.update(densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
                                         prune_large=prune_large, generator=state.generator, grow=growing,
-                                        carried=carried))
+                                        carried=carried, background=in_background(state.params["means"].detach(),
+                                                                                  state.sky)))
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts

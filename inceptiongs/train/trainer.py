@@ -162,8 +162,9 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 resized = sized_schedule(config, wanted)
                 config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians, config.max_gaussians))
             if grow_budget is not None and grow_budget != config.max_gaussians:
+                previous = config.max_gaussians
                 config = dataclasses.replace(config, max_gaussians=grow_budget)
-                if wanted is not None:
+                if abs(grow_budget - previous) > 0.1 * previous:   # previous >= 1: a validated budget
                     log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "
                         f"{BUDGET_COST_RATIO:g}x the cost of the first model's)")
             if changed:

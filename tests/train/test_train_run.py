@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from inceptiongs.scene.demo import write_demo_scene
-from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint
+from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_newest_checkpoint
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.live import JobControl
 from inceptiongs.train.job import TrainJob
@@ -84,11 +84,13 @@ class _StopAt:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("strategy", ["default", "mcmc", "dropgaussian"])
-def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy):
+@pytest.mark.parametrize("strategy, sky_shell", [("default", False), ("mcmc", False), ("dropgaussian", False),
+                                                ("default", True)])
+def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy, sky_shell):
     # Every strategy's random draws (drops, MCMC noise and relocation) and its per-Gaussian
-    # statistics live in the checkpoint, so a resumed run repeats the uninterrupted one exactly.
-    config = _config(demo_scene, strategy=strategy, free_space=True)
+    # statistics live in the checkpoint, so a resumed run repeats the uninterrupted one exactly;
+    # so does the sky shell's sphere (the size rules read it).
+    config = _config(demo_scene, strategy=strategy, free_space=True, sky_shell=sky_shell)
     straight = train(config, tmp_path / "straight", progress=False)
     stopper = _StopAt(8)
     half = train(config, tmp_path / "resumed", progress=False, control=stopper.control,
@@ -102,6 +104,8 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy)
     for name in a:
         assert a[name].shape == b[name].shape, name
         assert torch.equal(a[name], b[name]), name
+    payload = load_newest_checkpoint(tmp_path / "resumed")[1]
+    assert ("sky" in payload) == sky_shell
     if strategy == "mcmc":
         records = _records(tmp_path / "straight")
         assert any(r.get("relocated", 0) > 0 or r.get("added", 0) > 0 for r in records)

@@ -1,0 +1,97 @@
+"""The sky shell: far Gaussians only where the photos see past every sparse point, and left alone
+by the size rules."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import torch
+
+from inceptiongs.camera import Camera, look_at
+from inceptiongs.gaussians import Gaussians
+from inceptiongs.train.config import TrainConfig
+from inceptiongs.train.densify import DensifyStats, densify_and_prune
+from inceptiongs.train.optim import make_optimizer, params_from_gaussians
+from inceptiongs.train.sky import (SKY_GRID, fibonacci_directions, in_background, open_cells, shell_geometry,
+                                   sky_shell)
+
+
+def _camera(eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), width=64, height=48, name="cam") -> Camera:
+    return Camera(name, width, height, 50.0, 50.0, width / 2, height / 2,
+                  look_at(np.array(eye, float), np.array(target, float), up=(0.0, -1.0, 0.0)))
+
+
+def _ground_points(camera: Camera, rows: slice, depth: float = 3.0) -> np.ndarray:
+    """Points at ``depth`` on a grid of the camera's pixels in ``rows`` (the image's lower part)."""
+    v, u = np.mgrid[0:camera.height, 0:camera.width][:, rows, :]
+    u, v = u.ravel() + 0.5, v.ravel() + 0.5
+    local = np.stack([(u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth,
+                      np.full(u.shape, depth)], 1)
+    c2w = camera.camera_to_world
+    return local @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def test_fibonacci_directions_are_unit_and_spread_evenly():
+    d = fibonacci_directions(2000)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert np.abs(d.mean(0)).max() < 0.01                      # no side of the sphere favoured
+    # Nearest-neighbour angles are close to each other (no clumps, no holes).
+    cos = d @ d.T
+    np.fill_diagonal(cos, -1.0)
+    nearest = np.arccos(np.clip(cos.max(1), -1, 1))
+    assert nearest.max() < 2.0 * nearest.min()
+
+
+def test_open_cells_are_the_image_cells_without_sparse_points():
+    camera = _camera()
+    points = _ground_points(camera, slice(24, 48))             # the lower half of the image
+    cells = open_cells(camera, points).reshape(SKY_GRID, SKY_GRID)
+    assert cells[: SKY_GRID // 2].all()                        # upper half: open sky
+    assert not cells[SKY_GRID // 2:].any()                     # lower half: occupied
+    # Points behind the camera do not close anything.
+    assert open_cells(camera, -points).all()
+
+
+def test_the_shell_covers_only_open_sky_with_the_photos_colour():
+    cameras = [_camera(eye=(x, 0.0, 0.0), target=(x, 0.0, 1.0), name=f"c{i}") for i, x in enumerate((-0.1, 0.0, 0.1))]
+    points = np.concatenate([_ground_points(c, slice(24, 48)) for c in cameras])
+    images = []
+    for camera in cameras:
+        image = np.full((camera.height, camera.width, 3), 0.5)
+        image[:24] = (0.2, 0.4, 0.9)                           # sky above, grey ground below
+        images.append(image)
+    means, colours, scales, sphere = sky_shell(cameras, images, points)
+    centre, radius = shell_geometry(cameras, points)
+    assert len(means) > 10
+    assert np.allclose(sphere, [*centre, radius])
+    assert np.allclose(np.linalg.norm(means - centre, axis=1), radius)
+    assert radius > 3.0 * np.linalg.norm(points - centre, axis=1).max() * 0.9
+    # Every shell Gaussian is in the upper half of the views that see it (y down: negative y).
+    assert np.all(means[:, 1] < 0)
+    assert np.all(np.abs(colours.astype(int) - np.array([51, 102, 230])) <= 1)
+    assert np.all(scales > 0)
+    # A view full of sparse points gets no shell at all.
+    full = _ground_points(cameras[1], slice(0, 48))
+    assert len(sky_shell(cameras[1:2], images[1:2], full)[0]) == 0
+
+
+def test_background_gaussians_survive_the_size_rules_and_scene_ones_do_not():
+    n = 4
+    means = torch.tensor([[0.0, 0, 0], [0.2, 0, 0], [40.0, 0, 0], [0.0, 45.0, 0]])
+    log_scales = torch.full((n, 3), math.log(0.001))
+    log_scales[1:] = math.log(2.0)                             # 1 (scene) and 2, 3 (background): huge
+    gaussians = Gaussians(means, log_scales, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                          torch.full((n,), 2.0), torch.zeros(n, 1, 3))
+    sphere = torch.tensor([0.0, 0.0, 0.0, 50.0])
+    background = in_background(means, sphere)
+    assert background.tolist() == [False, False, True, True]
+    assert not in_background(means, None).any()
+    config = dataclasses.replace(TrainConfig(), prune_world_fraction=0.1)
+    for exempt, survivors in ((background, 3), (None, 1)):
+        params = params_from_gaussians(gaussians)
+        optimizer = make_optimizer(params, config, 1.0)
+        densify_and_prune(params, optimizer, DensifyStats.zeros(n), config, 1.0, prune_large=True,
+                          generator=torch.Generator().manual_seed(0), background=exempt)
+        assert params["means"].shape[0] == survivors
