@@ -431,7 +431,9 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
         counts.update(densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
                                         prune_large=prune_large, generator=state.generator, grow=growing,
                                         carried=carried, background=in_background(state.params["means"].detach(),
-                                                                                  state.sky)))
+                                                                                  state.sky),
+                                        camera_centers=torch.tensor(np.stack([data.cameras[i].center
+                                                                              for i in data.train]))))
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts

@@ -155,6 +155,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:  # a rate needs both
             wanted, grow_budget = plan(step, steps / seconds, budget_s - elapsed)
             changed = wanted is not None or (grow_budget is not None and grow_budget != config.max_gaussians)
+            previous = config.max_gaussians
             if wanted is not None:
                 log(f"time budget: {steps / seconds:.2f} steps/s at {state.params['means'].shape[0]} Gaussians, "
                     f"schedule re-sized from {config.iterations} to {wanted} iterations")
@@ -162,7 +163,6 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 resized = sized_schedule(config, wanted)
                 config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians, config.max_gaussians))
             if grow_budget is not None and grow_budget != config.max_gaussians:
-                previous = config.max_gaussians
                 config = dataclasses.replace(config, max_gaussians=grow_budget)
                 if abs(grow_budget - previous) > 0.1 * previous:   # previous >= 1: a validated budget
                     log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "

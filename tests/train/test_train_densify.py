@@ -91,3 +91,19 @@ def test_opacity_reset_clamps_and_restarts_moments():
     state = optimizer.state[params["opacity_logits"]]
     assert torch.all(state["exp_avg"] == 0) and torch.all(state["exp_avg_sq"] == 0)
     assert torch.any(optimizer.state[params["means"]]["exp_avg"] != 0)
+
+
+def test_the_world_size_rule_lets_far_gaussians_be_as_large_as_their_distance():
+    from inceptiongs.train.densify import nearest_camera_distance, oversized
+
+    config = dataclasses.replace(TrainConfig(), prune_world_fraction=0.1)
+    # Three Gaussians 0.5 wide: in the rig (distance 1), and far beyond it (distance 20 and 4).
+    means = torch.tensor([[1.0, 0, 0], [20.0, 0, 0], [0.0, 4.0, 0]])
+    params = {"means": means, "log_scales": torch.full((3, 3), math.log(0.5))}
+    centers = torch.tensor([[0.0, 0, 0], [0.0, 0.5, 0]])
+    assert torch.allclose(nearest_camera_distance(means, centers), torch.tensor([1.0, 20.0, 3.5]))
+    # Extent 1: limit 0.1 near the cameras, 0.1 x distance beyond.
+    assert oversized(params, None, config, 1.0, centers).tolist() == [True, False, True]
+    # Without the cameras the old rule prunes all three.
+    assert oversized(params, None, config, 1.0).tolist() == [True, True, True]
+    assert nearest_camera_distance(torch.zeros(0, 3), centers).shape == (0,)
