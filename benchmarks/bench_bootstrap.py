@@ -74,6 +74,8 @@ VARIANTS = {
                       "sampling": "uniform"},
     "geometry-only-x4": {"geometry_weight": 0.6, "virtual_colour": False, "virtual_mode": "additive",
                          "sampling": "uniform"},
+    "geometry-only-x16": {"geometry_weight": 2.4, "virtual_colour": False, "virtual_mode": "additive",
+                          "sampling": "uniform"},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},

@@ -109,6 +109,8 @@ class BootstrapConfig(SavedConfig):
 
     def needs_prior(self) -> bool:
         """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
+        if not self.virtual_colour:
+            return False        # no I* at all: the virtual views carry only the geometry term
         return not (self.blending and self.supervision == "photo" and self.fill != "prior")
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":

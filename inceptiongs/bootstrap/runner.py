@@ -310,9 +310,14 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             else:  # the fill is the render itself (or inpainted around it): nothing to generate
                 generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
-            image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
-                                       config.blending, config.delta, config.supervision, config.fill, render_rgb,
-                                       config.virtual_pixels, config.residual_floor)
+            if config.virtual_colour:
+                image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
+                                           config.blending, config.delta, config.supervision, config.fill,
+                                           render_rgb, config.virtual_pixels, config.residual_floor)
+            else:
+                # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
+                # built for nothing. The render stands in for the PNGs, with an empty mask.
+                image, mask = torch.as_tensor(generated, dtype=torch.float32), torch.zeros(camera.height, camera.width, 1)
             geometry = []
             if config.geometry_weight > 0:
                 from .multiview import GeometrySource

@@ -365,6 +365,10 @@ def test_geometry_only_loop_adds_the_multiview_term_to_photo_steps(stage1, tmp_p
     assert additive and all(r["virtual_loss"] == 0.0 for r in additive)
     counted = [r for r in additive if r["virtual_geometry_pairs"] > 0]
     assert counted and all(0.0 <= r["virtual_geometry_loss"] <= 2.0 for r in counted)
+    # Without a colour target no I* is built (no prior, empty masks).
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert all(v["mask_fraction"] == 0.0 for v in summary["rounds"][0]["views"])
+    assert "nothing is generated" in summary["prior"]["description"]
     with pytest.raises(InputError, match="geometry_weight"):
         _config(virtual_colour=False).validate()
 
