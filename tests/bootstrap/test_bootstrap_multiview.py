@@ -7,30 +7,12 @@ import pytest
 import torch
 
 from inceptiongs.bootstrap.multiview import GeometrySource, multiview_consistency, patch_ncc
-from inceptiongs.camera import Camera
-
-PLANE_Z = 5.0
-WIDTH, HEIGHT, FOCAL = 64, 48, 60.0
+from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at, plane_grey
 
 
-def texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Contrast left of x = 0.4, a flat grey right of it."""
-    pattern = 0.5 + 0.22 * np.sin(7.0 * x) * np.cos(5.5 * y) + 0.18 * np.sin(13.0 * x + 9.0 * y)
-    return np.where(x < 0.4, pattern, 0.5)
-
-
-def camera_at(name: str, centre) -> Camera:
-    pose = np.eye(4)
-    pose[:3, 3] = -np.asarray(centre, dtype=np.float64)  # identity rotation: looking along +z
-    return Camera(name, WIDTH, HEIGHT, FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, pose)
-
-
-def source_of_plane(camera: Camera, depth: float = PLANE_Z) -> GeometrySource:
+def source_of_plane(camera, depth: float = PLANE_Z) -> GeometrySource:
     """The plane z = PLANE_Z photographed by an axis-aligned camera, with its true depth."""
-    u, v = np.meshgrid(np.arange(WIDTH) + 0.5, np.arange(HEIGHT) + 0.5)
-    t = PLANE_Z - camera.center[2]
-    grey = texture(camera.center[0] + (u - camera.cx) / camera.fx * t, camera.center[1] + (v - camera.cy) / camera.fy * t)
-    return GeometrySource(torch.as_tensor(grey[..., None], dtype=torch.float32), camera,
+    return GeometrySource(torch.as_tensor(plane_grey(camera)[..., None], dtype=torch.float32), camera,
                           torch.full((HEIGHT, WIDTH, 1), depth - camera.center[2]))
 
 
