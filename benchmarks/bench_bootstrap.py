@@ -63,6 +63,19 @@ VARIANTS = {
     # ... and a residual floor of 0.1 (only where the render is grossly wrong).
     "informative-strict": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
                            "lambda_virtual": 1.0, "residual_floor": 0.1},
+    # The geometry term (multiview.py, issue 21's design step): 1 - NCC of the source photos
+    # mapped through the rendered depth and normal at each virtual view, on top of "full"
+    # (weight 0.15: stage I's lambda_ncc) ...
+    "geometry": {"geometry_weight": 0.15},
+    # ... four times as strong ...
+    "geometry-x4": {"geometry_weight": 0.6},
+    # ... and alone: no colour target at virtual views, added to photo steps (the photos lose no step).
+    "geometry-only": {"geometry_weight": 0.15, "virtual_colour": False, "virtual_mode": "additive",
+                      "sampling": "uniform"},
+    "geometry-only-x4": {"geometry_weight": 0.6, "virtual_colour": False, "virtual_mode": "additive",
+                         "sampling": "uniform"},
+    "geometry-only-x16": {"geometry_weight": 2.4, "virtual_colour": False, "virtual_mode": "additive",
+                          "sampling": "uniform"},
     # Not an ablation of the paper: I* generated once per round from stage I's render, never
     # regenerated from the refined Gaussians (what the loop did before regenerate_every).
     "no-regeneration": {"regenerate_every": 0},

@@ -81,6 +81,15 @@ class BootstrapConfig(SavedConfig):
     # that step is a photo step whose gradient also holds the virtual view's loss (one Adam step,
     # so the photos lose no step to the virtual views).
     virtual_mode: str = "alternate"
+    # The geometry term (multiview.py): at a virtual view, 1 - NCC between the K source photos'
+    # patches mapped through the rendered depth and planar normal, back-propagated into the
+    # Gaussians' geometry (no warped colour is a target). Its weight against the view's colour
+    # loss; 0: off. 0.15 is stage I's lambda_ncc (PGSR's weight of the same measure).
+    geometry_weight: float = 0.0
+    geometry_samples: int = 4096        # pixels per evaluation (multiview.DEFAULT_SAMPLES)
+    # The colour loss at virtual views (I* or the informative blend); False: a virtual view
+    # carries only the geometry term (which then must be on).
+    virtual_colour: bool = True
     lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
     # The conscience (conscience.py): every ``conscience_every`` steps the L1 of the training photos
     # nearest the targets is measured; above its start value by more than this (relative) the
@@ -100,6 +109,8 @@ class BootstrapConfig(SavedConfig):
 
     def needs_prior(self) -> bool:
         """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
+        if not self.virtual_colour:
+            return False        # no I* at all: the virtual views carry only the geometry term
         return not (self.blending and self.supervision == "photo" and self.fill != "prior")
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
@@ -138,6 +149,11 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: residual_floor must be >= 0, got {self.residual_floor}")
         if self.virtual_mode not in ("alternate", "additive"):
             raise InputError(f"{source}: virtual_mode must be 'alternate' or 'additive', got {self.virtual_mode!r}")
+        if not self.geometry_weight >= 0 or self.geometry_samples < 1:
+            raise InputError(f"{source}: geometry_weight must be >= 0 and geometry_samples >= 1, got "
+                             f"{self.geometry_weight}, {self.geometry_samples}")
+        if not self.virtual_colour and self.geometry_weight == 0:
+            raise InputError(f"{source}: virtual_colour off needs a geometry_weight > 0 (else a virtual view carries no loss)")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
             raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:

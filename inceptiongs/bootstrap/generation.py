@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -152,7 +152,8 @@ def obtain_prior(run_dir: Path, out_dir: Path, gaussians: Gaussians, cameras: li
 
 @dataclass
 class VirtualTarget:
-    """One virtual view's supervision: camera, I* [H, W, 3], trusted-pixel mask [H, W, 1]."""
+    """One virtual view's supervision: camera, I* [H, W, 3], trusted-pixel mask [H, W, 1], and the
+    source photos of the geometry term (refine.virtual_loss)."""
 
     name: str
     camera: Camera
@@ -161,6 +162,8 @@ class VirtualTarget:
     generated: torch.Tensor
     cache_hit: bool
     round: int
+    # The source photos of the geometry term (multiview.GeometrySource; empty when it is off).
+    geometry: list = field(default_factory=list)
 
 
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],

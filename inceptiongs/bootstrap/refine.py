@@ -191,17 +191,47 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
     return loss, record
 
 
+def geometry_loss(out: dict, view: VirtualTarget, config: BootstrapConfig, step: int
+                  ) -> tuple[torch.Tensor | None, dict]:
+    """The geometry term (multiview.py) of a virtual view's render ``out`` (with "depth" and
+    "normal") against its source photos -> (1 - NCC or None where no pair is valid, record).
+    The pixel subset is drawn from a generator seeded by the step: reproducible, and the
+    trainer's own random stream (view order, photo steps) is left as the baseline has it."""
+    from .multiview import multiview_consistency
+
+    generator = torch.Generator().manual_seed(config.seed * 1_000_003 + step)
+    term = multiview_consistency(out["depth"], out["normal"], view.camera, view.geometry,
+                                 samples=config.geometry_samples, generator=generator)
+    record = {"geometry_pairs": term.pairs, "geometry_ncc": term.ncc,
+              "geometry_loss": None if term.loss is None else float(term.loss.detach())}
+    return term.loss, record
+
+
 def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
                  choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0
                  ) -> tuple[torch.Tensor, dict, dict]:
-    """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual)
+    """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual),
+    plus the geometry term (``geometry_weight``, scaled by the conscience too) when it is on
     -> (loss, the render's outputs, log record); no backward, no optimiser step."""
     sh_degree = sh_degree_at(step, train_config, sh_max)
     gaussians = gaussians_from_params(state.params)
-    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree)
-    loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
-                                     pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
-    total = config.lambda_virtual * choice.weight * scale * loss
+    geometry = config.geometry_weight > 0 and len(view.geometry) >= 2
+    outputs = ("rgb", "depth", "normal") if geometry else ("rgb",)
+    out = render_fn(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
+    if config.virtual_colour:
+        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
+                                         pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
+        total = config.lambda_virtual * choice.weight * scale * loss
+    else:
+        # No colour target: the rgb output still enters the graph (at zero weight) so the
+        # trainer's densification statistics see the same render as on any other step.
+        total = 0.0 * out["rgb"].sum()
+        record = {"virtual_loss": 0.0, "virtual_branch": "geometry"}
+    if geometry:
+        term, geometry_record = geometry_loss(out, view, config, step)
+        record.update(geometry_record)
+        if term is not None:
+            total = total + config.geometry_weight * scale * term
     record.update(view=view.name, weight=choice.weight, p=choice.p, sh_degree=sh_degree)
     return total, out, record
 

@@ -267,7 +267,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                                                              and conscience_views) else None
     # What each refinement step was ("additive": a photo step carrying a virtual loss, also
     # counted by its virtual branch; "idle": a virtual slot with no informative view, a photo step).
-    step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0, "informative_l1": 0, "additive": 0, "idle": 0}
+    step_counts = {"real": 0, "perceptual": 0, "l1_ssim": 0, "informative_l1": 0, "geometry": 0, "additive": 0,
+                   "idle": 0}
     view_use: dict[str, int] = {}                               # how often each virtual view was chosen
     finished = True
     last_eval = initial_eval
@@ -309,10 +310,24 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             else:  # the fill is the render itself (or inpainted around it): nothing to generate
                 generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
-            image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
-                                       config.blending, config.delta, config.supervision, config.fill, render_rgb,
-                                       config.virtual_pixels, config.residual_floor)
-            entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number)
+            if config.virtual_colour:
+                image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
+                                           config.blending, config.delta, config.supervision, config.fill,
+                                           render_rgb, config.virtual_pixels, config.residual_floor)
+            else:
+                # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
+                # built for nothing. The render stands in for the PNGs, with an empty mask.
+                image, mask = torch.as_tensor(generated, dtype=torch.float32), torch.zeros(camera.height, camera.width, 1)
+            geometry = []
+            if config.geometry_weight > 0:
+                from .multiview import GeometrySource
+
+                # Grey photos (NCC ignores colour balance) and the current depth of each source
+                # (the geometry term's visibility reference).
+                geometry = [GeometrySource(data.images[i].float().mean(-1, keepdim=True), cameras[i],
+                                           render_depth(cameras[i])) for i in sources]
+            entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number,
+                                  geometry)
             if save:
                 write_png(boot_dir / "views" / f"{camera.name}.png",
                           _view_png(entry.generated, mask, image, render_rgb(camera)))

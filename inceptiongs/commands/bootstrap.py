@@ -68,6 +68,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--virtual-mode", choices=("alternate", "additive"), default=d.virtual_mode,
                         help="'alternate': a virtual step replaces a photo step; 'additive': the virtual loss "
                              f"is added to a photo step's gradient (default {d.virtual_mode})")
+    parser.add_argument("--geometry-weight", type=float, default=d.geometry_weight, metavar="W",
+                        help="weight of the geometry term at virtual views: 1 - NCC of the nearest photos' "
+                             "patches mapped through the rendered depth and normal, back-propagated into the "
+                             f"Gaussians (default {d.geometry_weight}: off)")
+    parser.add_argument("--no-virtual-colour", action="store_true",
+                        help="no colour target at virtual views: they carry only the geometry term "
+                             "(needs --geometry-weight > 0)")
     parser.add_argument("--conscience-tolerance", type=float, default=d.conscience_tolerance, metavar="T",
                         help="lower the virtual views' weight when the nearest photos' L1 rises above its start "
                              f"by more than T (relative; default {d.conscience_tolerance}; a negative T: off)")
@@ -86,7 +93,8 @@ def config_from_args(args):
         generated_weight=args.generated_weight, densify=args.densify,
         regenerate_every=args.regenerate_every, include_target=args.include_target,
         supervision=args.supervision, fill=args.fill, virtual_pixels=args.virtual_pixels,
-        virtual_mode=args.virtual_mode,
+        virtual_mode=args.virtual_mode, geometry_weight=args.geometry_weight,
+        virtual_colour=not args.no_virtual_colour,
         conscience_tolerance=None if args.conscience_tolerance < 0 else args.conscience_tolerance,
     ).validate("arguments")
 

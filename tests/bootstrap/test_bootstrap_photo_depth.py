@@ -7,32 +7,12 @@ import pytest
 import torch
 
 from inceptiongs.bootstrap.photo_depth import pairwise_ncc, photo_consistent_depth, subpixel_offset
-from inceptiongs.camera import Camera
-
-PLANE_Z = 5.0
-WIDTH, HEIGHT, FOCAL = 64, 48, 60.0
+from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at, plane_grey
 
 
-def texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Contrast left of x = 0.4, a flat grey right of it (no evidence there)."""
-    pattern = 0.5 + 0.22 * np.sin(7.0 * x) * np.cos(5.5 * y) + 0.18 * np.sin(13.0 * x + 9.0 * y)
-    return np.where(x < 0.4, pattern, 0.5)
-
-
-def camera_at(name: str, centre) -> Camera:
-    pose = np.eye(4)
-    pose[:3, 3] = -np.asarray(centre, dtype=np.float64)  # identity rotation: looking along +z
-    return Camera(name, WIDTH, HEIGHT, FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, pose)
-
-
-def photo_of_plane(camera: Camera) -> torch.Tensor:
-    """The plane z = PLANE_Z seen by an axis-aligned camera, texture evaluated per pixel centre."""
-    u, v = np.meshgrid(np.arange(WIDTH) + 0.5, np.arange(HEIGHT) + 0.5)
-    centre = camera.center
-    t = PLANE_Z - centre[2]
-    x = centre[0] + (u - camera.cx) / camera.fx * t
-    y = centre[1] + (v - camera.cy) / camera.fy * t
-    grey = texture(x, y)
+def photo_of_plane(camera) -> torch.Tensor:
+    """The plane as a colour photo [H, W, 3] (grey in every channel)."""
+    grey = plane_grey(camera)
     return torch.as_tensor(np.repeat(grey[..., None], 3, axis=2), dtype=torch.float32)
 
 

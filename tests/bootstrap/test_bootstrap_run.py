@@ -348,6 +348,31 @@ def test_informative_additive_loop_keeps_every_photo_step(stage1, tmp_path):
     assert all(0 <= m <= 1 for m in masks) and any(m > 0 for m in masks)
 
 
+def test_geometry_only_loop_adds_the_multiview_term_to_photo_steps(stage1, tmp_path):
+    """virtual_colour off, geometry on, additive: every step is a photo step, the virtual slots
+    carry the geometry term (1 - NCC in [0, 2], over valid source pairs), no colour loss."""
+    out = tmp_path / "geometry"
+    iterations = 6
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=iterations, supervision="photo", fill="render", save_views=0,
+                                   regenerate_every=0, virtual_colour=False, geometry_weight=0.15,
+                                   virtual_mode="additive", sampling="uniform", conscience_tolerance=None),
+                           progress=False)
+    assert result.finished
+    steps = json.loads((out / "bootstrap" / "summary.json").read_text())["steps"]
+    assert steps["real"] + steps["additive"] == iterations and steps["additive"] == steps["geometry"] == iterations // 2
+    additive = [r for r in _records(out) if r.get("kind") == "additive"]
+    assert additive and all(r["virtual_loss"] == 0.0 for r in additive)
+    counted = [r for r in additive if r["virtual_geometry_pairs"] > 0]
+    assert counted and all(0.0 <= r["virtual_geometry_loss"] <= 2.0 for r in counted)
+    # Without a colour target no I* is built (no prior, empty masks).
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert all(v["mask_fraction"] == 0.0 for v in summary["rounds"][0]["views"])
+    assert "nothing is generated" in summary["prior"]["description"]
+    with pytest.raises(InputError, match="geometry_weight"):
+        _config(virtual_colour=False).validate()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("fill", ["prior", "inpaint"])
 def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):
