@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +86,18 @@ def open_grid_viewer(source_path: Path, width: int = 640, height: int = 480, **k
     return viewer
 
 
+@contextmanager
+def opened(opener, *args, **kwargs):
+    """The viewer ``opener(*args, **kwargs)`` returns (open_viewer, open_grid_viewer, Viewer),
+    closed when the block ends, however it ends: a failing assert must still close the GL window
+    (and stop a job it runs), or the next test's context breaks with it."""
+    viewer = opener(*args, **kwargs)
+    try:
+        yield viewer
+    finally:
+        viewer.close()
+
+
 class MovingGridJob:
     """A fake training job (the hand-off is what is tested): publishes the grid shifted a little
     further each step, then keeps its 'checkpoint' when told to stop."""
@@ -114,18 +127,15 @@ def golden_window_images(model: Path) -> dict:
     from front_camera(): what scripts/regen_viewer_golden.py writes and the tests compare."""
     from inceptiongs.app.navigation import NavigationState
 
-    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE, with_ui=False)
-    try:
+    with opened(open_viewer, model, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
         viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
         viewer.settings.show_training_cameras = False
         images = {}
         viewer.settings.mode = "opacity"
         images["viewer_window_opacity_320x240.png"] = viewer.capture_window()
-    finally:
-        viewer.close()
     # Orientation: a model without cameras opens upright (its up from its dominant plane).
-    viewer = open_viewer(write_table_model(Path(model).with_name("table.ply")), *GOLDEN_WINDOW_SIZE, with_ui=False)
-    try:
+    table = write_table_model(Path(model).with_name("table.ply"))
+    with opened(open_viewer, table, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
         images["viewer_window_table_up_320x240.png"] = viewer.capture_window()
         # The crop box, fitted to the model, drawn in 3-D with its face handles.
         viewer.settings.orbit = True
@@ -133,8 +143,6 @@ def golden_window_images(model: Path) -> dict:
         viewer.enable_crop()
         viewer.frame_model()
         images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
-    finally:
-        viewer.close()
     images.update(golden_tool_images(model))
     return images
 
@@ -147,9 +155,8 @@ def golden_tool_images(model: Path) -> dict:
 
     from inceptiongs.app.navigation import NavigationState
 
-    viewer = open_viewer(model, *GOLDEN_WINDOW_SIZE)
     images = {}
-    try:
+    with opened(open_viewer, model, *GOLDEN_WINDOW_SIZE) as viewer:
         viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
         viewer.settings.show_training_cameras = False
         press_key(viewer, glfw.KEY_TAB)  # hide the panel
@@ -173,17 +180,14 @@ def golden_tool_images(model: Path) -> dict:
             viewer.input.on_cursor(viewer.window, *point)
         images["viewer_window_lasso_320x240.png"] = viewer.capture_window()
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
-    finally:
-        viewer.close()
     return images
 
 
 def golden_photo_images(scene: Path) -> dict:
     """{golden file name: window capture} of the nearest training photo shown with the render
     (blended at weight 0.5, and as the inset beside it) at the demo scene's camera 3."""
-    viewer = open_viewer(scene, *GOLDEN_WINDOW_SIZE, with_ui=False)
     images = {}
-    try:
+    with opened(open_viewer, scene, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.snap_to_camera(3)
         time.sleep(0.2)  # still: full-resolution frames
@@ -191,8 +195,6 @@ def golden_photo_images(scene: Path) -> dict:
         images["viewer_window_photo_blended_320x240.png"] = viewer.capture_window()
         viewer.settings.photo = "beside"
         images["viewer_window_photo_beside_320x240.png"] = viewer.capture_window()
-    finally:
-        viewer.close()
     return images
 
 

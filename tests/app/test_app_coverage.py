@@ -12,6 +12,7 @@ import pytest
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.constants import SH_C0
 from inceptiongs.evaluation.coverage import ramp_colours
+from viewer_cases import opened
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden" / "viewer_coverage_160x120.png"
 REGENERATE = os.environ.get("INCEPTIONGS_REGEN_GOLDEN") == "1"
@@ -79,8 +80,7 @@ def test_coverage_mode_golden_screenshot_and_flag_suggestion(xvfb, tmp_path):
     from inceptiongs.io.images import read_png, write_png
 
     source = ViewerSource("ply", tmp_path / "model.ply", _grid(), _cameras(), tmp_path)
-    viewer = Viewer(source, 320, 240, visible=False, with_ui=False)
-    try:
+    with opened(Viewer, source, 320, 240, visible=False, with_ui=False) as viewer:
         viewer.settings.mode = "coverage"
         camera = _camera((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), "shot", size=(160, 120))
         image = viewer.render_image(camera)
@@ -98,5 +98,3 @@ def test_coverage_mode_golden_screenshot_and_flag_suggestion(xvfb, tmp_path):
         assert names == ["scarce 1"] and viewer.settings.mode == "coverage"
         flags = load_flags(viewer.flags_file)
         assert [f.camera.world_to_camera.tolist() for f in flags] == [source.cameras[3].world_to_camera.tolist()]
-    finally:
-        viewer.close()

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from inceptiongs.app.viewer import MAX_TRAINING_WAIT_SECONDS
-from viewer_cases import MovingGridJob, open_viewer, write_grid_model
+from viewer_cases import MovingGridJob, open_viewer, opened, write_grid_model
 
 pytestmark = pytest.mark.gl
 
@@ -32,8 +32,7 @@ def _settle(viewer) -> None:
 
 def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
     job = MovingGridJob()
-    viewer = open_viewer(write_grid_model(tmp_path / "model.ply"), job_factory=lambda source: job)
-    try:
+    with opened(open_viewer, write_grid_model(tmp_path / "model.ply"), job_factory=lambda source: job) as viewer:
         viewer.step()
         _settle(viewer)
         assert _loop(viewer, 1.2) <= 2  # waits for events (up to 2 s at a time)
@@ -53,13 +52,10 @@ def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
         steps = job.steps
         assert _loop(viewer, 1.2) <= 2
         assert job.steps == steps
-    finally:
-        viewer.close()
 
 
 def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
-    viewer = open_viewer(write_grid_model(tmp_path / "model.ply"))
-    try:
+    with opened(open_viewer, write_grid_model(tmp_path / "model.ply")) as viewer:
         viewer.settings.mode = "reference"
         deadline = time.perf_counter() + 60
         while not viewer.drawing.reference_settled() and time.perf_counter() < deadline:
@@ -75,5 +71,3 @@ def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
         for _ in range(3):
             viewer.step()
         assert len(calls) == 1
-    finally:
-        viewer.close()

@@ -8,7 +8,7 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import open_grid_viewer, write_grid_model
+from viewer_cases import open_grid_viewer, opened, write_grid_model
 
 pytestmark = pytest.mark.gl
 
@@ -100,8 +100,7 @@ def test_crop_box_fits_the_model_and_its_handles_drag(xvfb, tmp_path):
     from inceptiongs.app.editing import box_handles, project_means
     from viewer_cases import open_viewer, write_table_model
 
-    viewer = open_viewer(write_table_model(tmp_path / "table.ply"), 900, 600)
-    try:
+    with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 900, 600) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.nav.center = viewer.nav.center - 1.2 * viewer.nav.rotation[0]  # the model right of the panel
         viewer.enable_crop()
@@ -123,5 +122,3 @@ def test_crop_box_fits_the_model_and_its_handles_drag(xvfb, tmp_path):
         np.testing.assert_allclose(new_lo, lo)
         np.testing.assert_allclose(new_hi[:2], hi[:2])
         assert not viewer.edit.selected.any()  # grabbing a handle did not look around or select
-    finally:
-        viewer.close()

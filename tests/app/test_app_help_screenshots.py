@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.app.settings import KEY_BINDINGS
-from viewer_cases import open_grid_viewer, write_grid_model
+from viewer_cases import open_grid_viewer, opened, write_grid_model
 
 
 def test_help_lists_every_binding():
@@ -24,8 +24,7 @@ def test_help_lists_every_binding():
 
 @pytest.mark.gl
 def test_h_shows_the_help_overlay(xvfb, tmp_path):
-    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 800, 600)
-    try:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 800, 600) as viewer:
         viewer.step()
         before = viewer.capture_window()
         viewer.input.on_key(viewer.window, glfw.KEY_H, 0, glfw.PRESS, 0)
@@ -39,19 +38,14 @@ def test_h_shows_the_help_overlay(xvfb, tmp_path):
         assert not viewer.show_help
         after = viewer.capture_window()
         assert np.abs(after[middle] - before[middle]).mean() < 0.01
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
 def test_f12_writes_the_format_of_the_extension_at_window_size(xvfb, tmp_path):
-    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 400, 300, with_ui=False)
-    try:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 400, 300, with_ui=False) as viewer:
         viewer.step()
         jpeg = viewer.save_screenshot(tmp_path / "x.jpg")
         png = viewer.save_screenshot(tmp_path / "x.png")
-    finally:
-        viewer.close()
     assert jpeg.read_bytes()[:3] == b"\xff\xd8\xff"        # JPEG data, not PNG data named .jpg
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     from inceptiongs.io.images import read_png
@@ -88,8 +82,7 @@ def test_the_help_appears_at_once_in_an_idle_window(xvfb, tmp_path):
     at once, so the help shows within a fraction of a second, not up to 2 s later."""
     import time
 
-    viewer = open_grid_viewer(write_grid_model(tmp_path / "model.ply"), 800, 600)
-    try:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 800, 600) as viewer:
         viewer.step()
         deadline = time.perf_counter() + 10
         while not viewer.is_idle() and time.perf_counter() < deadline:
@@ -107,5 +100,3 @@ def test_the_help_appears_at_once_in_an_idle_window(xvfb, tmp_path):
         during = viewer.capture_window()
         middle = np.s_[200:400, 430:560]
         assert np.abs(during[middle] - before[middle]).mean() > 0.05
-    finally:
-        viewer.close()

@@ -16,6 +16,7 @@ from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.errors import InputError
+from viewer_cases import opened
 
 
 def test_fresh_folder_never_returns_an_existing_one(tmp_path):
@@ -170,11 +171,10 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
 
-    viewer = Viewer(open_source(demo_scene), 900, 1000)
-    # The scene's work folder is in the cache directory: nothing is written into the scene.
-    runs = viewer.source.work_dir / "runs"
-    assert demo_scene not in runs.parents
-    try:
+    with opened(Viewer, open_source(demo_scene), 900, 1000) as viewer:
+        # The scene's work folder is in the cache directory: nothing is written into the scene.
+        runs = viewer.source.work_dir / "runs"
+        assert demo_scene not in runs.parents
         assert "sparse points" in viewer.title
         # A long schedule, stopped early: what a user does who trains "until it looks good".
         viewer.job_settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
@@ -211,8 +211,6 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
         viewer.step()
         assert "stopped" in viewer.title
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
@@ -223,8 +221,7 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
     from inceptiongs.io.images import write_png
     from viewer_cases import click_widget
 
-    viewer = Viewer(open_source(demo_scene), 1200, 1000)
-    try:
+    with opened(Viewer, open_source(demo_scene), 1200, 1000) as viewer:
         viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
         click_widget(viewer, "train (new run)")
         plan = viewer.training.plan
@@ -252,8 +249,6 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
         assert x1 - x0 >= 60
         (x0, x1), _ = limits["training loss"]
         assert x1 - x0 >= 40
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
@@ -274,8 +269,7 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
 
     minutes = 0.2
     monkeypatch.setattr("inceptiongs.train.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
-    viewer = Viewer(open_source(demo_scene), 1100, 1000)
-    try:
+    with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
         viewer.job_settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
         click_widget(viewer, "train (new run)")
         job = viewer.training.job
@@ -295,8 +289,6 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
         # Decayed: the schedule's end, or (rate fell late in the run) within the frozen slack.
         assert last >= (1.0 - BUDGET_FREEZE) * stored.iterations, (last, stored.iterations)
         assert f"at iteration {last}" in viewer.status
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
@@ -308,21 +300,15 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
     source = open_source(demo_scene)
     if source.run_dir is None:
         pytest.skip("needs the runs of test_train_twice_then_resume_never_overwrites (same module)")
-    viewer = Viewer(source, 320, 240)
-    try:
+    with opened(Viewer, source, 320, 240) as viewer:
         viewer.edit.select(np.arange(viewer.edit.count) % 2 == 0)
         viewer.delete_selection()
         shown = viewer.edit.visible_arrays()["means"]
         saved = viewer.save_ply(source.work_dir / "edited.ply")
-    finally:
-        viewer.close()
-    reopened = Viewer(open_source(demo_scene), 320, 240)
-    try:
+    with opened(Viewer, open_source(demo_scene), 320, 240) as reopened:
         assert reopened.source.model_path == saved and "edited.ply" in reopened.title
         assert reopened.run_dir is None and "edited.ply" in reopened.status
         np.testing.assert_allclose(reopened.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
-    finally:
-        reopened.close()
     time.sleep(0.05)
     # A run written to after the PLY is the newest again.
     (source.work_dir / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
@@ -359,8 +345,7 @@ def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, m
     stranger = tmp_path / "runs" / f"{demo_scene.name}_other"
     (stranger / "checkpoints").mkdir(parents=True)
     (stranger / "config.json").write_text(json.dumps({"scene": str(tmp_path / "elsewhere")}))
-    viewer = Viewer(open_source(demo_scene), 640, 480)
-    try:
+    with opened(Viewer, open_source(demo_scene), 640, 480) as viewer:
         runs = viewer.source.runs
         assert cli_run in runs and stranger not in runs
         assert any(work_dir in run.parents for run in runs), "the viewer's own runs are listed too"
@@ -373,8 +358,6 @@ def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, m
         assert viewer.edit.base["means"].shape != shown.shape or not np.allclose(viewer.edit.base["means"], shown)
         viewer.step()
         assert "runs of this scene" in viewer.ui_rects  # the list is in the Training panel
-    finally:
-        viewer.close()
     monkeypatch.chdir(demo_scene.parent)  # from elsewhere, the command line's ./runs is not looked at
     assert cli_run not in open_source(demo_scene).runs
 
@@ -387,8 +370,7 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
 
-    viewer = Viewer(open_source(demo_scene), 384, 288, with_ui=False)
-    try:
+    with opened(Viewer, open_source(demo_scene), 384, 288, with_ui=False) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.snap_to_camera(3)
         time.sleep(0.2)  # still: the full-resolution frames follow
@@ -408,8 +390,6 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
         inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
         assert np.abs(beside[-inset_h:, -inset_w:] - inset).mean() < 0.02  # the photo in the corner
         np.testing.assert_allclose(beside[:100, :150], render[:100, :150], atol=2 / 255)  # the render elsewhere
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
@@ -425,8 +405,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
     from inceptiongs.train.config import TrainConfig
     from viewer_cases import click_widget, press_key, type_into
 
-    viewer = Viewer(open_source(demo_scene), 1100, 1000)
-    try:
+    with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
         defaults = JobSettings()
         typed = {"time budget min": "1.5", "schedule iterations": "700", "downscale": "3"}
         assert (defaults.minutes, defaults.iterations, defaults.downscale) != (1.5, 700, 3)
@@ -466,8 +445,6 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         stored = BootstrapConfig.load(stored_file)
         assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
         viewer.training.stop()
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
@@ -495,8 +472,7 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
     (boot / "bootstrap").mkdir()
     BootstrapConfig().save(boot / "bootstrap" / "config.json")
     before = sorted(p.name for p in (boot / "checkpoints").iterdir())
-    viewer = Viewer(open_source(boot), 900, 1000)
-    try:
+    with opened(Viewer, open_source(boot), 900, 1000) as viewer:
         assert viewer.run_dir == boot
         viewer.step()
         assert "resume" in viewer.ui_rects and "why no resume" in viewer.ui_rects
@@ -509,14 +485,9 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
         assert viewer.training is None and "bootstrap" in viewer.status
         with pytest.raises(InputError, match="bootstrap"):
             resume_job_for(boot)
-    finally:
-        viewer.close()
-    viewer = Viewer(open_source(run), 900, 1000)
-    try:
+    with opened(Viewer, open_source(run), 900, 1000) as viewer:
         viewer.step()
         assert "why no resume" not in viewer.ui_rects
         click_widget(viewer, "resume")
         assert viewer.training is not None and viewer.training.job.resume, viewer.status
         viewer.training.stop()
-    finally:
-        viewer.close()

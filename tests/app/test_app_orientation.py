@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.app.navigation import UP_AXES, model_up
-from viewer_cases import open_viewer, synthetic_table, write_table_model
+from viewer_cases import open_viewer, opened, synthetic_table, write_table_model
 
 
 def test_model_up_is_the_dominant_planes_normal():
@@ -28,8 +28,7 @@ def _red_and_grey_rows(image: np.ndarray) -> tuple[float, float]:
 
 @pytest.mark.gl
 def test_a_model_without_cameras_opens_upright_and_orbits_level(xvfb, tmp_path):
-    viewer = open_viewer(write_table_model(tmp_path / "table.ply"), 480, 360)
-    try:
+    with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 480, 360) as viewer:
         np.testing.assert_array_equal(viewer.up, [0, 0, 1])
         nav = viewer.nav
         assert abs(nav.rotation[0] @ viewer.up) < 1e-9 and -nav.rotation[1] @ viewer.up > 0.3  # level, upright
@@ -44,16 +43,13 @@ def test_a_model_without_cameras_opens_upright_and_orbits_level(xvfb, tmp_path):
         viewer.set_up(UP_AXES["-Z"])
         red_row, grey_row = _red_and_grey_rows(viewer.render_image())
         assert red_row > grey_row and viewer.up_source == "chosen"
-    finally:
-        viewer.close()
 
 
 @pytest.mark.gl
 def test_home_key_frames_the_model(xvfb, tmp_path):
     import glfw
 
-    viewer = open_viewer(write_table_model(tmp_path / "table.ply"), 480, 360, with_ui=False)
-    try:
+    with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 480, 360, with_ui=False) as viewer:
         viewer.nav.center = viewer.nav.center - 30.0 * viewer.nav.rotation[2]  # far away: a dot
         forward = viewer.nav.rotation[2].copy()
         viewer.input.on_key(viewer.window, glfw.KEY_HOME, 0, glfw.PRESS, 0)
@@ -64,5 +60,3 @@ def test_home_key_frames_the_model(xvfb, tmp_path):
         # The model fills the view without leaving it: its extent spans much of the narrower side.
         assert (rows.max() - rows.min()) > 0.5 * 360 or (cols.max() - cols.min()) > 0.5 * 480
         assert rows.min() > 0 and cols.min() > 0 and rows.max() < 359 and cols.max() < 479
-    finally:
-        viewer.close()

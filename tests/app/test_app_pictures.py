@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import GOLDEN, GOLDEN_WINDOW_SIZE, front_camera, golden_window_images, write_grid_model
+from viewer_cases import (GOLDEN, GOLDEN_WINDOW_SIZE, front_camera, golden_window_images, opened,
+                          write_grid_model)
 
 pytestmark = pytest.mark.gl
 # llvmpipe builds may differ in the last bit of blending; a wrong picture moves far more.
@@ -93,8 +94,7 @@ def test_panel_follows_the_window_and_never_clips(xvfb, demo_scene):
 
     sizes = ((1600, 1000), (1280, 720), (800, 600))
     job = MovingGridJob()
-    viewer = open_viewer(demo_scene, *sizes[0], job_factory=lambda source: job)
-    try:
+    with opened(open_viewer, demo_scene, *sizes[0], job_factory=lambda source: job) as viewer:
         viewer.step()
         _assert_panel_fits(viewer, *sizes[0], "as opened")
         press_key(viewer, glfw.KEY_F)  # a flag, selected: its rename field shows
@@ -122,8 +122,6 @@ def test_panel_follows_the_window_and_never_clips(xvfb, demo_scene):
             viewer.step()
             viewer.step()
             _assert_panel_fits(viewer, width, height, "a job running")
-    finally:
-        viewer.close()
 
 
 def test_opacity_mode_equals_render_mode_alpha(xvfb, tmp_path):
@@ -154,8 +152,7 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
     from viewer_cases import open_viewer
 
     fern = require_data("fern")
-    viewer = open_viewer(fern, 320, 240)
-    try:
+    with opened(open_viewer, fern, 320, 240) as viewer:
         assert viewer.edit.count == 0 and "triangulating" in viewer.status
         deadline = time.time() + 300
         while viewer.points_worker is not None and time.time() < deadline:
@@ -166,8 +163,6 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
         viewer.step()
         image = viewer.render_image()
         assert (image.max(axis=2) > 0.05).mean() > 0.05  # not black: points cover the view
-    finally:
-        viewer.close()
 
 
 def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
@@ -180,8 +175,7 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
     from inceptiongs.app.images import PHOTO_INSET_FRACTION
     from viewer_cases import choose, open_viewer
 
-    viewer = open_viewer(demo_scene, 900, 700)
-    try:
+    with opened(open_viewer, demo_scene, 900, 700) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.step()
         choose(viewer, "training photo", "beside")
@@ -193,8 +187,6 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
         inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
         inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
         assert np.abs(window[-inset_h:, -inset_w:] - inset).mean() < 0.02
-    finally:
-        viewer.close()
 
 
 def test_training_frustums_at_the_eye_draw_no_lines_across_the_window(xvfb, demo_scene):
@@ -202,8 +194,7 @@ def test_training_frustums_at_the_eye_draw_no_lines_across_the_window(xvfb, demo
     blue lines across the whole window. Frustums that close are left out."""
     from viewer_cases import open_viewer
 
-    viewer = open_viewer(demo_scene, 640, 480, with_ui=False)
-    try:
+    with opened(open_viewer, demo_scene, 640, 480, with_ui=False) as viewer:
         for index in range(4):
             viewer.snap_to_camera(index)
             image = viewer.capture_window()
@@ -211,5 +202,3 @@ def test_training_frustums_at_the_eye_draw_no_lines_across_the_window(xvfb, demo
             # No frustum line runs along most of a row or a column (the far frustums are small).
             assert blue.sum(axis=0).max() < 0.5 * 480 and blue.sum(axis=1).max() < 0.5 * 640, index
             assert blue.any(), "the farther training cameras are still drawn"
-    finally:
-        viewer.close()

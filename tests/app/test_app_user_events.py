@@ -5,26 +5,15 @@ real app"): keys, mouse drags, panel combos and checkboxes, each an event as GLF
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, press_key, type_into,
-                          write_grid_model, write_table_model)
+from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, opened, press_key,
+                          type_into, write_grid_model, write_table_model)
 
 pytestmark = pytest.mark.gl
-
-
-@contextmanager
-def _opened(opener, *args):
-    """The real app opened by ``opener(*args)``, closed afterwards whatever happens."""
-    viewer = opener(*args)
-    try:
-        yield viewer
-    finally:
-        viewer.close()
 
 
 def _drag(viewer, start, end, steps: int = 6, button=glfw.MOUSE_BUTTON_LEFT) -> None:
@@ -41,7 +30,7 @@ def _drag(viewer, start, end, steps: int = 6, button=glfw.MOUSE_BUTTON_LEFT) -> 
 def test_mode_keys_mode_combo_and_f12(xvfb, tmp_path):
     from inceptiongs.io.images import read_png
 
-    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
         viewer.settings.show_training_cameras = False
         viewer.step()
         press_key(viewer, glfw.KEY_4)
@@ -58,7 +47,7 @@ def test_mode_keys_mode_combo_and_f12(xvfb, tmp_path):
 
 
 def test_orbit_key_and_drag_stay_level_and_the_up_combo_turns_the_world(xvfb, tmp_path):
-    with _opened(open_viewer, write_table_model(tmp_path / "table.ply"), 900, 700) as viewer:
+    with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 900, 700) as viewer:
         viewer.step()
         np.testing.assert_array_equal(viewer.up, [0, 0, 1])
         press_key(viewer, glfw.KEY_O)
@@ -75,7 +64,7 @@ def test_orbit_key_and_drag_stay_level_and_the_up_combo_turns_the_world(xvfb, tm
 
 
 def test_edit_panel_tool_combo_crop_checkbox_and_delete_key(xvfb, tmp_path):
-    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
         viewer.step()
         click_widget(viewer, "Edit")
         choose(viewer, "tool (left mouse)", "brush")
@@ -104,7 +93,7 @@ def test_the_jobs_share_of_the_cpu_is_a_slider_the_user_drags(xvfb, tmp_path):
     from viewer_cases import MovingGridJob
 
     job = MovingGridJob()
-    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
         viewer.job_factory = lambda source: job
         viewer.step()
         click_widget(viewer, "train (new run)")
@@ -155,7 +144,7 @@ def _press(viewer, x: float, y: float, button=glfw.MOUSE_BUTTON_LEFT) -> None:
 def test_flag_list_go_rename_and_delete_by_clicks_and_typing(xvfb, tmp_path):
     from inceptiongs.io.flags import load_flags
 
-    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
         viewer.step()
         _collapse(viewer, "View", "Inspect")
         _hover(viewer, 450, 240)                            # the mouse over the scene, off the panel
@@ -191,7 +180,7 @@ def test_flag_list_go_rename_and_delete_by_clicks_and_typing(xvfb, tmp_path):
 
 
 def test_scroll_zooms_towards_the_pivot_and_double_click_sets_it(xvfb, tmp_path):
-    with _opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
         press_key(viewer, glfw.KEY_TAB)                      # no panel: the whole window is the scene
         viewer.step()
         viewer.input.on_cursor(viewer.window, 320, 240)
@@ -253,7 +242,7 @@ def demo_scene(tmp_path_factory):
 
 
 def test_n_and_p_keys_step_through_the_training_cameras(xvfb, demo_scene):
-    with _opened(open_viewer, demo_scene, 320, 240) as viewer:
+    with opened(open_viewer, demo_scene, 320, 240) as viewer:
         cameras = viewer.cameras
         assert len(cameras) > 2 and viewer.camera_index == 0
         press_key(viewer, glfw.KEY_N)
@@ -271,7 +260,7 @@ def test_n_and_p_keys_step_through_the_training_cameras(xvfb, demo_scene):
 def test_reference_and_coverage_modes_from_the_combo_and_suggest_flags(xvfb, demo_scene):
     from inceptiongs.io.flags import load_flags
 
-    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+    with opened(open_viewer, demo_scene, 640, 480) as viewer:
         viewer.step()
         _collapse(viewer, "View")
         choose(viewer, "mode (1-6)", "reference")
@@ -302,7 +291,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
     from inceptiongs.io.ply import read_ply
 
     model = write_grid_model(tmp_path / "model.ply")
-    with _opened(open_grid_viewer, model, 640, 480) as viewer:
+    with opened(open_grid_viewer, model, 640, 480) as viewer:
         viewer.step()
         _collapse(viewer, "View", "Inspect", "Flags", "Training")
         click_widget(viewer, "Edit")
@@ -344,7 +333,7 @@ def test_save_ply_of_a_scene_goes_to_its_work_folder_never_the_scene_folder(xvfb
     from inceptiongs.io.ply import read_ply
 
     before = sorted(p.relative_to(demo_scene) for p in demo_scene.rglob("*"))
-    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+    with opened(open_viewer, demo_scene, 640, 480) as viewer:
         viewer.step()
         _collapse(viewer, "View", "Inspect", "Flags", "Training")
         click_widget(viewer, "Edit")
@@ -364,7 +353,7 @@ def test_demo_scene_opens_z_up_shown_as_plus_z_and_orbits_level(xvfb, demo_scene
     """The demo scene is built z up (inceptiongs/scene/demo.py) with level cameras on part of a
     circle: its up control shows "+Z" (it showed "tilted": the cameras' mean up leaned 13 deg),
     and an orbit drag keeps the horizon level about +Z."""
-    with _opened(open_viewer, demo_scene, 640, 480) as viewer:
+    with opened(open_viewer, demo_scene, 640, 480) as viewer:
         viewer.step()
         np.testing.assert_array_equal(viewer.up, [0.0, 0.0, 1.0])
         click_widget(viewer, "up, from the cameras")           # open the control, as a user looks

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import GOLDEN, MovingGridJob, click_widget, front_camera, open_grid_viewer, write_grid_model
+from viewer_cases import (GOLDEN, MovingGridJob, click_widget, front_camera, open_grid_viewer, opened,
+                          write_grid_model)
 
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
@@ -135,8 +136,7 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
     from inceptiongs.app import editing
     from inceptiongs.io.flags import load_flags
 
-    viewer = open_grid_viewer(model)
-    try:
+    with opened(open_grid_viewer, model) as viewer:
         viewer.step()
         # The F key, as GLFW delivers it.
         viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
@@ -166,21 +166,17 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         pixels, _ = editing.project_means(point[None], aimed)
         np.testing.assert_allclose(pixels[0], (aimed.cx, aimed.cy), atol=1e-6)
         assert abs(point[2]) < 0.1
-        # Reloaded on start.
-        viewer.close()
-        viewer = open_grid_viewer(model)
+    # Reloaded on start.
+    with opened(open_grid_viewer, model) as viewer:
         assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
         viewer.delete_flag(0)
         viewer.rename_flag(0, "bad corner")
         assert [f.name for f in load_flags(viewer.flags_file)] == ["bad corner"]
-    finally:
-        viewer.close()
 
 
 def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
     job = MovingGridJob()
-    viewer = open_grid_viewer(model, job_factory=lambda source: job)
-    try:
+    with opened(open_grid_viewer, model, job_factory=lambda source: job) as viewer:
         viewer.step()
         viewer.start_training()
         images, frames = [], viewer.stats.frames
@@ -202,8 +198,6 @@ def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
         time.sleep(0.2)
         assert job.steps == steps and viewer.training.state == "paused"
         viewer.training.resume()
-    finally:
-        viewer.close()
     assert job.checkpoint_written and viewer.training.state == "stopped"
 
 
@@ -212,8 +206,7 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
         def run(self, box, control):
             raise ValueError("CUDA out of memory (pretend)")
 
-    viewer = open_grid_viewer(model, job_factory=lambda source: Broken())
-    try:
+    with opened(open_grid_viewer, model, job_factory=lambda source: Broken()) as viewer:
         viewer.start_training()
         viewer.training._thread.join(10)
         frames = viewer.stats.frames
@@ -221,15 +214,12 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
         viewer.step()
         assert viewer.stats.frames == frames + 2
         assert viewer.training.state == "failed" and "out of memory" in viewer.training.error
-    finally:
-        viewer.close()
 
 
 def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
     from inceptiongs.io.ply import read_ply
 
-    viewer = open_grid_viewer(model)
-    try:
+    with opened(open_grid_viewer, model) as viewer:
         viewer.step()
         total = viewer.edit.count
         viewer.rectangle_select((320, 0), (640, 480))  # the right half of the window
@@ -247,15 +237,12 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
         viewer.step()
         assert viewer.edit.count == total
         np.testing.assert_allclose(viewer.render_image(), before, atol=1e-6)
-    finally:
-        viewer.close()
 
 
 def test_navigation_keys_move_the_camera(xvfb, model):
     import glfw
 
-    viewer = open_grid_viewer(model)
-    try:
+    with opened(open_grid_viewer, model) as viewer:
         viewer.step()
         start = viewer.nav.center.copy()
         forward = viewer.nav.rotation[2].copy()
@@ -271,8 +258,6 @@ def test_navigation_keys_move_the_camera(xvfb, model):
         assert viewer.stats.rendered_scale == 1.0  # refined once still
         viewer.input.on_key(viewer.window, glfw.KEY_R, 0, glfw.PRESS, 0)
         np.testing.assert_allclose(viewer.nav.center, start)
-    finally:
-        viewer.close()
 
 
 def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
@@ -298,8 +283,7 @@ def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
 
 def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
     job = MovingGridJob()
-    viewer = open_grid_viewer(model, 900, 900, job_factory=lambda source: job)
-    try:
+    with opened(open_grid_viewer, model, 900, 900, job_factory=lambda source: job) as viewer:
         viewer.step()
         click_widget(viewer, "train (new run)")
         assert viewer.training is not None and viewer.training.alive
@@ -311,5 +295,3 @@ def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
         viewer.training.stop()
         assert viewer.training.state == "stopped" and job.checkpoint_written
         assert not viewer.edit.selected.any()  # the clicks went to the panel, not to the scene
-    finally:
-        viewer.close()

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from viewer_cases import opened
+
 pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
 
@@ -31,8 +33,7 @@ def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.bootstrap.config import BootstrapConfig
 
-    viewer = Viewer(open_source(run_dir), 320, 240)
-    try:
+    with opened(Viewer, open_source(run_dir), 320, 240) as viewer:
         viewer.step()
         start_bootstrap(viewer)
         assert viewer.training is None and "no flagged views" in viewer.status
@@ -66,5 +67,3 @@ def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
         viewer.training.stop(timeout=120)
         assert first.read_bytes() == first_bytes
         assert (run_dir.with_name("run_bootstrap") / "checkpoints").is_dir()
-    finally:
-        viewer.close()
