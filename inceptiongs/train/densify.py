@@ -14,6 +14,7 @@ import torch
 
 from ..camera import unit_quat_to_rotation
 from .config import TrainConfig
+from .free_space import nearest_camera_distance
 from .optim import replace_rows, reset_moments
 
 # Split children are 1/1.6 the parent's size (the 3DGS factor for two children).
@@ -142,15 +143,6 @@ def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, c
         reach = torch.maximum(reach, nearest_camera_distance(params["means"].detach(), camera_centers))
     too_big = scale > config.prune_world_fraction * reach
     return too_big if max_radii is None else too_big | (max_radii > config.prune_screen_radius)
-
-
-def nearest_camera_distance(means: torch.Tensor, camera_centers: torch.Tensor) -> torch.Tensor:
-    """Distance of each of means [N, 3] to the nearest of camera_centers [C >= 1, 3]: [N] (in
-    row blocks: N x C distances of a 300k-Gaussian model would not fit at once)."""
-    centers = camera_centers.to(means.dtype)
-    if means.shape[0] == 0:
-        return torch.zeros(0, dtype=means.dtype)
-    return torch.cat([torch.cdist(block, centers).amin(1) for block in means.split(65_536)])
 
 
 def remove_rows(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, remove: torch.Tensor,

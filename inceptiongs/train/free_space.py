@@ -116,6 +116,17 @@ def near_a_camera(means: torch.Tensor, centers: torch.Tensor, radii: torch.Tenso
     return out
 
 
+def nearest_camera_distance(means: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
+    """Distance of each of means [N, 3] to the nearest of centers [C >= 1, 3]: [N] (cameras in
+    blocks of _PAIR_BUDGET pairs, as the other [N, C] tests)."""
+    nearest = torch.full((means.shape[0],), float("inf"), dtype=means.dtype)
+    step = _camera_block(means.shape[0])
+    for start in range(0, centers.shape[0], step):
+        block = torch.cdist(means, centers[start:start + step].to(means.dtype))                # [N, B]
+        nearest = torch.minimum(nearest, block.amin(1))
+    return nearest
+
+
 def contains_camera(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
                     centers: torch.Tensor, sigmas: float) -> torch.Tensor:
     """means [N, 3], log_scales [N, 3], quats [N, 4] (w, x, y, z), centers [C, 3] -> [N] bool:

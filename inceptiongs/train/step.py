@@ -378,14 +378,14 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     return record
 
 
-def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig) -> torch.Tensor:
-    """[N] bool: Gaussians in space the training cameras see through (inceptiongs.train.free_space)."""
+def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig, centers: torch.Tensor) -> torch.Tensor:
+    """[N] bool: Gaussians in space the training cameras (centres [C, 3]) see through
+    (inceptiongs.train.free_space)."""
     params = state.params
     flags = torch.zeros(params["means"].shape[0], dtype=torch.bool)
     if not config.free_space:
         return flags
     cameras = [data.cameras[i] for i in data.train]
-    centers = torch.tensor(np.stack([c.center for c in cameras]))
     flags |= contains_camera(params["means"], params["log_scales"], params["quats"], centers, config.camera_sigmas)
     if state.near is not None:
         flags |= before_near_bound(params["means"], cameras, state.near)
@@ -402,7 +402,8 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
     growing = step < config.densify_until
     prune_large = in_schedule and step >= config.prune_large_from
     carried = state.view_stats.tensors() if state.view_stats is not None else {}
-    flags = free_space_flags(state, data, config) if in_schedule else torch.zeros(
+    centers = torch.tensor(np.stack([data.cameras[i].center for i in data.train]))    # [C, 3]
+    flags = free_space_flags(state, data, config, centers) if in_schedule else torch.zeros(
         state.params["means"].shape[0], dtype=torch.bool)
     counts: dict = {"free_space": int(flags.sum())}
     if config.strategy == "mcmc":
@@ -432,8 +433,7 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
                                         prune_large=prune_large, generator=state.generator, grow=growing,
                                         carried=carried, background=in_background(state.params["means"].detach(),
                                                                                   state.sky),
-                                        camera_centers=torch.tensor(np.stack([data.cameras[i].center
-                                                                              for i in data.train]))))
+                                        camera_centers=centers))
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts

@@ -154,8 +154,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         steps, seconds = step - rate_mark[0], elapsed - rate_mark[1]
         if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:  # a rate needs both
             wanted, grow_budget = plan(step, steps / seconds, budget_s - elapsed)
-            changed = wanted is not None or (grow_budget is not None and grow_budget != config.max_gaussians)
-            previous = config.max_gaussians
+            before = config
             if wanted is not None:
                 log(f"time budget: {steps / seconds:.2f} steps/s at {state.params['means'].shape[0]} Gaussians, "
                     f"schedule re-sized from {config.iterations} to {wanted} iterations")
@@ -164,10 +163,10 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians, config.max_gaussians))
             if grow_budget is not None and grow_budget != config.max_gaussians:
                 config = dataclasses.replace(config, max_gaussians=grow_budget)
-                if abs(grow_budget - previous) > 0.1 * previous:   # previous >= 1: a validated budget
+                if abs(grow_budget - before.max_gaussians) > 0.1 * before.max_gaussians:   # >= 1: validated
                     log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "
                         f"{BUDGET_COST_RATIO:g}x the cost of the first model's)")
-            if changed:
+            if config is not before:   # each change above built a new config
                 config.save(run_dir / "config.json")
                 bar.total = config.iterations
         rate_mark = (step, elapsed)

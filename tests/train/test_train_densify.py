@@ -94,7 +94,8 @@ def test_opacity_reset_clamps_and_restarts_moments():
 
 
 def test_the_world_size_rule_lets_far_gaussians_be_as_large_as_their_distance():
-    from inceptiongs.train.densify import nearest_camera_distance, oversized
+    from inceptiongs.train.densify import oversized
+    from inceptiongs.train.free_space import nearest_camera_distance
 
     config = dataclasses.replace(TrainConfig(), prune_world_fraction=0.1)
     # Three Gaussians 0.5 wide: in the rig (distance 1), and far beyond it (distance 20 and 4).
