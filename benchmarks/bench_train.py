@@ -47,6 +47,8 @@ def main() -> int:
                         help="the free-space rules (on by default, as the train command)")
     parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=False,
                         help="the sky shell (off by default, as the train command)")
+    parser.add_argument("--sh-spread", type=float, default=None,
+                        help="degrees of view spread per SH degree (default: TrainConfig's; 0 = no per-Gaussian limit)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
@@ -75,6 +77,8 @@ def main() -> int:
             iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
             size_to_minutes=sized, free_space=args.free_space,
             sky_shell=args.sky_shell))
+        if args.sh_spread is not None:
+            config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
         return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
                                    checkpoint_every=max(args.eval_every, 500))
 

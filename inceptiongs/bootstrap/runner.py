@@ -137,6 +137,15 @@ def _write_summary(path: Path, summary: dict) -> None:
     atomic_write_text(path, json.dumps(json_safe(summary), indent=1) + "\n")
 
 
+def expected_total_steps(done: int, spent_s: float, left_s: float, cap: int, min_steps: int = 5) -> int:
+    """Steps a time-budgeted run will have made when its time runs out: ``done`` so far in
+    ``spent_s`` seconds of stepping, at the same rate for the ``left_s`` seconds left, at most
+    ``cap``. Before ``min_steps`` the rate is noise (the first steps build caches): the cap stands."""
+    if done < min_steps or spent_s <= 0.0:
+        return cap
+    return int(min(cap, done + max(left_s, 0.0) * done / spent_s))
+
+
 # --- the loop --------------------------------------------------------------------------------------
 def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Target] | None,
                   config: BootstrapConfig, control=None,
@@ -273,8 +282,21 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     finished = True
     last_eval = initial_eval
     rounds_done = 0
-    bar = tqdm(total=config.rounds * config.iterations, desc="bootstrap", file=sys.stderr,
+    step_cap = config.rounds * config.iterations
+    bar = tqdm(total=step_cap, desc="baseline" if baseline else "bootstrap", file=sys.stderr,
                dynamic_ncols=True, disable=not progress, unit="it")
+    first_step_at: list[float] = []                             # when the first refinement step began
+
+    def advance_bar() -> None:
+        """One step done. A time-budgeted run ends when its minutes are spent, usually long before
+        its step cap (the demo's baseline: 100 000): the bar's total is the steps the measured
+        rate fits into the time left, so its count and ETA are the run's, not the cap's."""
+        bar.update(1)
+        if config.minutes is not None and first_step_at:
+            total = expected_total_steps(bar.n, now() - first_step_at[0], 60.0 * config.minutes - now(), step_cap)
+            if total != bar.total:
+                bar.total = total
+                bar.refresh()
 
     def checkpoint_now(round_index: int) -> None:
         state.wall_s, state.train_s = now(), now() - eval_s
@@ -384,6 +406,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     stopped = True
                     break
                 step = state.iteration + 1
+                if not first_step_at:
+                    first_step_at.append(now())
                 # A regeneration pays off over the steps after it: none for a round's last few.
                 if (pool and config.regenerate_every and (step - start) % config.regenerate_every == 0
                         and round_end - step + 1 >= max(1, config.regenerate_every // 2)):
@@ -417,7 +441,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     record["kind"] = "real"
                     step_counts["real"] += 1
                 state.iteration = step
-                bar.update(1)
+                advance_bar()
                 if step % config.log_every == 0:
                     record.update(iteration=step, wall_s=now(), train_s=now() - eval_s, round=round_index + 1)
                     if conscience is not None:

@@ -13,7 +13,7 @@ import torch
 from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.bootstrap.generation import cache_key
 from inceptiongs.bootstrap.refine import continuation_config, probability
-from inceptiongs.bootstrap.runner import resolve_targets, run_bootstrap
+from inceptiongs.bootstrap.runner import expected_total_steps, resolve_targets, run_bootstrap
 from inceptiongs.bootstrap.targets import Target, round_targets
 from inceptiongs.io.flags import read_flag_cameras
 from inceptiongs.cli import main
@@ -173,6 +173,15 @@ def test_continuation_schedule_and_sampling_weight():
     assert frozen.densify_until <= 100
     assert probability(0.0) == 1.0 and probability(0.5) == pytest.approx(np.exp(0.5))
     assert probability(1e9) < np.inf
+
+
+def test_a_time_budgeted_bar_counts_the_steps_the_time_allows():
+    # 100 steps in 50 s, 25 s left: 150 steps at that rate, not the 100 000-step cap.
+    assert expected_total_steps(100, 50.0, 25.0, 100_000) == 150
+    assert expected_total_steps(100, 50.0, 10_000.0, 1_000) == 1_000      # the cap still binds
+    assert expected_total_steps(100, 50.0, -3.0, 100_000) == 100          # time already spent
+    assert expected_total_steps(3, 1.0, 60.0, 100_000) == 100_000         # too few steps to trust a rate
+    assert expected_total_steps(10, 0.0, 60.0, 500) == 500                # no time measured yet
 
 
 def test_round_targets_and_cache_keys():
