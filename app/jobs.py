@@ -35,6 +35,7 @@ class JobSettings:
     downscale: int = 2
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
     strategy: str = "default"       # inceptiongs.train.config.STRATEGIES
+    sky_shell: bool | None = None   # None: TrainConfig's default (as `inceptiongs train` without the flag)
     # Stage II.
     bootstrap_minutes: float | None = 4.0
     bootstrap_iterations: int = 300
@@ -49,9 +50,10 @@ class JobSettings:
         from inceptiongs.train.config import TrainConfig, schedule_length, short_run_schedule
 
         iterations, sized = schedule_length(self.iterations or None, self.minutes)
+        sky_shell = TrainConfig.sky_shell if self.sky_shell is None else self.sky_shell
         config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
                              protocol=self.protocol, iterations=iterations, minutes=self.minutes,
-                             strategy=self.strategy, size_to_minutes=sized)
+                             strategy=self.strategy, size_to_minutes=sized, sky_shell=sky_shell)
         config = short_run_schedule(config.validate("job settings"))
         return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
                                    log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))

@@ -11,7 +11,7 @@ from .jobs import SIZED_TO_BUDGET, start_bootstrap
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
-from inceptiongs.train.config import STRATEGIES, schedule_length
+from inceptiongs.train.config import STRATEGIES, TrainConfig, schedule_length
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
 
@@ -410,6 +410,11 @@ def _job_settings(viewer) -> None:
     changed, index = _combo(viewer, "strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
     if changed:
         settings.strategy = STRATEGIES[index]
+    sky_on = TrainConfig.sky_shell if settings.sky_shell is None else settings.sky_shell
+    changed, sky_on = imgui.checkbox("sky shell (a backdrop where photos show no points)", sky_on)
+    _remember(viewer, "sky shell")
+    if changed:
+        settings.sky_shell = sky_on
     imgui.text_disabled("stage II (bootstrap)")
     settings.bootstrap_minutes = _optional_minutes(viewer, "bootstrap budget min", "bootstrap budget",
                                                    settings.bootstrap_minutes, 4.0)

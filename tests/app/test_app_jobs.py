@@ -15,6 +15,7 @@ import pytest
 from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, resume_job_for, start_bootstrap,
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
+from inceptiongs.train.config import TrainConfig
 from inceptiongs.errors import InputError
 from viewer_cases import opened
 
@@ -40,7 +41,7 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     settings = JobSettings(minutes=2.0, iterations=800, downscale=3, protocol="llff", strategy="mcmc")
     ours = settings.train_config(tmp_path)
     args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
-                              seed=0, no_pgsr=False, strategy="mcmc", free_space=True, sky_shell=False)
+                              seed=0, no_pgsr=False, strategy="mcmc", free_space=True, sky_shell=TrainConfig.sky_shell)
     cli = build_config(args)
     # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
     assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
@@ -62,7 +63,7 @@ def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
     def cli(minutes, iterations):
         return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
                                                downscale=2, protocol="unstructured", seed=0, no_pgsr=False,
-                                               strategy="default", free_space=True, sky_shell=False))
+                                               strategy="default", free_space=True, sky_shell=TrainConfig.sky_shell))
 
     def viewer(**fields):
         config = JobSettings(**fields).train_config(tmp_path)
@@ -415,12 +416,16 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
             type_into(viewer, label, text)
         assert (viewer.job_settings.minutes, viewer.job_settings.iterations, viewer.job_settings.downscale) == (
             1.5, 700, 3)
+        click_widget(viewer, "sky shell")  # the checkbox flips the command line's default
+        sky = not TrainConfig.sky_shell
+        assert viewer.job_settings.sky_shell is sky
         click_widget(viewer, "train (new run)")
         job = viewer.training.job
-        assert (job.config.minutes, job.config.iterations, job.config.downscale) == (1.5, 700, 3)
+        assert (job.config.minutes, job.config.iterations, job.config.downscale, job.config.sky_shell) == (
+            1.5, 700, 3, sky)
         _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.training.progress.iteration >= 10)
         stored = TrainConfig.load(job.run_dir / "config.json")
-        assert (stored.minutes, stored.iterations, stored.downscale) == (1.5, 700, 3)
+        assert (stored.minutes, stored.iterations, stored.downscale, stored.sky_shell) == (1.5, 700, 3, sky)
         click_widget(viewer, "stop")
         _wait(viewer, lambda: not viewer.training.alive)
         assert viewer.training.error is None, viewer.training.error
