@@ -1,0 +1,410 @@
+"""Where a sky-shell run's held-out error lies, and whether the training views' visual hull
+disagrees with the render there (issue 21, the silhouette step: measure before building).
+
+    python benchmarks/bench_silhouette.py RUN [--samples 384 | --samples 0] [--dilate 1] [--truth-masks]
+
+RUN must be trained with the sky shell (``--sky-shell``): its checkpoint's sphere splits the
+Gaussians into foreground (inside BACKGROUND_FRACTION of the shell's radius) and background, so
+every render has a foreground alpha. Per held-out group (scarce, covered), pooled over its views:
+
+* the share of the squared error (and of the pixels, and the PSNR) within EDGE_BAND px of the
+  render's foreground/background edge, inside the foreground, in the background; and, inside the
+  foreground, within EDGE_BAND px of a depth edge (bench_geometry_term's band: object contours);
+* the visual hull: the training views' rendered foreground masks (alpha > 0.5, dilated by
+  --dilate px so that a one-pixel misregistration carves nothing) carved into the held-out view.
+  Along each pixel's ray, --samples depths (uniform in disparity, from NEAR to where the ray leaves
+  the foreground sphere) are projected into every training view; a point inside some view's image
+  is carved when a view sees it as background, occupied when every view that sees it says
+  foreground. A pixel is hull-foreground if its ray meets an occupied point, hull-background if
+  every point is carved, else unknown. Reported: how often hull and render disagree (pixels where
+  the hull is known), the error's share there, and, on the procedural demo scene (where the
+  ground truth can be ray-traced), which side the truth takes and how well the training masks
+  match the photos' true sky;
+* the shell behind the silhouettes: its Gaussians seen as sky by some training view (at the
+  centre's pixel the view's foreground alpha is < 0.5), hidden (framed, but always behind the
+  foreground) or outside every image; on the demo, their colour error against the true sky, the
+  held-out error where the hidden ones show, and the group's PSNR with the true sky behind the
+  foreground (an oracle: what the shell costs);
+* a fill that uses the training views only: each hidden shell Gaussian takes the mean colour and
+  opacity of its FILL_NEIGHBOURS nearest seen ones; the group's PSNR (pooled, and the mean over
+  views as `inceptiongs eval` reports it) before and after.
+
+Timings are not measured; the hull takes ~1 min on the 96 x 72 demo (two cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from bench_geometry_term import EDGE_BAND, edge_band, psnr_of
+
+# Rays start this far in front of the camera (normalised scene units; the demo's objects sit
+# 0.3-1 units away).
+NEAR = 0.02
+FOREGROUND_ALPHA = 0.5
+HULL_FG, HULL_BG, HULL_UNKNOWN = 1, 0, -1
+# A foreground pixel off the silhouette rendered with less alpha than this lets the sky shell
+# show through a surface.
+OPAQUE = 0.95
+# A truly-sky pixel with more foreground alpha than this is part of a halo round the silhouette.
+HALO_ALPHA = 0.05
+# Seen shell Gaussians whose colours fill a hidden one (fill_hidden_shell).
+FILL_NEIGHBOURS = 8
+# Rays per pixel side for the demo's ray-traced coverage (the photos use 2 x 2).
+TRUTH_SAMPLES = 4
+# A silhouette pixel whose rendered foreground alpha is off the true coverage by more than this
+# is "misplaced" (about a quarter pixel of edge position for a straight edge).
+ALPHA_OFF = 0.25
+
+
+def band_of(mask: torch.Tensor, width: int = EDGE_BAND) -> torch.Tensor:
+    """mask [h, w] bool -> [h, w] bool: pixels within ``width`` px of a change of ``mask``."""
+    m = mask[None, None].float()
+    size = 2 * width + 1
+    grown = F.max_pool2d(m, size, stride=1, padding=width)
+    shrunk = -F.max_pool2d(-m, size, stride=1, padding=width)
+    return (grown != shrunk)[0, 0]
+
+
+def dilate(mask: torch.Tensor, width: int) -> torch.Tensor:
+    """mask [h, w] bool grown by ``width`` px (square), unchanged for width 0."""
+    if width <= 0:
+        return mask
+    return F.max_pool2d(mask[None, None].float(), 2 * width + 1, stride=1, padding=width)[0, 0] > 0
+
+
+def pixel_rays(camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """(centre [3], directions [h*w, 3] with camera-z component 1) through pixel centres, world frame."""
+    j, i = torch.meshgrid(torch.arange(camera.height, dtype=torch.float64),
+                          torch.arange(camera.width, dtype=torch.float64), indexing="ij")
+    local = torch.stack([(i + 0.5 - camera.cx) / camera.fx, (j + 0.5 - camera.cy) / camera.fy,
+                         torch.ones_like(i)], -1).reshape(-1, 3)
+    rotation = torch.as_tensor(camera.world_to_camera[:3, :3], dtype=torch.float64)
+    return torch.as_tensor(camera.center, dtype=torch.float64), local @ rotation   # R^T d, row form
+
+
+def ray_depths(center: torch.Tensor, directions: torch.Tensor, sphere: torch.Tensor, samples: int) -> torch.Tensor:
+    """Camera-z depths [R, samples] from NEAR to the exit of ``sphere`` [4] (centre, radius),
+    uniform in disparity (even steps in the other views' pixels). The camera is inside the sphere,
+    so the quadratic has a positive root; a ray leaving before NEAR gets NEAR alone."""
+    oc = center - sphere[:3]
+    a = (directions ** 2).sum(1)                                      # >= 1: z component is 1
+    b = 2.0 * (directions @ oc)
+    c = float(oc @ oc - sphere[3] ** 2)                               # < 0 inside the sphere
+    far = (-b + torch.sqrt((b * b - 4.0 * a * c).clamp_min(0.0))) / (2.0 * a)
+    far = far.clamp_min(NEAR)
+    s = torch.linspace(0.0, 1.0, samples, dtype=torch.float64)
+    return 1.0 / ((1.0 - s) / NEAR + s / far[:, None])                # disparities > 0
+
+
+def visual_hull(camera, masks: list[tuple[object, torch.Tensor]], sphere: torch.Tensor, samples: int) -> torch.Tensor:
+    """[h, w] int8 labels HULL_FG / HULL_BG / HULL_UNKNOWN of ``camera``'s pixels from the
+    foreground masks [H_k, W_k] bool of the views in ``masks`` (a list of (camera, mask))."""
+    center, directions = pixel_rays(camera)
+    depths = ray_depths(center, directions, sphere, samples)           # [R, S]
+    points = center + directions[:, None, :] * depths[..., None]      # [R, S, 3]
+    seen = torch.zeros(depths.shape, dtype=torch.bool)
+    carved = torch.zeros(depths.shape, dtype=torch.bool)
+    for view, mask in masks:
+        pose = torch.as_tensor(view.world_to_camera, dtype=torch.float64)
+        local = points @ pose[:3, :3].T + pose[:3, 3]
+        z = local[..., 2]
+        front = z > 1e-6                                               # divide only in front
+        zs = torch.where(front, z, torch.ones_like(z))
+        u = torch.floor(view.fx * local[..., 0] / zs + view.cx)
+        v = torch.floor(view.fy * local[..., 1] / zs + view.cy)
+        inside = front & (u >= 0) & (u < view.width) & (v >= 0) & (v < view.height)
+        flat = (v.clamp(0, view.height - 1) * view.width + u.clamp(0, view.width - 1)).long()
+        foreground = mask.reshape(-1)[flat]
+        seen |= inside
+        carved |= inside & ~foreground
+    occupied = seen & ~carved
+    labels = torch.full((depths.shape[0],), HULL_UNKNOWN, dtype=torch.int8)
+    labels[carved.all(1)] = HULL_BG
+    labels[occupied.any(1)] = HULL_FG
+    return labels.reshape(camera.height, camera.width)
+
+
+def true_coverage(scene, camera) -> torch.Tensor | None:
+    """[h, w] float in [0, 1]: the share of 4 x 4 rays per pixel that hit the procedural demo
+    scene's geometry (not its sky); None when the scene is not the objects demo."""
+    import json
+
+    from inceptiongs.scene.demo import Textures, camera_rays, trace
+
+    description = Path(scene.root) / "demo_scene.json"
+    if not description.is_file() or json.loads(description.read_text()).get("scene") != "objects":
+        return None
+    original = scene.normalization.camera_to_original(camera)
+    grid = (np.arange(TRUTH_SAMPLES) + 0.5) / TRUTH_SAMPLES
+    offsets = np.array([(a, b) for b in grid for a in grid])
+    origins, dirs = camera_rays(original, offsets)
+    _, distance = trace(np.ascontiguousarray(origins), dirs, Textures(noise=np.zeros((64, 64))))
+    hit = np.isfinite(distance).reshape(len(offsets), camera.height, camera.width).mean(0)
+    return torch.as_tensor(hit, dtype=torch.float32)
+
+
+def shell_exposure(shell, cameras: list, alphas: list[torch.Tensor]) -> torch.Tensor:
+    """[S] int8 per shell Gaussian (means [S, 3]): 1 if some camera frames its centre where that
+    camera's foreground alpha ([h, w], one per camera) is < FOREGROUND_ALPHA (seen as sky), 0 if
+    the cameras that frame it all see foreground there (hidden behind the scene), -1 if none frames it."""
+    from inceptiongs.camera import project_points
+
+    means = shell.means.detach().double().numpy()
+    framed = np.zeros(len(means), dtype=bool)
+    sky = np.zeros(len(means), dtype=bool)
+    for camera, alpha in zip(cameras, alphas):
+        pixels, _, inside = project_points(means, camera)
+        rows = np.nonzero(inside)[0]
+        u = np.minimum(pixels[rows, 0].astype(np.int64), camera.width - 1)
+        v = np.minimum(pixels[rows, 1].astype(np.int64), camera.height - 1)
+        framed[rows] = True
+        sky[rows[alpha.numpy()[v, u] < FOREGROUND_ALPHA]] = True
+    return torch.as_tensor(np.where(sky, 1, np.where(framed, 0, -1)), dtype=torch.int8)
+
+
+def true_sky_colours(scene, means: torch.Tensor, sphere: torch.Tensor) -> np.ndarray | None:
+    """[S, 3]: the demo's sky colour in the direction of each shell point (means [S, 3], normalised
+    frame) from the shell's centre; None when the scene is not the objects demo."""
+    import json
+
+    from inceptiongs.scene.demo import Textures, trace
+
+    description = Path(scene.root) / "demo_scene.json"
+    if not description.is_file() or json.loads(description.read_text()).get("scene") != "objects":
+        return None
+    points = means.detach().double().numpy()
+    outward = points - sphere[:3].numpy()
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)   # shell points lie at the radius > 0
+    # Cast from the shell point outwards: nothing of the scene lies beyond it, so every ray is sky.
+    colours, distance = trace(scene.normalization.to_original(points), outward, Textures(noise=np.zeros((64, 64))))
+    assert not np.isfinite(distance).any(), "a ray cast outward from the shell hit the scene"
+    return colours
+
+
+def fill_hidden_shell(gaussians, background: torch.Tensor, exposure: torch.Tensor,
+                      neighbours: int = FILL_NEIGHBOURS):
+    """``gaussians`` with each hidden shell Gaussian (background [N] bool; exposure [S] of the
+    background ones in order, 0 = hidden: see :func:`shell_exposure`) given the mean base colour
+    (SH DC) and the mean opacity logit of its ``neighbours`` nearest shell Gaussians seen as sky,
+    and no view-dependent colour: a classical fill of the sky behind the scene's silhouettes, from
+    the training views alone. Unchanged when nothing is hidden or nothing was seen."""
+    from dataclasses import replace
+
+    index = torch.nonzero(background).squeeze(-1)
+    hidden, seen = index[exposure == 0], index[exposure == 1]
+    if len(hidden) == 0 or len(seen) == 0:
+        return gaussians
+    distances = torch.cdist(gaussians.means[hidden].double(), gaussians.means[seen].double())   # [H, V]
+    nearest = distances.topk(min(neighbours, len(seen)), dim=1, largest=False).indices            # [H, k]
+    sh = gaussians.sh.detach().clone()
+    sh[hidden, 0] = sh[seen][nearest, 0].mean(1)
+    sh[hidden, 1:] = 0.0
+    logits = gaussians.opacity_logits.detach().clone()
+    logits[hidden] = logits[seen][nearest].mean(1)
+    return replace(gaussians, sh=sh, opacity_logits=logits)
+
+
+class Pool:
+    """Sums of squared error and pixel counts over named pixel sets, pooled over views."""
+
+    def __init__(self) -> None:
+        self.error: dict[str, float] = {}
+        self.pixels: dict[str, int] = {}
+        self.total_error = 0.0
+        self.total_pixels = 0
+
+    def add(self, error: torch.Tensor, sets: dict[str, torch.Tensor]) -> None:
+        self.total_error += float(error.sum())
+        self.total_pixels += error.numel()
+        for name, where in sets.items():
+            self.error[name] = self.error.get(name, 0.0) + float(error[where].sum())
+            self.pixels[name] = self.pixels.get(name, 0) + int(where.sum())
+
+    def row(self, name: str) -> str:
+        e, n = self.error.get(name, 0.0), self.pixels.get(name, 0)
+        psnr = psnr_of(torch.tensor(e / n)) if n else float("nan")
+        return (f"{name:<34}{100 * e / max(self.total_error, 1e-12):>8.1f} %{100 * n / max(self.total_pixels, 1):>8.1f} %"
+                f"{psnr:>9.2f}")
+
+
+def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
+    """Print the figures of the module docstring for ``run``; samples 0 skips the hull."""
+    from inceptiongs.bootstrap.runner import load_stage1
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background
+
+    _, scene, split, payload, gaussians = load_stage1(Path(run))
+    sphere = None if payload is None else payload.get("sky")
+    if sphere is None:
+        raise SystemExit(f"{run}: no sky shell in the checkpoint (train with --sky-shell)")
+    sphere = sphere.to(torch.float64)
+    foreground_sphere = torch.cat([sphere[:3], sphere[3:] * BACKGROUND_FRACTION])
+    foreground = gaussians.subset(~in_background(gaussians.means, sphere))
+    cameras = scene.cameras
+
+    shell = gaussians.subset(in_background(gaussians.means, sphere))
+
+    def shell_rgb(camera) -> torch.Tensor:
+        with torch.no_grad():
+            return render(shell, camera)["rgb"]
+
+    def alpha_of(camera) -> torch.Tensor:
+        with torch.no_grad():
+            return render(foreground, camera, outputs=("alpha",))["alpha"][..., 0]
+
+    masks, mask_wrong, mask_pixels, train_alphas = [], 0, 0, []
+    for i in split.train:
+        train_alphas.append(alpha_of(cameras[i]))
+        rendered = train_alphas[-1] > FOREGROUND_ALPHA
+        coverage = true_coverage(scene, cameras[i])
+        if coverage is not None:
+            truth = coverage > 0.5
+            mask_wrong += int((rendered != truth).sum())
+            mask_pixels += rendered.numel()
+        if truth_masks and coverage is None:
+            raise SystemExit(f"{run}: --truth-masks needs the procedural objects demo scene")
+        masks.append((cameras[i], dilate(truth if truth_masks else rendered, dilation)))
+    print(f"{run}: {len(foreground)} foreground / {len(gaussians) - len(foreground)} background Gaussians; "
+          f"{len(masks)} {'ray-traced' if truth_masks else 'rendered'} training masks (dilated {dilation} px), "
+          f"{samples} samples per ray")
+    if mask_pixels:
+        print(f"training masks vs the ray-traced truth: {100 * mask_wrong / mask_pixels:.2f} % of pixels differ")
+    exposure = shell_exposure(shell, [cameras[i] for i in split.train], train_alphas)
+    hidden = (exposure == 0).to(shell.dtype)[:, None]                       # feature [S, 1]
+    sky_colours = true_sky_colours(scene, shell.means, sphere)
+    from inceptiongs.rasterizer.sh import sh_to_color
+
+    outward = shell.means.detach() - sphere[:3].to(shell.dtype)
+    outward = outward / outward.norm(dim=1, keepdim=True)                   # shell points at radius > 0
+    shell_colours = sh_to_color(shell.sh.detach(), outward, shell.sh_degree).clamp(0.0, 1.0).double().numpy()
+    for code, name in ((1, "seen as sky by a training view"), (0, "framed, always behind the foreground"),
+                       (-1, "outside every training image")):
+        where = (exposure == code).numpy()
+        line = f"shell Gaussians {name}: {int(where.sum())}"
+        if sky_colours is not None and where.any():
+            rms = float(np.sqrt(((shell_colours[where] - sky_colours[where]) ** 2).mean()))
+            line += f", RMS colour error against the true sky {rms:.3f}"
+        print(line)
+
+    filled = fill_hidden_shell(gaussians, in_background(gaussians.means, sphere), exposure)
+    for group in ("scarce_test", "covered_test"):
+        pool = Pool()
+        fill_error, view_psnr = 0.0, {"render": [], "filled": []}
+        shell_pool = {"error": 0.0, "pixels": 0, "alpha": 0.0, "true sky error": 0.0}
+        votes = {f"hull {side}: truth with {who}": 0 for side in ("fg", "bg") for who in ("hull", "render")}
+        for view in getattr(split, group):
+            camera = cameras[view]
+            with torch.no_grad():
+                out = render(gaussians, camera, outputs=("rgb", "depth"))
+            photo = torch.as_tensor(np.asarray(scene.load_image(view)), dtype=torch.float32)
+            error = ((out["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)                # [h, w]
+            with torch.no_grad():
+                error_filled = ((render(filled, camera)["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)
+            fill_error += float(error_filled.sum())
+            view_psnr["render"].append(psnr_of(error.mean()))
+            view_psnr["filled"].append(psnr_of(error_filled.mean()))
+            alpha = alpha_of(camera)
+            rendered = alpha > FOREGROUND_ALPHA
+            silhouette = band_of(rendered)
+            depth_edges = edge_band(out["depth"]) & rendered & ~silhouette
+            hull = (visual_hull(camera, masks, foreground_sphere, samples) if samples
+                    else torch.full(rendered.shape, HULL_UNKNOWN, dtype=torch.int8))
+            known = hull != HULL_UNKNOWN
+            disagree = known & ((hull == HULL_FG) != rendered)
+            sets = {
+                f"fg/bg edge (<= {EDGE_BAND} px)": silhouette,
+                "foreground, off the edge": rendered & ~silhouette,
+                f"  of which depth edges (<= {EDGE_BAND} px)": depth_edges,
+                "  of which the rest": rendered & ~silhouette & ~depth_edges,
+                f"  of which alpha < {OPAQUE} (see-through)": rendered & ~silhouette & (alpha < OPAQUE),
+                "background, off the edge": ~rendered & ~silhouette,
+            }
+            if samples:
+                sets.update({
+                    "hull unknown": ~known,
+                    "hull fg, render bg": disagree & (hull == HULL_FG),
+                    "hull bg, render fg": disagree & (hull == HULL_BG),
+                    "hull and render disagree": disagree,
+                    "  of which off the fg/bg edge": disagree & ~silhouette,
+                })
+            coverage = true_coverage(scene, camera)
+            if coverage is not None:
+                truth = coverage > 0.5
+                misplaced = (alpha - coverage).abs() > ALPHA_OFF
+                sets[f"fg/bg edge, |alpha - truth| > {ALPHA_OFF}"] = silhouette & misplaced
+                sets[f"fg/bg edge, |alpha - truth| <= {ALPHA_OFF}"] = silhouette & ~misplaced
+                sets["fg/bg edge, truly all foreground"] = silhouette & (coverage >= 1.0)
+                sets["fg/bg edge, truly mixed"] = silhouette & (coverage > 0.0) & (coverage < 1.0)
+                sets["fg/bg edge, truly all sky"] = silhouette & (coverage <= 0.0)
+                sets["  of which fg alpha > 0.05 (halo)"] = silhouette & (coverage <= 0.0) & (alpha > HALO_ALPHA)
+                if samples:
+                    sets["  of which the hull says sky"] = silhouette & (coverage <= 0.0) & (hull == HULL_BG)
+                with torch.no_grad():
+                    shown = render(shell, camera, outputs=("alpha", "features"), features=hidden)
+                # The shell's own alpha is > 0 wherever it is framed; the floor keeps 0/0 out.
+                hidden_share = shown["features"][..., 0] / shown["alpha"][..., 0].clamp_min(1e-6)
+                sets["  of which the shell there was hidden"] = silhouette & (coverage <= 0.0) & (hidden_share > 0.5)
+                behind = shell_rgb(camera)
+                shell_error = ((behind.clamp(0.0, 1.0) - photo) ** 2).mean(-1)
+                # The render with the true sky (the photo, where all of a pixel's rays miss the
+                # scene) behind the foreground instead of the shell: what the shell costs.
+                sky = (coverage <= 0.0)[..., None]
+                with_true_sky = torch.where(sky, out["rgb"] - (1.0 - alpha[..., None]) * behind
+                                            + (1.0 - alpha[..., None]) * photo, out["rgb"]).clamp(0.0, 1.0)
+                shell_pool["true sky error"] += float(((with_true_sky - photo) ** 2).mean(-1).sum())
+                sky_band = silhouette & (coverage <= 0.0)
+                shell_pool["error"] += float(shell_error[sky_band].sum())
+                shell_pool["pixels"] += int(sky_band.sum())
+                shell_pool["alpha"] += float(alpha[sky_band].sum())
+                wrong = rendered != truth
+                sets["render fg != truth"] = wrong
+                if samples:
+                    sets["  of which the hull is right"] = wrong & known & ((hull == HULL_FG) == truth)
+                for kind in (HULL_FG, HULL_BG):
+                    here = disagree & (hull == kind)
+                    votes[f"hull {'fg' if kind == HULL_FG else 'bg'}: truth with hull"] += int((here & ((hull == HULL_FG) == truth)).sum())
+                    votes[f"hull {'fg' if kind == HULL_FG else 'bg'}: truth with render"] += int((here & (rendered == truth)).sum())
+            pool.add(error, sets)
+        print(f"\n{group.split('_')[0]} ({len(getattr(split, group))} views, PSNR {psnr_of(torch.tensor(pool.total_error / pool.total_pixels)):.2f})"
+              f"\n{'pixel set':<34}{'error':>10}{'pixels':>10}{'PSNR':>9}")
+        for name in pool.error:
+            print(pool.row(name))
+        if shell_pool["pixels"]:
+            print(f"truly-sky pixels at the fg/bg edge: mean foreground alpha {shell_pool['alpha'] / shell_pool['pixels']:.3f}; "
+                  f"the shell alone scores {psnr_of(torch.tensor(shell_pool['error'] / shell_pool['pixels'])):.2f} dB there; "
+                  f"with the true sky behind the foreground on every truly-sky pixel the group scores "
+                  f"{psnr_of(torch.tensor(shell_pool['true sky error'] / pool.total_pixels)):.2f} dB")
+        print(f"the hidden shell filled (colour and opacity) from its {FILL_NEIGHBOURS} nearest seen neighbours: PSNR "
+              f"{psnr_of(torch.tensor(fill_error / pool.total_pixels)):.2f} pooled (render "
+              f"{psnr_of(torch.tensor(pool.total_error / pool.total_pixels)):.2f}); mean over views "
+              f"{np.mean(view_psnr['filled']):.2f} (render {np.mean(view_psnr['render']):.2f})")
+        if any(votes.values()):
+            print("where hull and render disagree, pixels on each side of the ray-traced truth: "
+                  + "; ".join(f"{name} {count}" for name, count in votes.items()))
+        sys.stdout.flush()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run")
+    parser.add_argument("--samples", type=int, default=384, help="depths per ray for the hull (0: no hull)")
+    parser.add_argument("--dilate", type=int, default=1, help="px the training masks grow before carving")
+    parser.add_argument("--truth-masks", action="store_true",
+                        help="carve with the ray-traced true masks instead of the rendered ones (objects demo only): "
+                             "the hull's own limit, without the render's mask errors")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(2)
+    measure(args.run, 0 if args.samples <= 0 else max(2, args.samples), max(0, args.dilate), args.truth_masks)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
