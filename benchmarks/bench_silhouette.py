@@ -57,6 +57,8 @@ OPAQUE = 0.95
 HALO_ALPHA = 0.05
 # Seen shell Gaussians whose colours fill a hidden one (fill_hidden_shell).
 FILL_NEIGHBOURS = 8
+# The opacity of the "every shell Gaussian opaque" variant (below the rasterizer's 0.99 cap).
+SHELL_OPAQUE = 0.99
 # Rays per pixel side for the demo's ray-traced coverage (the photos use 2 x 2).
 TRUTH_SAMPLES = 4
 # A silhouette pixel whose rendered foreground alpha is off the true coverage by more than this
@@ -212,6 +214,20 @@ def fill_hidden_shell(gaussians, background: torch.Tensor, exposure: torch.Tenso
     return replace(gaussians, sh=sh, opacity_logits=logits)
 
 
+def opaque_shell(gaussians, background: torch.Tensor):
+    """``gaussians`` with every shell Gaussian (background [N] bool) at opacity SHELL_OPAQUE."""
+    from dataclasses import replace
+
+    logits = gaussians.opacity_logits.detach().clone()
+    logits[background] = float(np.log(SHELL_OPAQUE / (1.0 - SHELL_OPAQUE)))   # 0 < SHELL_OPAQUE < 1
+    return replace(gaussians, opacity_logits=logits)
+
+
+def dilate_alpha(alpha: torch.Tensor, width: int) -> torch.Tensor:
+    """[h, w] -> [h, w]: the maximum of ``alpha`` within ``width`` px (square)."""
+    return F.max_pool2d(alpha[None, None], 2 * width + 1, stride=1, padding=width)[0, 0]
+
+
 class Pool:
     """Sums of squared error and pixel counts over named pixel sets, pooled over views."""
 
@@ -235,7 +251,7 @@ class Pool:
                 f"{psnr:>9.2f}")
 
 
-def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
+def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margin: int) -> None:
     """Print the figures of the module docstring for ``run``; samples 0 skips the hull."""
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.rasterizer.rasterize import render
@@ -278,6 +294,9 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
     if mask_pixels:
         print(f"training masks vs the ray-traced truth: {100 * mask_wrong / mask_pixels:.2f} % of pixels differ")
     exposure = shell_exposure(shell, [cameras[i] for i in split.train], train_alphas)
+    # For the fill only: "seen" may demand sky on every pixel within fill_margin px of the centre's.
+    fill_exposure = exposure if fill_margin == 0 else shell_exposure(
+        shell, [cameras[i] for i in split.train], [dilate_alpha(a, fill_margin) for a in train_alphas])
     hidden = (exposure == 0).to(shell.dtype)[:, None]                       # feature [S, 1]
     sky_colours = true_sky_colours(scene, shell.means, sphere)
     from inceptiongs.rasterizer.sh import sh_to_color
@@ -289,15 +308,22 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
                        (-1, "outside every training image")):
         where = (exposure == code).numpy()
         line = f"shell Gaussians {name}: {int(where.sum())}"
+        if where.any():
+            opacity = torch.sigmoid(shell.opacity_logits.detach()[torch.as_tensor(where)])
+            line += (f", median opacity {float(opacity.median()):.3f}, "
+                     f"{100 * float((opacity < 0.5).float().mean()):.0f} % below 0.5")
         if sky_colours is not None and where.any():
             rms = float(np.sqrt(((shell_colours[where] - sky_colours[where]) ** 2).mean()))
             line += f", RMS colour error against the true sky {rms:.3f}"
         print(line)
 
-    filled = fill_hidden_shell(gaussians, in_background(gaussians.means, sphere), exposure)
+    background = in_background(gaussians.means, sphere)
+    variants = {"filled": fill_hidden_shell(gaussians, background, fill_exposure),
+                "opaque": opaque_shell(gaussians, background)}
     for group in ("scarce_test", "covered_test"):
         pool = Pool()
-        fill_error, view_psnr = 0.0, {"render": [], "filled": []}
+        variant_error = {name: 0.0 for name in variants}
+        view_psnr = {name: [] for name in ("render", *variants)}
         shell_pool = {"error": 0.0, "pixels": 0, "alpha": 0.0, "true sky error": 0.0, "true sky band error": 0.0}
         votes = {f"hull {side}: truth with {who}": 0 for side in ("fg", "bg") for who in ("hull", "render")}
         for view in getattr(split, group):
@@ -306,11 +332,12 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
                 out = render(gaussians, camera, outputs=("rgb", "depth"))
             photo = torch.as_tensor(np.asarray(scene.load_image(view)), dtype=torch.float32)
             error = ((out["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)                # [h, w]
-            with torch.no_grad():
-                error_filled = ((render(filled, camera)["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)
-            fill_error += float(error_filled.sum())
             view_psnr["render"].append(psnr_of(error.mean()))
-            view_psnr["filled"].append(psnr_of(error_filled.mean()))
+            for name, variant in variants.items():
+                with torch.no_grad():
+                    variant_squared = ((render(variant, camera)["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)
+                variant_error[name] += float(variant_squared.sum())
+                view_psnr[name].append(psnr_of(variant_squared.mean()))
             alpha = alpha_of(camera)
             rendered = alpha > FOREGROUND_ALPHA
             silhouette = band_of(rendered)
@@ -384,10 +411,13 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool) -> None:
                   f"{psnr_of(torch.tensor(shell_pool['true sky band error'] / pool.total_pixels)):.2f} dB "
                   f"(there only), {psnr_of(torch.tensor(shell_pool['true sky error'] / pool.total_pixels)):.2f} dB "
                   f"(on every truly-sky pixel)")
-        print(f"the hidden shell filled (colour and opacity) from its {FILL_NEIGHBOURS} nearest seen neighbours: PSNR "
-              f"{psnr_of(torch.tensor(fill_error / pool.total_pixels)):.2f} pooled (render "
-              f"{psnr_of(torch.tensor(pool.total_error / pool.total_pixels)):.2f}); mean over views "
-              f"{np.mean(view_psnr['filled']):.2f} (render {np.mean(view_psnr['render']):.2f})")
+        render_psnr = psnr_of(torch.tensor(pool.total_error / pool.total_pixels))
+        for name, label in (("filled", f"the hidden shell filled (colour and opacity) from its {FILL_NEIGHBOURS} nearest "
+                                       f"seen neighbours (seen: sky on every pixel within {fill_margin} px)"),
+                            ("opaque", "every shell Gaussian made opaque")):
+            print(f"{label}: PSNR {psnr_of(torch.tensor(variant_error[name] / pool.total_pixels)):.2f} pooled "
+                  f"(render {render_psnr:.2f}); mean over views {np.mean(view_psnr[name]):.2f} "
+                  f"(render {np.mean(view_psnr['render']):.2f})")
         if any(votes.values()):
             print("where hull and render disagree, pixels on each side of the ray-traced truth: "
                   + "; ".join(f"{name} {count}" for name, count in votes.items()))
@@ -402,9 +432,13 @@ def main(argv=None) -> int:
     parser.add_argument("--truth-masks", action="store_true",
                         help="carve with the ray-traced true masks instead of the rendered ones (objects demo only): "
                              "the hull's own limit, without the render's mask errors")
+    parser.add_argument("--fill-margin", type=int, default=0,
+                        help="the fill counts a shell Gaussian as seen only where a training view shows sky on every "
+                             "pixel within this many px of its centre's pixel")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
-    measure(args.run, 0 if args.samples <= 0 else max(2, args.samples), max(0, args.dilate), args.truth_masks)
+    measure(args.run, 0 if args.samples <= 0 else max(2, args.samples), max(0, args.dilate), args.truth_masks,
+            max(0, args.fill_margin))
     return 0
 
 
