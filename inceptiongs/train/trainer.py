@@ -30,6 +30,7 @@ from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COS
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
+from .sky import fill_shell_behind_scene
 from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
 from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
                    sh_degree_at, supported_sh_degree, train_step, trim_sh)
@@ -175,6 +176,28 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         # became 0.35 at 300k), and the schedule never shrank to what the budget could finish.
         next_check = (step + BUDGET_CALIBRATION_STEPS, elapsed + BUDGET_CHECK_FRACTION * budget_s)
 
+    shell_filled = False
+
+    def fill_shell() -> bool:
+        """At the end of training: the sky shell no training view saw takes its seen neighbours'
+        colour (:func:`fill_shell_behind_scene`). -> whether the model changed."""
+        nonlocal shell_filled
+        shell_filled = True
+        if state.sky is None:
+            return False
+
+        def render_alpha(rows: torch.Tensor, camera) -> torch.Tensor:
+            with torch.no_grad():
+                scene_part = gaussians_from_params(state.params).detach().subset(rows)
+                return render_fn(scene_part, camera, outputs=("alpha",))["alpha"][..., 0]
+
+        filled = fill_shell_behind_scene(state.params, state.sky, [data.cameras[i] for i in data.train],
+                                         render_alpha)
+        if filled:
+            log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
+                f"of their seen neighbours")
+        return filled > 0
+
     pending_counts: dict[str, int] = {}
     try:
         while state.iteration < config.iterations:
@@ -193,6 +216,8 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             record = train_step(step, state, data, config, sh_max, render_fn, background, log)
             state.iteration = step
             bar.update(1)
+            if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
+                fill_shell()
             pending_counts = add_maintenance_counts(pending_counts, record)
 
             if step % config.log_every == 0 or step == config.iterations:
@@ -222,6 +247,9 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         bar.close()
 
     stop_clocks()  # the checkpoint holds the clocks as they stood when training stopped
+    # A time budget ended the run before its schedule's last step: fill now, evaluate again.
+    if finished and not shell_filled and fill_shell():
+        last_eval_iteration = -1
     gaussians = gaussians_from_params(state.params).detach()
     # Final save: the small model first, then its log line, then the (large) checkpoint. Each
     # is attempted even when an earlier one fails (a full disk), and each is atomic, so what

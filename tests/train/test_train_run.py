@@ -117,6 +117,36 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy,
     assert evaluated == [0, 8, 16]
 
 
+def test_the_shell_behind_the_scene_is_filled_at_the_end(demo_scene, tmp_path):
+    """A finished run with the sky shell fills the shell no training view saw (it says how many),
+    before its last evaluation and save: the saved model is a fixed point of the fill (filling
+    it again changes nothing)."""
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.train.sky import fill_shell_behind_scene
+    from inceptiongs.scene.loader import load_scene
+
+    lines: list[str] = []
+    config = _config(demo_scene, iterations=8, sky_shell=True, free_space=True)
+    train(config, tmp_path / "run", progress=False, log=lines.append)
+    filled = [line for line in lines if "no training view saw" in line]
+    assert len(filled) == 1 and int(filled[0].split()[2]) > 0, lines
+    payload = load_newest_checkpoint(tmp_path / "run")[1]
+    params = {k: v.clone() for k, v in payload["params"].items()}
+    split = json.loads((tmp_path / "run" / "split.json").read_text())
+    scene = load_scene(demo_scene, downscale=config.downscale)
+    cameras = [scene.cameras[i] for i in split["train"]]
+
+    def alpha(rows, camera):
+        with torch.no_grad():
+            return render(gaussians_from_params(params).detach().subset(rows), camera,
+                          outputs=("alpha",))["alpha"][..., 0]
+
+    assert fill_shell_behind_scene(params, payload["sky"], cameras, alpha) > 0
+    for name, value in params.items():
+        assert torch.allclose(value, payload["params"][name], atol=1e-6), name
+
+
 @pytest.mark.slow
 def test_job_publishes_snapshots_and_stops_with_a_checkpoint(demo_scene, tmp_path):
     box = SnapshotBox()

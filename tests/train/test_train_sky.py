@@ -95,3 +95,46 @@ def test_background_gaussians_survive_the_size_rules_and_scene_ones_do_not():
         densify_and_prune(params, optimizer, DensifyStats.zeros(n), config, 1.0, prune_large=True,
                           generator=torch.Generator().manual_seed(0), background=exempt)
         assert params["means"].shape[0] == survivors
+
+
+def test_a_hidden_shell_gaussian_takes_its_sky_seen_neighbours_colour():
+    """Rows 0-2: shell seen as sky (donors); row 3: hidden behind the scene, near donors 0 and 1;
+    row 4: a scene Gaussian. With two neighbours row 3 gets the mean of rows 0 and 1, loses its
+    view-dependent colour, and nothing else changes."""
+    from inceptiongs.train.sky import fill_hidden_shell
+
+    params = {
+        "means": torch.tensor([[10.0, 0, 0], [10.0, 1, 0], [-10.0, 0, 0], [10.0, 0.5, 0.1], [0.0, 0, 0]]),
+        "sh_dc": torch.tensor([[[1.0, 0, 0]], [[0.0, 1, 0]], [[0.0, 0, 1]], [[5.0, 5, 5]], [[0.3, 0.3, 0.3]]]),
+        "sh_rest": torch.ones(5, 3, 3),
+        "opacity_logits": torch.tensor([1.0, 3.0, -2.0, -6.0, 0.5]),
+    }
+    before = {k: v.clone() for k, v in params.items()}
+    hidden = torch.tensor([False, False, False, True, False])
+    donors = torch.tensor([True, True, True, False, False])
+    assert fill_hidden_shell(params, hidden, donors, neighbours=2) == 1
+    assert torch.allclose(params["sh_dc"][3], torch.tensor([[0.5, 0.5, 0.0]]))
+    assert float(params["opacity_logits"][3]) == 2.0
+    assert float(params["sh_rest"][3].abs().sum()) == 0.0
+    keep = torch.tensor([0, 1, 2, 4])
+    for name in params:
+        assert torch.equal(params[name][keep], before[name][keep]), name
+    # Nothing to fill from, or nothing hidden: unchanged.
+    assert fill_hidden_shell(params, hidden, torch.zeros(5, dtype=torch.bool)) == 0
+    assert fill_hidden_shell(params, torch.zeros(5, dtype=torch.bool), donors) == 0
+
+
+def test_shell_exposure_tells_sky_from_hidden_from_unframed():
+    """One camera looking down +z: a shell centre on a pixel the scene covers (alpha 1) is hidden,
+    one on an uncovered pixel is sky, one behind the camera is not framed."""
+    from inceptiongs.train.sky import shell_exposure
+
+    camera = _camera()
+    alpha = torch.zeros(camera.height, camera.width)
+    alpha[:, : camera.width // 2] = 1.0                       # the scene covers the left half
+    means = torch.tensor([[-2.0, 0.0, 10.0], [2.0, 0.0, 10.0], [0.0, 0.0, -10.0]])
+    assert shell_exposure(means, [camera], [alpha]).tolist() == [0, 1, -1]
+    # A second camera that sees the first centre as sky makes it a donor.
+    other = _camera(eye=(-4.0, 0.0, 0.0), target=(-2.0, 0.0, 10.0))
+    clear = torch.zeros(other.height, other.width)
+    assert shell_exposure(means, [camera, other], [alpha, clear]).tolist()[0] == 1
