@@ -411,8 +411,10 @@ def _job_settings(viewer) -> None:
     if changed:
         settings.strategy = STRATEGIES[index]
     sky_on = TrainConfig.sky_shell if settings.sky_shell is None else settings.sky_shell
-    changed, sky_on = imgui.checkbox("sky shell (a backdrop where photos show no points)", sky_on)
+    changed, sky_on = imgui.checkbox("sky shell (far backdrop)", sky_on)
     _remember(viewer, "sky shell")
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("far Gaussians where the photos show no sparse point: a place for the sky")
     if changed:
         settings.sky_shell = sky_on
     imgui.text_disabled("stage II (bootstrap)")

@@ -45,8 +45,8 @@ def main() -> int:
     parser.add_argument("--no-pgsr", action="store_true")
     parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,
                         help="the free-space rules (on by default, as the train command)")
-    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=False,
-                        help="the sky shell (off by default, as the train command)")
+    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=True,
+                        help="the sky shell (on by default, as the train command)")
     parser.add_argument("--sh-spread", type=float, default=None,
                         help="degrees of view spread per SH degree (default: TrainConfig's; 0 = no per-Gaussian limit)")
     parser.add_argument("--strategies", default="default",

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-from ..train.config import STRATEGIES
+from ..train.config import STRATEGIES, TrainConfig
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
@@ -36,9 +36,10 @@ def add_arguments(parser) -> None:
                         help="remove Gaussians at and around the training cameras, before their near bounds "
                              "(from the sparse points) and those every view looks through (default: on; "
                              "--no-free-space turns the rules off)")
-    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=False,
-                        help="add a shell of far Gaussians where the photos see past every sparse point, "
-                             "for the sky (docs/training.md)")
+    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=TrainConfig.sky_shell,
+                        help="a shell of far Gaussians where the photos see past every sparse point: a place "
+                             "for the sky and far backdrops (default: on; --no-sky-shell leaves it out; "
+                             "docs/training.md)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",

@@ -47,8 +47,10 @@ def _records(run: Path) -> list[dict]:
 @pytest.mark.slow
 def test_short_run_loss_falls_and_psnr_rises(demo_scene, tmp_path):
     run = tmp_path / "run"
+    # No sky shell: it paints the sky from the first step (10.6 dB at step 0 against 7.1), so 40
+    # steps of this tiny run would measure the scene's first densification, not learning.
     config = _config(demo_scene, iterations=40, eval_every=40, checkpoint_every=40, densify_every=10,
-                     multiview_every=4)
+                     multiview_every=4, sky_shell=False)
     result = train(config, run, progress=False)
     records = _records(run)
     losses = [r["photometric"] for r in records if "photometric" in r]
