@@ -31,6 +31,9 @@ SKY_MAX_DIRECTIONS = 12_000
 SKY_PIXELS = 6.0
 # An image cell (of a SKY_GRID x SKY_GRID grid) with no sparse point in it shows open sky.
 SKY_GRID = 16
+# A direction gets a shell Gaussian where at least this fraction of the training cameras that
+# frame it see an open cell there (0: any one camera suffices).
+SKY_OPEN_FRACTION = 0.0
 # Opaque enough from the start that the sky's pixels need nothing else.
 SKY_OPACITY = 0.5
 # Gaussians farther than this fraction of the shell's radius from its centre are background.
@@ -84,16 +87,18 @@ def sky_shell(cameras: list[Camera], images: list[np.ndarray], points: np.ndarra
     shell = centre + radius * directions
     colour_sum = np.zeros((len(shell), 3))
     seen = np.zeros(len(shell))
+    framed = np.zeros(len(shell))
     for camera, image in zip(cameras, images):
         pixels, _, inside = project_points(shell, camera)
         rows = np.nonzero(inside)[0]
+        framed[rows] += 1
         open_here = open_cells(camera, points)[_cells(pixels[rows], camera)]
         rows = rows[open_here]
         u = np.minimum(pixels[rows, 0].astype(np.int64), camera.width - 1)
         v = np.minimum(pixels[rows, 1].astype(np.int64), camera.height - 1)
         colour_sum[rows] += np.asarray(image)[v, u, :3]
         seen[rows] += 1
-    keep = seen > 0
+    keep = (seen > 0) & (seen >= SKY_OPEN_FRACTION * framed)
     colours = colour_sum[keep] / seen[keep, None]            # seen > 0 where kept
     colours = np.clip(colours * 255.0 + 0.5, 0, 255).astype(np.uint8)
     scales = np.full(int(keep.sum()), 0.5 * spacing * radius)

@@ -77,6 +77,22 @@ def test_the_shell_covers_only_open_sky_with_the_photos_colour():
     assert len(sky_shell(cameras[1:2], images[1:2], full)[0]) == 0
 
 
+def test_a_direction_only_some_cameras_see_open_needs_the_open_fraction(monkeypatch):
+    """Two cameras look the same way; the first sees sparse points all over its image, the
+    second stands beyond them and sees none. With SKY_OPEN_FRACTION 0 the one open view
+    suffices; above 0.5 the directions both frame get no shell."""
+    import inceptiongs.train.sky as sky
+
+    cameras = [_camera(eye=(0.0, 0.0, z), target=(0.0, 0.0, z + 1.0), name=f"c{i}") for i, z in enumerate((0.0, 4.0))]
+    points = _ground_points(cameras[0], slice(0, 48))           # a wall at depth 3 behind the second camera
+    images = [np.full((c.height, c.width, 3), 0.5) for c in cameras]
+    monkeypatch.setattr(sky, "SKY_OPEN_FRACTION", 0.0)
+    anyone = len(sky.sky_shell(cameras, images, points)[0])
+    monkeypatch.setattr(sky, "SKY_OPEN_FRACTION", 0.75)
+    most = len(sky.sky_shell(cameras, images, points)[0])
+    assert anyone > 10 and most < anyone // 2
+
+
 def test_background_gaussians_survive_the_size_rules_and_scene_ones_do_not():
     n = 4
     means = torch.tensor([[0.0, 0, 0], [0.2, 0, 0], [40.0, 0, 0], [0.0, 45.0, 0]])
