@@ -44,19 +44,17 @@ import torch
 import torch.nn.functional as F
 
 from bench_geometry_term import EDGE_BAND, edge_band, psnr_of
+from inceptiongs.train.sky import FILL_NEIGHBOURS, FOREGROUND_ALPHA
 
 # Rays start this far in front of the camera (normalised scene units; the demo's objects sit
 # 0.3-1 units away).
 NEAR = 0.02
-FOREGROUND_ALPHA = 0.5
 HULL_FG, HULL_BG, HULL_UNKNOWN = 1, 0, -1
 # A foreground pixel off the silhouette rendered with less alpha than this lets the sky shell
 # show through a surface.
 OPAQUE = 0.95
 # A truly-sky pixel with more foreground alpha than this is part of a halo round the silhouette.
 HALO_ALPHA = 0.05
-# Seen shell Gaussians whose colours fill a hidden one (fill_hidden_shell).
-FILL_NEIGHBOURS = 8
 # The opacity of the "every shell Gaussian opaque" variant (below the rasterizer's 0.99 cap).
 SHELL_OPAQUE = 0.99
 # Rays per pixel side for the demo's ray-traced coverage (the photos use 2 x 2).
@@ -153,25 +151,6 @@ def true_coverage(scene, camera) -> torch.Tensor | None:
     return torch.as_tensor(hit, dtype=torch.float32)
 
 
-def shell_exposure(shell, cameras: list, alphas: list[torch.Tensor]) -> torch.Tensor:
-    """[S] int8 per shell Gaussian (means [S, 3]): 1 if some camera frames its centre where that
-    camera's foreground alpha ([h, w], one per camera) is < FOREGROUND_ALPHA (seen as sky), 0 if
-    the cameras that frame it all see foreground there (hidden behind the scene), -1 if none frames it."""
-    from inceptiongs.camera import project_points
-
-    means = shell.means.detach().double().numpy()
-    framed = np.zeros(len(means), dtype=bool)
-    sky = np.zeros(len(means), dtype=bool)
-    for camera, alpha in zip(cameras, alphas):
-        pixels, _, inside = project_points(means, camera)
-        rows = np.nonzero(inside)[0]
-        u = np.minimum(pixels[rows, 0].astype(np.int64), camera.width - 1)
-        v = np.minimum(pixels[rows, 1].astype(np.int64), camera.height - 1)
-        framed[rows] = True
-        sky[rows[alpha.numpy()[v, u] < FOREGROUND_ALPHA]] = True
-    return torch.as_tensor(np.where(sky, 1, np.where(framed, 0, -1)), dtype=torch.int8)
-
-
 def true_sky_colours(scene, means: torch.Tensor, sphere: torch.Tensor) -> np.ndarray | None:
     """[S, 3]: the demo's sky colour in the direction of each shell point (means [S, 3], normalised
     frame) from the shell's centre; None when the scene is not the objects demo."""
@@ -191,27 +170,20 @@ def true_sky_colours(scene, means: torch.Tensor, sphere: torch.Tensor) -> np.nda
     return colours
 
 
-def fill_hidden_shell(gaussians, background: torch.Tensor, exposure: torch.Tensor,
-                      neighbours: int = FILL_NEIGHBOURS):
+def filled_shell(gaussians, background: torch.Tensor, exposure: torch.Tensor):
     """``gaussians`` with each hidden shell Gaussian (background [N] bool; exposure [S] of the
-    background ones in order, 0 = hidden: see :func:`shell_exposure`) given the mean base colour
-    (SH DC) and the mean opacity logit of its ``neighbours`` nearest shell Gaussians seen as sky,
-    and no view-dependent colour: a classical fill of the sky behind the scene's silhouettes, from
-    the training views alone. Unchanged when nothing is hidden or nothing was seen."""
-    from dataclasses import replace
+    background ones in order, 0 = hidden: see ``inceptiongs.train.sky.shell_exposure``) filled
+    from its nearest shell Gaussians seen as sky (``inceptiongs.train.sky.fill_hidden_shell``)."""
+    from inceptiongs.train.optim import gaussians_from_params, params_from_gaussians
+    from inceptiongs.train.sky import fill_hidden_shell
 
-    index = torch.nonzero(background).squeeze(-1)
-    hidden, seen = index[exposure == 0], index[exposure == 1]
-    if len(hidden) == 0 or len(seen) == 0:
-        return gaussians
-    distances = torch.cdist(gaussians.means[hidden].double(), gaussians.means[seen].double())   # [H, V]
-    nearest = distances.topk(min(neighbours, len(seen)), dim=1, largest=False).indices            # [H, k]
-    sh = gaussians.sh.detach().clone()
-    sh[hidden, 0] = sh[seen][nearest, 0].mean(1)
-    sh[hidden, 1:] = 0.0
-    logits = gaussians.opacity_logits.detach().clone()
-    logits[hidden] = logits[seen][nearest].mean(1)
-    return replace(gaussians, sh=sh, opacity_logits=logits)
+    params = {name: t.detach() for name, t in params_from_gaussians(gaussians).items()}
+    hidden = torch.zeros_like(background)
+    donors = torch.zeros_like(background)
+    hidden[background] = exposure == 0
+    donors[background] = exposure == 1
+    fill_hidden_shell(params, hidden, donors)
+    return gaussians_from_params(params)
 
 
 def opaque_shell(gaussians, background: torch.Tensor):
@@ -255,7 +227,7 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
     """Print the figures of the module docstring for ``run``; samples 0 skips the hull."""
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.rasterizer.rasterize import render
-    from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background
+    from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background, shell_exposure
 
     _, scene, split, payload, gaussians = load_stage1(Path(run))
     sphere = None if payload is None else payload.get("sky")
@@ -293,10 +265,10 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
           f"{samples} samples per ray")
     if mask_pixels:
         print(f"training masks vs the ray-traced truth: {100 * mask_wrong / mask_pixels:.2f} % of pixels differ")
-    exposure = shell_exposure(shell, [cameras[i] for i in split.train], train_alphas)
+    exposure = shell_exposure(shell.means, [cameras[i] for i in split.train], train_alphas)
     # For the fill only: "seen" may demand sky on every pixel within fill_margin px of the centre's.
     fill_exposure = exposure if fill_margin == 0 else shell_exposure(
-        shell, [cameras[i] for i in split.train], [dilate_alpha(a, fill_margin) for a in train_alphas])
+        shell.means, [cameras[i] for i in split.train], [dilate_alpha(a, fill_margin) for a in train_alphas])
     hidden = (exposure == 0).to(shell.dtype)[:, None]                       # feature [S, 1]
     sky_colours = true_sky_colours(scene, shell.means, sphere)
     from inceptiongs.rasterizer.sh import sh_to_color
@@ -318,7 +290,7 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
         print(line)
 
     background = in_background(gaussians.means, sphere)
-    variants = {"filled": fill_hidden_shell(gaussians, background, fill_exposure),
+    variants = {"filled": filled_shell(gaussians, background, fill_exposure),
                 "opaque": opaque_shell(gaussians, background)}
     for group in ("scarce_test", "covered_test"):
         pool = Pool()

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
+from .optim import gaussians_from_params
 
 # The shell's radius, in units of the sparse points' far extent (their 99th-percentile
 # distance from the cameras' centroid): far enough that the rig's parallax on it is small.
@@ -175,16 +176,19 @@ def fill_hidden_shell(params: dict[str, torch.Tensor], hidden: torch.Tensor, don
 
 
 def fill_shell_behind_scene(params: dict[str, torch.Tensor], sphere: torch.Tensor, cameras: list[Camera],
-                            render_alpha) -> int:
+                            render_fn) -> int:
     """The end-of-training fill: the shell (beyond BACKGROUND_FRACTION of ``sphere`` [4]) hidden
     behind the scene in every training camera (``cameras``) takes its sky-seen neighbours'
-    colour. render_alpha(foreground mask [N] bool, camera) -> [h, w] alpha of the scene's own
-    Gaussians, rendered at most FILL_RENDER_WIDTH pixels wide. Returns how many were filled."""
+    colour. render_fn: the rasterizer (``inceptiongs.rasterizer.rasterize.render``'s signature),
+    which draws the scene's own Gaussians' alpha at most FILL_RENDER_WIDTH pixels wide. Returns
+    how many were filled."""
     background = in_background(params["means"].detach(), sphere)
     if not bool(background.any()) or bool(background.all()):
         return 0
     small = [camera.scaled(max(1.0, camera.width / FILL_RENDER_WIDTH)) for camera in cameras]
-    alphas = [render_alpha(~background, camera) for camera in small]
+    with torch.no_grad():
+        scene_part = gaussians_from_params(params).detach().subset(~background)     # built once for every view
+        alphas = [render_fn(scene_part, camera, outputs=("alpha",))["alpha"][..., 0] for camera in small]
     exposure = shell_exposure(params["means"][background], small, alphas)
     hidden = torch.zeros_like(background)
     donors = torch.zeros_like(background)

@@ -185,14 +185,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         shell_filled = True
         if state.sky is None:
             return False
-
-        def render_alpha(rows: torch.Tensor, camera) -> torch.Tensor:
-            with torch.no_grad():
-                scene_part = gaussians_from_params(state.params).detach().subset(rows)
-                return render_fn(scene_part, camera, outputs=("alpha",))["alpha"][..., 0]
-
-        filled = fill_shell_behind_scene(state.params, state.sky, [data.cameras[i] for i in data.train],
-                                         render_alpha)
+        filled = fill_shell_behind_scene(state.params, state.sky, [data.cameras[i] for i in data.train], render_fn)
         if filled:
             log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
                 f"of their seen neighbours")

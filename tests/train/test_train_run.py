@@ -124,7 +124,6 @@ def test_the_shell_behind_the_scene_is_filled_at_the_end(demo_scene, tmp_path):
     before its last evaluation and save: the saved model is a fixed point of the fill (filling
     it again changes nothing)."""
     from inceptiongs.rasterizer.rasterize import render
-    from inceptiongs.train.optim import gaussians_from_params
     from inceptiongs.train.sky import fill_shell_behind_scene
     from inceptiongs.scene.loader import load_scene
 
@@ -139,12 +138,7 @@ def test_the_shell_behind_the_scene_is_filled_at_the_end(demo_scene, tmp_path):
     scene = load_scene(demo_scene, downscale=config.downscale)
     cameras = [scene.cameras[i] for i in split["train"]]
 
-    def alpha(rows, camera):
-        with torch.no_grad():
-            return render(gaussians_from_params(params).detach().subset(rows), camera,
-                          outputs=("alpha",))["alpha"][..., 0]
-
-    assert fill_shell_behind_scene(params, payload["sky"], cameras, alpha) > 0
+    assert fill_shell_behind_scene(params, payload["sky"], cameras, render) > 0
     for name, value in params.items():
         assert torch.allclose(value, payload["params"][name], atol=1e-6), name
 
