@@ -137,12 +137,13 @@ def _write_summary(path: Path, summary: dict) -> None:
     atomic_write_text(path, json.dumps(json_safe(summary), indent=1) + "\n")
 
 
-def expected_total_steps(done: int, spent_s: float, left_s: float, cap: int, min_steps: int = 5) -> int:
+def expected_total_steps(done: int, spent_s: float, left_s: float, cap: int, min_steps: int = 5) -> int | None:
     """Steps a time-budgeted run will have made when its time runs out: ``done`` so far in
     ``spent_s`` seconds of stepping, at the same rate for the ``left_s`` seconds left, at most
-    ``cap``. Before ``min_steps`` the rate is noise (the first steps build caches): the cap stands."""
+    ``cap``. None (not yet known) before ``min_steps``: the first steps build caches and their
+    rate is noise, and the cap (the demo's baseline: 100 000) would be a wrong total to show."""
     if done < min_steps or spent_s <= 0.0:
-        return cap
+        return None
     return int(min(cap, done + max(left_s, 0.0) * done / spent_s))
 
 
@@ -283,8 +284,9 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     last_eval = initial_eval
     rounds_done = 0
     step_cap = config.rounds * config.iterations
-    bar = tqdm(total=step_cap, desc="baseline" if baseline else "bootstrap", file=sys.stderr,
-               dynamic_ncols=True, disable=not progress, unit="it")
+    # A time-budgeted run's total is unknown until a rate is measured (advance_bar sets it).
+    bar = tqdm(total=None if config.minutes is not None else step_cap, desc="baseline" if baseline else "bootstrap",
+               file=sys.stderr, dynamic_ncols=True, disable=not progress, unit="it")
     first_step_at: list[float] = []                             # when the first refinement step began
 
     def advance_bar() -> None:
@@ -294,7 +296,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         bar.update(1)
         if config.minutes is not None and first_step_at:
             total = expected_total_steps(bar.n, now() - first_step_at[0], 60.0 * config.minutes - now(), step_cap)
-            if total != bar.total:
+            if total is not None and total != bar.total:
                 bar.total = total
                 bar.refresh()
 

@@ -180,8 +180,8 @@ def test_a_time_budgeted_bar_counts_the_steps_the_time_allows():
     assert expected_total_steps(100, 50.0, 25.0, 100_000) == 150
     assert expected_total_steps(100, 50.0, 10_000.0, 1_000) == 1_000      # the cap still binds
     assert expected_total_steps(100, 50.0, -3.0, 100_000) == 100          # time already spent
-    assert expected_total_steps(3, 1.0, 60.0, 100_000) == 100_000         # too few steps to trust a rate
-    assert expected_total_steps(10, 0.0, 60.0, 500) == 500                # no time measured yet
+    assert expected_total_steps(3, 1.0, 60.0, 100_000) is None            # too few steps to trust a rate
+    assert expected_total_steps(10, 0.0, 60.0, 500) is None               # no time measured yet
 
 
 def test_round_targets_and_cache_keys():
