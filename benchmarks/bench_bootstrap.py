@@ -302,7 +302,8 @@ def main(argv=None) -> int:
                              "running it again; compare by the d@time column when its time differs")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     args = parser.parse_args(argv)
-    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    from inceptiongs.threads import use_torch_threads
+    use_torch_threads()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"machine: {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
     results = {}

@@ -14,11 +14,12 @@ import pytest
 
 import inceptiongs  # noqa: F401  (sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch  # noqa: E402
+from inceptiongs.threads import use_torch_threads  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 # Two cores on CI: keep torch from oversubscribing them.
-torch.set_num_threads(min(2, os.cpu_count() or 1))
+use_torch_threads()
 
 
 @pytest.fixture(autouse=True, scope="session")

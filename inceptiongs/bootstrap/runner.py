@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import os
 import shutil
 import sys
 import time
@@ -33,6 +32,7 @@ from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_di
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
+from ..threads import use_torch_threads
 from .config import BootstrapConfig
 from .conscience import Conscience, photo_loss
 from .virtual_views import DEFAULT_K, nearest_training_views
@@ -170,7 +170,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         from ..rasterizer.rasterize import render as render_fn
     log = log or (lambda message: tqdm.write(message, file=sys.stderr))
     config.validate()
-    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    use_torch_threads()
     clock_start = time.perf_counter()   # moved forward by pauses: paused time is nobody's time
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     if out_dir.resolve() == run_dir.resolve():

@@ -11,20 +11,19 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-import torch
 from tqdm import tqdm
 
 from ..errors import InputError
 from ..io.atomic import OutputError, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
+from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
                      affordable_count, budget_iterations, far_off, fit_step_cost, growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
@@ -63,7 +62,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     if render_fn is None:
         from ..rasterizer.rasterize import render as render_fn
     log = log or (lambda message: tqdm.write(message, file=sys.stderr))
-    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    use_torch_threads()
     run_dir = Path(run_dir)
     config.validate()
     created = not run_dir.exists()
