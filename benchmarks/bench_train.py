@@ -49,6 +49,11 @@ def main() -> int:
                         help="the sky shell (on by default, as the train command)")
     parser.add_argument("--sh-spread", type=float, default=None,
                         help="degrees of view spread per SH degree (default: TrainConfig's; 0 = no per-Gaussian limit)")
+    parser.add_argument("--prune-large-from", type=int, default=None,
+                        help="step from which oversized Gaussians are pruned (default: the schedule's; "
+                             "with --iterations only: a sized run re-derives it)")
+    parser.add_argument("--prune-screen-radius", type=float, default=None,
+                        help="footprint radius (pixels) above which the screen-size rule prunes (default: TrainConfig's)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
@@ -79,6 +84,10 @@ def main() -> int:
             sky_shell=args.sky_shell))
         if args.sh_spread is not None:
             config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
+        if args.prune_screen_radius is not None:
+            config = dataclasses.replace(config, prune_screen_radius=args.prune_screen_radius)
+        if args.prune_large_from is not None:
+            config = dataclasses.replace(config, prune_large_from=args.prune_large_from)
         return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
                                    checkpoint_every=max(args.eval_every, 500))
 

@@ -132,8 +132,8 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
 def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, config: TrainConfig,
               extent: float, camera_centers: torch.Tensor | None = None) -> torch.Tensor:
     """[N] bool, 3DGS's size rules: a footprint radius above ``prune_screen_radius`` pixels in some
-    view since the last densification (max_radii [N]; None skips this rule), or a largest scale
-    above ``prune_world_fraction`` of the scene extent — or, for a Gaussian farther than the extent
+    view since the last densification (max_radii [N]; None or a radius of 0, the default, skips
+    this rule), or a largest scale above ``prune_world_fraction`` of the scene extent — or, for a Gaussian farther than the extent
     from every training camera (camera_centers [C, 3]), of that distance: far background is large
     in world units and small in every view (fern's hallway, beyond a camera spread of 0.3 units,
     was pruned into black holes: 22.5 -> 19.4 dB over the last 1000 steps of a 30-minute run)."""
@@ -142,7 +142,9 @@ def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, c
     if camera_centers is not None and camera_centers.shape[0] > 0:
         reach = torch.maximum(reach, nearest_camera_distance(params["means"].detach(), camera_centers))
     too_big = scale > config.prune_world_fraction * reach
-    return too_big if max_radii is None else too_big | (max_radii > config.prune_screen_radius)
+    if max_radii is None or config.prune_screen_radius <= 0:   # the screen rule is off
+        return too_big
+    return too_big | (max_radii > config.prune_screen_radius)
 
 
 def remove_rows(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, remove: torch.Tensor,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import pytest
 import torch
 
 from inceptiongs.gaussians import Gaussians
@@ -108,3 +109,20 @@ def test_the_world_size_rule_lets_far_gaussians_be_as_large_as_their_distance():
     # Without the cameras the old rule prunes all three.
     assert oversized(params, None, config, 1.0).tolist() == [True, True, True]
     assert nearest_camera_distance(torch.zeros(0, 3), centers).shape == (0,)
+
+
+def test_the_screen_size_rule_is_off_by_default_and_prunes_wide_footprints_when_set():
+    from inceptiongs.errors import InputError
+    from inceptiongs.train.densify import oversized
+
+    # Two Gaussians small in the world (0.01 wide, extent 1); footprints of 5 and 30 pixels.
+    params = {"means": torch.zeros(2, 3), "log_scales": torch.full((2, 3), math.log(0.01))}
+    radii = torch.tensor([5.0, 30.0])
+    assert TrainConfig().prune_screen_radius == 0.0
+    assert oversized(params, radii, TrainConfig(), 1.0).tolist() == [False, False]
+    on = dataclasses.replace(TrainConfig(), prune_screen_radius=20.0)
+    assert oversized(params, radii, on, 1.0).tolist() == [False, True]
+    assert oversized(params, None, on, 1.0).tolist() == [False, False]   # no radii: no screen rule
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match="prune_screen_radius"):
+            dataclasses.replace(TrainConfig(), prune_screen_radius=bad).validate()
