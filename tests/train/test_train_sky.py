@@ -154,3 +154,22 @@ def test_shell_exposure_tells_sky_from_hidden_from_unframed():
     other = _camera(eye=(-4.0, 0.0, 0.0), target=(-2.0, 0.0, 10.0))
     clear = torch.zeros(other.height, other.width)
     assert shell_exposure(means, [camera, other], [alpha, clear]).tolist()[0] == 1
+
+
+def test_a_shell_gaussian_behind_a_translucent_foreground_is_not_hidden():
+    """Behind alpha 0.7 the shell still shows (30 % of the pixel) in the training photo: with the
+    fill's hidden_alpha (0.99) it is neither hidden nor sky (2), so its trained colour stays; with
+    the old threshold (0.5) it counted as hidden."""
+    from inceptiongs.train.sky import HIDDEN_ALPHA, shell_exposure
+
+    camera = _camera()
+    alpha = torch.zeros(camera.height, camera.width)
+    alpha[:, : camera.width // 2] = 0.7                       # a translucent foreground on the left
+    alpha[: camera.height // 2, : camera.width // 2] = 1.0    # opaque in its top half
+    means = torch.tensor([[-2.0, 2.0, 10.0], [-2.0, -2.0, 10.0], [2.0, 0.0, 10.0]])
+    top_is_opaque = shell_exposure(means, [camera], [alpha], hidden_alpha=HIDDEN_ALPHA).tolist()
+    # Which image row y = +2 lands on depends on the camera's axis convention: find the opaque one.
+    opaque = 0 if top_is_opaque[0] == 0 else 1
+    translucent = 1 - opaque
+    assert top_is_opaque[opaque] == 0 and top_is_opaque[translucent] == 2 and top_is_opaque[2] == 1
+    assert shell_exposure(means, [camera], [alpha]).tolist()[translucent] == 0   # default threshold 0.5
