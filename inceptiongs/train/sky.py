@@ -126,7 +126,7 @@ FOREGROUND_ALPHA = 0.5
 # The end-of-run fill recolours a shell Gaussian only where the scene covers it at least this much
 # in every training view that frames it: behind a translucent foreground (alpha 0.5-0.99) its
 # trained colour still shows in the training photos, and overwriting it with distant donors'
-# cost fern 0.28 dB (24.92 -> 24.65 at step 2000: 9 694 of 20 564 shell Gaussians refilled).
+# cost fern 0.27 dB (24.92 -> 24.65 at step 2000: 9 694 of 20 564 shell Gaussians refilled).
 HIDDEN_ALPHA = 0.99
 # The training views' foreground alpha is rendered at most this many pixels wide: the test asks
 # only whether a shell centre lies behind the scene (a 4x smaller render costs 1/16), but the
