@@ -134,9 +134,10 @@ def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, c
     """[N] bool, 3DGS's size rules: a footprint radius above ``prune_screen_radius`` pixels in some
     view since the last densification (max_radii [N]; None or a radius of 0, the default, skips
     this rule), or a largest scale above ``prune_world_fraction`` of the scene extent — or, for a
-    Gaussian farther than the extent from every training camera (camera_centers [C, 3]), of that distance: far background is large
-    in world units and small in every view (fern's hallway, beyond a camera spread of 0.3 units,
-    was pruned into black holes: 22.5 -> 19.4 dB over the last 1000 steps of a 30-minute run)."""
+    Gaussian farther than the extent from every training camera (camera_centers [C, 3]), of that
+    distance: far background is large in world units and small in every view (fern's hallway,
+    beyond a camera spread of 0.3 units, was pruned into black holes: 22.5 -> 19.4 dB over the
+    last 1000 steps of a 30-minute run)."""
     scale = params["log_scales"].detach().exp().amax(1)
     reach = torch.full_like(scale, extent)
     if camera_centers is not None and camera_centers.shape[0] > 0:
