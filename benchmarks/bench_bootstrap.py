@@ -34,6 +34,8 @@ from pathlib import Path
 import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch
 
+from inceptiongs.threads import use_torch_threads
+
 REPO = Path(__file__).resolve().parents[1]
 VARIANTS = {
     # The default: photo supervision (photo-consistent depth, exposure matching, lumigraph
@@ -302,7 +304,6 @@ def main(argv=None) -> int:
                              "running it again; compare by the d@time column when its time differs")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     args = parser.parse_args(argv)
-    from inceptiongs.threads import use_torch_threads
     use_torch_threads()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"machine: {os.cpu_count()} CPUs, load average {load:.1f} at start", flush=True)
