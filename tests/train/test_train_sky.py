@@ -14,8 +14,8 @@ from inceptiongs.gaussians import Gaussians
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.densify import DensifyStats, densify_and_prune
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
-from inceptiongs.train.sky import (SKY_GRID, fibonacci_directions, in_background, open_cells, shell_geometry,
-                                   sky_shell)
+from inceptiongs.train.sky import (SKY_GRID, cell_texture, fibonacci_directions, in_background, open_cells,
+                                   shell_geometry, sky_shell)
 
 
 def _camera(eye=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), width=64, height=48, name="cam") -> Camera:
@@ -91,6 +91,44 @@ def test_a_direction_only_some_cameras_see_open_needs_the_open_fraction(monkeypa
     monkeypatch.setattr(sky, "SKY_OPEN_FRACTION", 0.75)
     most = len(sky.sky_shell(cameras, images, points)[0])
     assert anyone > 10 and most < anyone // 2
+
+
+def test_cell_texture_is_zero_on_flat_colour_and_does_not_depend_on_resolution():
+    flat = np.full((48, 64, 3), 0.7)
+    assert np.allclose(cell_texture(flat), 0.0)
+    # Vertical stripes 1/8 of the image wide: the same texture measured at two resolutions.
+    def stripes(width, height):
+        u = np.arange(width)[None, :, None] * 16 // width
+        return np.broadcast_to((u % 2) * 0.8 + 0.1, (height, width, 3)).astype(np.float64)
+    small, large = cell_texture(stripes(64, 48)), cell_texture(stripes(512, 384))
+    assert small.max() > 0.05
+    assert np.allclose(small, large, atol=0.02)
+
+
+def test_a_textured_open_cell_is_a_gap_in_the_points_not_sky(monkeypatch):
+    """Sparse points cover the lower half of the images; above them the left half of each photo
+    is a smooth sky, the right half a fine checker (a wall SfM found no point on). With the
+    texture limit only the smooth half gets shell Gaussians; without it both halves do."""
+    import inceptiongs.train.sky as sky
+
+    cameras = [_camera(eye=(x, 0.0, 0.0), target=(x, 0.0, 1.0), name=f"c{i}") for i, x in enumerate((-0.1, 0.0, 0.1))]
+    points = np.concatenate([_ground_points(c, slice(24, 48)) for c in cameras])
+    images = []
+    for camera in cameras:
+        v, u = np.mgrid[0:camera.height, 0:camera.width]
+        image = np.full((camera.height, camera.width, 3), 0.5)
+        image[:24, :32] = (0.2, 0.4, 0.9)
+        checker = ((u // 2 + v // 2) % 2)[:24, 32:, None] * 0.6 + 0.2
+        image[:24, 32:] = checker
+        images.append(image)
+    monkeypatch.setattr(sky, "SKY_MAX_TEXTURE", float("inf"))
+    everywhere, _, _, _ = sky.sky_shell(cameras, images, points)
+    monkeypatch.setattr(sky, "SKY_MAX_TEXTURE", 0.02)
+    smooth, colours, _, _ = sky.sky_shell(cameras, images, points)
+    # Columns left of the centre are world x < 0 (the cameras look along +z with y down).
+    assert (everywhere[:, 0] > 0.5).sum() > 10
+    assert len(smooth) > 10 and np.all(smooth[:, 0] < 0.5)
+    assert np.all(np.abs(colours.astype(int) - np.array([51, 102, 230])) <= 1)
 
 
 def test_background_gaussians_survive_the_size_rules_and_scene_ones_do_not():
