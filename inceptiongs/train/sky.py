@@ -8,10 +8,8 @@ that every camera sees at the right direction: a shell at a few scene radii move
 fraction of a degree between cameras of the rig.
 
 Only the directions that some training camera sees with no sparse point in that part of its
-image, and smooth there, get a Gaussian (an indoor capture gets few or none: "leave out what a
-scene does not need"). Smooth, because structure-from-motion finds points wherever a photo has
-texture: a textured cell without points is a gap in the reconstruction (a wall seen from one
-side), and a far shell painted with a wall's texture has none of the wall's parallax. They are background: the size rules, made for the scene's own Gaussians, leave them
+image get a Gaussian (an indoor capture gets few or none: "leave out what a scene does not
+need"). They are background: the size rules, made for the scene's own Gaussians, leave them
 alone (:func:`in_background`).
 """
 
@@ -40,6 +38,10 @@ SKY_GRID = 16
 # the photo's resolution) is below this. Measured on the open cells of five scenes (median /
 # 90th percentile): the objects demo's sky 0.000 / 0.015, the statuette's blurred backdrop 0.006 /
 # 0.033, the courtyard's brick walls and tiles 0.037 / 0.112 (docs/training.md, "Sky or wall").
+# Why a limit: structure from motion finds points wherever a photo has texture, so a textured cell
+# without points is a gap in the reconstruction (a wall), and a far shell painted with a wall's
+# texture lacks the wall's parallax. Off (inf): at 0.02 the courtyard's scarce views gain 0.49 dB
+# but the objects demo's lose 0.39 (its horizon cells hold an edge and drop the sky above it).
 SKY_MAX_TEXTURE = float("inf")
 SKY_TEXTURE_PIXELS = 8
 # A direction gets a shell Gaussian where at least this fraction of the training cameras that
