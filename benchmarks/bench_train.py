@@ -47,6 +47,8 @@ def main() -> int:
                         help="the free-space rules (on by default, as the train command)")
     parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=True,
                         help="the sky shell (on by default, as the train command)")
+    parser.add_argument("--random-background", action="store_true",
+                        help="render each training step over a random colour (TrainConfig.random_background)")
     parser.add_argument("--sh-spread", type=float, default=None,
                         help="degrees of view spread per SH degree (default: TrainConfig's; 0 = no per-Gaussian limit)")
     parser.add_argument("--prune-large-from", type=int, default=None,
@@ -81,7 +83,7 @@ def main() -> int:
             scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
             iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
             size_to_minutes=sized, free_space=args.free_space,
-            sky_shell=args.sky_shell))
+            sky_shell=args.sky_shell, random_background=args.random_background))
         if args.sh_spread is not None:
             config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
         if args.prune_screen_radius is not None:

@@ -274,6 +274,11 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     if config.strategy == "dropgaussian":
         rendered = strategies.drop_gaussians(gaussians, strategies.drop_rate(step, config.iterations,
                                                                              config.drop_rate_max), state.generator)
+    if config.random_background:
+        # A pixel the model leaves partly transparent then shows a colour it cannot predict, so
+        # no edge or sky can be fitted by letting the black default show through (a transparent
+        # shell Gaussian behind a silhouette is otherwise a free way to darken edge pixels).
+        background = torch.rand(3, generator=state.generator)
     out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree)
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)

@@ -86,13 +86,15 @@ class _StopAt:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("strategy, sky_shell", [("default", False), ("mcmc", False), ("dropgaussian", False),
-                                                ("default", True)])
-def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy, sky_shell):
-    # Every strategy's random draws (drops, MCMC noise and relocation) and its per-Gaussian
-    # statistics live in the checkpoint, so a resumed run repeats the uninterrupted one exactly;
-    # so does the sky shell's sphere (the size rules read it).
-    config = _config(demo_scene, strategy=strategy, free_space=True, sky_shell=sky_shell)
+@pytest.mark.parametrize("strategy, sky_shell, random_background",
+                         [("default", False, False), ("mcmc", False, False), ("dropgaussian", False, False),
+                          ("default", True, False), ("default", True, True)])
+def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy, sky_shell, random_background):
+    # Every strategy's random draws (drops, MCMC noise and relocation, random backgrounds) and its
+    # per-Gaussian statistics live in the checkpoint, so a resumed run repeats the uninterrupted
+    # one exactly; so does the sky shell's sphere (the size rules read it).
+    config = _config(demo_scene, strategy=strategy, free_space=True, sky_shell=sky_shell,
+                     random_background=random_background)
     straight = train(config, tmp_path / "straight", progress=False)
     stopper = _StopAt(8)
     half = train(config, tmp_path / "resumed", progress=False, control=stopper.control,
@@ -117,6 +119,32 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy,
     assert iterations == list(range(1, 17))
     evaluated = [r["iteration"] for r in _records(tmp_path / "resumed") if "all_psnr" in r]
     assert evaluated == [0, 8, 16]
+
+
+@pytest.mark.parametrize("random_background", [False, True])
+def test_training_renders_draw_a_random_background_only_when_asked(demo_scene, tmp_path, random_background):
+    """With ``random_background`` every training step renders over its own uniform colour in
+    [0, 1]^3 (so a partly transparent pixel cannot match the photo by letting a fixed colour
+    through); without it the renderer's black default; evaluation always renders over black."""
+    from inceptiongs.rasterizer.rasterize import render
+
+    seen: list = []
+
+    def spy(gaussians, camera, outputs=("rgb",), background=None, **kwargs):
+        seen.append(background)
+        return render(gaussians, camera, outputs=outputs, background=background, **kwargs)
+
+    config = _config(demo_scene, iterations=6, pgsr=False, eval_every=100, checkpoint_every=100,
+                     random_background=random_background)
+    train(config, tmp_path / "run", progress=False, render_fn=spy)
+    drawn = [b for b in seen if b is not None]
+    if not random_background:
+        assert not drawn
+        return
+    assert len(drawn) == 6                                      # one per training step
+    colours = torch.stack([torch.as_tensor(b, dtype=torch.float32).reshape(3) for b in drawn])
+    assert ((colours >= 0) & (colours <= 1)).all()
+    assert len({tuple(c.tolist()) for c in colours}) == 6       # a new colour each step
 
 
 def test_the_shell_behind_the_scene_is_filled_at_the_end(demo_scene, tmp_path):
