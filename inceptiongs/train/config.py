@@ -57,7 +57,7 @@ class TrainConfig(SavedConfig):
     lambda_dssim: float = 0.2
     # Each training step renders over a uniform random colour instead of black, so no pixel can
     # match its photo by staying transparent. Off: measured in docs/training.md ("A random
-    # background"): +0.2 dB on the courtyard, -1.4 dB scarce on the objects demo.
+    # background"): +0.2 dB on the courtyard, -0.75 to -1.4 dB scarce on the objects demo.
     random_background: bool = False
 
     # --- densification ---------------------------------------------------------------------
