@@ -94,6 +94,6 @@ def setup(model: Gaussians, cameras: list[Camera], images: dict[int, torch.Tenso
 def run_steps(state, data, cfg: TrainConfig, steps: int) -> list[dict]:
     records = []
     for step in range(state.iteration + 1, state.iteration + steps + 1):
-        records.append(train_step(step, state, data, cfg, 3, render, None, lambda message: None))
+        records.append(train_step(step, state, data, cfg, 3, render, lambda message: None))
         state.iteration = step
     return records

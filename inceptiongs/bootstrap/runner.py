@@ -430,7 +430,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                         record = additive_step(step, state, data, train_config, sh_max, active[choice.index], choice,
                                                config, render_fn,
                                                lambda: train_step(step, state, data, train_config, sh_max, render_fn,
-                                                                  None, log),
+                                                                  log),
                                                lpips, scale=scale)
                         step_counts["additive"] += 1
                     else:
@@ -439,7 +439,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     step_counts[record["virtual_branch"]] += 1
                     view_use[active[choice.index].name] = view_use.get(active[choice.index].name, 0) + 1
                 else:
-                    record = train_step(step, state, data, train_config, sh_max, render_fn, None, log)
+                    record = train_step(step, state, data, train_config, sh_max, render_fn, log)
                     record["kind"] = "real"
                     step_counts["real"] += 1
                 state.iteration = step

@@ -258,7 +258,7 @@ def trim_sh(gaussians: Gaussians, degree: int) -> Gaussians:
 
 
 def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfig, sh_max: int, render_fn,
-                background, log) -> dict:
+               log) -> dict:
     """One optimisation step on one view; returns the log record of its terms."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, config, data.extent))
     sh_degree = sh_degree_at(step, config, sh_max)
@@ -274,11 +274,11 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     if config.strategy == "dropgaussian":
         rendered = strategies.drop_gaussians(gaussians, strategies.drop_rate(step, config.iterations,
                                                                              config.drop_rate_max), state.generator)
-    if config.random_background:
-        # A pixel the model leaves partly transparent then shows a colour it cannot predict, so
-        # no edge or sky can be fitted by letting the black default show through (a transparent
-        # shell Gaussian behind a silhouette is otherwise a free way to darken edge pixels).
-        background = torch.rand(3, generator=state.generator)
+    # Black (the renderer's default), or with random_background a colour the model cannot predict
+    # behind any pixel it leaves partly transparent, so no edge or sky can be fitted by letting
+    # the black show through (a transparent shell Gaussian behind a silhouette is otherwise a free
+    # way to darken edge pixels).
+    background = torch.rand(3, generator=state.generator) if config.random_background else None
     out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree)
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)

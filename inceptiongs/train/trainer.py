@@ -105,7 +105,6 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     if config.pgsr and not any(data.neighbours.values()):
         log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
 
-    background = None  # black, the renderer's default
     budget_s = None if config.minutes is None else config.minutes * 60.0
     last_eval: dict = {}
     last_eval_iteration = -1
@@ -205,7 +204,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 finished = False
                 break
             step = state.iteration + 1
-            record = train_step(step, state, data, config, sh_max, render_fn, background, log)
+            record = train_step(step, state, data, config, sh_max, render_fn, log)
             state.iteration = step
             bar.update(1)
             if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
