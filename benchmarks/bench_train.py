@@ -47,6 +47,8 @@ def main() -> int:
                         help="the free-space rules (on by default, as the train command)")
     parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=True,
                         help="the sky shell (on by default, as the train command)")
+    parser.add_argument("--sky-min-scale", type=float, default=None,
+                        help="the shell's axes kept above this fraction of their initial size (default: TrainConfig's)")
     parser.add_argument("--random-background", action="store_true",
                         help="render each training step over a random colour (TrainConfig.random_background)")
     parser.add_argument("--sh-spread", type=float, default=None,
@@ -88,6 +90,8 @@ def main() -> int:
             config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
         if args.prune_screen_radius is not None:
             config = dataclasses.replace(config, prune_screen_radius=args.prune_screen_radius)
+        if args.sky_min_scale is not None:
+            config = dataclasses.replace(config, sky_min_scale=args.sky_min_scale)
         if args.prune_large_from is not None:
             config = dataclasses.replace(config, prune_large_from=args.prune_large_from)
         return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,

@@ -40,6 +40,9 @@ def add_arguments(parser) -> None:
                         help="a shell of far Gaussians where the photos see past every sparse point: a place "
                              "for the sky and far backdrops (default: on; --no-sky-shell leaves it out; "
                              "docs/training.md)")
+    parser.add_argument("--sky-min-scale", type=float, default=TrainConfig.sky_min_scale,
+                        help="the shell's Gaussians keep every axis above this fraction of their initial size, "
+                             "so the sky stays closed (default: %(default)s; 0 leaves them free)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", action="store_true",
@@ -57,7 +60,7 @@ def build_config(args) -> "TrainConfig":
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
                          size_to_minutes=sized, free_space=args.free_space,
-                         sky_shell=args.sky_shell)
+                         sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale)
     return short_run_schedule(config.validate("command line"))
 
 

@@ -28,7 +28,7 @@ from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_
                          near_a_camera, near_bounds, seen_through, sh_rest_mask)
 from .init_gaussians import gaussians_from_points, gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
-from .sky import SKY_OPACITY, in_background, sky_shell
+from .sky import SKY_OPACITY, hold_shell_scales, in_background, shell_log_scale_floor, sky_shell
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
                     position_learning_rate, set_learning_rate)
 from .triangulate import training_points
@@ -365,6 +365,10 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
                                                        state.params["sh_rest"].shape[1]))
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
+    if state.sky is not None and config.sky_min_scale > 0:
+        hold_shell_scales(state.params["log_scales"], in_background(state.params["means"].detach(), state.sky),
+                          shell_log_scale_floor(state.sky, [data.cameras[i] for i in data.train],
+                                                config.sky_min_scale))
     if config.strategy == "mcmc" and step <= config.iterations:
         strategies.mcmc_noise(state.params, position_learning_rate(step, config, data.extent),
                               config.mcmc_noise_lr, state.generator)

@@ -202,3 +202,10 @@ def test_console_entry_prints_one_line_and_debug_shows_traceback(tmp_path):
     debug = subprocess.run([sys.executable, "-m", "inceptiongs", "--debug", "info", str(missing)],
                            capture_output=True, text=True, timeout=120)
     assert debug.returncode != 0 and "Traceback" in debug.stderr
+
+
+def test_train_refuses_a_negative_shell_scale_floor_in_one_line(tmp_path, capsys):
+    assert main(["train", str(tmp_path), "--sky-min-scale", "-1", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "sky_min_scale" in err
+    assert not (tmp_path / "run").exists()

@@ -211,3 +211,86 @@ def test_a_shell_gaussian_behind_a_translucent_foreground_is_not_hidden():
     translucent = 1 - opaque
     assert top_is_opaque[opaque] == 0 and top_is_opaque[translucent] == 2 and top_is_opaque[2] == 1
     assert shell_exposure(means, [camera], [alpha]).tolist()[translucent] == 0   # default threshold 0.5
+
+
+def test_hold_shell_scales_raises_only_the_shells_short_axes():
+    """Rows 0-1 are shell, row 2 is scene: only the shell's axes below the floor move, to it."""
+    from inceptiongs.train.sky import hold_shell_scales
+
+    log_scales = torch.tensor([[-5.0, -1.0, 0.5], [-0.5, -0.25, -3.0], [-9.0, -9.0, -9.0]])
+    before = log_scales.clone()
+    background = torch.tensor([True, True, False])
+    assert hold_shell_scales(log_scales, background, -1.0) == 2
+    assert log_scales[0].tolist() == [-1.0, -1.0, 0.5]
+    assert log_scales[1].tolist() == [-0.5, -0.25, -1.0]
+    assert torch.equal(log_scales[2], before[2])
+    assert hold_shell_scales(log_scales, background, -1.0) == 0              # idempotent
+    assert hold_shell_scales(log_scales, torch.zeros(3, dtype=torch.bool), 5.0) == 0
+
+
+def test_the_scale_floor_at_fraction_one_is_the_shells_initial_scale():
+    from inceptiongs.train.sky import shell_log_scale_floor
+
+    camera = _camera()
+    points = _ground_points(camera, slice(camera.height // 2, None))
+    image = np.full((camera.height, camera.width, 3), 0.6)
+    _, _, scales, sphere = sky_shell([camera], [image], points)
+    assert len(scales) > 0
+    floor = shell_log_scale_floor(torch.as_tensor(sphere), [camera], 1.0)
+    assert math.isclose(math.exp(floor), float(scales[0]), rel_tol=1e-9)
+    assert math.isclose(shell_log_scale_floor(torch.as_tensor(sphere), [camera], 0.5), floor + math.log(0.5))
+
+
+def test_training_with_sky_min_scale_keeps_the_shell_closed():
+    """A ball photographed on black from a ring: the shell around it is told to vanish, and the
+    optimiser shrinks it. With ``sky_min_scale`` no shell axis ends below the floor; without, some
+    do (so the floor is what holds them)."""
+    from tests.train_cases import ball, config, photos, ring_cameras, run_steps, setup
+    from inceptiongs.train.sky import shell_log_scale_floor
+    from inceptiongs.train.step import with_sky_shell
+
+    cameras = ring_cameras(8)
+    truth = ball(200, sh_degree=0)
+    images = photos(truth, cameras)
+    points = truth.means.detach().numpy()
+    ends = {}
+    for fraction in (0.0, 1.0):
+        model, sphere = with_sky_shell(ball(200, seed=1, sh_degree=0), cameras,
+                                       [images[i].numpy() for i in range(len(cameras))], points, lambda m: None)
+        cfg = config(sky_min_scale=fraction, lr_log_scales=0.05)
+        data, state = setup(model, cameras, images, cfg, points)
+        state.sky = sphere
+        run_steps(state, data, cfg, 30)
+        shell = in_background(state.params["means"].detach(), sphere)
+        assert bool(shell.any())
+        ends[fraction] = float(state.params["log_scales"].detach()[shell].min())
+        floor = shell_log_scale_floor(sphere, cameras, 1.0)
+    assert ends[1.0] >= floor - 1e-6
+    assert ends[0.0] < floor - 0.05
+
+
+def test_a_negative_or_non_finite_scale_floor_is_refused_with_its_name():
+    import pytest
+
+    from inceptiongs.errors import InputError
+
+    for bad in (-0.5, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="sky_min_scale"):
+            dataclasses.replace(TrainConfig(), sky_min_scale=bad).validate()
+    dataclasses.replace(TrainConfig(), sky_min_scale=0.5).validate()
+
+
+def test_a_run_written_before_the_floor_loads_without_it(tmp_path):
+    """A config.json without ``sky_min_scale`` is a run trained with a free shell: it loads with
+    the floor off (a bootstrap or resume must not raise its shell), while a new config has it on
+    and a saved value is kept."""
+    import json
+
+    assert TrainConfig().sky_min_scale == 1.0
+    saved = dataclasses.replace(TrainConfig(), sky_min_scale=0.5)
+    saved.save(tmp_path / "new.json")
+    assert TrainConfig.load(tmp_path / "new.json").sky_min_scale == 0.5
+    old = json.loads((tmp_path / "new.json").read_text())
+    del old["sky_min_scale"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert TrainConfig.load(tmp_path / "old.json").sky_min_scale == 0.0
