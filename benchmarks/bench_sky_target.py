@@ -35,7 +35,7 @@ import torch
 import torch.nn.functional as F
 
 from bench_geometry_term import psnr_of
-from bench_silhouette import dilate_alpha, pixel_rays
+from bench_silhouette import dilate_alpha, pixel_rays, ray_depths
 from inceptiongs.bootstrap.supervision import inpaint
 from inceptiongs.train.sky import FOREGROUND_ALPHA
 
@@ -49,17 +49,13 @@ FRONT = 1e-6
 
 def sky_points(camera, sphere: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
     """(origin [3], points [h*w, 3]) for ``camera``'s pixel rays: the points where the rays leave
-    ``sphere`` [4] (centre, radius; the camera is inside it), or, for None, origin + unit direction
+    ``sphere`` [4] (centre, radius; the camera is inside it), or, for None, origin + direction
     (a sky at infinity: only directions are projected then)."""
     center, directions = pixel_rays(camera)
-    directions = directions / directions.norm(dim=1, keepdim=True)       # z component 1: norm >= 1
     if sphere is None:
         return center, center + directions
-    offset = center - sphere[:3]
-    b = directions @ offset
-    c = float(offset @ offset - sphere[3] ** 2)                             # < 0 inside the sphere
-    t = -b + torch.sqrt((b * b - c).clamp_min(0.0))                         # the positive root
-    return center, center + directions * t[:, None]
+    far = ray_depths(center, directions, sphere, 2)[:, -1:]                # the last depth: the exit
+    return center, center + directions * far
 
 
 def sky_target(camera, training: list, sphere: torch.Tensor | None, clear: float

@@ -7,7 +7,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import TypeVar
+from typing import ClassVar, TypeVar
 
 from .atomic import atomic_write_text
 from ..errors import InputError
@@ -34,6 +34,9 @@ class SavedConfig:
     it in errors."""
 
     CONFIG_KIND = "config"
+    # Fields added after files were already written, and the value that reproduces how such a
+    # file's run behaved: a file without the key loads with it (a new config gets the default).
+    LEGACY_VALUES: ClassVar[dict] = {}
 
     def to_json_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -52,10 +55,12 @@ def save_config(config, path: str | Path) -> None:
 
 
 def load_config(cls: type[Config], path: str | Path, what: str = "config") -> Config:
-    """An instance of the dataclass ``cls`` from ``path``, validated (``cls.validate(source)``).
-    Errors name the file and the problem; ``what`` says which kind of config it should be."""
+    """An instance of the dataclass ``cls`` from ``path``, validated (``cls.validate(source)``),
+    with ``cls.LEGACY_VALUES`` (if any) for the keys the file lacks. Errors name the file and the
+    problem; ``what`` says which kind of config it should be."""
     path = Path(path)
-    config = dataclass_from_dict(cls, read_json_object(path, what), str(path), what)
+    data = {**getattr(cls, "LEGACY_VALUES", {}), **read_json_object(path, what)}
+    config = dataclass_from_dict(cls, data, str(path), what)
     return config.validate(str(path))
 
 

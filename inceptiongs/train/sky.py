@@ -113,10 +113,10 @@ def hold_shell_scales(log_scales: torch.Tensor, background: torch.Tensor, floor:
     views' pixels had alpha below 0.5)."""
     with torch.no_grad():
         rows = log_scales[background]
-        low = rows < floor
-        if bool(low.any()):
-            log_scales[background] = torch.where(low, torch.full_like(rows, floor), rows)
-        return int(low.sum())
+        raised = int((rows < floor).sum())
+        if raised:
+            log_scales[background] = rows.clamp_min(floor)
+        return raised
 
 
 def shell_geometry(cameras: list[Camera], points: np.ndarray) -> tuple[np.ndarray, float]:

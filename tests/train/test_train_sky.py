@@ -264,7 +264,7 @@ def test_training_with_sky_min_scale_keeps_the_shell_closed():
         shell = in_background(state.params["means"].detach(), sphere)
         assert bool(shell.any())
         ends[fraction] = float(state.params["log_scales"].detach()[shell].min())
-        floor = shell_log_scale_floor(sphere, cameras, 1.0)
+    floor = shell_log_scale_floor(sphere, cameras, 1.0)
     assert ends[1.0] >= floor - 1e-6
     assert ends[0.0] < floor - 0.05
 
