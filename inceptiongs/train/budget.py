@@ -10,6 +10,7 @@ times more and the schedule ends undecayed (MCMC on the statuette: 493 of 945 st
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 # Time-budget sizing (``size_to_minutes``): the first step rate is measured after this many
 # steps, then the schedule is re-checked every BUDGET_CHECK_FRACTION of the budget and re-sized
@@ -46,7 +47,7 @@ def far_off(step: int, planned: int, wanted: int) -> int | None:
     return wanted
 
 
-def fit_step_cost(points: list[tuple[int, float]]) -> tuple[float, float]:
+def fit_step_cost(points: list[tuple[float, float]]) -> tuple[float, float]:
     """(fixed s, s per Gaussian) of t(N) = fixed + per_gaussian * N from (count, s/step) ``points``
     (oldest first, at least one, seconds > 0): the line through the newest point and the newest
     earlier one with a clearly different count. Without such a pair, or when the line comes out
@@ -61,6 +62,26 @@ def fit_step_cost(points: list[tuple[int, float]]) -> tuple[float, float]:
             fixed = seconds - slope * count
             return (fixed, slope) if slope > 0 and fixed >= 0 else proportional
     return proportional
+
+
+@dataclass
+class RateWindow:
+    """The Gaussian counts of the steps since the last rate check. A rate measured over a window
+    in which the model grew belongs to the window's mean count: on the cost line the window's time
+    is steps x (fixed + per_gaussian x mean count). Taken at the count the window ended with, a
+    growing model's steps look cheap: fern's first window (30k -> 122k Gaussians, 2.02 steps/s,
+    after about 4.4 at 30k) put about a quarter of a step's cost in the fixed part, and the line
+    afforded about 250k Gaussians (the schedule's cap, 140k, stopped it)."""
+    count_sum: float = 0.0
+    steps: int = 0
+
+    def add(self, count: int) -> None:
+        self.count_sum += count
+        self.steps += 1
+
+    def mean_count(self, current: int) -> float:
+        """The window's mean count (``current`` when no step was counted)."""
+        return self.count_sum / self.steps if self.steps else float(current)
 
 
 def affordable_count(cost: tuple[float, float], step_seconds: float) -> int:

@@ -25,7 +25,8 @@ from ..gaussians import Gaussians
 from ..live import wait_while_paused
 from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
-                     affordable_count, budget_iterations, far_off, fit_step_cost, growing_budget_iterations)
+                     RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
+                     growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
@@ -127,12 +128,13 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     # (step, train seconds) from which the next check is due: both must have passed.
     next_check = (state.iteration + BUDGET_CALIBRATION_STEPS, 0.0)
 
-    cost_points: list[tuple[int, float]] = []   # (Gaussians, s/step) at each check of this session
+    cost_points: list[tuple[float, float]] = []   # (mean Gaussians, s/step) of each check's window
+    window = RateWindow()                          # the steps since the last check
 
     def plan(step: int, rate: float, remaining_s: float) -> tuple[int | None, int | None]:
         """(new schedule length or None, new Gaussian budget or None) at this check."""
         count = state.params["means"].shape[0]
-        cost_points.append((count, 1.0 / rate))
+        cost_points.append((window.mean_count(count), 1.0 / rate))
         if step >= config.densify_until:
             return budget_iterations(step, config.iterations, rate, remaining_s), None
         # The model still grows: size the schedule at the mean cost of growing to the budget (MCMC
@@ -148,7 +150,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         return far_off(step, config.iterations, wanted), budget
 
     def resize(step: int) -> None:
-        nonlocal config, rate_mark, next_check
+        nonlocal config, rate_mark, next_check, window
         elapsed = time.perf_counter() - train_clock
         steps, seconds = step - rate_mark[0], elapsed - rate_mark[1]
         if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:  # a rate needs both
@@ -169,6 +171,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
                 config.save(run_dir / "config.json")
                 bar.total = config.iterations
         rate_mark = (step, elapsed)
+        window = RateWindow()
         # The next look once another slice of the budget has passed, in training time: counted
         # in steps at this rate it came 25 minutes late on fern (3.3 steps/s at 30k Gaussians
         # became 0.35 at 300k), and the schedule never shrank to what the budget could finish.
@@ -206,6 +209,7 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             step = state.iteration + 1
             record = train_step(step, state, data, config, sh_max, render_fn, log)
             state.iteration = step
+            window.add(record["num_gaussians"])
             bar.update(1)
             if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
                 fill_shell()

@@ -110,3 +110,29 @@ def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene):
     assert any("grows to at most" in m for m in messages), messages
     assert stored["max_gaussians"] < unbudgeted
     assert result.num_gaussians <= stored["max_gaussians"]
+
+
+def test_a_rate_measured_while_the_model_grew_is_fitted_at_the_window_mean_count():
+    """A model growing geometrically between two checks, on a known cost line: the rate of the
+    window belongs to its mean count, and the line fitted that way is the true one; attributed
+    to the count the window ended with (as before) it comes out flat and affords far more."""
+    from inceptiongs.train.budget import RateWindow, affordable_count, fit_step_cost
+
+    fixed, per = 0.05, 4e-6                                  # fern-like: 0.17 s at 30k, 0.54 at 122k
+    cost = lambda n: fixed + per * n                         # noqa: E731
+    first = RateWindow()
+    for _ in range(10):
+        first.add(30_000)
+    second = RateWindow()
+    counts = [int(30_000 * 4.0 ** (i / 300)) for i in range(1, 301)]   # 30k -> 120k in 300 steps
+    for n in counts:
+        second.add(n)
+    seconds = sum(cost(n) for n in counts) / len(counts)     # what the clock measures over the window
+    points = [(first.mean_count(30_000), cost(30_000)), (second.mean_count(counts[-1]), seconds)]
+    assert fit_step_cost(points) == pytest.approx((fixed, per), rel=1e-6)
+    budget = affordable_count((fixed, per), 4 * cost(30_000))
+    assert budget == pytest.approx(4 * 30_000 + 3 * fixed / per, abs=1)
+    end_points = [(30_000, cost(30_000)), (counts[-1], seconds)]
+    stale = fit_step_cost(end_points)
+    assert stale[1] < 0.8 * per and affordable_count(stale, 4 * cost(30_000)) > 1.2 * budget
+    assert RateWindow().mean_count(7) == 7.0                 # an empty window: the current count
