@@ -130,6 +130,7 @@ def project(
     opacity_logits: torch.Tensor,
     world_to_camera: torch.Tensor,
     intrinsics: Camera,
+    backend: str = "auto",
 ) -> Projection:
     """Project N Gaussians (means [N, 3], log_scales [N, 3], quats [N, 4], opacity_logits [N])
     through world_to_camera [4, 4] (any float dtype; may require grad) and the pinhole
@@ -139,7 +140,18 @@ def project(
     and cheap next to compositing): squared pixel covariances of huge or very close Gaussians
     (1e5-unit scales at the near plane) overflow float32, and far-from-origin scenes cancel.
     Results are returned in the model's dtype.
+
+    backend: "torch" (this function's vectorised reference), "numba" (the fused CPU kernels of
+    :mod:`.projection_numba`: same rules, but ``cov2d`` and ``extents`` carry no gradient and the
+    pose must not require one) or "auto" (numba when it imports, the tensors are on the CPU and
+    neither of those gradients can be needed, i.e. the pose does not require grad).
     """
+    if backend not in ("auto", "torch", "numba"):
+        raise ValueError(f"projection backend must be auto, torch or numba, got {backend!r}")
+    if backend != "torch":
+        fast = _project_fast(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics, backend)
+        if fast is not None:
+            return fast
     dtype = means.dtype
     f64 = torch.float64
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
@@ -205,6 +217,28 @@ def project(
         visible=visible,
         radii=radii.to(torch.int64),
     )
+
+
+def _project_fast(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics: Camera,
+                  backend: str) -> Projection | None:
+    """The numba projection, or None where "auto" falls back to the torch reference."""
+    pose_needs_grad = isinstance(world_to_camera, torch.Tensor) and world_to_camera.requires_grad
+    if backend == "numba" and pose_needs_grad:
+        raise ValueError("projection backend 'numba' does not differentiate the pose; use 'torch' or 'auto'")
+    if pose_needs_grad or means.device.type != "cpu":
+        return None
+    try:
+        from .projection_numba import project_numba
+    except ImportError:
+        if backend == "numba":
+            raise
+        return None
+    opacities = opacities_from_logits(opacity_logits)
+    pose = torch.as_tensor(world_to_camera).detach().cpu().to(torch.float64).numpy()
+    t, means2d, conics, cov2d, extents, visible, radii = project_numba(means, log_scales, quats, opacities,
+                                                                       pose, intrinsics)
+    return Projection(camera_means=t, means2d=means2d, cov2d=cov2d, conics=conics, opacities=opacities,
+                      extents=extents, visible=visible, radii=radii)
 
 
 def plane_normals(quats: torch.Tensor, log_scales: torch.Tensor, world_to_camera: torch.Tensor,

@@ -48,7 +48,7 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     degree = gaussians.sh_degree if sh_degree is None else max(0, min(sh_degree, gaussians.sh_degree))
 
     proj = project(gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits,
-                   world_to_camera, camera)
+                   world_to_camera, camera, backend=backend)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
@@ -59,7 +59,7 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     channels: list[tuple[str, torch.Tensor]] = []
     if "rgb" in outputs:
         directions = view_directions(gaussians.means[keep], world_to_camera) if degree > 0 else t
-        channels.append(("rgb", sh_to_color(gaussians.sh[keep], directions, degree)))
+        channels.append(("rgb", sh_to_color(gaussians.sh[keep], directions, degree, backend=backend)))
     if "depth" in outputs:
         channels.append(("depth", t[:, 2:3]))
     if "normal" in outputs or "plane_depth" in outputs:

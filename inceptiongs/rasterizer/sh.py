@@ -43,15 +43,27 @@ def sh_basis(directions: torch.Tensor, degree: int) -> torch.Tensor:
     return torch.stack(terms, dim=-1)
 
 
-def sh_to_color(sh: torch.Tensor, directions: torch.Tensor, degree: int) -> torch.Tensor:
+def sh_to_color(sh: torch.Tensor, directions: torch.Tensor, degree: int, backend: str = "auto") -> torch.Tensor:
     """sh: [N, K, 3] (K >= (degree + 1)^2), directions: [N, 3] unit -> colour [N, 3].
 
     colour = max(sum_k basis_k * sh_k + SH_OFFSET, 0); coefficients beyond ``degree`` are
-    ignored (that is how a degree cap is applied).
+    ignored (that is how a degree cap is applied). backend: "torch" (below), "numba"
+    (:mod:`.sh_numba`, one fused CPU loop) or "auto" (numba for CPU tensors when it imports
+    and the degree is above 0: a degree-0 colour is one multiply-add here already).
     """
+    if backend not in ("auto", "torch", "numba"):
+        raise ValueError(f"SH backend must be auto, torch or numba, got {backend!r}")
     count = sh_coeff_count(degree)
     if sh.shape[1] < count:
         raise ValueError(f"SH degree {degree} needs {count} coefficients, model has {sh.shape[1]}")
+    if backend == "numba" or (backend == "auto" and degree > 0 and sh.device.type == "cpu"):
+        try:
+            from .sh_numba import sh_to_color_numba
+        except ImportError:
+            if backend == "numba":
+                raise
+        else:
+            return sh_to_color_numba(sh, directions, count)
     basis = sh_basis(directions, degree)  # [N, count]
     colour = torch.einsum("nk,nkc->nc", basis, sh[:, :count])
     return torch.clamp_min(colour + SH_OFFSET, 0.0)
