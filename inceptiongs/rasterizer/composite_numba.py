@@ -185,6 +185,10 @@ def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, 
         acc = np.zeros((TILE_SIZE, TILE_SIZE, channels))
         count = np.zeros((TILE_SIZE, TILE_SIZE), np.int64)
         finished = np.zeros((TILE_SIZE, TILE_SIZE), np.bool_)
+        # Finished pixels per tile row: a row whose pixels have all stopped is skipped whole
+        # (each row's exp stepping restarts at its span, so skipping it changes no other row).
+        row_finished = np.zeros(TILE_SIZE, np.int64)
+        row_width = x1 - x0
         n_finished = 0
         for k in range(n):
             r = entries[start + k]
@@ -198,8 +202,10 @@ def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, 
             cut = params[r, _POWER_CUT]
             step_factor = math.exp(-ca)
             for y in range(by0, by1 + 1):
-                dy = (y + 0.5) - my
                 ly = y - y0
+                if row_finished[ly] == row_width:
+                    continue
+                dy = (y + 0.5) - my
                 sx0, sx1, parabola = row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
                 stepping = parabola and ca < RECURRENCE_CONIC_MAX
                 gauss = 0.0
@@ -223,6 +229,7 @@ def _forward_kernel(params, values, rects, offsets, entries, tile_order, width, 
                     after = before * (1.0 - alpha)
                     if after < TRANSMITTANCE_MIN:
                         finished[ly, lx] = True
+                        row_finished[ly] += 1
                         n_finished += 1
                         continue
                     weight = before * alpha
@@ -267,11 +274,15 @@ def _backward_kernel(params, values, rects, offsets, entries, tile_order, width,
         y1 = min(y0 + TILE_SIZE, height)
         trans = np.empty((TILE_SIZE, TILE_SIZE))
         behind = np.zeros((TILE_SIZE, TILE_SIZE, channels))
-        replay = 0
+        # Entries a row must replay: up to its pixels' longest walk; rows past it are skipped.
+        row_walk = np.zeros(TILE_SIZE, np.int64)
         for y in range(y0, y1):
             for x in range(x0, x1):
                 trans[y - y0, x - x0] = final_t[y, x]
-                replay = max(replay, walk[y, x])
+                row_walk[y - y0] = max(row_walk[y - y0], walk[y, x])
+        replay = 0
+        for ly in range(y1 - y0):
+            replay = max(replay, row_walk[ly])
         grad_values = np.empty(channels)
         for k in range(replay - 1, -1, -1):
             r = entries[start + k]
@@ -292,8 +303,10 @@ def _backward_kernel(params, values, rects, offsets, entries, tile_order, width,
             g_opacity = 0.0
             grad_values[:] = 0.0
             for y in range(by0, by1 + 1):
-                dy = (y + 0.5) - my
                 ly = y - y0
+                if k >= row_walk[ly]:
+                    continue  # every pixel of this row was finished before entry k
+                dy = (y + 0.5) - my
                 sx0, sx1, parabola = row_span(ca, cb, cc, cut, mx, dy, bx0, bx1)
                 stepping = parabola and ca < RECURRENCE_CONIC_MAX
                 gauss = 0.0
