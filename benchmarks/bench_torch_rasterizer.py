@@ -1,7 +1,9 @@
 """Torch rasterizer benchmark: forward and forward+backward time and peak memory.
 
 N random Gaussians in a unit cube in front of the camera, 512x512, 2 torch threads, for the
-"torch" reference composite and (when it imports) the "numba" fast path. Each (N, backend)
+"torch" reference (render(backend="torch"): projection, SH colour and composite in torch) and
+(when numba imports) the "numba" fast paths (render(backend="numba"): all three as numba
+kernels; before 2026-11-26 only the composite was). Each (N, backend)
 runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
 minus the interpreter's RSS right before the first render (model and imports excluded).
 
@@ -21,6 +23,7 @@ import textwrap
 
 WORKER = textwrap.dedent("""
     import json, resource, statistics, sys, time
+    import inceptiongs  # before torch: sets OMP_WAIT_POLICY=PASSIVE (docs/training.md, "Speed")
     import numpy as np, torch
     torch.set_num_threads(2)
     from inceptiongs.camera import Camera, look_at
