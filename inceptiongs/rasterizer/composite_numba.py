@@ -399,7 +399,8 @@ def _tile_scheduling():
         numba.set_parallel_chunksize(previous)
 
 
-def _as_f64(tensor: torch.Tensor) -> np.ndarray:
+def as_float64(tensor: torch.Tensor) -> np.ndarray:
+    """A contiguous float64 numpy copy of ``tensor`` (detached, on the CPU): what the kernels read."""
     return np.ascontiguousarray(tensor.detach().cpu().numpy(), dtype=np.float64)
 
 
@@ -449,9 +450,9 @@ class _CompositeFunction(torch.autograd.Function):
         channels = values.shape[1]
         # Front-to-back order: ascending depth, ties by index (a stable sort).
         order = np.argsort(depths.detach().cpu().numpy(), kind="stable")
-        params = pack_params(_as_f64(means2d), _as_f64(conics), _as_f64(opacities))[order]
-        values_sorted = _as_f64(values)[order]
-        extents_sorted = _as_f64(extents)[order]
+        params = pack_params(as_float64(means2d), as_float64(conics), as_float64(opacities))[order]
+        values_sorted = as_float64(values)[order]
+        extents_sorted = as_float64(extents)[order]
         tiles_x = -(-width // TILE_SIZE)
         tiles_y = -(-height // TILE_SIZE)
         rects, offsets, entries = bin_tiles(params, extents_sorted, width, height, tiles_x, tiles_y)
@@ -480,8 +481,8 @@ class _CompositeFunction(torch.autograd.Function):
         m = params.shape[0]
         channels = values_sorted.shape[1]
         device = grad_image.device if grad_image is not None else grad_alpha.device
-        g_image = (np.zeros((height, width, channels)) if grad_image is None else _as_f64(grad_image))
-        g_alpha = (np.zeros((height, width)) if grad_alpha is None else _as_f64(grad_alpha)[..., 0].copy())
+        g_image = (np.zeros((height, width, channels)) if grad_image is None else as_float64(grad_image))
+        g_alpha = (np.zeros((height, width)) if grad_alpha is None else as_float64(grad_alpha)[..., 0].copy())
 
         entry_grads = np.zeros((entries.shape[0], _GRAD_GEOMETRY_COLUMNS + channels), np.float64)
         if entries.shape[0] > 0:

@@ -35,6 +35,7 @@ from torch.autograd.function import once_differentiable
 from ..camera import Camera
 from ..constants import (ALPHA_MIN, DET_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN, LOG_SCALE_MAX,
                          LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN)
+from .composite_numba import as_float64
 
 
 
@@ -87,14 +88,56 @@ def _screen_rows(pose, rotation, scales, jxx, jxz, jyy, jyz, a, m0, m1):
         m1[j] = jyy * a[1, j] + jyz * a[2, j]
 
 
+@njit(cache=True)
+def _ratio_bounds(fx, fy, cx, cy, width, height):
+    """(lo_x, hi_x, lo_y, hi_y): the view ratios t.x / z, t.y / z the EWA Jacobian is evaluated
+    within: the field of view widened on each side by the margin (project()'s rule)."""
+    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
+    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
+    return -cx / fx - widen_x, (width - cx) / fx + widen_x, -cy / fy - widen_y, (height - cy) / fy + widen_y
+
+
+@njit(cache=True)
+def _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a, m0, m1):
+    """Row i's geometry, shared by the forward and the backward so both see the same numbers.
+
+    Fills t (camera-space centre), rotation, scales, a = W R diag(s) and the rows m0, m1 of
+    M = J a. Returns (in_range, z, ratio_x, ratio_y, clamped_x, clamped_y, unit quaternion
+    w, x, y, z, its norm, degenerate, Jacobian entries jxx, jxz, jyy, jyz, xx, xy, yy (dilated),
+    u = m0 x m1, det)."""
+    lo_x, hi_x, lo_y, hi_y = bounds
+    for k in range(3):
+        t[k] = pose[k, 0] * means[i, 0] + pose[k, 1] * means[i, 1] + pose[k, 2] * means[i, 2] + pose[k, 3]
+    z32 = np.float32(t[2])
+    in_range = z32 >= NEAR_PLANE and z32 <= FAR_PLANE
+    z = t[2] if in_range else 1.0
+    ratio_x = t[0] / z
+    ratio_y = t[1] / z
+    clamped_x = _clamp(ratio_x, lo_x, hi_x)
+    clamped_y = _clamp(ratio_y, lo_y, hi_y)
+    w, x, y, zq, qnorm, degenerate = _unit_quat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
+    _rotation(w, x, y, zq, rotation)
+    for j in range(3):
+        scales[j] = math.exp(_clamp(log_scales[i, j], LOG_SCALE_MIN, LOG_SCALE_MAX))
+    jxx, jxz, jyy, jyz = fx / z, -fx * clamped_x / z, fy / z, -fy * clamped_y / z
+    _screen_rows(pose, rotation, scales, jxx, jxz, jyy, jyz, a, m0, m1)
+    xx = m0[0] * m0[0] + m0[1] * m0[1] + m0[2] * m0[2]
+    xy = m0[0] * m1[0] + m0[1] * m1[1] + m0[2] * m1[2]
+    yy = m1[0] * m1[0] + m1[1] * m1[1] + m1[2] * m1[2]
+    u0 = m0[1] * m1[2] - m0[2] * m1[1]
+    u1 = m0[2] * m1[0] - m0[0] * m1[2]
+    u2 = m0[0] * m1[1] - m0[1] * m1[0]
+    # Lagrange identity, as the reference: never negative, no xx*yy - xy^2 cancellation.
+    det = (u0 * u0 + u1 * u1 + u2 * u2) + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
+    return (in_range, z, ratio_x, ratio_y, clamped_x, clamped_y, w, x, y, zq, qnorm, degenerate,
+            jxx, jxz, jyy, jyz, xx + DILATION_PX, xy, yy + DILATION_PX, u0, u1, u2, det)
+
+
 @njit(parallel=True, cache=True)
 def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy, cx, cy, width, height,
                     t_out, means2d, cov2d, conics, extents, visible, radii):
     n = means.shape[0]
-    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
-    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
-    lo_x, hi_x = -cx / fx - widen_x, (width - cx) / fx + widen_x
-    lo_y, hi_y = -cy / fy - widen_y, (height - cy) / fy + widen_y
+    bounds = _ratio_bounds(fx, fy, cx, cy, width, height)
     for chunk in prange((n + _CHUNK - 1) // _CHUNK):
         # Scratch per chunk of rows: allocating it per row costs more than the arithmetic.
         rotation = np.empty((3, 3))
@@ -104,35 +147,16 @@ def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy
         m1 = np.empty(3)
         t = np.empty(3)
         for i in range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK)):
+            geometry = _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a,
+                                        m0, m1)
+            in_range, ratio_x, ratio_y = geometry[0], geometry[2], geometry[3]
+            xx, xy, yy, det = geometry[16], geometry[17], geometry[18], geometry[22]
             for k in range(3):
-                t[k] = pose[k, 0] * means[i, 0] + pose[k, 1] * means[i, 1] + pose[k, 2] * means[i, 2] + pose[k, 3]
                 t_out[i, k] = t[k]
-            z32 = np.float32(t[2])
-            in_range = z32 >= NEAR_PLANE and z32 <= FAR_PLANE
-            z = t[2] if in_range else 1.0
-            ratio_x = t[0] / z
-            ratio_y = t[1] / z
             mx = fx * ratio_x + cx
             my = fy * ratio_y + cy
             means2d[i, 0] = mx
             means2d[i, 1] = my
-            clamped_x = _clamp(ratio_x, lo_x, hi_x)
-            clamped_y = _clamp(ratio_y, lo_y, hi_y)
-            w, x, y, zq, _, _ = _unit_quat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
-            _rotation(w, x, y, zq, rotation)
-            for j in range(3):
-                scales[j] = math.exp(_clamp(log_scales[i, j], LOG_SCALE_MIN, LOG_SCALE_MAX))
-            _screen_rows(pose, rotation, scales, fx / z, -fx * clamped_x / z, fy / z, -fy * clamped_y / z, a, m0, m1)
-            xx = m0[0] * m0[0] + m0[1] * m0[1] + m0[2] * m0[2]
-            xy = m0[0] * m1[0] + m0[1] * m1[1] + m0[2] * m1[2]
-            yy = m1[0] * m1[0] + m1[1] * m1[1] + m1[2] * m1[2]
-            u0 = m0[1] * m1[2] - m0[2] * m1[1]
-            u1 = m0[2] * m1[0] - m0[0] * m1[2]
-            u2 = m0[0] * m1[1] - m0[1] * m1[0]
-            # Lagrange identity, as the reference: never negative, no xx*yy - xy^2 cancellation.
-            det = (u0 * u0 + u1 * u1 + u2 * u2) + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
-            xx += DILATION_PX
-            yy += DILATION_PX
             cov2d[i, 0] = xx
             cov2d[i, 1] = xy
             cov2d[i, 2] = yy
@@ -165,10 +189,8 @@ def _backward_kernel(means, log_scales, quats, visible, pose, fx, fy, cx, cy, wi
                      g_t, g_means2d, g_conics, g_means, g_log_scales, g_quats):
     """d loss / d (means, log_scales, quats) from d loss / d (t, means2d, conics), by row."""
     n = means.shape[0]
-    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
-    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
-    lo_x, hi_x = -cx / fx - widen_x, (width - cx) / fx + widen_x
-    lo_y, hi_y = -cy / fy - widen_y, (height - cy) / fy + widen_y
+    bounds = _ratio_bounds(fx, fy, cx, cy, width, height)
+    lo_x, hi_x, lo_y, hi_y = bounds
     for chunk in prange((n + _CHUNK - 1) // _CHUNK):
         # Scratch per chunk of rows: allocating it per row costs more than the arithmetic.
         rotation = np.empty((3, 3))
@@ -191,30 +213,9 @@ def _backward_kernel(means, log_scales, quats, visible, pose, fx, fy, cx, cy, wi
                 for k in range(4):
                     g_quats[i, k] = 0.0
                 continue
-            for k in range(3):
-                t[k] = pose[k, 0] * means[i, 0] + pose[k, 1] * means[i, 1] + pose[k, 2] * means[i, 2] + pose[k, 3]
-            z32 = np.float32(t[2])
-            in_range = z32 >= NEAR_PLANE and z32 <= FAR_PLANE
-            z = t[2] if in_range else 1.0
-            ratio_x = t[0] / z
-            ratio_y = t[1] / z
-            clamped_x = _clamp(ratio_x, lo_x, hi_x)
-            clamped_y = _clamp(ratio_y, lo_y, hi_y)
-            w, x, y, zq, qnorm, degenerate = _unit_quat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
-            _rotation(w, x, y, zq, rotation)
-            for j in range(3):
-                scales[j] = math.exp(_clamp(log_scales[i, j], LOG_SCALE_MIN, LOG_SCALE_MAX))
-            jxx, jxz, jyy, jyz = fx / z, -fx * clamped_x / z, fy / z, -fy * clamped_y / z
-            _screen_rows(pose, rotation, scales, jxx, jxz, jyy, jyz, a, m0, m1)
-            xx = m0[0] * m0[0] + m0[1] * m0[1] + m0[2] * m0[2]
-            xy = m0[0] * m1[0] + m0[1] * m1[1] + m0[2] * m1[2]
-            yy = m1[0] * m1[0] + m1[1] * m1[1] + m1[2] * m1[2]
-            u0 = m0[1] * m1[2] - m0[2] * m1[1]
-            u1 = m0[2] * m1[0] - m0[0] * m1[2]
-            u2 = m0[0] * m1[1] - m0[1] * m1[0]
-            det = (u0 * u0 + u1 * u1 + u2 * u2) + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
-            xx += DILATION_PX
-            yy += DILATION_PX
+            (in_range, z, ratio_x, ratio_y, clamped_x, clamped_y, w, x, y, zq, qnorm, degenerate,
+             jxx, jxz, jyy, jyz, xx, xy, yy, u0, u1, u2, det) = _screen_geometry(
+                i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a, m0, m1)
 
             # conics = (yy, -xy, xx) / safe_det; safe_det = det on visible rows, else the constant 1.
             ga, gb, gc = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
@@ -287,10 +288,6 @@ def _backward_kernel(means, log_scales, quats, visible, pose, fx, fy, cx, cy, wi
                 g_means[i, k] = pose[0, k] * gt0 + pose[1, k] * gt1 + pose[2, k] * gt2
 
 
-def _f64(tensor: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(tensor.detach().cpu().numpy(), dtype=np.float64)
-
-
 class _ProjectFunction(torch.autograd.Function):
     """Outputs t [N, 3], means2d [N, 2], conics [N, 3] (differentiable) and cov2d [N, 3],
     extents [N, 2], visible [N], radii [N] (not), in the model's dtype (visible bool, radii int64)."""
@@ -298,7 +295,7 @@ class _ProjectFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, log_scales, quats, opacities, pose, camera):
         n = means.shape[0]
-        arrays = (_f64(means), _f64(log_scales), _f64(quats))
+        arrays = (as_float64(means), as_float64(log_scales), as_float64(quats))
         pose64 = np.ascontiguousarray(pose, dtype=np.float64)
         intrinsics = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
                       int(camera.width), int(camera.height))
@@ -311,8 +308,8 @@ class _ProjectFunction(torch.autograd.Function):
         radii = np.empty(n, np.int64)
         # The reference compares opacities in their own dtype with ALPHA_MIN rounded to it.
         alpha_min = float(torch.tensor(ALPHA_MIN, dtype=opacities.dtype))
-        _forward_kernel(*arrays, _f64(opacities), alpha_min, pose64, *intrinsics, t, means2d, cov2d, conics, extents,
-                        visible, radii)
+        _forward_kernel(*arrays, as_float64(opacities), alpha_min, pose64, *intrinsics, t, means2d, cov2d, conics,
+                        extents, visible, radii)
         ctx.state = (arrays, pose64, intrinsics, visible)
         ctx.dtypes = (means.dtype, log_scales.dtype, quats.dtype)
         dtype, device = means.dtype, means.device
@@ -328,7 +325,7 @@ class _ProjectFunction(torch.autograd.Function):
         n = arrays[0].shape[0]
 
         def incoming(grad, columns):
-            return np.zeros((n, columns)) if grad is None else _f64(grad)
+            return np.zeros((n, columns)) if grad is None else as_float64(grad)
 
         g_means = np.empty((n, 3))
         g_log_scales = np.empty((n, 3))
