@@ -147,10 +147,8 @@ def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy
         m1 = np.empty(3)
         t = np.empty(3)
         for i in range(chunk * _CHUNK, min(n, (chunk + 1) * _CHUNK)):
-            geometry = _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a,
-                                        m0, m1)
-            in_range, ratio_x, ratio_y = geometry[0], geometry[2], geometry[3]
-            xx, xy, yy, det = geometry[16], geometry[17], geometry[18], geometry[22]
+            (in_range, _, ratio_x, ratio_y, _, _, _, _, _, _, _, _, _, _, _, _, xx, xy, yy, _, _, _,
+             det) = _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a, m0, m1)
             for k in range(3):
                 t_out[i, k] = t[k]
             mx = fx * ratio_x + cx
