@@ -29,6 +29,7 @@ import math
 import torch
 from torch.utils.checkpoint import checkpoint
 
+from .backend import use_numba
 from ..constants import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN
 
 # Upper bound on (pixel, Gaussian) evaluations held at once (~ tens of MB per saved tensor).
@@ -47,17 +48,9 @@ def composite(means2d, conics, opacities, values, depths, extents, width: int, h
               backend: str = "auto"):
     """Dispatch to the numba fast path or the torch reference; arguments as in
     :func:`composite_torch`. "auto" picks numba when it imports and tensors are on the CPU."""
-    if backend not in ("auto", "torch", "numba"):
-        raise ValueError(f"composite backend must be auto, torch or numba, got {backend!r}")
-    if backend in ("auto", "numba"):
-        try:
-            from .composite_numba import composite_numba
-        except ImportError:
-            if backend == "numba":
-                raise
-        else:
-            if backend == "numba" or means2d.device.type == "cpu":
-                return composite_numba(means2d, conics, opacities, values, depths, extents, width, height)
+    if use_numba(backend, "composite", means2d):
+        from .composite_numba import composite_numba
+        return composite_numba(means2d, conics, opacities, values, depths, extents, width, height)
     return composite_torch(means2d, conics, opacities, values, depths, extents, width, height)
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .backend import use_numba
 from ..camera import Camera, unit_quat_to_rotation
 from ..constants import (
     ALPHA_MIN,
@@ -146,12 +147,11 @@ def project(
     pose must not require one) or "auto" (numba when it imports, the tensors are on the CPU and
     neither of those gradients can be needed, i.e. the pose does not require grad).
     """
-    if backend not in ("auto", "torch", "numba"):
-        raise ValueError(f"projection backend must be auto, torch or numba, got {backend!r}")
-    if backend != "torch":
-        fast = _project_fast(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics, backend)
-        if fast is not None:
-            return fast
+    pose_needs_grad = isinstance(world_to_camera, torch.Tensor) and world_to_camera.requires_grad
+    if use_numba(backend, "projection", means, auto_allowed=not pose_needs_grad):
+        if pose_needs_grad:
+            raise ValueError("projection backend 'numba' does not differentiate the pose; use 'torch' or 'auto'")
+        return _project_numba(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics)
     dtype = means.dtype
     f64 = torch.float64
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
@@ -166,11 +166,9 @@ def project(
     ratio_x, ratio_y = t[:, 0] / z, t[:, 1] / z
     means2d = torch.stack([fx * ratio_x + cx, fy * ratio_y + cy], dim=-1)
 
-    # Field of view on each side, widened by the margin (a fraction of half the image width).
-    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
-    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
-    clamped_x = torch.clamp(ratio_x, -cx / fx - widen_x, (width - cx) / fx + widen_x)
-    clamped_y = torch.clamp(ratio_y, -cy / fy - widen_y, (height - cy) / fy + widen_y)
+    lo_x, hi_x, lo_y, hi_y = view_ratio_bounds(intrinsics)
+    clamped_x = torch.clamp(ratio_x, lo_x, hi_x)
+    clamped_y = torch.clamp(ratio_y, lo_y, hi_y)
     zeros = torch.zeros_like(z)
     jacobian = torch.stack([
         torch.stack([fx / z, zeros, -fx * clamped_x / z], -1),
@@ -219,24 +217,24 @@ def project(
     )
 
 
-def _project_fast(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics: Camera,
-                  backend: str) -> Projection | None:
-    """The numba projection, or None where "auto" falls back to the torch reference."""
-    pose_needs_grad = isinstance(world_to_camera, torch.Tensor) and world_to_camera.requires_grad
-    if backend == "numba" and pose_needs_grad:
-        raise ValueError("projection backend 'numba' does not differentiate the pose; use 'torch' or 'auto'")
-    if pose_needs_grad or means.device.type != "cpu":
-        return None
-    try:
-        from .projection_numba import project_numba
-    except ImportError:
-        if backend == "numba":
-            raise
-        return None
+def view_ratio_bounds(intrinsics: Camera) -> tuple[float, float, float, float]:
+    """(lo_x, hi_x, lo_y, hi_y): the range of t.x / z and t.y / z the EWA Jacobian is evaluated
+    within, the field of view widened on each side by (FRUSTUM_CLAMP_MARGIN - 1) x half the
+    image's angular width."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * intrinsics.width / fx
+    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * intrinsics.height / fy
+    return (-cx / fx - widen_x, (intrinsics.width - cx) / fx + widen_x,
+            -cy / fy - widen_y, (intrinsics.height - cy) / fy + widen_y)
+
+
+def _project_numba(means, log_scales, quats, opacity_logits, world_to_camera, intrinsics: Camera) -> Projection:
+    """The same projection by the numba kernels of :mod:`.projection_numba` (pose without grad)."""
+    from .projection_numba import project_numba
     opacities = opacities_from_logits(opacity_logits)
     pose = torch.as_tensor(world_to_camera).detach().cpu().to(torch.float64).numpy()
-    t, means2d, conics, cov2d, extents, visible, radii = project_numba(means, log_scales, quats, opacities,
-                                                                       pose, intrinsics)
+    t, means2d, conics, cov2d, extents, visible, radii = project_numba(
+        means, log_scales, quats, opacities, pose, intrinsics, view_ratio_bounds(intrinsics))
     return Projection(camera_means=t, means2d=means2d, cov2d=cov2d, conics=conics, opacities=opacities,
                       extents=extents, visible=visible, radii=radii)
 

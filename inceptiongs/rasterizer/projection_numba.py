@@ -33,7 +33,7 @@ from numba import njit, prange
 from torch.autograd.function import once_differentiable
 
 from ..camera import Camera
-from ..constants import (ALPHA_MIN, DET_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN, LOG_SCALE_MAX,
+from ..constants import (ALPHA_MIN, DET_MIN, DILATION_PX, FAR_PLANE, LOG_SCALE_MAX,
                          LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN)
 from .composite_numba import as_float64
 
@@ -89,15 +89,6 @@ def _screen_rows(pose, rotation, scales, jxx, jxz, jyy, jyz, a, m0, m1):
 
 
 @njit(cache=True)
-def _ratio_bounds(fx, fy, cx, cy, width, height):
-    """(lo_x, hi_x, lo_y, hi_y): the view ratios t.x / z, t.y / z the EWA Jacobian is evaluated
-    within: the field of view widened on each side by the margin (project()'s rule)."""
-    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
-    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
-    return -cx / fx - widen_x, (width - cx) / fx + widen_x, -cy / fy - widen_y, (height - cy) / fy + widen_y
-
-
-@njit(cache=True)
 def _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotation, scales, a, m0, m1):
     """Row i's geometry, shared by the forward and the backward so both see the same numbers.
 
@@ -134,10 +125,9 @@ def _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotat
 
 
 @njit(parallel=True, cache=True)
-def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy, cx, cy, width, height,
+def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy, cx, cy, width, height, bounds,
                     t_out, means2d, cov2d, conics, extents, visible, radii):
     n = means.shape[0]
-    bounds = _ratio_bounds(fx, fy, cx, cy, width, height)
     for chunk in prange((n + _CHUNK - 1) // _CHUNK):
         # Scratch per chunk of rows: allocating it per row costs more than the arithmetic.
         rotation = np.empty((3, 3))
@@ -183,11 +173,10 @@ def _forward_kernel(means, log_scales, quats, opacities, alpha_min, pose, fx, fy
 
 
 @njit(parallel=True, cache=True)
-def _backward_kernel(means, log_scales, quats, visible, pose, fx, fy, cx, cy, width, height,
+def _backward_kernel(means, log_scales, quats, visible, pose, fx, fy, bounds,
                      g_t, g_means2d, g_conics, g_means, g_log_scales, g_quats):
     """d loss / d (means, log_scales, quats) from d loss / d (t, means2d, conics), by row."""
     n = means.shape[0]
-    bounds = _ratio_bounds(fx, fy, cx, cy, width, height)
     lo_x, hi_x, lo_y, hi_y = bounds
     for chunk in prange((n + _CHUNK - 1) // _CHUNK):
         # Scratch per chunk of rows: allocating it per row costs more than the arithmetic.
@@ -291,12 +280,12 @@ class _ProjectFunction(torch.autograd.Function):
     extents [N, 2], visible [N], radii [N] (not), in the model's dtype (visible bool, radii int64)."""
 
     @staticmethod
-    def forward(ctx, means, log_scales, quats, opacities, pose, camera):
+    def forward(ctx, means, log_scales, quats, opacities, pose, camera, bounds):
         n = means.shape[0]
         arrays = (as_float64(means), as_float64(log_scales), as_float64(quats))
         pose64 = np.ascontiguousarray(pose, dtype=np.float64)
-        intrinsics = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
-                      int(camera.width), int(camera.height))
+        fx, fy = float(camera.fx), float(camera.fy)
+        bounds = tuple(float(b) for b in bounds)
         t = np.empty((n, 3))
         means2d = np.empty((n, 2))
         cov2d = np.empty((n, 3))
@@ -306,9 +295,10 @@ class _ProjectFunction(torch.autograd.Function):
         radii = np.empty(n, np.int64)
         # The reference compares opacities in their own dtype with ALPHA_MIN rounded to it.
         alpha_min = float(torch.tensor(ALPHA_MIN, dtype=opacities.dtype))
-        _forward_kernel(*arrays, as_float64(opacities), alpha_min, pose64, *intrinsics, t, means2d, cov2d, conics,
-                        extents, visible, radii)
-        ctx.state = (arrays, pose64, intrinsics, visible)
+        _forward_kernel(*arrays, as_float64(opacities), alpha_min, pose64, fx, fy, float(camera.cx), float(camera.cy),
+                        int(camera.width), int(camera.height), bounds, t, means2d, cov2d, conics, extents, visible,
+                        radii)
+        ctx.state = (arrays, pose64, fx, fy, bounds, visible)
         ctx.dtypes = (means.dtype, log_scales.dtype, quats.dtype)
         dtype, device = means.dtype, means.device
         outputs = [torch.from_numpy(a).to(device=device, dtype=dtype) for a in (t, means2d, conics, cov2d, extents)]
@@ -319,7 +309,7 @@ class _ProjectFunction(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, g_t, g_means2d, g_conics, *_unused):
-        arrays, pose64, intrinsics, visible = ctx.state
+        arrays, pose64, fx, fy, bounds, visible = ctx.state
         n = arrays[0].shape[0]
 
         def incoming(grad, columns):
@@ -328,21 +318,22 @@ class _ProjectFunction(torch.autograd.Function):
         g_means = np.empty((n, 3))
         g_log_scales = np.empty((n, 3))
         g_quats = np.empty((n, 4))
-        _backward_kernel(*arrays, visible, pose64, *intrinsics, incoming(g_t, 3), incoming(g_means2d, 2),
+        _backward_kernel(*arrays, visible, pose64, fx, fy, bounds, incoming(g_t, 3), incoming(g_means2d, 2),
                          incoming(g_conics, 3), g_means, g_log_scales, g_quats)
         needs = ctx.needs_input_grad
         device = (g_t if g_t is not None else g_means2d if g_means2d is not None else g_conics).device
         grads = [torch.from_numpy(g).to(device=device, dtype=dtype) if need else None
                  for g, dtype, need in zip((g_means, g_log_scales, g_quats), ctx.dtypes, needs[:3])]
-        return (*grads, None, None, None)
+        return (*grads, None, None, None, None)
 
 
 def project_numba(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor, opacities: torch.Tensor,
-                  world_to_camera: np.ndarray, camera: Camera):
+                  world_to_camera: np.ndarray, camera: Camera, bounds: tuple[float, float, float, float]):
     """The projection of N Gaussians (means [N, 3], log_scales [N, 3], quats [N, 4]; opacities [N]
     already activated, used only to size footprints and cull) through a fixed pose
-    world_to_camera [4, 4] (no gradient) and ``camera``'s intrinsics.
+    world_to_camera [4, 4] (no gradient) and ``camera``'s intrinsics; ``bounds`` are the view
+    ratios the Jacobian is clamped to (projection.view_ratio_bounds).
 
     Returns (t, means2d, conics, cov2d, extents, visible, radii) as in
     :class:`inceptiongs.rasterizer.projection.Projection`; only the first three are differentiable."""
-    return _ProjectFunction.apply(means, log_scales, quats, opacities.detach(), world_to_camera, camera)
+    return _ProjectFunction.apply(means, log_scales, quats, opacities.detach(), world_to_camera, camera, bounds)

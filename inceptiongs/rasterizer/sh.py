@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import torch
 
+from .backend import use_numba
 from ..constants import SH_C0, SH_C1, SH_C2, SH_C3, SH_MAX_DEGREE, SH_OFFSET, sh_coeff_count
 
 
@@ -51,19 +52,13 @@ def sh_to_color(sh: torch.Tensor, directions: torch.Tensor, degree: int, backend
     (:mod:`.sh_numba`, one fused CPU loop) or "auto" (numba for CPU tensors when it imports
     and the degree is above 0: a degree-0 colour is one multiply-add here already).
     """
-    if backend not in ("auto", "torch", "numba"):
-        raise ValueError(f"SH backend must be auto, torch or numba, got {backend!r}")
+    fast = use_numba(backend, "SH", sh, auto_allowed=degree > 0)
     count = sh_coeff_count(degree)
     if sh.shape[1] < count:
         raise ValueError(f"SH degree {degree} needs {count} coefficients, model has {sh.shape[1]}")
-    if backend == "numba" or (backend == "auto" and degree > 0 and sh.device.type == "cpu"):
-        try:
-            from .sh_numba import sh_to_color_numba
-        except ImportError:
-            if backend == "numba":
-                raise
-        else:
-            return sh_to_color_numba(sh, directions, count)
+    if fast:
+        from .sh_numba import sh_to_color_numba
+        return sh_to_color_numba(sh, directions, count)
     basis = sh_basis(directions, degree)  # [N, count]
     colour = torch.einsum("nk,nkc->nc", basis, sh[:, :count])
     return torch.clamp_min(colour + SH_OFFSET, 0.0)
