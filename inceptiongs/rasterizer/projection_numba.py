@@ -10,8 +10,8 @@ Scope (what :func:`project_numba` differentiates): ``camera_means``, ``means2d``
 with respect to means, log-scales and quaternions, and ``opacities`` (computed by torch, so
 autograd handles the sigmoid). ``cov2d``, ``extents`` and ``radii`` carry no gradient: the
 renderer uses them only to bin and to report footprints (it detaches ``extents``). A pose that
-requires grad (stage II's Langevin view sampling) takes the torch path, see
-:func:`inceptiongs.rasterizer.projection.project_dispatch`.
+requires grad (stage II's Langevin view sampling) takes the torch path (the "auto" rule of
+:mod:`inceptiongs.rasterizer.backend`, applied in :func:`inceptiongs.rasterizer.projection.project`).
 
 The backward recomputes the forward quantities of each Gaussian (O(1) each) instead of storing
 [N, 2, 3] intermediates, and hand-codes the chain rule of the torch reference, including its
@@ -19,8 +19,8 @@ clamp and where() rules: a clamped log-scale, a clamped view ratio or an out-of-
 passes no gradient; a degenerate quaternion (norm < QUAT_NORM_MIN) is the identity and gets none;
 a culled Gaussian's conic divides by 1, not by its determinant. One difference by design: a
 row with no incoming gradient (every Gaussian the renderer culled) gets exactly zero, where the
-reference multiplies 0 by its intermediates (NaN for a non-finite mean). Tests compare both directions
-with the torch reference (tests/rasterizer/test_projection_numba.py).
+reference multiplies 0 by its intermediates (NaN for a non-finite mean). Tests compare both
+directions with the torch reference (tests/rasterizer/test_projection_numba.py).
 """
 
 from __future__ import annotations
