@@ -23,8 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..camera import Camera, project_points
+from ..camera import Camera, project_points, unit_quat_to_rotation
 from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN, SH_MAX_DEGREE
+from ..rasterizer.backend import use_numba
+from .free_space_numba import before_near_bound_numba, contains_camera_numba
 
 # A camera needs this many sparse points in its image for a percentile to mean anything;
 # with fewer it keeps only the renderer's NEAR_PLANE.
@@ -66,28 +68,36 @@ def _poses(cameras: list[Camera], dtype) -> tuple[torch.Tensor, torch.Tensor]:
     return rotations, translations
 
 
-def before_near_bound(means: torch.Tensor, cameras: list[Camera], near: torch.Tensor) -> torch.Tensor:
+def _intrinsics_table(cameras: list[Camera]) -> torch.Tensor:
+    """[C, 6] float64: fx, fy, cx, cy, width, height."""
+    return torch.tensor([[c.fx, c.fy, c.cx, c.cy, c.width, c.height] for c in cameras], dtype=torch.float64)
+
+
+def before_near_bound(means: torch.Tensor, cameras: list[Camera], near: torch.Tensor,
+                      backend: str = "auto") -> torch.Tensor:
     """means [N, 3], near [C] -> [N] bool: the centre lies in front of some camera (0 < z) and
-    closer than its near bound, and projects inside its image."""
+    closer than its near bound, and projects inside its image. ``backend``: as the rasterizer's
+    (:mod:`inceptiongs.rasterizer.backend`); "auto" takes the numba loop for CPU tensors."""
     out = torch.zeros(means.shape[0], dtype=torch.bool)
     if means.shape[0] == 0 or not cameras:
         return out
     means = means.detach().to(torch.float64)
+    near = near.to(torch.float64)
+    rotations, translations = _poses(cameras, torch.float64)                               # [C, 3, 3], [C, 3]
+    intrinsics = _intrinsics_table(cameras)
+    if use_numba(backend, "free space", means):
+        return torch.from_numpy(before_near_bound_numba(
+            *(np.ascontiguousarray(t.cpu().numpy()) for t in (means, rotations, translations, near, intrinsics))))
     step = _camera_block(means.shape[0])
     for start in range(0, len(cameras), step):
-        block = cameras[start:start + step]
-        rotations, translations = _poses(block, torch.float64)
-        local = torch.einsum("cij,nj->nci", rotations, means) + translations                # [N, C, 3]
-        z = local[..., 2]
-        close = (z > 0) & (z < near[start:start + len(block)].to(torch.float64))
+        block = slice(start, start + step)
+        r, t, k = rotations[block], translations[block], intrinsics[block]
+        x, y, z = (means @ r[:, axis, :].T + t[:, axis] for axis in range(3))              # [N, B] each
+        close = (z > 0) & (z < near[block])
         safe_z = torch.where(z > 0, z, torch.ones_like(z))  # only read where z > 0
-        fx = torch.tensor([c.fx for c in block], dtype=torch.float64)
-        fy = torch.tensor([c.fy for c in block], dtype=torch.float64)
-        u = fx * local[..., 0] / safe_z + torch.tensor([c.cx for c in block], dtype=torch.float64)
-        v = fy * local[..., 1] / safe_z + torch.tensor([c.cy for c in block], dtype=torch.float64)
-        width = torch.tensor([c.width for c in block], dtype=torch.float64)
-        height = torch.tensor([c.height for c in block], dtype=torch.float64)
-        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        u = k[:, 0] * x / safe_z + k[:, 2]
+        v = k[:, 1] * y / safe_z + k[:, 3]
+        inside = (u >= 0) & (u < k[:, 4]) & (v >= 0) & (v < k[:, 5])
         out |= (close & inside).any(1)
     return out
 
@@ -128,33 +138,54 @@ def nearest_camera_distance(means: torch.Tensor, centers: torch.Tensor) -> torch
 
 
 def contains_camera(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
-                    centers: torch.Tensor, sigmas: float) -> torch.Tensor:
+                    centers: torch.Tensor, sigmas: float, backend: str = "auto") -> torch.Tensor:
     """means [N, 3], log_scales [N, 3], quats [N, 4] (w, x, y, z), centers [C, 3] -> [N] bool:
-    some camera centre lies within ``sigmas`` standard deviations (Mahalanobis) of the Gaussian."""
+    some camera centre lies within ``sigmas`` standard deviations (Mahalanobis) of the Gaussian.
+    ``backend`` as :func:`before_near_bound`'s.
+
+    The Mahalanobis distance is at least the Euclidean one over the largest scale, so only
+    centres within ``sigmas`` x that scale can qualify: the torch path finds those pairs with
+    one squared-distance matrix per block of cameras and tests only them exactly."""
     n = means.shape[0]
     out = torch.zeros(n, dtype=torch.bool)
     if n == 0 or centers.shape[0] == 0:
         return out
     means = means.detach().to(torch.float64)
-    # Clamped like the renderer's: exp(-log_scale) stays finite.
-    inv_scales = torch.exp(-log_scales.detach().to(torch.float64).clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
-    q = quats.detach().to(torch.float64)
+    centers = centers.to(torch.float64)
+    if use_numba(backend, "free space", means):
+        return torch.from_numpy(contains_camera_numba(
+            *(np.ascontiguousarray(t.detach().cpu().to(torch.float64).numpy())
+              for t in (means, log_scales, quats, centers)), sigmas))
+    # Clamped like the renderer's: exp(+-log_scale) stays finite.
+    log_scales = log_scales.detach().to(torch.float64).clamp(LOG_SCALE_MIN, LOG_SCALE_MAX)
+    reach_sq = (sigmas * torch.exp(log_scales.amax(1))) ** 2                                  # [N]
+    means_sq = means.square().sum(-1)                                                        # [N]
+    step = _camera_block(n)
+    for start in range(0, centers.shape[0], step):
+        block = centers[start:start + step]
+        block_sq = block.square().sum(-1)
+        # |m - c|^2 as |m|^2 + |c|^2 - 2 m.c (a matrix product); it cancels, so the pre-test
+        # is widened by far more than its rounding error: it may only let extra pairs through.
+        scale = means_sq[:, None] + block_sq[None]
+        dist_sq = scale - 2.0 * (means @ block.T)                                            # [N, B]
+        rows, cols = torch.nonzero(dist_sq < reach_sq[:, None] + 1e-9 * scale, as_tuple=True)
+        if rows.numel() == 0:
+            continue
+        hit = _mahalanobis_sq(block[cols] - means[rows], log_scales[rows], quats.detach()[rows]) < sigmas * sigmas
+        out[rows[hit]] = True
+    return out
+
+
+def _mahalanobis_sq(offsets: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
+    """|R^T d / s|^2 for offsets d [P, 3] (float64), clamped log scales [P, 3], quats [P, 4] -> [P].
+    A quaternion too short to normalise counts as the identity rotation."""
+    q = quats.to(torch.float64)
     norm = q.norm(dim=-1, keepdim=True)
     identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64).expand_as(q)
     q = torch.where(norm > QUAT_NORM_MIN, q / norm.clamp_min(QUAT_NORM_MIN), identity)
-    w, x, y, z = q.unbind(-1)
-    rotation = torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(-1, 3, 3)                                                                 # [N, 3, 3]
-    centers = centers.to(torch.float64)
-    step = _camera_block(n)
-    for start in range(0, centers.shape[0], step):
-        offsets = centers[start:start + step][None] - means[:, None]                # [N, B, 3]
-        local = torch.einsum("nji,nbj->nbi", rotation, offsets) * inv_scales[:, None]       # R^T d / s
-        out |= (local.square().sum(-1) < sigmas * sigmas).any(1)
-    return out
+    rotation = unit_quat_to_rotation(*q.unbind(-1), torch.stack)                            # [P, 3, 3]
+    local = (rotation * offsets[:, :, None]).sum(1) * torch.exp(-log_scales)                # R^T d / s
+    return local.square().sum(-1)
 
 
 @dataclass
