@@ -9,6 +9,8 @@ import numpy as np
 import torch
 
 import train_cases as tc
+from inceptiongs.camera import quat_to_rotation
+from inceptiongs.constants import LOG_SCALE_MAX, LOG_SCALE_MIN, QUAT_NORM_MIN
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.train.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
@@ -53,6 +55,76 @@ def test_gaussian_at_a_camera_centre_and_one_before_the_near_bound_are_removed()
     assert means.shape[0] == len(truth)
     # The view statistics follow the rows that stayed.
     assert state.view_stats.seen.shape[0] == len(truth)
+
+
+def _pair_reference(means, log_scales, quats, cameras, near, sigmas):
+    """Both [N, C] tests pair by pair in numpy float64, straight from their definitions."""
+    contains = np.zeros(len(means), bool)
+    before = np.zeros(len(means), bool)
+    np_errors = np.errstate(invalid="ignore")   # NaN centres: comparisons are False, as intended
+    np_errors.__enter__()
+    for n in range(len(means)):
+        q = quats[n].astype(np.float64)
+        rotation = quat_to_rotation(q) if np.linalg.norm(q) > QUAT_NORM_MIN else np.eye(3)
+        inv_scale = np.exp(-np.clip(log_scales[n].astype(np.float64), LOG_SCALE_MIN, LOG_SCALE_MAX))
+        for c, camera in enumerate(cameras):
+            local = rotation.T @ (camera.center - means[n]) * inv_scale
+            contains[n] |= bool(local @ local < sigmas * sigmas)
+            x, y, z = camera.rotation @ means[n] + camera.world_to_camera[:3, 3]
+            if 0 < z < near[c]:
+                u, v = camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy
+                before[n] |= bool(0 <= u < camera.width and 0 <= v < camera.height)
+    np_errors.__exit__(None, None, None)
+    return contains, before
+
+
+def test_free_space_pair_tests_agree_across_backends_and_with_the_definition_on_extreme_gaussians():
+    """The numba loops and the torch path (distance pre-filter, [N, B] products) flag exactly the
+    Gaussians the pair-by-pair definition flags, including at and near camera centres, behind and
+    beside cameras, with needles, huge and tiny log-scales past the clamps, zero and denormal
+    quaternions, and non-finite centres (never flagged)."""
+    cameras = tc.ring_cameras(7)
+    centers = np.stack([c.center for c in cameras])
+    rng = np.random.default_rng(3)
+    n = 600
+    means = np.concatenate([
+        centers[rng.integers(0, 7, 200)] + rng.normal(0, 0.3, (200, 3)),     # around cameras
+        rng.normal(0, 2.0, (380, 3)),                                          # everywhere
+        centers[:4],                                                           # exactly at centres
+        centers[4:6] * (1 - 0.5 / tc.RING_RADIUS),                              # on an axis, 0.5 ahead
+        centers[6:7] * (1 + 0.5 / tc.RING_RADIUS),                              # behind a camera
+        [[np.nan, 0, 0], [np.inf, 0, 0], [0, -np.inf, 1], [np.nan] * 3],       # non-finite
+        np.zeros((9, 3)),
+    ])
+    log_scales = rng.uniform(-4.0, 0.5, (n, 3))
+    log_scales[::7, 0] = 2.5                                                   # needles
+    log_scales[5::11] = [[100.0, -100.0, 0.0]]                                 # past both clamps
+    log_scales[3::13] = -100.0                                                 # vanishing
+    quats = rng.normal(0, 1, (n, 4))
+    quats[2::17] = 0.0                                                         # zero: identity
+    quats[4::19] = 1e-300                                                      # denormal: identity
+    near = np.full(7, 1.0)
+    near[2] = 2.5
+    at_camera = np.zeros(n, bool)
+    at_camera[580:584] = True
+    expected = _pair_reference(means, log_scales, quats, cameras, near, 3.0)
+    assert 20 < expected[0].sum() < n - 20 and 20 < expected[1].sum() < n - 20   # both sides are exercised
+    tensors = [torch.tensor(a) for a in (means, log_scales, quats)]
+    for dtype in (torch.float64, torch.float32):
+        if dtype == torch.float32:    # the training parameters' dtype: compare against its rounding
+            tensors = [t.to(dtype) for t in tensors]
+            expected = _pair_reference(*(t.double().numpy() for t in tensors), cameras, near, 3.0)
+        for backend in ("numba", "torch"):
+            contains = contains_camera(*tensors, torch.tensor(centers), 3.0, backend=backend)
+            before = before_near_bound(tensors[0], cameras, torch.tensor(near), backend=backend)
+            assert np.flatnonzero(contains.numpy() != expected[0]).tolist() == [], (backend, dtype)
+            # A centre exactly at a camera has z = 0 up to rounding, a coin toss for "0 < z": skipped.
+            assert np.flatnonzero((before.numpy() != expected[1]) & ~at_camera).tolist() == [], (backend, dtype)
+    # Empty inputs: no flags, no error.
+    for backend in ("numba", "torch"):
+        assert contains_camera(torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0, 4), torch.tensor(centers), 3.0,
+                               backend=backend).shape == (0,)
+        assert before_near_bound(torch.zeros(0, 3), cameras, torch.tensor(near), backend=backend).shape == (0,)
 
 
 def test_gaussian_behind_a_camera_within_its_ball_is_removed_and_one_beyond_it_stays():

@@ -12,8 +12,8 @@ from inceptiongs.gaussians import Gaussians
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
-from inceptiongs.train.strategy import (drop_gaussians, drop_rate, grow, mcmc_noise, relocate,
-                                        relocation_correction)
+from inceptiongs.train.strategy import (MCMC_NOISE_K, MCMC_NOISE_X0, drop_gaussians, drop_rate, grow, mcmc_noise,
+                                        relocate, relocation_correction)
 
 
 def _logit(p: float) -> float:
@@ -109,6 +109,30 @@ def test_mcmc_noise_moves_transparent_gaussians_and_leaves_opaque_ones():
     mcmc_noise(params, position_lr=1e-3, noise_lr=5e5, generator=torch.Generator().manual_seed(0))
     moved = (params["means"].detach() - before).norm(dim=-1)
     assert moved[1] > 1e-3 and moved[0] < 1e-6 * moved[1]
+
+
+def test_mcmc_noise_follows_the_covariance_of_a_rotated_needle():
+    """Noise = Sigma eta scaled by the gate and the rates: its second moment is c^2 Sigma^2, with
+    Sigma = R S^2 R^T. A needle along x rotated 90 degrees about z moves along y."""
+    model = _model([0.001])
+    model.log_scales[:] = torch.log(torch.tensor([[0.5, 0.05, 0.1]]))
+    half = math.sqrt(0.5)
+    model.quats[:] = torch.tensor([[half, 0.0, 0.0, half]])        # 90 degrees about z: x -> y
+    params = params_from_gaussians(model)
+    start = params["means"].detach().clone()
+    generator = torch.Generator().manual_seed(1)
+    draws = []
+    for _ in range(4000):
+        params["means"].data.copy_(start)
+        mcmc_noise(params, position_lr=1e-3, noise_lr=5e5, generator=generator)
+        draws.append((params["means"].detach() - start)[0].double())
+    noise = torch.stack(draws)                                        # [4000, 3]
+    moment = noise.T @ noise / len(draws)
+    gate = 1.0 / (1.0 + math.exp(-MCMC_NOISE_K * ((1.0 - 0.001) - MCMC_NOISE_X0)))
+    c = gate * 5e5 * 1e-3
+    sigma = torch.diag(torch.tensor([0.05 ** 2, 0.5 ** 2, 0.1 ** 2], dtype=torch.float64))   # in world axes
+    expected = c * c * sigma @ sigma
+    assert torch.allclose(moment, expected, rtol=0.1, atol=0.02 * float(expected.max())), (moment, expected)
 
 
 def test_dropgaussian_expected_opacity_equals_the_undropped_one():
