@@ -106,6 +106,9 @@ class TrainState:
     near: torch.Tensor | None = None
     # The sky shell's sphere [4] (centre, radius); None without one.
     sky: torch.Tensor | None = None
+    # view -> MSE of its latest training render (inceptiongs.train.view_fit: photos the model
+    # cannot fit are reported at the end of the run).
+    view_mse: dict[int, float] = dataclasses.field(default_factory=dict)
 
     def payload(self, config: TrainConfig) -> dict:
         extra = {}
@@ -124,6 +127,7 @@ class TrainState:
             "generator": self.generator.get_state(),
             "order": list(self.order), "order_pos": self.order_pos,
             "logged": sorted(self.logged), "config": config.to_json_dict(),
+            "view_mse": dict(self.view_mse),
         }
 
 
@@ -180,7 +184,8 @@ def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainS
     sky = payload.get("sky")
     return TrainState(params, optimizer, stats, int(payload["iteration"]), float(payload["wall_s"]),
                       float(payload["train_s"]), view_rng, generator, list(payload["order"]),
-                      int(payload["order_pos"]), set(payload["logged"]), view_stats, near, sky)
+                      int(payload["order_pos"]), set(payload["logged"]), view_stats, near, sky,
+                      dict(payload.get("view_mse", {})))
 
 
 def next_view(state: TrainState, data: TrainData) -> int:
@@ -282,6 +287,10 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree)
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
+    with torch.no_grad():
+        mse = float((out["rgb"] - data.images[view]).square().mean())
+    if math.isfinite(mse):  # a non-finite render says nothing about the photo
+        state.view_mse[view] = mse
     terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
     if config.strategy == "mcmc":
         terms["opacity_reg"], terms["scale_reg"] = strategies.mcmc_regularisers(state.params)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from typing import Callable
 from tqdm import tqdm
 
 from ..errors import InputError
-from ..io.atomic import OutputError, check_writable_dir, remove_stale_temp_files
+from ..io.atomic import OutputError, atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..live import wait_while_paused
 from ..threads import use_torch_threads
@@ -31,6 +32,7 @@ from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoi
 from .config import TrainConfig, sized_schedule
 from .optim import gaussians_from_params
 from .sky import fill_shell_behind_scene
+from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
 from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
 from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
                    sh_degree_at, supported_sh_degree, train_step, trim_sh)
@@ -264,6 +266,12 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         attempt(lambda: write_ply(to_original_frame(
             trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)), scene.normalization),
             run_dir / "model.ply"))
+        if state.view_mse:
+            report = view_fit_report(state.view_mse, {i: data.cameras[i].name for i in state.view_mse})
+            attempt(lambda: atomic_write_text(run_dir / VIEW_FIT_FILE, json.dumps(report, indent=1)))
+            line = summary_line(report, str(run_dir / VIEW_FIT_FILE))
+            if line:
+                log(line)
         # A resumed finished run logs nothing twice.
         if last_eval and state.iteration not in logged_iterations(run_dir):
             attempt(lambda: append_metrics(run_dir, {

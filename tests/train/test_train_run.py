@@ -22,6 +22,7 @@ from inceptiongs.train.config import TrainConfig
 from inceptiongs.live import JobControl
 from inceptiongs.train.job import TrainJob
 from inceptiongs.train.trainer import train
+from inceptiongs.train.view_fit import VIEW_FIT_FILE
 from inceptiongs.live import SnapshotBox
 
 
@@ -101,6 +102,7 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy,
                  on_snapshot=stopper, snapshot_every=1)
     assert not half.finished and half.iteration == 8
     assert not (tmp_path / "resumed" / "model.ply").exists()
+    assert not (tmp_path / "resumed" / VIEW_FIT_FILE).exists()   # written by a finished run only
     resumed = train(config, tmp_path / "resumed", resume=True, progress=False)
     assert resumed.iteration == straight.iteration == 16
     a, b = _params(tmp_path / "straight"), _params(tmp_path / "resumed")
@@ -110,6 +112,10 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy,
         assert torch.equal(a[name], b[name]), name
     payload = load_newest_checkpoint(tmp_path / "resumed")[1]
     assert ("sky" in payload) == sky_shell
+    # The per-view training errors are part of the state: the report after a resume is the same.
+    fit = json.loads((tmp_path / "straight" / VIEW_FIT_FILE).read_text())
+    assert fit == json.loads((tmp_path / "resumed" / VIEW_FIT_FILE).read_text())
+    assert len(fit["views"]) == len(payload["view_mse"]) > 0
     if strategy == "mcmc":
         records = _records(tmp_path / "straight")
         assert any(r.get("relocated", 0) > 0 or r.get("added", 0) > 0 for r in records)
