@@ -38,6 +38,7 @@ MODEL_STILL_SECONDS = 1.0
 # The torch reference renders at most this many pixels wide (it runs on the CPU).
 REFERENCE_MAX_WIDTH = 320
 TRAINING_COLOR = (0.2, 0.6, 1.0)
+POORLY_FIT_COLOR = (1.0, 0.65, 0.0)  # training photos the open run fits poorly (view_fit.json)
 FLAG_COLOR = (1.0, 0.3, 0.2)
 SELECTED_FLAG_COLOR = (1.0, 0.9, 0.1)
 CROP_COLOR = (0.3, 1.0, 0.3)
@@ -56,6 +57,13 @@ def next_moving_level(level: int, splat_ms: float) -> int:
     if splat_ms < 0.5 * MOVING_BUDGET_MS:
         return max(level - 1, 0)
     return level
+
+
+def frustum_colors(cameras: list, poorly_fit) -> np.ndarray:
+    """[8 per camera, 3]: each training camera's frustum segments in TRAINING_COLOR, or
+    POORLY_FIT_COLOR when its photo is among ``poorly_fit`` (image names)."""
+    rows = [POORLY_FIT_COLOR if camera.name in poorly_fit else TRAINING_COLOR for camera in cameras]
+    return np.repeat(np.asarray(rows, np.float64).reshape(-1, 3), 8, axis=0)
 
 
 def box_segments(box_min, box_max) -> np.ndarray:
@@ -192,8 +200,9 @@ class FrameDrawer:
         depth = max(viewer.nav.speed * 0.1, 1e-3)
         training = away_from(viewer.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
         if settings.show_training_cameras and training:
-            segments = segments_for_cameras([viewer.cameras[i] for i in training], depth)
-            self.overlay.draw_segments(camera, segments, np.tile(TRAINING_COLOR, (len(segments), 1)))
+            shown_cameras = [viewer.cameras[i] for i in training]
+            segments = segments_for_cameras(shown_cameras, depth)
+            self.overlay.draw_segments(camera, segments, frustum_colors(shown_cameras, viewer.poorly_fit))
         # A flag made where the camera stands would be drawn around the eye, its lines across the
         # whole window: flags that close are left out until the camera moves away.
         shown = away_from([f.camera for f in flags], camera.center, FLAG_HIDE_DISTANCE * depth)

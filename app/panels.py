@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui, implot
 
-from .drawing import SELECTION_COLOR
+from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET, start_bootstrap
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
 from inceptiongs.train.config import STRATEGIES, TrainConfig, schedule_length
+from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
 
@@ -327,6 +328,7 @@ def _training(viewer) -> None:
     run = viewer.training
     imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
     _runs(viewer)
+    _poorly_fit(viewer)
     if run is None or not run.alive:
         _job_settings(viewer)
         if _button(viewer, "train (new run)"):
@@ -366,6 +368,22 @@ def _training(viewer) -> None:
         imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
     _progress(viewer, run)
     _plots(run.progress)
+
+
+def _poorly_fit(viewer) -> None:
+    """The open run's training photos it fits poorly (view_fit.json): how many, and a button that
+    steps through them (their frustums are drawn in POORLY_FIT_COLOR)."""
+    if not viewer.poorly_fit:
+        return
+    worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(viewer.poorly_fit.items())[:3])
+    imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0),
+                       f"{len(viewer.poorly_fit)} training photos fit poorly (orange frustums)")
+    _remember(viewer, "poorly fit photos")
+    if imgui.is_item_hovered():
+        imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: moved "
+                          f"objects, wrong poses or exposure changes in them? Worst: {worst}")
+    if _button(viewer, "next poorly fit photo"):
+        viewer.next_poorly_fit_photo()
 
 
 def _runs(viewer) -> None:

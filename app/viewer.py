@@ -19,6 +19,7 @@ from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io import flags as flag_io
 from inceptiongs.io.images import write_image
+from inceptiongs.train.view_fit import read_poorly_fit
 
 from . import editing, flags as flagging
 from .coverage_mode import SUGGESTED_FLAGS, CoverageMode
@@ -96,6 +97,11 @@ class Viewer:
         self.job_settings = JobSettings()
         self.training: LiveTraining | None = None
         self.run_dir = run_dir_of(source)  # the open run: what Resume continues, Bootstrap repairs
+        # The open run's training photos it fits poorly (image name -> PSNR, worst first): their
+        # frustums are drawn apart and the Training panel steps through them.
+        self.poorly_fit: dict[str, float] = {}
+        self.poorly_fit_shown = -1  # which of them "next poorly fit photo" went to last
+        self.read_view_fit()
         self.job_out_dir: Path | None = None  # where the current (or last) job writes
         self.job_reported = False  # the closing line of the last job has replaced the status
         self.show_help = False  # the key-bindings overlay (H / F1)
@@ -433,8 +439,31 @@ class Viewer:
         self.model_version += 1
         self.run_dir = run_dir_of(opened)
         self.status = f"opened run {run_dir}"
+        self.read_view_fit()
         self.update_title()
         self.moved()
+
+    def read_view_fit(self) -> None:
+        """The open run's poorly fit training photos (RUN/view_fit.json; none without one)."""
+        self.poorly_fit, self.poorly_fit_shown = {}, -1
+        if self.run_dir is None:
+            return
+        try:
+            self.poorly_fit = read_poorly_fit(self.run_dir)
+        except InputError as exc:
+            self.status = f"photo fit report not read: {exc}"
+
+    def next_poorly_fit_photo(self) -> None:
+        """Stand at the next poorly fit training photo's camera (worst first, then around)."""
+        indices = {camera.name: i for i, camera in enumerate(self.cameras)}
+        names = [name for name in self.poorly_fit if name in indices]
+        if not names:
+            return
+        self.poorly_fit_shown = (self.poorly_fit_shown + 1) % len(names)
+        name = names[self.poorly_fit_shown]
+        self.snap_to_camera(indices[name])
+        self.status = (f"{name}: training photo {self.poorly_fit_shown + 1} of {len(names)} the model fits "
+                       f"poorly ({self.poorly_fit[name]:.1f} dB)")
 
     # --- live training -------------------------------------------------------------------------
     def start_training(self) -> None:
@@ -486,6 +515,8 @@ class Viewer:
             return
         self.status = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
                                    final_scores(run.progress.psnr), self.job_out_dir)
+        if self.job_out_dir is not None and self.job_out_dir == self.run_dir:
+            self.read_view_fit()  # a finished run has just written its report
 
     def update_title(self) -> None:
         """The window names the model shown: the file, or the job folder it comes from."""

@@ -16,8 +16,11 @@ view's figure goes to ``view_fit.json`` in the run folder.
 
 from __future__ import annotations
 
+import json
 import statistics
+from pathlib import Path
 
+from ..errors import InputError
 from ..evaluation.metrics import psnr_from_mse
 
 # The run folder's per-view figures (written at the end of a finished run).
@@ -72,3 +75,18 @@ def summary_line(report: dict, run_file: str) -> str | None:
             f"{report['margin_db']:g} dB below the median {report['median_psnr']:.1f} dB ({names}{more}): "
             f"moved objects, wrong poses or exposure changes in them? All views: {run_file}")
 
+
+
+def read_poorly_fit(run_dir: str | Path) -> dict[str, float]:
+    """RUN/view_fit.json -> {image name: PSNR} of the views it reports as poorly fit, worst first;
+    {} when the run has no report (not finished, or written before reports existed). InputError
+    naming the file when it is not a report."""
+    path = Path(run_dir) / VIEW_FIT_FILE
+    if not path.is_file():
+        return {}
+    try:
+        views = json.loads(path.read_text())["views"]
+        bad = {str(v["name"]): float(v["psnr"]) for v in views if v["poorly_fit"]}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a view-fit report ({type(exc).__name__}: {exc})") from exc
+    return dict(sorted(bad.items(), key=lambda item: item[1]))

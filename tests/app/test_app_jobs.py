@@ -498,3 +498,50 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
         click_widget(viewer, "resume")
         assert viewer.training is not None and viewer.training.job.resume, viewer.status
         viewer.training.stop()
+
+
+@pytest.mark.gl
+def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene, tmp_path):
+    """A run's view_fit.json names the training photos it fits poorly: the viewer opened on the
+    run draws their frustums orange and the Training panel's button stands at each, worst first.
+    (Which photos the trainer reports is tested in tests/train/test_train_view_fit.py; here two
+    of a real report's views are marked by hand.)"""
+    import json
+
+    from inceptiongs.app.drawing import POORLY_FIT_COLOR, TRAINING_COLOR, frustum_colors
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.train.trainer import train
+    from inceptiongs.train.view_fit import VIEW_FIT_FILE
+    from viewer_cases import click_widget
+
+    run = tmp_path / "run"
+    train(JobSettings(minutes=None, iterations=6, downscale=4).train_config(demo_scene), run, progress=False)
+    report = json.loads((run / VIEW_FIT_FILE).read_text())  # the finished run wrote it
+    assert len(report["views"]) >= 2
+    first, second = report["views"][0], report["views"][1]
+    first.update(psnr=9.0, poorly_fit=True)
+    second.update(psnr=7.0, poorly_fit=True)
+    (run / VIEW_FIT_FILE).write_text(json.dumps(report))
+    with opened(Viewer, open_source(run), 900, 1000) as viewer:
+        assert list(viewer.poorly_fit) == [second["name"], first["name"]]  # worst first
+        colors = frustum_colors(viewer.cameras, viewer.poorly_fit)
+        for index, camera in enumerate(viewer.cameras):
+            expected = POORLY_FIT_COLOR if camera.name in (first["name"], second["name"]) else TRAINING_COLOR
+            assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
+        viewer.step()
+        assert "poorly fit photos" in viewer.ui_rects
+        click_widget(viewer, "next poorly fit photo")
+        assert viewer.cameras[viewer.camera_index].name == second["name"]
+        assert second["name"] in viewer.status and "7.0 dB" in viewer.status
+        np.testing.assert_allclose(viewer.nav.center, viewer.cameras[viewer.camera_index].center, atol=1e-9)
+        click_widget(viewer, "next poorly fit photo")
+        assert viewer.cameras[viewer.camera_index].name == first["name"]
+        click_widget(viewer, "next poorly fit photo")  # around again
+        assert viewer.cameras[viewer.camera_index].name == second["name"]
+    # A report that is not one: the viewer still opens, says which file, shows none.
+    (run / VIEW_FIT_FILE).write_text("{not json")
+    with opened(Viewer, open_source(run), 640, 480) as viewer:
+        assert viewer.poorly_fit == {} and str(run / VIEW_FIT_FILE) in viewer.status
+        viewer.step()
+        assert "next poorly fit photo" not in viewer.ui_rects
