@@ -157,7 +157,12 @@ def project(
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     width, height = intrinsics.width, intrinsics.height
 
-    t = camera_space_means(means, world_to_camera)
+    # A non-finite centre is culled. It enters the arithmetic as the origin, so that no 0 x NaN
+    # reaches a gradient: its own scale and rotation, and above all the pose, which every row
+    # shares (one NaN centre would otherwise make Langevin's pose gradient NaN). Its outputs are
+    # set back to NaN below, as the numba path gives them.
+    finite_mean = torch.isfinite(means).all(-1)
+    t = camera_space_means(torch.where(finite_mean[:, None], means, torch.zeros_like(means)), world_to_camera)
     tz = t[:, 2]
     in_depth_range = depth_in_range(tz)
     # Culled Gaussians still flow through the arithmetic below; a safe depth keeps their
@@ -194,7 +199,7 @@ def project(
     opacities = opacities_from_logits(opacity_logits)
     extents = torch.sqrt(2.0 * footprint_level(opacities.to(f64))[:, None] * torch.stack([xx, yy], -1))
 
-    visible = in_depth_range & (det >= DET_MIN) & torch.isfinite(det) & (opacities >= ALPHA_MIN)
+    visible = finite_mean & in_depth_range & (det >= DET_MIN) & torch.isfinite(det) & (opacities >= ALPHA_MIN)
     visible &= torch.isfinite(means2d).all(-1) & torch.isfinite(extents).all(-1)
     ext = extents.detach()
     mean = means2d.detach()
@@ -205,13 +210,18 @@ def project(
     safe_det = torch.where(visible, det, torch.ones_like(det))
     conics = torch.stack([yy / safe_det, -xy / safe_det, xx / safe_det], -1)
     radii = torch.where(visible, torch.ceil(ext.max(-1).values.nan_to_num(0.0)), torch.zeros_like(det))
+
+    def nan_where_not_finite(values: torch.Tensor) -> torch.Tensor:
+        # A constant branch: no gradient reaches the culled row through it.
+        return torch.where(finite_mean[:, None], values, torch.full_like(values, float("nan"))).to(dtype)
+
     return Projection(
-        camera_means=t.to(dtype),
-        means2d=means2d.to(dtype),
-        cov2d=cov2d.to(dtype),
-        conics=conics.to(dtype),
+        camera_means=nan_where_not_finite(t),
+        means2d=nan_where_not_finite(means2d),
+        cov2d=nan_where_not_finite(cov2d),
+        conics=nan_where_not_finite(conics),
         opacities=opacities,
-        extents=extents.to(dtype),
+        extents=nan_where_not_finite(extents),
         visible=visible,
         radii=radii.to(torch.int64),
     )

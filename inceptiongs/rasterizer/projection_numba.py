@@ -17,10 +17,10 @@ The backward recomputes the forward quantities of each Gaussian (O(1) each) inst
 [N, 2, 3] intermediates, and hand-codes the chain rule of the torch reference, including its
 clamp and where() rules: a clamped log-scale, a clamped view ratio or an out-of-range depth
 passes no gradient; a degenerate quaternion (norm < QUAT_NORM_MIN) is the identity and gets none;
-a culled Gaussian's conic divides by 1, not by its determinant. One difference by design: a
-row with no incoming gradient (every Gaussian the renderer culled) gets exactly zero, where the
-reference multiplies 0 by its intermediates (NaN for a non-finite mean). Tests compare both
-directions with the torch reference (tests/rasterizer/test_projection_numba.py).
+a culled Gaussian's conic divides by 1, not by its determinant. A row with no incoming gradient
+(every Gaussian the renderer culled) gets exactly zero without the chain rule; the reference
+reaches finite values there too (it feeds a non-finite centre through as the origin). Tests
+compare both directions with the torch reference (tests/rasterizer/test_projection_numba.py).
 """
 
 from __future__ import annotations
