@@ -36,6 +36,9 @@ class JobSettings:
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
     strategy: str = "default"       # inceptiongs.train.config.STRATEGIES
     sky_shell: bool | None = None   # None: TrainConfig's default (as `inceptiongs train` without the flag)
+    # Photos the next run leaves out (--exclude-photos): the Training panel fills it with the open
+    # run's poorly fit photos when the user asks.
+    exclude_photos: list[str] = dataclasses.field(default_factory=list)
     # Stage II.
     bootstrap_minutes: float | None = 4.0
     bootstrap_iterations: int = 300
@@ -53,7 +56,8 @@ class JobSettings:
         sky_shell = TrainConfig.sky_shell if self.sky_shell is None else self.sky_shell
         config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
                              protocol=self.protocol, iterations=iterations, minutes=self.minutes,
-                             strategy=self.strategy, size_to_minutes=sized, sky_shell=sky_shell)
+                             strategy=self.strategy, size_to_minutes=sized, sky_shell=sky_shell,
+                             exclude_photos=list(self.exclude_photos))
         config = short_run_schedule(config.validate("job settings"))
         return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
                                    log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))

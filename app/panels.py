@@ -384,6 +384,12 @@ def _poorly_fit(viewer) -> None:
                           f"objects, wrong poses or exposure changes in them? Worst: {worst}")
     if _button(viewer, "next poorly fit photo"):
         viewer.next_poorly_fit_photo()
+    settings = viewer.job_settings
+    leave_out = bool(settings.exclude_photos) and set(settings.exclude_photos) == set(viewer.poorly_fit)
+    changed, leave_out = imgui.checkbox("leave them out of the next run", leave_out)
+    _remember(viewer, "leave them out of the next run")
+    if changed:
+        settings.exclude_photos = list(viewer.poorly_fit) if leave_out else []
 
 
 def _runs(viewer) -> None:

@@ -60,11 +60,14 @@ def main() -> int:
                         help="footprint radius (pixels) above which the screen-size rule prunes (default: TrainConfig's)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
+    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|RUN",
+                        help="as `inceptiongs train --exclude-photos`: photos left out of training and evaluation")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
     parser.add_argument("--out", default="/tmp/bench_train")
     parser.add_argument("--profile-steps", type=int, default=0)
     args = parser.parse_args()
 
+    from inceptiongs.commands.train import photos_to_exclude
     from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES, TrainConfig, short_run_schedule
     from inceptiongs.train.trainer import train
 
@@ -77,6 +80,7 @@ def main() -> int:
     if args.scene == "demo":
         from inceptiongs.scene.demo import write_demo_scene
         scene = write_demo_scene(out / "demo_scene", progress=False)
+    excluded = photos_to_exclude(args.exclude_photos)
     sized = args.iterations is None
     iterations = args.iterations if not sized else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes))
 
@@ -85,7 +89,8 @@ def main() -> int:
             scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
             iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
             size_to_minutes=sized, free_space=args.free_space,
-            sky_shell=args.sky_shell, random_background=args.random_background))
+            sky_shell=args.sky_shell, random_background=args.random_background,
+            exclude_photos=excluded))
         if args.sh_spread is not None:
             config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
         if args.prune_screen_radius is not None:

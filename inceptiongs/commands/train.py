@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 from ..errors import InputError
@@ -40,6 +41,10 @@ def add_arguments(parser) -> None:
                         help="a shell of far Gaussians where the photos see past every sparse point: a place "
                              "for the sky and far backdrops (default: on; --no-sky-shell leaves it out; "
                              "docs/training.md)")
+    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|RUN",
+                        help="leave these photos out (neither trained on nor held out): comma-separated image "
+                             "names, or a finished run folder whose view_fit.json names the photos it fitted "
+                             "poorly (moved objects, wrong poses)")
     parser.add_argument("--sky-min-scale", type=float, default=TrainConfig.sky_min_scale,
                         help="the shell's Gaussians keep every axis above this fraction of their initial size, "
                              "so the sky stays closed (default: %(default)s; 0 leaves them free)")
@@ -60,8 +65,36 @@ def build_config(args) -> "TrainConfig":
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
                          size_to_minutes=sized, free_space=args.free_space,
-                         sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale)
+                         sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale,
+                         exclude_photos=photos_to_exclude(args.exclude_photos))
     return short_run_schedule(config.validate("command line"))
+
+
+def photos_to_exclude(value: str | None) -> list[str]:
+    """--exclude-photos: a finished run folder (the photos its view_fit.json reports as poorly
+    fit), a text file of image names (one per line or comma-separated), or comma-separated names."""
+    from ..train.view_fit import VIEW_FIT_FILE, read_poorly_fit
+
+    if not value:
+        return []
+    try:
+        path = Path(value)
+        is_dir, is_file = path.is_dir(), path.is_file()
+    except OSError:  # a long list of names is no path (ENAMETOOLONG)
+        is_dir = is_file = False
+    if is_dir:
+        if not (path / VIEW_FIT_FILE).is_file():
+            raise InputError(f"{value}: no {VIEW_FIT_FILE} (a finished stage-I run writes one) to take the "
+                             f"photos to exclude from")
+        names = list(read_poorly_fit(path))
+        print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
+        return names
+    if is_file:
+        try:
+            value = path.read_text().replace("\n", ",")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc})") from None
+    return [name.strip() for name in value.split(",") if name.strip()]
 
 
 def run(args) -> int:

@@ -59,11 +59,12 @@ COVERED_HOLDOUT_FRACTION = 0.05
 class Split:
     """Train/test view indices into the scene's camera list.
 
-    train, test: sorted, disjoint, together every view. scarce_test: held-out views of the
-    scarce cluster; covered_test: the other held-out views (scarce_test + covered_test = test).
-    target_view: j* (held out) or None; clusters: view indices per cluster (a partition of all
-    views for ``unstructured``, empty otherwise). view_names: the cameras' names, to check that
-    a split file belongs to the scene it is used with.
+    train, test: sorted, disjoint, together every view not excluded. scarce_test: held-out views
+    of the scarce cluster; covered_test: the other held-out views (scarce_test + covered_test =
+    test). target_view: j* (held out) or None; clusters: view indices per cluster (a partition of
+    the views not excluded for ``unstructured``, empty otherwise). view_names: the cameras'
+    names, to check that a split file belongs to the scene it is used with. excluded: photos the
+    user left out (``make_split(exclude=...)``): neither trained on nor held out.
     """
 
     protocol: str
@@ -75,10 +76,11 @@ class Split:
     target_view: int | None = None
     clusters: list[list[int]] = field(default_factory=list)
     view_names: list[str] = field(default_factory=list)
+    excluded: list[int] = field(default_factory=list)
 
     @property
     def num_views(self) -> int:
-        return len(self.train) + len(self.test)
+        return len(self.train) + len(self.test) + len(self.excluded)
 
     @property
     def scarce_cluster(self) -> list[int]:
@@ -105,6 +107,7 @@ class Split:
                 target_view=None if data.get("target_view") is None else int(data["target_view"]),
                 clusters=[[int(i) for i in c] for c in data.get("clusters", [])],
                 view_names=[str(n) for n in data.get("view_names", [])],
+                excluded=[int(i) for i in data.get("excluded", [])],
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: malformed split ({type(exc).__name__}: {exc})") from None
@@ -137,15 +140,15 @@ class Split:
         """Why this split is inconsistent, or None."""
         if self.protocol not in PROTOCOLS:
             return f"unknown protocol {self.protocol!r}"
-        everything = sorted(self.train + self.test)
+        everything = sorted(self.train + self.test + self.excluded)
         if everything != list(range(len(everything))):
-            return "train and test views must be disjoint and cover 0..N-1"
+            return "train, test and excluded views must be disjoint and cover 0..N-1"
         if sorted(self.scarce_test + self.covered_test) != sorted(self.test):
             return "scarce_test and covered_test must partition the test views"
         if self.target_view is not None and self.target_view not in self.test:
             return f"target view {self.target_view} is not held out"
-        if self.clusters and sorted(i for c in self.clusters for i in c) != everything:
-            return "clusters must partition the views"
+        if self.clusters and sorted(i for c in self.clusters for i in c) != sorted(self.train + self.test):
+            return "clusters must partition the views that are not excluded"
         if self.view_names and len(self.view_names) != len(everything):
             return "view_names does not match the number of views"
         return None
@@ -252,18 +255,44 @@ def _unstructured(cameras: list[Camera], seed: int, scarce_names: Sequence[str] 
                  target, clusters, [c.name for c in cameras])
 
 
-def make_split(scene, protocol: str, seed: int = 0, scarce_views: Sequence[str] = ()) -> Split:
+def make_split(scene, protocol: str, seed: int = 0, scarce_views: Sequence[str] = (),
+               exclude: Sequence[str] = ()) -> Split:
     """Train/test split of ``scene``'s views (a Scene or a list of Camera) under ``protocol``.
 
     scarce_views (unstructured only): names of views that form the scarce cluster instead of a
     seeded random cluster, e.g. the views a demo scene was built to see its thin region from.
+    exclude: names of photos to leave out entirely (e.g. those a run fitted poorly,
+    inceptiongs.train.view_fit): the protocol splits the other views, as if these were absent,
+    and the split lists them as ``excluded``; indices stay those of the whole scene.
 
-    Raises InputError for an unknown protocol or too few views to hold any out.
+    Raises InputError for an unknown protocol, a name to exclude the scene does not have, or too
+    few views to hold any out.
     """
     cameras = _cameras_of(scene)
-    n = len(cameras)
     names = [camera.name for camera in cameras]
     source = str(getattr(scene, "root", "<scene>"))
+    if not exclude:
+        return _split_views(cameras, protocol, seed, scarce_views, source)
+    unknown = sorted(set(exclude) - set(names))
+    if unknown:
+        raise InputError(f"{source}: no photo named {unknown[0]!r} to exclude"
+                         + (f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""))
+    left_out = set(exclude) & set(scarce_views)
+    if left_out:
+        raise InputError(f"{source}: {sorted(left_out)[0]!r} is both a declared scarce view and excluded")
+    kept = [i for i, name in enumerate(names) if name not in set(exclude)]
+    inner = _split_views([cameras[i] for i in kept], protocol, seed, scarce_views, source)
+    whole = lambda indices: [kept[i] for i in indices]  # noqa: E731 - the kept views' scene indices
+    return Split(inner.protocol, inner.seed, whole(inner.train), whole(inner.test), whole(inner.scarce_test),
+                 whole(inner.covered_test), None if inner.target_view is None else kept[inner.target_view],
+                 [whole(cluster) for cluster in inner.clusters], names,
+                 [i for i, name in enumerate(names) if name in set(exclude)])
+
+
+def _split_views(cameras: list[Camera], protocol: str, seed: int, scarce_views: Sequence[str], source: str) -> Split:
+    """make_split without exclusions."""
+    n = len(cameras)
+    names = [camera.name for camera in cameras]
     if protocol not in PROTOCOLS:
         raise InputError(f"{source}: unknown protocol {protocol!r} (choose from {', '.join(PROTOCOLS)})")
     if n == 0:

@@ -34,6 +34,9 @@ class TrainConfig(SavedConfig):
     # Unstructured protocol: these views (names) form the scarce cluster instead of a seeded
     # random one (the demo declares the cameras of its thin region).
     scarce_views: list[str] = dataclasses.field(default_factory=list)
+    # Photos (names) left out entirely: neither trained on nor held out (e.g. the ones a
+    # previous run fitted poorly, inceptiongs.train.view_fit; `train --exclude-photos`).
+    exclude_photos: list[str] = dataclasses.field(default_factory=list)
     iterations: int = 30_000
     minutes: float | None = None
     pgsr: bool = True

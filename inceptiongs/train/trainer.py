@@ -78,9 +78,12 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         elif resume:
             log(f"{run_dir}: no checkpoint to resume from, starting a new run")
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
-        split = make_split(scene, config.protocol, config.seed, config.scarce_views)
+        split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
         if not split.train:
             raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
+        if split.excluded:
+            log(f"left out: {len(split.excluded)} of {split.num_views} photos (exclude_photos), neither trained "
+                f"on nor held out")
         data = prepare_data(scene, split, config, log)
     except BaseException:
         # A failed start leaves no half run: nothing was written yet, and a folder this call

@@ -42,7 +42,7 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     ours = settings.train_config(tmp_path)
     args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
                               seed=0, no_pgsr=False, strategy="mcmc", free_space=True, sky_shell=TrainConfig.sky_shell,
-                              sky_min_scale=TrainConfig.sky_min_scale)
+                              sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None)
     cli = build_config(args)
     # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
     assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
@@ -65,7 +65,7 @@ def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
         return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
                                                downscale=2, protocol="unstructured", seed=0, no_pgsr=False,
                                                strategy="default", free_space=True, sky_shell=TrainConfig.sky_shell,
-                                               sky_min_scale=TrainConfig.sky_min_scale))
+                                               sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None))
 
     def viewer(**fields):
         config = JobSettings(**fields).train_config(tmp_path)
@@ -539,6 +539,13 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
         assert viewer.cameras[viewer.camera_index].name == first["name"]
         click_widget(viewer, "next poorly fit photo")  # around again
         assert viewer.cameras[viewer.camera_index].name == second["name"]
+        # The next run from the panel can leave them out (train --exclude-photos).
+        assert viewer.job_settings.exclude_photos == []
+        click_widget(viewer, "leave them out of the next run")
+        assert viewer.job_settings.exclude_photos == [second["name"], first["name"]]
+        assert viewer.job_settings.train_config(demo_scene).exclude_photos == [second["name"], first["name"]]
+        click_widget(viewer, "leave them out of the next run")
+        assert viewer.job_settings.exclude_photos == []
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:

@@ -162,3 +162,37 @@ def test_declared_scarce_views_form_the_scarce_cluster():
         make_split(cameras, "unstructured", 0, scarce_views=[cameras[0].name])
     with pytest.raises(InputError, match="unstructured"):
         make_split(cameras, "llff", 0, scarce_views=declared)
+
+
+@pytest.mark.parametrize("protocol", ["unstructured", "llff", "none"])
+def test_excluded_photos_are_neither_trained_nor_held_out_and_the_rest_split_as_if_alone(protocol, tmp_path):
+    cameras = ring_cameras(30)
+    left_out = ["view003", "view004", "view017", "view029"]
+    split = make_split(cameras, protocol, 2, exclude=left_out)
+    excluded = [3, 4, 17, 29]
+    assert split.excluded == excluded and split.problem() is None
+    assert not set(excluded) & set(split.train + split.test)
+    assert sorted(split.train + split.test + split.excluded) == list(range(30)) and split.num_views == 30
+    # The protocol sees only the other 26 photos: the same split as those alone, in whole-scene indices.
+    kept = [i for i in range(30) if i not in excluded]
+    alone = make_split([cameras[i] for i in kept], protocol, 2)
+    assert split.train == [kept[i] for i in alone.train] and split.test == [kept[i] for i in alone.test]
+    assert split.scarce_test == [kept[i] for i in alone.scarce_test]
+    assert split.target_view == (None if alone.target_view is None else kept[alone.target_view])
+    assert [sorted(c) for c in split.clusters] == [sorted(kept[i] for i in c) for c in alone.clusters]
+    # It round-trips through split.json and is recognised as the scene's.
+    split.save(tmp_path / "split.json")
+    assert Split.load(tmp_path / "split.json", cameras) == split
+
+
+def test_excluding_an_unknown_or_a_declared_scarce_photo_is_refused():
+    cameras = ring_cameras(12)
+    with pytest.raises(InputError, match="no photo named 'nope.jpg' to exclude"):
+        make_split(cameras, "unstructured", 0, exclude=["view001", "nope.jpg"])
+    with pytest.raises(InputError, match="both a declared scarce view and excluded"):
+        make_split(cameras, "unstructured", 0, scarce_views=["view002", "view003"], exclude=["view003"])
+    # A split file whose excluded views overlap its training views is not a split.
+    broken = make_split(cameras, "llff", 0, exclude=["view005"]).to_json()
+    broken["excluded"] = [5, 6]
+    with pytest.raises(InputError, match="disjoint"):
+        Split.from_json(broken)

@@ -257,3 +257,22 @@ def test_metrics_keep_densification_counts_of_steps_that_are_not_logged(demo_sce
         totals.append({key: sum(r.get(key, 0) for r in records) for key in MAINTENANCE_COUNTS})
     assert sum(totals[0].values()) > 0  # something was densified
     assert totals[1] == totals[0]
+
+
+def test_excluded_photos_are_never_trained_on_nor_scored(demo_scene, tmp_path):
+    """`train --exclude-photos`: the photos named are in neither split set (split.json lists them)
+    and no training step renders them; the run resumes with the same exclusion (config.json)."""
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.scene.loader import load_scene
+
+    names = [camera.name for camera in load_scene(demo_scene, downscale=4).cameras]
+    left_out = names[1:4]
+    config = _config(demo_scene, iterations=30, pgsr=False, eval_every=30, checkpoint_every=30,
+                     exclude_photos=left_out)
+    train(config, tmp_path / "run", progress=False)
+    split = Split.load(tmp_path / "run" / "split.json")
+    assert split.excluded == [1, 2, 3] and not {1, 2, 3} & set(split.train + split.test)
+    payload = load_newest_checkpoint(tmp_path / "run")[1]
+    assert payload["view_mse"] and not {1, 2, 3} & set(payload["view_mse"])
+    assert len(payload["view_mse"]) == len(split.train)   # 30 steps: every training view seen
+    assert TrainConfig.load(tmp_path / "run" / "config.json").exclude_photos == left_out

@@ -62,3 +62,21 @@ def test_a_photo_that_disagrees_with_the_others_is_reported_after_training():
     assert sorted(state.view_mse) == list(range(8))       # every view rendered at least once
     psnr = view_psnr(state.view_mse)
     assert poorly_fit(psnr) == [5], psnr
+
+
+def test_exclude_photos_takes_names_a_list_file_or_a_runs_report(tmp_path):
+    from inceptiongs.commands.train import photos_to_exclude
+    from inceptiongs.errors import InputError
+
+    assert photos_to_exclude(None) == [] and photos_to_exclude("a.jpg, b.jpg") == ["a.jpg", "b.jpg"]
+    many = ",".join(f"DSCF{5605 + i}.JPG" for i in range(108))   # longer than a file name may be
+    assert len(photos_to_exclude(many)) == 108
+    (tmp_path / "list.txt").write_text("a.jpg\nb.jpg\n\n")
+    assert photos_to_exclude(str(tmp_path / "list.txt")) == ["a.jpg", "b.jpg"]
+    run = tmp_path / "run"
+    run.mkdir()
+    with pytest.raises(InputError, match="no view_fit.json"):
+        photos_to_exclude(str(run))
+    report = view_fit_report({0: 1e-3, 1: 1e-3, 2: 0.5, 3: 1e-3, 4: 0.2}, {i: f"p{i}.jpg" for i in range(5)})
+    (run / VIEW_FIT_FILE).write_text(json.dumps(report))
+    assert photos_to_exclude(str(run)) == ["p2.jpg", "p4.jpg"]   # the poorly fit ones, worst first
