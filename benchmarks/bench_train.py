@@ -60,7 +60,7 @@ def main() -> int:
                         help="footprint radius (pixels) above which the screen-size rule prunes (default: TrainConfig's)")
     parser.add_argument("--strategies", default="default",
                         help="comma-separated: default, mcmc, dropgaussian (each gets --minutes)")
-    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|RUN",
+    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|FILE|RUN",
                         help="as `inceptiongs train --exclude-photos`: photos left out of training and evaluation")
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
     parser.add_argument("--out", default="/tmp/bench_train")

@@ -41,10 +41,10 @@ def add_arguments(parser) -> None:
                         help="a shell of far Gaussians where the photos see past every sparse point: a place "
                              "for the sky and far backdrops (default: on; --no-sky-shell leaves it out; "
                              "docs/training.md)")
-    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|RUN",
+    parser.add_argument("--exclude-photos", default=None, metavar="NAMES|FILE|RUN",
                         help="leave these photos out (neither trained on nor held out): comma-separated image "
-                             "names, or a finished run folder whose view_fit.json names the photos it fitted "
-                             "poorly (moved objects, wrong poses)")
+                             "names, a text file of names (one per line), or a finished run folder whose "
+                             "view_fit.json names the photos it fitted poorly (moved objects, wrong poses)")
     parser.add_argument("--sky-min-scale", type=float, default=TrainConfig.sky_min_scale,
                         help="the shell's Gaussians keep every axis above this fraction of their initial size, "
                              "so the sky stays closed (default: %(default)s; 0 leaves them free)")
