@@ -380,8 +380,9 @@ def _poorly_fit(viewer) -> None:
                        f"{len(viewer.poorly_fit)} training photos fit poorly (orange frustums)")
     _remember(viewer, "poorly fit photos")
     if imgui.is_item_hovered():
-        imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: moved "
-                          f"objects, wrong poses or exposure changes in them? Worst: {worst}")
+        imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: they "
+                          f"disagree with the others (moved objects, wrong poses, exposure changes) or show what "
+                          f"no other photo sees. Worst: {worst}")
     if _button(viewer, "next poorly fit photo"):
         viewer.next_poorly_fit_photo()
     settings = viewer.job_settings
