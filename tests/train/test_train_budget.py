@@ -97,7 +97,14 @@ def test_a_growing_plan_is_sized_at_its_mean_cost():
     assert grown * 1e-3 * mean == pytest.approx(1_000 * BUDGET_FILL, rel=0.02)
 
 
-def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene):
+def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene, monkeypatch):
+    """The budget the fitted step-cost line affords reaches the config and caps the growth. The line
+    is fixed here (all cost per Gaussian: 4x a first step's cost affords 4x its count) so the
+    figure does not depend on how fast this machine is: measured on the demo's small images, the
+    fixed part of a step can dominate, and what 4x affords then reaches the schedule's own cap."""
+    import inceptiongs.train.trainer as trainer_module
+
+    monkeypatch.setattr(trainer_module, "fit_step_cost", lambda points: (0.0, 1e-5))
     scene = demo_scene
     config = short_run_schedule(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000,
                                             minutes=0.1, size_to_minutes=True, pgsr=False, eval_every=10_000,
