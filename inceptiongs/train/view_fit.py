@@ -13,9 +13,9 @@ the trainer keeps that render's MSE per view (:attr:`TrainState.view_mse
 <inceptiongs.train.step.TrainState>`). At the end of a run the views more than
 ``POOR_FIT_MARGIN_DB`` below the median training-view PSNR are named in the log, and every
 view's figure goes to ``view_fit.json`` in the run folder. The report cannot tell why a photo
-fits poorly: the README demo's 600-step stage I names 5 of its 36 training photos, the ones
-beside its thinly observed region (nothing in that procedural scene moves), at 17-21 dB against
-a median of 26.
+fits poorly: the README demo's short stage I (about 410 steps) names 5 of its 36 training
+photos, the ones beside its thinly observed region (nothing in that procedural scene moves), at
+17-21 dB against a median of 26.
 """
 
 from __future__ import annotations
