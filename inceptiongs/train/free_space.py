@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..camera import Camera, project_points, unit_quat_to_rotation
-from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, QUAT_NORM_MIN, SH_MAX_DEGREE
+from ..camera import Camera, project_points
+from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, SH_MAX_DEGREE
 from ..rasterizer.backend import use_numba
+from ..rasterizer.projection import quat_to_rotation
 from .free_space_numba import before_near_bound_numba, contains_camera_numba
 
 # A camera needs this many sparse points in its image for a percentile to mean anything;
@@ -178,12 +179,8 @@ def contains_camera(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.
 
 def _mahalanobis_sq(offsets: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
     """|R^T d / s|^2 for offsets d [P, 3] (float64), clamped log scales [P, 3], quats [P, 4] -> [P].
-    A quaternion too short to normalise counts as the identity rotation."""
-    q = quats.to(torch.float64)
-    norm = q.norm(dim=-1, keepdim=True)
-    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64).expand_as(q)
-    q = torch.where(norm > QUAT_NORM_MIN, q / norm.clamp_min(QUAT_NORM_MIN), identity)
-    rotation = unit_quat_to_rotation(*q.unbind(-1), torch.stack)                            # [P, 3, 3]
+    A quaternion too short to normalise counts as the identity rotation (the renderer's rule)."""
+    rotation = quat_to_rotation(quats.to(torch.float64))                                     # [P, 3, 3]
     local = (rotation * offsets[:, :, None]).sum(1) * torch.exp(-log_scales)                # R^T d / s
     return local.square().sum(-1)
 
