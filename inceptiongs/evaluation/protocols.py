@@ -273,20 +273,21 @@ def make_split(scene, protocol: str, seed: int = 0, scarce_views: Sequence[str] 
     source = str(getattr(scene, "root", "<scene>"))
     if not exclude:
         return _split_views(cameras, protocol, seed, scarce_views, source)
-    unknown = sorted(set(exclude) - set(names))
+    leave_out = set(exclude)
+    unknown = sorted(leave_out - set(names))
     if unknown:
         raise InputError(f"{source}: no photo named {unknown[0]!r} to exclude"
                          + (f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""))
-    left_out = set(exclude) & set(scarce_views)
-    if left_out:
-        raise InputError(f"{source}: {sorted(left_out)[0]!r} is both a declared scarce view and excluded")
-    kept = [i for i, name in enumerate(names) if name not in set(exclude)]
+    both = leave_out & set(scarce_views)
+    if both:
+        raise InputError(f"{source}: {sorted(both)[0]!r} is both a declared scarce view and excluded")
+    kept = [i for i, name in enumerate(names) if name not in leave_out]
     inner = _split_views([cameras[i] for i in kept], protocol, seed, scarce_views, source)
     whole = lambda indices: [kept[i] for i in indices]  # noqa: E731 - the kept views' scene indices
     return Split(inner.protocol, inner.seed, whole(inner.train), whole(inner.test), whole(inner.scarce_test),
                  whole(inner.covered_test), None if inner.target_view is None else kept[inner.target_view],
                  [whole(cluster) for cluster in inner.clusters], names,
-                 [i for i, name in enumerate(names) if name in set(exclude)])
+                 [i for i, name in enumerate(names) if name in leave_out])
 
 
 def _split_views(cameras: list[Camera], protocol: str, seed: int, scarce_views: Sequence[str], source: str) -> Split:

@@ -81,7 +81,6 @@ def summary_line(report: dict, run_file: str) -> str | None:
             f"poses, exposure changes) or show what no other photo sees. All views: {run_file}")
 
 
-
 def read_poorly_fit(run_dir: str | Path) -> dict[str, float]:
     """RUN/view_fit.json -> {image name: PSNR} of the views it reports as poorly fit, worst first;
     {} when the run has no report (not finished, or written before reports existed). InputError
