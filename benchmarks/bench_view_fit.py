@@ -35,9 +35,8 @@ from inceptiongs.train.run_folder import load_run
 GROUP_COLOURS = {"train": "#4c72b0", "scarce": "#dd8452", "covered": "#c44e52"}
 
 
-def view_scores(run: Path) -> tuple[list[dict], Split, str]:
-    """(one row per camera in capture order: index, name, group, psnr; the split; the scene's name)."""
-    gaussians, scene, config = load_run(run)
+def view_scores(run: Path, gaussians, scene) -> list[dict]:
+    """One row per camera of RUN's split in capture order: index, name, group, psnr."""
     split = Split.load(run / "split.json", scene.cameras)
     group = {i: "train" for i in split.train}
     group.update({i: "covered" for i in split.test})
@@ -49,16 +48,15 @@ def view_scores(run: Path) -> tuple[list[dict], Split, str]:
             rgb = render(gaussians, scene.cameras[index], outputs=("rgb",))["rgb"].clamp(0, 1)
         rows.append({"index": index, "name": scene.cameras[index].name, "group": group[index],
                      "psnr": float(psnr(rgb.to(torch.float32), photo))})
-    return rows, split, Path(config.scene).name
+    return rows
 
 
-def observations_figure(run: Path, name: str, path: Path) -> None:
+def observations_figure(gaussians, scene, config, name: str, path: Path) -> None:
     """The final model's render of photo ``name`` | the photo with the image points its COLMAP
     model ties to 3-D points (green), side by side, 2x enlarged."""
     import cv2
     import pycolmap
 
-    gaussians, scene, config = load_run(run)
     matches = [i for i, camera in enumerate(scene.cameras) if camera.name == name]
     if not matches:
         raise InputError(f"{config.scene}: no photo named {name}")
@@ -117,9 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--observations-png", type=Path, default=Path("observations.png"))
     args = parser.parse_args(argv)
     try:
-        rows, _split, scene_name = view_scores(args.run)
+        gaussians, scene, config = load_run(args.run)   # once: both parts render its model
+        rows = view_scores(args.run, gaussians, scene)
         if args.observations:
-            observations_figure(args.run, args.observations, args.observations_png)
+            observations_figure(gaussians, scene, config, args.observations, args.observations_png)
             print(f"observations of {args.observations}: {args.observations_png}")
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -142,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"photos {a}..{b - 1}: {means(rows[a:b])}")
         print(f"the others:   {means(rows[:a] + rows[b:])}")
     if args.plot:
-        plot(rows, args.plot, f"{scene_name}: every photo against the final model of {args.run}")
+        plot(rows, args.plot, f"{Path(config.scene).name}: every photo against the final model of {args.run}")
         print(f"plot: {args.plot}")
     return 0
 
