@@ -54,7 +54,7 @@ def _clamp(x, lo, hi):
 
 
 @njit(cache=True)
-def _unit_quat(q0, q1, q2, q3):
+def unit_quat(q0, q1, q2, q3):
     """(w, x, y, z, norm used, degenerate) as quat_to_rotation: below QUAT_NORM_MIN the identity."""
     norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     if not (norm >= QUAT_NORM_MIN):
@@ -63,7 +63,7 @@ def _unit_quat(q0, q1, q2, q3):
 
 
 @njit(cache=True)
-def _rotation(w, x, y, z, r):
+def rotation_into(w, x, y, z, r):
     """Rotation matrix of a unit quaternion into r [3, 3] (camera.unit_quat_to_rotation's formula)."""
     r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     r[0, 1] = 2.0 * (x * y - w * z)
@@ -106,8 +106,8 @@ def _screen_geometry(i, means, log_scales, quats, pose, fx, fy, bounds, t, rotat
     ratio_y = t[1] / z
     clamped_x = _clamp(ratio_x, lo_x, hi_x)
     clamped_y = _clamp(ratio_y, lo_y, hi_y)
-    w, x, y, zq, qnorm, degenerate = _unit_quat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
-    _rotation(w, x, y, zq, rotation)
+    w, x, y, zq, qnorm, degenerate = unit_quat(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
+    rotation_into(w, x, y, zq, rotation)
     for j in range(3):
         scales[j] = math.exp(_clamp(log_scales[i, j], LOG_SCALE_MIN, LOG_SCALE_MAX))
     jxx, jxz, jyy, jyz = fx / z, -fx * clamped_x / z, fy / z, -fy * clamped_y / z

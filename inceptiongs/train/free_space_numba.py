@@ -16,7 +16,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN, QUAT_NORM_MIN
+from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN
+from ..rasterizer.projection_numba import rotation_into, unit_quat
 
 
 @njit(parallel=True, cache=True)
@@ -52,40 +53,23 @@ def _contains_camera_kernel(means, log_scales, quats, centers, sigmas, out):
         # The Mahalanobis distance is at least |d| / (largest scale): farther centres are skipped
         # before the rotation is built. The pre-test is widened far beyond its rounding error.
         reach_sq = (sigmas * math.exp(max(s0, max(s1, s2)))) ** 2 * (1.0 + 1e-9)
+        rotation = np.empty((0, 0))   # built at the first centre within reach (most have none)
         rotation_ready = False
-        r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
         for c in range(centers.shape[0]):
             d0 = centers[c, 0] - means[n, 0]
             d1 = centers[c, 1] - means[n, 1]
             d2 = centers[c, 2] - means[n, 2]
             if not (d0 * d0 + d1 * d1 + d2 * d2 < reach_sq):  # also skips NaN
                 continue
-            if not rotation_ready:
-                w = quats[n, 0]
-                x = quats[n, 1]
-                y = quats[n, 2]
-                z = quats[n, 3]
-                norm = math.sqrt(w * w + x * x + y * y + z * z)
-                if norm > QUAT_NORM_MIN:  # a shorter quaternion counts as the identity
-                    w /= norm
-                    x /= norm
-                    y /= norm
-                    z /= norm
-                else:
-                    w, x, y, z = 1.0, 0.0, 0.0, 0.0
-                r00 = 1 - 2 * (y * y + z * z)
-                r01 = 2 * (x * y - w * z)
-                r02 = 2 * (x * z + w * y)
-                r10 = 2 * (x * y + w * z)
-                r11 = 1 - 2 * (x * x + z * z)
-                r12 = 2 * (y * z - w * x)
-                r20 = 2 * (x * z - w * y)
-                r21 = 2 * (y * z + w * x)
-                r22 = 1 - 2 * (x * x + y * y)
+            if not rotation_ready:  # the renderer's rotation (a too-short quaternion: the identity)
+                w, x, y, z, _, _ = unit_quat(quats[n, 0], quats[n, 1], quats[n, 2], quats[n, 3])
+                rotation = np.empty((3, 3))
+                rotation_into(w, x, y, z, rotation)
                 rotation_ready = True
-            l0 = (r00 * d0 + r10 * d1 + r20 * d2) * math.exp(-s0)   # (R^T d) / s
-            l1 = (r01 * d0 + r11 * d1 + r21 * d2) * math.exp(-s1)
-            l2 = (r02 * d0 + r12 * d1 + r22 * d2) * math.exp(-s2)
+            # (R^T d) / s
+            l0 = (rotation[0, 0] * d0 + rotation[1, 0] * d1 + rotation[2, 0] * d2) * math.exp(-s0)
+            l1 = (rotation[0, 1] * d0 + rotation[1, 1] * d1 + rotation[2, 1] * d2) * math.exp(-s1)
+            l2 = (rotation[0, 2] * d0 + rotation[1, 2] * d1 + rotation[2, 2] * d2) * math.exp(-s2)
             if l0 * l0 + l1 * l1 + l2 * l2 < limit:
                 out[n] = True
                 break
