@@ -25,7 +25,8 @@ from .config import TrainConfig
 from . import strategy as strategies
 from .densify import DensifyStats, accumulate, densify_and_prune, remove_rows, reset_opacity
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
-                         near_a_camera, near_bounds, seen_through, sh_rest_mask)
+                         near_a_camera, near_bounds, seen_through, sh_rest_mask, surface_depth,
+                         surface_depth_features)
 from .init_gaussians import gaussians_from_points, gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
 from .sky import SKY_OPACITY, hold_shell_scales, in_background, shell_log_scale_floor, sky_shell
@@ -272,9 +273,15 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     want_normal = config.pgsr and step >= config.normal_from
     want_multiview = (config.pgsr and step >= config.multiview_from and step % config.multiview_every == 0)
     outputs = ("rgb",) + (("alpha", "normal", "plane_depth") if (want_normal or want_multiview) else ())
-    if wants_view_stats(step, state, config):
-        outputs += ("depth",)
     gaussians = gaussians_from_params(state.params)
+    features = None
+    if wants_view_stats(step, state, config):
+        if state.sky is None:
+            outputs += ("depth",)
+        else:   # the surface without the shell behind it (free_space.surface_depth_features)
+            outputs += ("features",)
+            features = surface_depth_features(gaussians.means, in_background(gaussians.means.detach(), state.sky),
+                                              camera)
     rendered = gaussians
     if config.strategy == "dropgaussian":
         rendered = strategies.drop_gaussians(gaussians, strategies.drop_rate(step, config.iterations,
@@ -284,7 +291,9 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     # the black show through (a transparent shell Gaussian behind a silhouette is otherwise a free
     # way to darken edge pixels).
     background = torch.rand(3, generator=state.generator) if config.random_background else None
-    out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree)
+    extra = {} if features is None else {"features": features}
+    out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree, **extra)
+    out["surface_depth"] = surface_depth(out["features"]) if features is not None else out.get("depth")
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
     with torch.no_grad():
@@ -364,8 +373,8 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     tracking = step < config.densify_until or step <= config.iterations
     if tracking and out["means2d"].grad is not None:
         accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
-    if state.view_stats is not None and "depth" in out:
-        accumulate_views(state.view_stats, state.params["means"], camera, out["depth"], out["radii"],
+    if state.view_stats is not None and out.get("surface_depth") is not None:
+        accumulate_views(state.view_stats, state.params["means"], camera, out["surface_depth"], out["radii"],
                          config.see_through_tolerance)
     limit_sh = state.view_stats is not None and config.sh_spread_deg_per_degree > 0 and "sh_rest" in state.params
     if limit_sh and state.params["sh_rest"].grad is not None:

@@ -4,6 +4,7 @@ Gaussians go without an opacity reset, and SH bands follow the viewing spread.""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import torch
@@ -15,7 +16,8 @@ from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.train.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
                                           before_near_bound, contains_camera, floater_fraction, near_bounds,
-                                          seen_through)
+                                          seen_through, surface_depth, surface_depth_features)
+from inceptiongs.train.sky import fibonacci_directions, in_background
 from inceptiongs.train.step import maintain
 
 
@@ -204,6 +206,65 @@ def test_views_that_look_through_a_gaussian_mark_it_and_views_that_stop_on_it_do
     flags = seen_through(stats, 3)
     assert bool(flags[-1])
     assert not bool(flags[:-1].any())       # the ball's own Gaussians are the surface
+
+
+def _faint_ball_before_a_shell():
+    """A faint ball (each Gaussian at opacity 0.1) inside an opaque shell of radius 12, a faint
+    floater 1.4 units in front of camera 0 (the ball's front is 2 away), and the sphere [4]."""
+    ball = tc.ball(400)
+    ball = dataclasses.replace(ball, opacity_logits=torch.full((400,), math.log(0.1 / 0.9)))
+    directions = torch.tensor(fibonacci_directions(600), dtype=torch.float32)
+    shell = tc.concat(*[tc.blob((12.0 * d).tolist(), 1.2, opacity=0.9, colour=(0.4, 0.6, 0.9)) for d in directions])
+    cameras = tc.ring_cameras(8)
+    floater = tc.blob((cameras[0].center * (1 - 1.4 / tc.RING_RADIUS)).tolist(), 0.03, opacity=0.05)
+    return tc.concat(ball, floater, shell), cameras, torch.tensor([0.0, 0.0, 0.0, 12.0], dtype=torch.float64)
+
+
+def _looked_through(model, cameras, sphere, scene_only: bool) -> torch.Tensor:
+    stats = ViewStats.zeros(len(model))
+    background = in_background(model.means.to(torch.float64), sphere)
+    with torch.no_grad():
+        for cam in cameras:
+            if scene_only:
+                out = render(model, cam, outputs=("features",),
+                             features=surface_depth_features(model.means, background, cam))
+                depth = surface_depth(out["features"])
+            else:
+                depth = render(model, cam, outputs=("depth",))["depth"]
+            accumulate_views(stats, model.means, cam, depth, out["radii"] if scene_only else
+                             render(model, cam, outputs=("alpha",))["radii"], 0.2)
+    return seen_through(stats, 3)
+
+
+def test_a_faint_surface_before_the_sky_shell_is_not_looked_through_but_a_floater_still_is():
+    """The surface the views look through is the scene's own: a half-opaque shell far behind a
+    faint surface pulls the blended depth past it (the README courtyard lost its north facade's
+    Gaussians that way), yet a floater in front of the surface is still found."""
+    model, cameras, sphere = _faint_ball_before_a_shell()
+    ball = torch.arange(len(model)) < 400
+    floater = 400
+    # Camera 0 three times (the floater's only view), then the whole ring.
+    views = cameras[:1] * 3 + cameras[1:]
+    blended = _looked_through(model, views, sphere, scene_only=False)
+    assert float(blended[ball].float().mean()) > 0.3      # the blended depth: the ball is "looked through"
+    scene = _looked_through(model, views, sphere, scene_only=True)
+    assert not bool(scene[ball].any())
+    assert bool(scene[floater])
+    assert not bool(scene[401:].any())                     # the shell is never flagged
+
+
+def test_surface_depth_is_the_scene_gaussians_depth_and_zero_where_only_the_shell_is():
+    model, cameras, sphere = _faint_ball_before_a_shell()
+    background = in_background(model.means.to(torch.float64), sphere)
+    cam = cameras[2]
+    with torch.no_grad():
+        depth = surface_depth(render(model, cam, outputs=("features",),
+                                     features=surface_depth_features(model.means, background, cam))["features"])
+        alone = render(model.subset(~background), cam, outputs=("depth",))["depth"]
+    # The same expected depth as rendering the scene's Gaussians alone (the shell lies behind
+    # them, so it does not change their blending weights), and 0 off the ball.
+    assert torch.allclose(depth, alone, atol=1e-4)
+    assert float((depth == 0).float().mean()) > 0.1 and float(depth.max()) < tc.RING_RADIUS + 1.5
 
 
 def test_sh_degree_follows_the_viewing_spread():
