@@ -340,3 +340,30 @@ def test_floater_fraction_counts_drawn_pixels_before_the_near_bound():
     depth[1] = 3.0          # five behind it
     assert floater_fraction(depth, 1.0) == 2 / 20
     assert floater_fraction(depth, 0.1) == 0.0
+
+
+def _train_before_a_shell(sky: bool) -> tuple[int, bool]:
+    """Ten steps on the faint ball inside the shell (photos of it without the floater), the
+    see-through rule only; -> (ball Gaussians left of 400, whether the floater is left)."""
+    from inceptiongs.train.optim import gaussians_from_params
+
+    model, cameras, sphere = _faint_ball_before_a_shell()
+    truth = model.subset(torch.arange(len(model)) != 400)
+    images = tc.photos(truth, cameras)
+    cfg = tc.config(densify_from=10, densify_every=10, densify_until=0, prune_large_from=10_000,
+                    camera_sigmas=0.0, camera_ball=0.0, near_margin=0.0, prune_opacity=0.0, see_through_min_views=1)
+    data, state = tc.setup(model, cameras, images, cfg, truth.means.numpy())
+    state.sky = sphere if sky else None
+    tc.run_steps(state, data, cfg, 10)
+    means = gaussians_from_params(state.params).means.detach()
+    ball = sum(_has_mean(means, m.tolist(), 0.05) for m in model.means[:400])
+    return ball, _has_mean(means, model.means[400].tolist(), 0.05)
+
+
+def test_training_with_a_shell_keeps_the_faint_surface_and_removes_the_floater():
+    """The trainer's own steps read the scene's depth when the run has a shell; without the
+    shell's sphere (the blend, as before) the faint surface is taken for a floater."""
+    kept, floater_left = _train_before_a_shell(sky=True)
+    assert kept >= 390 and not floater_left
+    kept_blend, _ = _train_before_a_shell(sky=False)
+    assert kept_blend < 300, kept_blend
