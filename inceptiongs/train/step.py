@@ -293,7 +293,9 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     background = torch.rand(3, generator=state.generator) if config.random_background else None
     extra = {} if features is None else {"features": features}
     out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree, **extra)
-    out["surface_depth"] = surface_depth(out["features"]) if features is not None else out.get("depth")
+    if features is not None:
+        # What the view statistics read as "depth" (optimizer_step): the scene's, without the shell.
+        out["depth"] = surface_depth(out["features"])
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
     with torch.no_grad():
@@ -373,8 +375,8 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     tracking = step < config.densify_until or step <= config.iterations
     if tracking and out["means2d"].grad is not None:
         accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
-    if state.view_stats is not None and out.get("surface_depth") is not None:
-        accumulate_views(state.view_stats, state.params["means"], camera, out["surface_depth"], out["radii"],
+    if state.view_stats is not None and "depth" in out:
+        accumulate_views(state.view_stats, state.params["means"], camera, out["depth"], out["radii"],
                          config.see_through_tolerance)
     limit_sh = state.view_stats is not None and config.sh_spread_deg_per_degree > 0 and "sh_rest" in state.params
     if limit_sh and state.params["sh_rest"].grad is not None:

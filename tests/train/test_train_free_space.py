@@ -230,9 +230,9 @@ def _looked_through(model, cameras, sphere, scene_only: bool) -> torch.Tensor:
                              features=surface_depth_features(model.means, background, cam))
                 depth = surface_depth(out["features"])
             else:
-                depth = render(model, cam, outputs=("depth",))["depth"]
-            accumulate_views(stats, model.means, cam, depth, out["radii"] if scene_only else
-                             render(model, cam, outputs=("alpha",))["radii"], 0.2)
+                out = render(model, cam, outputs=("depth",))
+                depth = out["depth"]
+            accumulate_views(stats, model.means, cam, depth, out["radii"], 0.2)
     return seen_through(stats, 3)
 
 
