@@ -9,6 +9,9 @@ each ingredient on its own:
 - ``render``: the stage-I render (what the view shows now);
 - ``blend``: the paper's blending (K nearest photos warped with the stage-I depth, binary
   trusted-pixel mask, uniform mean) over the render;
+- ``splat``: the same blend, the view's depth splatted from its nearest training views' depths
+  (source_depth.py, ``--virtual-depth sources``); ``splat+inp``: and the blend inpainted into
+  the pixels no photo reaches (``--fill inpaint``);
 - ``+depth``: the same warps placed with the photo-consistent depth (photo_depth.py), uniform
   mean, soft mask, over the render;
 - ``+lumi``: lumigraph weights instead of the uniform mean;
@@ -25,6 +28,9 @@ Trusted-pixel columns compare the photos with the render *on the pixels the supe
 trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
 there, or blending cannot help (``inform``: the informative pixels; ``inform-flat``: those
 more than 2 px from a depth edge of the render).
+
+Depths are the scene's own surface (the sky shell left out; ``--blended-depth``: as before
+session 17).
 
     python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
         [--search 0.1] [--steps 21] [--residual-floor F] [--views N]
@@ -46,9 +52,9 @@ sys.path.insert(0, str(REPO))
 import inceptiongs  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch  # noqa: E402
 
-WITHOUT_PRIOR = ("render", "blend", "+depth", "+lumi", "+expo", "inpaint", "+inform")
+WITHOUT_PRIOR = ("render", "blend", "splat", "splat+inp", "+depth", "+lumi", "+expo", "inpaint", "+inform")
 WITH_PRIOR = ("repair", "I*blend", "I*photo")
-TRUSTED = ("blend", "photo", "inform", "inform-flat")
+TRUSTED = ("blend", "splat", "photo", "inform", "inform-flat")
 
 
 # A relative depth jump above this between neighbouring pixels is an occlusion edge ...
@@ -70,15 +76,17 @@ def near_depth_edges(depth: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.max_pool2d(jump.float()[None, None], size, 1, EDGE_RADIUS)[0, 0] > 0
 
 
-def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> dict:
+def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky=None) -> dict:
     """One held-out view's scores; depths: {camera name: rendered depth}, shared across views
     (a training view is a warp source of several held-out views)."""
     from inceptiongs.bootstrap.generation import blend_target
+    from inceptiongs.bootstrap.source_depth import splatted_depth
     from inceptiongs.bootstrap.supervision import Source, supervise
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.evaluation.generated import photo_of, score
     from inceptiongs.evaluation.metrics import psnr
     from inceptiongs.rasterizer.rasterize import render, render_rgb
+    from inceptiongs.train.free_space import render_surface_depth
 
     camera = scene.cameras[view]
     photo = photo_of(scene, view)
@@ -89,11 +97,14 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     def render_depth(cam):
         if cam.name not in depths:
             with torch.no_grad():
-                depths[cam.name] = render(gaussians, cam, outputs=("depth",))["depth"]
+                depths[cam.name] = (render(gaussians, cam, outputs=("depth",))["depth"] if args.blended_depth
+                                    else render_surface_depth(gaussians, cam, sky))
         return depths[cam.name]
 
-    blend = lambda base: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
-                                      render_depth, True, args.delta)
+    blend = lambda base, **kw: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
+                                            render_depth, True, args.delta, **kw)
+    splat_views = nearest_training_views(camera, scene.cameras, list(split.train), args.splat_views)
+    splatted = splatted_depth(camera, [(render_depth(scene.cameras[i]), scene.cameras[i]) for i in splat_views])
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
     photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta,  # noqa: E731
@@ -103,6 +114,8 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
     began = time.perf_counter()
     images = {"render": rendered}
     images["blend"], blend_mask = blend(rendered)
+    images["splat"], splat_mask = blend(rendered, target_depth=splatted)
+    images["splat+inp"], _ = blend(rendered, target_depth=splatted, fill="inpaint")
     images["+depth"] = photo_run(fill="render", lumigraph=False, exposure=False).target
     images["+lumi"] = photo_run(fill="render", exposure=False).target
     full = photo_run(fill="render")
@@ -118,18 +131,19 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict) -> 
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
     edges = near_depth_edges(dst_depth[..., 0])
-    for name, mask in (("blend", blend_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
+    for name, mask in (("blend", blend_mask[..., 0] > 0), ("splat", splat_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
                        ("inform", full.informative[..., 0] > 0),
                        ("inform-flat", (full.informative[..., 0] > 0) & ~edges)):
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
-            warped = images["blend"] if name == "blend" else full.blended
+            warped = images[name] if name in ("blend", "splat") else full.blended
             row[f"{name}_trusted_warp"] = float(psnr(warped, photo, mask))
             row[f"{name}_trusted_render"] = float(psnr(rendered, photo, mask))
     return row
 
 
 def main(argv=None) -> int:
+    from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
     from inceptiongs.bootstrap.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
@@ -152,11 +166,17 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=DEFAULT_STEPS, help="depth sweep: hypotheses")
     parser.add_argument("--residual-floor", type=float, default=RESIDUAL_FLOOR,
                         help="informative pixels: the residual floor (supervision.RESIDUAL_FLOOR)")
+    parser.add_argument("--splat-views", type=int, default=BootstrapConfig().splat_views,
+                        help="training views whose depths are splatted into the view (the splat columns)")
+    parser.add_argument("--blended-depth", action="store_true",
+                        help="warp with the render's depth, sky shell blended in (before session 17), "
+                             "instead of the scene's own surface depth")
     parser.add_argument("--views", type=int, default=None, help="score only the first N held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
 
-    _, scene, split, _, gaussians = load_stage1(Path(args.run))
+    _, scene, split, payload, gaussians = load_stage1(Path(args.run))
+    sky = payload.get("sky") if payload is not None else None
     prior_run = Path(args.prior_run or args.run)
     prior = load_prior(prior_run) if (prior_run / "prior" / "prior.pt").is_file() else None
     sources = WITHOUT_PRIOR + (WITH_PRIOR if prior is not None else ())
@@ -164,7 +184,7 @@ def main(argv=None) -> int:
         print(f"{prior_run}: no prior/prior.pt: the prior rows (repair, I*) are left out")
     rows, depths = {}, {}
     for view in split.test[:args.views]:
-        rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths)
+        rows[view] = scores_at(view, scene, split, gaussians, prior, args, depths, sky)
         print(f"  {scene.cameras[view].name} ({group_of(view, split)}): "
               + "  ".join(f"{s} {rows[view][s]['psnr']:.2f}" for s in sources)
               + f"  (photo supervision {rows[view]['photo_s']:.1f} s)", flush=True)

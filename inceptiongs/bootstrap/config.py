@@ -59,6 +59,11 @@ class BootstrapConfig(SavedConfig):
     # the CPU-trained prior's repair is 6 dB below the render, so it fills nothing by default.
     supervision: str = "photo"
     fill: str = "render"
+    # The depth the photos are warped into a virtual view with: "render" (the model's surface
+    # depth at that view) or "sources" (the nearest ``splat_views`` training views' surface
+    # depths splatted into it: source_depth.py).
+    virtual_depth: str = "render"
+    splat_views: int = 8
 
     # --- refinement --------------------------------------------------------------------------
     virtual_every: int = 2              # every n-th step is a virtual view (2: alternate)
@@ -111,11 +116,11 @@ class BootstrapConfig(SavedConfig):
         """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
         if not self.virtual_colour:
             return False        # no I* at all: the virtual views carry only the geometry term
-        return not (self.blending and self.supervision == "photo" and self.fill != "prior")
+        return not self.blending or self.fill == "prior"
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
         positive = ("rounds", "iterations", "ddim_steps", "virtual_every", "log_every",
-                    "checkpoint_every", "max_virtual_views", "conscience_every")
+                    "checkpoint_every", "max_virtual_views", "conscience_every", "splat_views")
         for name in positive:
             if getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be >= 1, got {getattr(self, name)}")
@@ -141,6 +146,8 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: supervision must be 'blend' or 'photo', got {self.supervision!r}")
         if self.fill not in ("prior", "inpaint", "render"):
             raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
+        if self.virtual_depth not in ("render", "sources"):
+            raise InputError(f"{source}: virtual_depth must be 'render' or 'sources', got {self.virtual_depth!r}")
         if self.virtual_pixels not in ("all", "informative"):
             raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")
         if self.virtual_pixels == "informative" and self.supervision != "photo":

@@ -170,18 +170,22 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                  photos: dict[int, torch.Tensor], render_depth: Callable[[Camera], torch.Tensor],
                  blending: bool, delta: float | None, supervision: str = "blend", fill: str = "prior",
                  render_rgb: Callable[[Camera], torch.Tensor] | None = None,
-                 pixels: str = "all", residual_floor: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 pixels: str = "all", residual_floor: float | None = None,
+                 target_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
     views. ``supervision="blend"``: the uniform mean of the binary-masked warps over the
-    generated image (the paper's blending); ``"photo"``: photo-consistent depth, exposure
+    generated image (the paper's blending with ``fill="prior"``; the caller passes the render as
+    ``generated`` for ``fill="render"``; ``fill="inpaint"`` carries the blend into the pixels no
+    photo reaches); ``"photo"``: photo-consistent depth, exposure
     matching, lumigraph weights and a soft mask over ``fill`` (supervision.py; needs
     ``render_rgb`` for the render fill and the inpainting's surroundings). ``blending=False``
     (ablation) keeps the generated image and an all-zero mask. ``pixels="informative"`` (photo
     supervision only) returns the informative mask instead of the trust mask (the pixels where
     the photos contradict the render: supervision.informative_mask, whose floor ``residual_floor``
-    overrides) and the blended photos there.
+    overrides) and the blended photos there. ``target_depth`` [H, W, 1]: the virtual view's
+    depth to warp with (default ``render_depth(camera)``; source_depth.splatted_depth).
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
@@ -189,7 +193,7 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     from .warp import DEFAULT_DELTA, blend_views, warp_to_view
 
     delta = DEFAULT_DELTA if delta is None else delta
-    dst_depth = render_depth(camera)
+    dst_depth = render_depth(camera) if target_depth is None else target_depth
     if supervision == "photo":
         from .supervision import RESIDUAL_FLOOR, Source, supervise
 
@@ -209,4 +213,9 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
         warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,
                                   camera, delta=delta))
     image, mask = blend_views(generated_t, warps)
+    if fill == "inpaint":
+        from .supervision import inpaint
+
+        # The photos' blend carried into the pixels no photo reaches (where the view has depth).
+        image = inpaint(image, (mask[..., 0] > 0) | (dst_depth[..., 0] <= 0))
     return image.detach().float().clamp(0.0, 1.0), mask.detach().float()

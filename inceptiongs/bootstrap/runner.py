@@ -160,6 +160,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     from ..io.images import write_png
     from ..io.ply import write_ply
     from ..train.checkpoint import save_checkpoint
+    from ..train.free_space import render_surface_depth
+    from .source_depth import splatted_depth
     from ..train.optim import gaussians_from_params
     from ..train.run_folder import append_metrics, to_original_frame
     from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
@@ -322,7 +324,12 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             return render_cache[key]
 
         def render_depth(camera) -> torch.Tensor:
-            return rendered(camera, "depth")
+            # The scene's own surface: the sky shell blended in pulls a faint surface's depth
+            # far behind it, and the warps then place the photos wrongly and reject them.
+            key = (camera.name + str(camera.world_to_camera.tobytes()), "surface_depth")
+            if key not in render_cache:
+                render_cache[key] = render_surface_depth(current, camera, state.sky, render_fn)
+            return render_cache[key]
 
         def render_rgb(camera) -> torch.Tensor:
             return rendered(camera, "rgb").float().clamp(0.0, 1.0)
@@ -335,9 +342,14 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
             if config.virtual_colour:
+                target_depth = None
+                if config.virtual_depth == "sources" and sources:
+                    splat = nearest_training_views(camera, cameras, list(split.train), config.splat_views)
+                    target_depth = splatted_depth(camera, [(render_depth(cameras[i]), cameras[i]) for i in splat])
                 image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                            config.blending, config.delta, config.supervision, config.fill,
-                                           render_rgb, config.virtual_pixels, config.residual_floor)
+                                           render_rgb, config.virtual_pixels, config.residual_floor,
+                                           target_depth)
             else:
                 # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
                 # built for nothing. The render stands in for the PNGs, with an empty mask.

@@ -61,6 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"matching, lumigraph weights, soft mask; default {d.supervision})")
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
                         help=f"with --supervision photo: what fills pixels no photo covers (default {d.fill})")
+    parser.add_argument("--virtual-depth", choices=("render", "sources"), default=d.virtual_depth,
+                        help="the depth photos are warped into a virtual view with: 'render' (the model's "
+                             "surface depth there) or 'sources' (the nearest training views' depths splatted "
+                             f"into it; default {d.virtual_depth})")
     parser.add_argument("--virtual-pixels", choices=("all", "informative"), default=d.virtual_pixels,
                         help="which pixels of a virtual view carry loss: 'all' (I*; generated ones weighted by "
                              "--generated-weight) or 'informative' (with --supervision photo: only where the "
@@ -93,6 +97,7 @@ def config_from_args(args):
         generated_weight=args.generated_weight, densify=args.densify,
         regenerate_every=args.regenerate_every, include_target=args.include_target,
         supervision=args.supervision, fill=args.fill, virtual_pixels=args.virtual_pixels,
+        virtual_depth=args.virtual_depth,
         virtual_mode=args.virtual_mode, geometry_weight=args.geometry_weight,
         virtual_colour=not args.no_virtual_colour,
         conscience_tolerance=None if args.conscience_tolerance < 0 else args.conscience_tolerance,

@@ -403,6 +403,26 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
     assert all(r["virtual_scale"] == checks_at(checks, r["iteration"]) for r in _records(out) if "virtual_scale" in r)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("fill", ["render", "inpaint"])
+def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tmp_path, fill):
+    out = tmp_path / f"blend_{fill}"
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=4, fill=fill, virtual_depth="sources", save_views=0, regenerate_every=0),
+                           progress=False)
+    assert result.finished and (out / "model.ply").is_file()
+    assert not (out / "prior").exists()
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert "nothing is generated" in summary["prior"]["description"]
+    masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
+    assert any(m > 0 for m in masks) and all(0 <= m <= 1 for m in masks)
+    assert json.loads((out / "bootstrap" / "config.json").read_text())["virtual_depth"] == "sources"
+    with pytest.raises(InputError, match="virtual_depth"):
+        _config(virtual_depth="mesh").validate()
+    with pytest.raises(InputError, match="splat_views"):
+        _config(splat_views=0).validate()
+
+
 def checks_at(checks: list, iteration: int) -> float:
     """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
     return [scale for step, _, scale in checks if step <= iteration][-1]

@@ -16,7 +16,7 @@ from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.train.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
                                           before_near_bound, contains_camera, floater_fraction, near_bounds,
-                                          seen_through, surface_depth, surface_depth_features)
+                                          render_surface_depth, seen_through, surface_depth, surface_depth_features)
 from inceptiongs.train.sky import fibonacci_directions, in_background
 from inceptiongs.train.step import maintain
 
@@ -265,6 +265,22 @@ def test_surface_depth_is_the_scene_gaussians_depth_and_zero_where_only_the_shel
     # them, so it does not change their blending weights), and 0 off the ball.
     assert torch.allclose(depth, alone, atol=1e-4)
     assert float((depth == 0).float().mean()) > 0.1 and float(depth.max()) < tc.RING_RADIUS + 1.5
+
+
+def test_render_surface_depth_leaves_the_shell_out_and_is_the_render_depth_without_one():
+    """What stage II warps photos with: with the shell blended in the faint ball's depth is
+    pulled towards the shell; render_surface_depth is the ball's own."""
+    model, cameras, sphere = _faint_ball_before_a_shell()
+    background = in_background(model.means.to(torch.float64), sphere)
+    cam = cameras[2]
+    with torch.no_grad():
+        alone = render(model.subset(~background), cam, outputs=("depth",))["depth"]
+        blended = render(model, cam, outputs=("depth",))["depth"]
+    surface = render_surface_depth(model, cam, sphere)
+    on_ball = alone[..., 0] > 0
+    assert torch.allclose(surface, alone, atol=1e-4)
+    assert float((blended[..., 0][on_ball] - alone[..., 0][on_ball]).median()) > 1.0   # the bug it avoids
+    assert torch.equal(render_surface_depth(model, cam, None), blended)
 
 
 def test_sh_degree_follows_the_viewing_spread():
