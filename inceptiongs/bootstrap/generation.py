@@ -164,6 +164,11 @@ class VirtualTarget:
     round: int
     # The source photos of the geometry term (multiview.GeometrySource; empty when it is off).
     geometry: list = field(default_factory=list)
+    # The warped photos' agreement margin (agreement.py; None: not measured) and whether the
+    # view takes part in the refinement (False: the render agrees with the photos better than
+    # they agree with each other).
+    agreement_db: float | None = None
+    supervised: bool = True
 
 
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],
@@ -171,7 +176,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                  blending: bool, delta: float | None, supervision: str = "blend", fill: str = "prior",
                  render_rgb: Callable[[Camera], torch.Tensor] | None = None,
                  pixels: str = "all", residual_floor: float | None = None,
-                 target_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 target_depth: torch.Tensor | None = None,
+                 report: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -186,10 +192,13 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     the photos contradict the render: supervision.informative_mask, whose floor ``residual_floor``
     overrides) and the blended photos there. ``target_depth`` [H, W, 1]: the virtual view's
     depth to warp with (default ``render_depth(camera)``; source_depth.splatted_depth).
+    ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
+    render (agreement.agreement_margin_db; None when not measurable).
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
         return generated_t, torch.zeros((*generated_t.shape[:2], 1))
+    from .agreement import agreement_margin_db
     from .warp import DEFAULT_DELTA, blend_views, warp_to_view
 
     delta = DEFAULT_DELTA if delta is None else delta
@@ -202,6 +211,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                         [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
                         generated=generated_t, fill=fill, delta=delta,
                         residual_floor=RESIDUAL_FLOOR if residual_floor is None else residual_floor)
+        if report is not None:
+            report["agreement_db"] = agreement_margin_db(render, out.warps)
         if pixels == "informative":
             # The blend itself on the informative pixels (not I*, whose soft mask may give the
             # photos almost no weight where the best witness is far off in angle), the fill elsewhere.
@@ -212,6 +223,9 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     for index in sources:
         warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,
                                   camera, delta=delta))
+    if report is not None:
+        report["agreement_db"] = agreement_margin_db(render_rgb(camera) if render_rgb is not None else generated_t,
+                                                     warps)
     image, mask = blend_views(generated_t, warps)
     if fill == "inpaint":
         from .supervision import inpaint

@@ -144,11 +144,13 @@ def pixel_weights(mask: torch.Tensor, generated_weight: float, virtual_pixels: s
 
 
 def active_views(pool: Sequence[VirtualTarget], virtual_pixels: str) -> list[int]:
-    """Indices of the pool's views that can take a virtual step: all of them, or with
-    ``"informative"`` those with at least MIN_INFORMATIVE_PIXELS informative pixels."""
+    """Indices of the pool's views that can take a virtual step: those whose photos were not
+    outvoted by the render (``VirtualTarget.supervised``, agreement.py), and with
+    ``"informative"`` only those with at least MIN_INFORMATIVE_PIXELS informative pixels."""
     if virtual_pixels != "informative":
-        return list(range(len(pool)))
-    return [i for i, view in enumerate(pool) if float(view.mask.sum()) >= MIN_INFORMATIVE_PIXELS]
+        return [i for i, view in enumerate(pool) if view.supervised]
+    return [i for i, view in enumerate(pool)
+            if view.supervised and float(view.mask.sum()) >= MIN_INFORMATIVE_PIXELS]
 
 
 def informative_loss(rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, dict]:

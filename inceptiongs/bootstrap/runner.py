@@ -235,7 +235,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     prior, prior_text, prior_hash = None, "none (baseline: no virtual views)", ""
     if not baseline and not config.needs_prior():
         prior_text = (f"none: I* is made from the photos and the render (supervision {config.supervision}, "
-                      f"fill {config.fill}), nothing is generated")
+                      f"fill {config.fill}, depth from the "
+                      f"{'training views' if config.virtual_depth == 'sources' else 'render'}), nothing is generated")
         summary["prior"] = {"description": prior_text, "version": "", "seconds": 0.0}
         log(prior_text)
     elif not baseline:
@@ -341,6 +342,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             else:  # the fill is the render itself (or inpainted around it): nothing to generate
                 generated, hit = render_rgb(camera).numpy(), False
             sources = _blend_sources(camera, cameras, split.train, config)
+            report: dict = {}
             if config.virtual_colour:
                 target_depth = None
                 if config.virtual_depth == "sources" and sources:
@@ -349,7 +351,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                            config.blending, config.delta, config.supervision, config.fill,
                                            render_rgb, config.virtual_pixels, config.residual_floor,
-                                           target_depth)
+                                           target_depth, report)
             else:
                 # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
                 # built for nothing. The render stands in for the PNGs, with an empty mask.
@@ -362,8 +364,12 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 # (the geometry term's visibility reference).
                 geometry = [GeometrySource(data.images[i].float().mean(-1, keepdim=True), cameras[i],
                                            render_depth(cameras[i])) for i in sources]
+            agreement = report.get("agreement_db")
+            # Only the photos' colour is gated: a geometry-only view has no warped colour to judge.
+            supervised = (config.agreement_min_db is None or agreement is None or not config.virtual_colour
+                          or agreement >= config.agreement_min_db)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number,
-                                  geometry)
+                                  geometry, agreement, supervised)
             if save:
                 write_png(boot_dir / "views" / f"{camera.name}.png",
                           _view_png(entry.generated, mask, image, render_rgb(camera)))
@@ -381,6 +387,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 break  # the views not reached keep their I*
             pool[number], _ = make_target(entry.camera, entry.round, save=False)
         regenerations.append({"iteration": state.iteration, "views": len(pool),
+                              "supervised": sum(entry.supervised for entry in pool),
                               "seconds": time.perf_counter() - began})
         log(f"step {state.iteration}: regenerated {len(pool)} virtual views in {regenerations[-1]['seconds']:.1f} s")
 
@@ -406,11 +413,17 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                     round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
                                                 "cache_hit": entry.cache_hit,
                                                 "mask_fraction": float(entry.mask.mean()),
+                                                "agreement_db": entry.agreement_db, "supervised": entry.supervised,
                                                 "blend_sources": [int(s) for s in sources]})
                 round_info["generation_s"] = time.perf_counter() - began
                 log(f"round {round_index + 1}: {len(round_info['views'])} virtual views "
                     f"({sum(v['cache_hit'] for v in round_info['views'])} from the cache) in "
                     f"{round_info['generation_s']:.1f} s")
+                left_out = [v for v in round_info["views"] if not v["supervised"]]
+                if left_out:
+                    log(f"round {round_index + 1}: {len(left_out)} of {len(round_info['views'])} virtual views left "
+                        f"out: the render agrees with their warped photos better than the photos agree with "
+                        f"each other (by more than {-config.agreement_min_db:g} dB)")
             # --- refinement ------------------------------------------------------------------
             began = time.perf_counter()
             stopped = False
@@ -423,8 +436,11 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                 if not first_step_at:
                     first_step_at.append(now())
                 # A regeneration pays off over the steps after it: none for a round's last few.
+                # Nor when every view was left out (agreement.py): the photos' steps are worth more
+                # than re-judging views the render already agrees with better.
                 if (pool and config.regenerate_every and (step - start) % config.regenerate_every == 0
-                        and round_end - step + 1 >= max(1, config.regenerate_every // 2)):
+                        and round_end - step + 1 >= max(1, config.regenerate_every // 2)
+                        and any(entry.supervised for entry in pool)):
                     regenerate_pool()
                 if conscience is not None and (step - start - 1) % config.conscience_every == 0:
                     loss = photo_loss(render_fn, gaussians_from_params(state.params).detach(), cameras, data.images,

@@ -57,10 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TorchScript LPIPS for the perceptual loss (default: a weight-free distance)")
     parser.add_argument("--supervision", choices=("blend", "photo"), default=d.supervision,
                         help="what I* is made of: 'blend' (binary-masked mean of the warped photos over the "
-                             "generated image, stage-I depth) or 'photo' (photo-consistent depth, exposure "
+                             "fill) or 'photo' (photo-consistent depth, exposure "
                              f"matching, lumigraph weights, soft mask; default {d.supervision})")
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
-                        help=f"with --supervision photo: what fills pixels no photo covers (default {d.fill})")
+                        help=f"what fills pixels no photo covers: the prior's image (the paper's, with --supervision "
+                             f"blend), the photos inpainted, or the render (default {d.fill})")
     parser.add_argument("--virtual-depth", choices=("render", "sources"), default=d.virtual_depth,
                         help="the depth photos are warped into a virtual view with: 'render' (the model's "
                              "surface depth there) or 'sources' (the nearest training views' depths splatted "

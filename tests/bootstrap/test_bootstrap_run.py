@@ -46,9 +46,11 @@ def stage1(tmp_path_factory) -> Path:
 
 
 def _config(**overrides) -> BootstrapConfig:
-    # The paper's supervision (the prior's image under the blended photos) unless a test says otherwise.
+    # The paper's supervision (the prior's image under the blended photos, the render's depth,
+    # every view used, alternating steps) unless a test says otherwise.
     base = BootstrapConfig(seed=2, iterations=8, k=2, l=2, ddim_steps=2, prior_steps=2, prior_minutes=1.0,
-                           log_every=1, save_views=2, checkpoint_every=4, supervision="blend", fill="prior")
+                           log_every=1, save_views=2, checkpoint_every=4, supervision="blend", fill="prior",
+                           virtual_depth="render", agreement_min_db=None, virtual_every=2, lambda_virtual=0.5)
     return dataclasses.replace(base, **overrides)
 
 
@@ -408,7 +410,8 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
 def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tmp_path, fill):
     out = tmp_path / f"blend_{fill}"
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=4, fill=fill, virtual_depth="sources", save_views=0, regenerate_every=0),
+                           _config(iterations=4, fill=fill, virtual_depth="sources", save_views=0, regenerate_every=0,
+                                   agreement_min_db=BootstrapConfig().agreement_min_db),
                            progress=False)
     assert result.finished and (out / "model.ply").is_file()
     assert not (out / "prior").exists()
@@ -421,6 +424,26 @@ def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tm
         _config(virtual_depth="mesh").validate()
     with pytest.raises(InputError, match="splat_views"):
         _config(splat_views=0).validate()
+
+
+@pytest.mark.slow
+def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos(stage1, tmp_path):
+    """An impossible agreement threshold leaves every view out: every step is a photo step and
+    no regeneration is spent; the views' margins are recorded."""
+    out = tmp_path / "gated"
+    iterations = 6
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=iterations, fill="render", virtual_depth="sources", save_views=0,
+                                   regenerate_every=2, agreement_min_db=1000.0),
+                           progress=False)
+    assert result.finished
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    views = summary["rounds"][0]["views"]
+    assert views and not any(v["supervised"] for v in views)
+    assert any(v["agreement_db"] is not None for v in views)
+    steps = summary["steps"]
+    assert steps["real"] == iterations and steps["idle"] == iterations // 2
+    assert steps["perceptual"] + steps["l1_ssim"] == 0 and summary["regenerations"] == []
 
 
 def checks_at(checks: list, iteration: int) -> float:
