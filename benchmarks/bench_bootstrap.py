@@ -37,15 +37,21 @@ import torch
 from inceptiongs.threads import use_torch_threads
 
 REPO = Path(__file__).resolve().parents[1]
+# The paper's loop: the render's depth, every view used, alternating steps at weight 0.5.
+PAPER_LOOP = {"virtual_depth": "render", "agreement_min_db": None, "virtual_every": 2, "lambda_virtual": 0.5}
 VARIANTS = {
-    # The default: photo supervision (photo-consistent depth, exposure matching, lumigraph
-    # weights, soft mask) over the render, with the conscience.
+    # The default (session 17): the blend over the render, warped with the depth splatted from
+    # the training views, views the render outvotes left out, every 4th step at weight 1; the
+    # conscience.
     "full": {},
+    # The session 4-16 default: photo supervision (photo-consistent depth, exposure matching,
+    # lumigraph weights, soft mask) over the render, in the paper's loop.
+    "photo": {"supervision": "photo", **PAPER_LOOP},
     # The paper's I*: the warps (stage-I depth, binary mask, uniform mean) over the prior's image.
-    "paper": {"supervision": "blend", "fill": "prior"},
+    "paper": {"supervision": "blend", "fill": "prior", **PAPER_LOOP},
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
-    "untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior"},
+    "untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior", **PAPER_LOOP},
     # The new ingredients one at a time (on top of "full").
     "fill-prior": {"fill": "prior"},
     "fill-inpaint": {"fill": "inpaint"},
@@ -54,16 +60,16 @@ VARIANTS = {
     "masked": {"generated_weight": 0.0},
     # Virtual steps learn only where the photos contradict the render (supervision.informative_mask),
     # and only views with such pixels are sampled; no informative view: a photo step.
-    "informative": {"virtual_pixels": "informative"},
+    "informative": {"supervision": "photo", "virtual_pixels": "informative"},
     # ... with uniform sampling (no pose gradient per virtual step: cheaper).
-    "informative-uniform": {"virtual_pixels": "informative", "sampling": "uniform"},
+    "informative-uniform": {"supervision": "photo", "virtual_pixels": "informative", "sampling": "uniform"},
     # ... added to a photo step's gradient instead of replacing the photo step.
-    "informative-additive": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
+    "informative-additive": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
     # ... with twice the virtual weight (lambda_virtual 1.0: an informative pixel pulls as hard as a photo's).
-    "informative-additive-x2": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+    "informative-additive-x2": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
                                 "lambda_virtual": 1.0},
     # ... and a residual floor of 0.1 (only where the render is grossly wrong).
-    "informative-strict": {"virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
+    "informative-strict": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
                            "lambda_virtual": 1.0, "residual_floor": 0.1},
     # The geometry term (multiview.py, issue 21's design step): 1 - NCC of the source photos
     # mapped through the rendered depth and normal at each virtual view, on top of "full"
@@ -83,7 +89,10 @@ VARIANTS = {
     "no-regeneration": {"regenerate_every": 0},
     # Not an ablation of the paper: generated pixels weighted 0.2 against photo-trusted ones
     # (a weak CPU-trained prior paints noise where no photo is trusted).
-    "generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2},
+    "generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2, **PAPER_LOOP},
+    # Session 17's ingredients one at a time (on top of "full").
+    "render-depth": {"virtual_depth": "render"},
+    "no-agreement-gate": {"agreement_min_db": None},
 }
 
 
