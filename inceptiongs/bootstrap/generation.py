@@ -177,7 +177,7 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                  render_rgb: Callable[[Camera], torch.Tensor] | None = None,
                  pixels: str = "all", residual_floor: float | None = None,
                  target_depth: torch.Tensor | None = None,
-                 report: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 report: dict | None = None, render_first: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -192,14 +192,16 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     the photos contradict the render: supervision.informative_mask, whose floor ``residual_floor``
     overrides) and the blended photos there. ``target_depth`` [H, W, 1]: the virtual view's
     depth to warp with (default ``render_depth(camera)``; source_depth.splatted_depth).
-    ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
+    ``render_first`` (blend only, with ``target_depth``): warp with both depths; a pixel the
+    warps placed with ``render_depth(camera)`` trust takes their blend, else the blend placed
+    with ``target_depth`` (``--virtual-depth both``). ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
     render (agreement.agreement_margin_db; None when not measurable).
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
         return generated_t, torch.zeros((*generated_t.shape[:2], 1))
     from .agreement import agreement_margin_db
-    from .warp import DEFAULT_DELTA, blend_views, warp_to_view
+    from .warp import DEFAULT_DELTA, WarpResult, blend_views, warp_to_view
 
     delta = DEFAULT_DELTA if delta is None else delta
     dst_depth = render_depth(camera) if target_depth is None else target_depth
@@ -219,14 +221,26 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
             target = out.informative * out.blended + (1.0 - out.informative) * out.fill
             return target.detach().float().clamp(0.0, 1.0), out.informative.detach().float()
         return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
-    warps = []
-    for index in sources:
-        warps.append(warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], dst_depth,
-                                  camera, delta=delta))
+    def warps_with(depth: torch.Tensor) -> list:
+        return [warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], depth, camera, delta=delta)
+                for index in sources]
+
+    warps = warps_with(dst_depth)
+    image, mask = blend_views(generated_t, warps)
+    if render_first and target_depth is not None:
+        own_depth = render_depth(camera)
+        first = warps_with(own_depth)
+        first_image, first_mask = blend_views(generated_t, first)
+        # Per source, the warp placed with the view's own depth where it is trusted (the
+        # agreement is judged on the photos as they enter the blend).
+        warps = [WarpResult(torch.where(a.mask > 0, a.image, b.image), torch.maximum(a.mask, b.mask))
+                 for a, b in zip(first, warps)]
+        image = torch.where(first_mask > 0, first_image, image)
+        mask = torch.maximum(first_mask, mask)
+        dst_depth = torch.where(own_depth > 0, own_depth, dst_depth)
     if report is not None:
         report["agreement_db"] = agreement_margin_db(render_rgb(camera) if render_rgb is not None else generated_t,
                                                      warps)
-    image, mask = blend_views(generated_t, warps)
     if fill == "inpaint":
         from .supervision import inpaint
 

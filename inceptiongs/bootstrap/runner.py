@@ -236,7 +236,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     if not baseline and not config.needs_prior():
         prior_text = (f"none: I* is made from the photos and the render (supervision {config.supervision}, "
                       f"fill {config.fill}, depth from the "
-                      f"{'training views' if config.virtual_depth == 'sources' else 'render'}), nothing is generated")
+                      f"{DEPTH_WORDS[config.virtual_depth]}), nothing is generated")
         summary["prior"] = {"description": prior_text, "version": "", "seconds": 0.0}
         log(prior_text)
     elif not baseline:
@@ -345,13 +345,13 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             report: dict = {}
             if config.virtual_colour:
                 target_depth = None
-                if config.virtual_depth == "sources" and sources:
+                if config.virtual_depth in ("sources", "both") and sources:
                     splat = nearest_training_views(camera, cameras, list(split.train), config.splat_views)
                     target_depth = splatted_depth(camera, [(render_depth(cameras[i]), cameras[i]) for i in splat])
                 image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                            config.blending, config.delta, config.supervision, config.fill,
                                            render_rgb, config.virtual_pixels, config.residual_floor,
-                                           target_depth, report)
+                                           target_depth, report, config.virtual_depth == "both")
             else:
                 # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
                 # built for nothing. The render stands in for the PNGs, with an empty mask.
@@ -528,6 +528,10 @@ def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], 
                                              -1, 0.0, "target")))
         views.extend((index, view) for view in virtual_views(target.camera, cameras, list(train), **kwargs))
     return views[:config.max_virtual_views]
+
+
+# How the report names each --virtual-depth.
+DEPTH_WORDS = {"render": "render", "sources": "training views", "both": "render, else the training views"}
 
 
 def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfig) -> list[int]:

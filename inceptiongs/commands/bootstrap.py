@@ -62,10 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
                         help=f"what fills pixels no photo covers: the prior's image (the paper's, with --supervision "
                              f"blend), the photos inpainted, or the render (default {d.fill})")
-    parser.add_argument("--virtual-depth", choices=("render", "sources"), default=d.virtual_depth,
+    parser.add_argument("--virtual-depth", choices=("render", "sources", "both"), default=d.virtual_depth,
                         help="the depth photos are warped into a virtual view with: 'render' (the model's "
-                             "surface depth there) or 'sources' (the nearest training views' depths splatted "
-                             f"into it; default {d.virtual_depth})")
+                             "surface depth there), 'sources' (the nearest training views' depths splatted "
+                             "into it) or 'both' (the render's where its warps are trusted, else the splatted; "
+                             f"default {d.virtual_depth})")
     parser.add_argument("--virtual-pixels", choices=("all", "informative"), default=d.virtual_pixels,
                         help="which pixels of a virtual view carry loss: 'all' (I*; generated ones weighted by "
                              "--generated-weight) or 'informative' (with --supervision photo: only where the "

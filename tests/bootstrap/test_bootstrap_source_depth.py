@@ -62,3 +62,29 @@ def test_close_holes_takes_the_nearest_depth_and_leaves_far_holes_empty():
     assert float(closed[4, 5]) == 2.0 and float(closed[3, 3]) == 3.0   # both within 1 px: the nearer wins
     assert bool(torch.isinf(closed[0, 0]))                              # 4 px away: left empty
     assert torch.equal(close_holes(z, 0), z)
+
+
+def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsewhere():
+    """--virtual-depth both: where the view's own depth places a trusted warp, its blend; where
+    it has no depth (a hole in the render), the blend placed with the splatted depth."""
+    from inceptiongs.bootstrap.generation import blend_target
+    from test_bootstrap_photo_depth import photo_of_plane
+
+    cameras = [camera_at("a", (-0.3, 0.0, 0.0)), camera_at("b", (0.3, 0.0, 0.0)), camera_at("v", (0.0, 0.05, 0.5))]
+    photos = {0: photo_of_plane(cameras[0]), 1: photo_of_plane(cameras[1])}
+    own = plane_depth(cameras[2]).clone()
+    own[:, : WIDTH // 2] = 0.0                                        # the render left a hole
+    depth_of = lambda cam: own if cam.name == "v" else plane_depth(cam)  # noqa: E731
+    render = torch.zeros(HEIGHT, WIDTH, 3)
+    splat = splatted_depth(cameras[2], [(plane_depth(c), c) for c in cameras[:2]])
+    kwargs = dict(supervision="blend", fill="render", target_depth=splat)
+    alone, alone_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None)
+    both, both_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
+                                   render_first=True, **kwargs)
+    splat_only, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None, **kwargs)
+    left = both_mask[:, 4: WIDTH // 2 - 4, 0]
+    assert float(alone_mask[:, : WIDTH // 2].max()) == 0.0 and float(left.mean()) > 0.8
+    right = alone_mask[..., 0] > 0
+    assert torch.equal(both[right], alone[right])
+    hole = (both_mask[..., 0] > 0) & ~right
+    assert torch.allclose(both[hole], splat_only[hole])
