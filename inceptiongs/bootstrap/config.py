@@ -65,14 +65,15 @@ class BootstrapConfig(SavedConfig):
     fill: str = "render"
     # The depth the photos are warped into a virtual view with: "render" (the model's surface
     # depth at that view), "sources" (the nearest ``splat_views`` training views' surface
-    # depths splatted into it: source_depth.py) or "both" (blend only: the render's depth
-    # where its warps are trusted, the splatted one elsewhere; the photo supervision uses the
-    # splatted one). Held-out views as virtual views, I* - render on the scarce ones: courtyard
-    # +0.65 / +1.22 / +1.45 dB, bonsai +0.85 / +0.48 / +0.84 (docs/bootstrap.md, session 17).
-    # "sources" is the default: in the courtyard's loop "both" ended +0.53 dB against the
-    # same-time baseline, "sources" +0.69 to +0.74 (its warps agree less with the render, and
-    # the agreement gate left out the views nearest the target).
-    virtual_depth: str = "sources"
+    # depths splatted into it: source_depth.py), "both" (blend only: the render's depth where
+    # its warps are trusted, the splatted one elsewhere) or "auto" (blend only: per view,
+    # whichever of the two places more photos; the photo supervision uses the splatted one).
+    # Each wins where it places more photos: held-out views as virtual views, I* - render on
+    # the scarce ones, render / sources depth: courtyard +0.65 / +1.22 dB, bonsai +0.85 / +0.48.
+    # In the loop against the same-time baseline (scarce / covered): courtyard "auto" +0.76 /
+    # -0.15 ("sources" +0.69 to +0.74, "both" +0.53), bonsai "auto" +0.05 / -0.01 ("render"
+    # +0.06 / -0.04, "sources" -0.19 / -0.23). docs/bootstrap.md, session 17.
+    virtual_depth: str = "auto"
     # A virtual view whose warped photos agree with each other worse than with the render by
     # more than this (dB; agreement.py) is left out of the refinement; None: every view is used.
     agreement_min_db: float | None = -1.0
@@ -164,8 +165,9 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
         if self.agreement_min_db is not None and not math.isfinite(self.agreement_min_db):
             raise InputError(f"{source}: agreement_min_db must be a finite number (or null: off), got {self.agreement_min_db}")
-        if self.virtual_depth not in ("render", "sources", "both"):
-            raise InputError(f"{source}: virtual_depth must be 'render', 'sources' or 'both', got {self.virtual_depth!r}")
+        if self.virtual_depth not in ("render", "sources", "both", "auto"):
+            raise InputError(f"{source}: virtual_depth must be 'render', 'sources', 'both' or 'auto', "
+                             f"got {self.virtual_depth!r}")
         if self.virtual_pixels not in ("all", "informative"):
             raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")
         if self.virtual_pixels == "informative" and self.supervision != "photo":

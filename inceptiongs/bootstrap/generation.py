@@ -169,6 +169,8 @@ class VirtualTarget:
     # they agree with each other).
     agreement_db: float | None = None
     supervised: bool = True
+    # Which depth placed the photos: "render", "sources" or "both" (--virtual-depth).
+    depth: str = "render"
 
 
 def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], cameras: Sequence[Camera],
@@ -177,7 +179,7 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                  render_rgb: Callable[[Camera], torch.Tensor] | None = None,
                  pixels: str = "all", residual_floor: float | None = None,
                  target_depth: torch.Tensor | None = None,
-                 report: dict | None = None, render_first: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+                 report: dict | None = None, combine: str = "none") -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -192,9 +194,11 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     the photos contradict the render: supervision.informative_mask, whose floor ``residual_floor``
     overrides) and the blended photos there. ``target_depth`` [H, W, 1]: the virtual view's
     depth to warp with (default ``render_depth(camera)``; source_depth.splatted_depth).
-    ``render_first`` (blend only, with ``target_depth``): warp with both depths; a pixel the
-    warps placed with ``render_depth(camera)`` trust takes their blend, else the blend placed
-    with ``target_depth`` (``--virtual-depth both``). ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
+    ``combine`` (blend only, with ``target_depth``): "both" warps with both depths, and a pixel
+    the warps placed with ``render_depth(camera)`` trust takes their blend, else the blend placed
+    with ``target_depth`` (``--virtual-depth both``); "auto" keeps whichever depth's blend
+    trusts more pixels (``--virtual-depth auto``; report["depth"] says which: "render" or
+    "sources"). ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
     render (agreement.agreement_margin_db; None when not measurable).
     """
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
@@ -227,17 +231,28 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
 
     warps = warps_with(dst_depth)
     image, mask = blend_views(generated_t, warps)
-    if render_first and target_depth is not None:
+    if combine not in ("none", "both", "auto"):
+        raise ValueError(f"combine must be 'none', 'both' or 'auto', got {combine!r}")
+    if report is not None and target_depth is not None:
+        report["depth"] = "sources"
+    if combine != "none" and target_depth is not None:
         own_depth = render_depth(camera)
         first = warps_with(own_depth)
         first_image, first_mask = blend_views(generated_t, first)
-        # Per source, the warp placed with the view's own depth where it is trusted (the
-        # agreement is judged on the photos as they enter the blend).
-        warps = [WarpResult(torch.where(a.mask > 0, a.image, b.image), torch.maximum(a.mask, b.mask))
-                 for a, b in zip(first, warps)]
-        image = torch.where(first_mask > 0, first_image, image)
-        mask = torch.maximum(first_mask, mask)
-        dst_depth = torch.where(own_depth > 0, own_depth, dst_depth)
+        if combine == "both":
+            # Per source, the warp placed with the view's own depth where it is trusted (the
+            # agreement is judged on the photos as they enter the blend).
+            warps = [WarpResult(torch.where(a.mask > 0, a.image, b.image), torch.maximum(a.mask, b.mask))
+                     for a, b in zip(first, warps)]
+            image = torch.where(first_mask > 0, first_image, image)
+            mask = torch.maximum(first_mask, mask)
+            dst_depth = torch.where(own_depth > 0, own_depth, dst_depth)
+            if report is not None:
+                report["depth"] = "both"
+        elif float(first_mask.sum()) > float(mask.sum()):
+            warps, image, mask, dst_depth = first, first_image, first_mask, own_depth
+            if report is not None:
+                report["depth"] = "render"
     if report is not None:
         report["agreement_db"] = agreement_margin_db(render_rgb(camera) if render_rgb is not None else generated_t,
                                                      warps)

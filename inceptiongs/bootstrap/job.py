@@ -35,5 +35,7 @@ class BootstrapJob:
         result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False, overwrite=self.overwrite)
-        out.finish("bootstrap", result.iteration, result.finished, result.last_eval,
-                   f"{result.virtual_views} virtual views, {out_dir}")
+        used = (f"{result.virtual_views} virtual views" if result.supervised_views in (None, result.virtual_views)
+                else f"{result.supervised_views} of {result.virtual_views} virtual views used (the others' photos "
+                     f"agree with the render better than with each other)")
+        out.finish("bootstrap", result.iteration, result.finished, result.last_eval, f"{used}, {out_dir}")

@@ -59,6 +59,8 @@ class BootstrapResult:
     prior: str
     initial_eval: dict = field(default_factory=dict)
     last_eval: dict = field(default_factory=dict)
+    # Virtual views that took part in the refinement at the end (agreement.py; None: unknown).
+    supervised_views: int | None = None
 
 
 def default_out_dir(run_dir: str | Path) -> Path:
@@ -345,13 +347,14 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             report: dict = {}
             if config.virtual_colour:
                 target_depth = None
-                if config.virtual_depth in ("sources", "both") and sources:
+                if config.virtual_depth in ("sources", "both", "auto") and sources:
                     splat = nearest_training_views(camera, cameras, list(split.train), config.splat_views)
                     target_depth = splatted_depth(camera, [(render_depth(cameras[i]), cameras[i]) for i in splat])
                 image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                            config.blending, config.delta, config.supervision, config.fill,
                                            render_rgb, config.virtual_pixels, config.residual_floor,
-                                           target_depth, report, config.virtual_depth == "both")
+                                           target_depth, report,
+                                           config.virtual_depth if config.virtual_depth in ("both", "auto") else "none")
             else:
                 # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
                 # built for nothing. The render stands in for the PNGs, with an empty mask.
@@ -369,7 +372,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             supervised = (config.agreement_min_db is None or agreement is None or not config.virtual_colour
                           or agreement >= config.agreement_min_db)
             entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number,
-                                  geometry, agreement, supervised)
+                                  geometry, agreement, supervised, report.get("depth", "render"))
             if save:
                 write_png(boot_dir / "views" / f"{camera.name}.png",
                           _view_png(entry.generated, mask, image, render_rgb(camera)))
@@ -414,6 +417,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                                                 "cache_hit": entry.cache_hit,
                                                 "mask_fraction": float(entry.mask.mean()),
                                                 "agreement_db": entry.agreement_db, "supervised": entry.supervised,
+                                                "depth": entry.depth,
                                                 "blend_sources": [int(s) for s in sources]})
                 round_info["generation_s"] = time.perf_counter() - began
                 log(f"round {round_index + 1}: {len(round_info['views'])} virtual views "
@@ -513,7 +517,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                        "baseline": conscience.baseline, "checks": [list(c) for c in conscience.history]})
     _write_summary(boot_dir / "summary.json", summary)
     return BootstrapResult(out_dir, start, state.iteration, finished, rounds_done, len(gaussians), len(pool),
-                           cache.hits, cache.misses, now(), prior_text, initial_eval, last_eval)
+                           cache.hits, cache.misses, now(), prior_text, initial_eval, last_eval,
+                           supervised_views=sum(entry.supervised for entry in pool))
 
 
 def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
@@ -531,7 +536,8 @@ def _round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], 
 
 
 # How the report names each --virtual-depth.
-DEPTH_WORDS = {"render": "render", "sources": "training views", "both": "render, else the training views"}
+DEPTH_WORDS = {"render": "render", "sources": "training views", "both": "render, else the training views",
+               "auto": "render or the training views, whichever places more photos"}
 
 
 def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfig) -> list[int]:

@@ -62,10 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
                         help=f"what fills pixels no photo covers: the prior's image (the paper's, with --supervision "
                              f"blend), the photos inpainted, or the render (default {d.fill})")
-    parser.add_argument("--virtual-depth", choices=("render", "sources", "both"), default=d.virtual_depth,
+    parser.add_argument("--virtual-depth", choices=("render", "sources", "both", "auto"), default=d.virtual_depth,
                         help="the depth photos are warped into a virtual view with: 'render' (the model's "
                              "surface depth there), 'sources' (the nearest training views' depths splatted "
-                             "into it) or 'both' (the render's where its warps are trusted, else the splatted; "
+                             "into it), 'both' (the render's where its warps are trusted, else the splatted) or "
+                             "'auto' (per view, whichever places more photos; "
                              f"default {d.virtual_depth})")
     parser.add_argument("--virtual-pixels", choices=("all", "informative"), default=d.virtual_pixels,
                         help="which pixels of a virtual view carry loss: 'all' (I*; generated ones weighted by "
@@ -123,6 +124,10 @@ def run(args) -> int:
     print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
     result = run_bootstrap(run_dir, out_dir, targets, config, overwrite=args.overwrite)
     print(f"prior: {result.prior}")
+    if result.supervised_views is not None and result.supervised_views < result.virtual_views:
+        print(f"{result.virtual_views - result.supervised_views} of {result.virtual_views} virtual views took no step: "
+              f"their warped photos agree with the render better than with each other"
+              + (" (so this run is stage I trained longer)" if result.supervised_views == 0 else ""))
     print(f"{result.virtual_views} virtual views ({result.cache_hits} from the cache), "
           f"iterations {result.start_iteration}..{result.iteration}, {result.wall_s:.1f} s, "
           f"{result.num_gaussians} Gaussians")

@@ -444,6 +444,7 @@ def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos
     steps = summary["steps"]
     assert steps["real"] == iterations and steps["idle"] == iterations // 2
     assert steps["perceptual"] + steps["l1_ssim"] == 0 and summary["regenerations"] == []
+    assert result.supervised_views == 0 and result.virtual_views == len(views)
 
 
 def checks_at(checks: list, iteration: int) -> float:

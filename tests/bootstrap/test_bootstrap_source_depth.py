@@ -80,7 +80,7 @@ def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsew
     kwargs = dict(supervision="blend", fill="render", target_depth=splat)
     alone, alone_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None)
     both, both_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
-                                   render_first=True, **kwargs)
+                                   combine="both", **kwargs)
     splat_only, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None, **kwargs)
     left = both_mask[:, 4: WIDTH // 2 - 4, 0]
     assert float(alone_mask[:, : WIDTH // 2].max()) == 0.0 and float(left.mean()) > 0.8
@@ -88,3 +88,13 @@ def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsew
     assert torch.equal(both[right], alone[right])
     hole = (both_mask[..., 0] > 0) & ~right
     assert torch.allclose(both[hole], splat_only[hole])
+    # "auto": the depth whose blend trusts more pixels, whole; the report names it.
+    report: dict = {}
+    auto, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
+                           combine="auto", report=report, **kwargs)
+    assert report["depth"] == "sources" and torch.equal(auto, splat_only)
+    report = {}
+    empty = torch.zeros_like(splat)
+    auto, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
+                           supervision="blend", fill="render", target_depth=empty, combine="auto", report=report)
+    assert report["depth"] == "render" and torch.equal(auto, alone)
