@@ -8,11 +8,12 @@ surface depth is unprojected, moved into the virtual camera and splatted into a 
 sparsely) are closed from the nearest splatted depth within a few pixels; the sources are
 combined by their median, so one view's floater or hole does not decide a pixel.
 
-On the README courtyard's close views of its north facade (stage I of the demo, 442 steps):
-the render's surface depth had a median relative error of 7 % against the ray-traced truth,
-the splatted one 8 %, but the photos warped with the splatted depth scored 15.94 dB against
-15.54 (render 14.88), because it covers 62 % of the pixels against 49 %
-(docs/bootstrap.md, session 2026-11-26, seventeenth).
+On the README courtyard's close views of its north facade (stage I of the demo, 442 steps),
+the photos warped with the splatted depth scored 16.10 dB against 15.54 with the view's own
+surface depth (render 14.88): the splatted depth is no more accurate (34 % of the pixels within
+5 % of the ray-traced truth, against 36 %), but its warps are trusted on 73 % of the pixels
+against 49 %. On bonsai it is the other way round (docs/bootstrap.md, session 2026-11-26,
+seventeenth), hence ``--virtual-depth auto``.
 """
 
 from __future__ import annotations
