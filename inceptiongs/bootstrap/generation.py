@@ -169,7 +169,8 @@ class VirtualTarget:
     # they agree with each other).
     agreement_db: float | None = None
     supervised: bool = True
-    # Which depth placed the photos: "render", "sources" or "both" (--virtual-depth).
+    # Which depth placed the photos: "render", "sources" or "both" (--virtual-depth; "auto"
+    # records the one it chose).
     depth: str = "render"
 
 
@@ -201,6 +202,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     "sources"). ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
     render (agreement.agreement_margin_db; None when not measurable).
     """
+    if combine not in ("none", "both", "auto"):
+        raise ValueError(f"combine must be 'none', 'both' or 'auto', got {combine!r}")
     generated_t = torch.as_tensor(generated, dtype=torch.float32)
     if not blending or not sources:
         return generated_t, torch.zeros((*generated_t.shape[:2], 1))
@@ -231,8 +234,6 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
 
     warps = warps_with(dst_depth)
     image, mask = blend_views(generated_t, warps)
-    if combine not in ("none", "both", "auto"):
-        raise ValueError(f"combine must be 'none', 'both' or 'auto', got {combine!r}")
     if report is not None and target_depth is not None:
         report["depth"] = "sources"
     if combine != "none" and target_depth is not None:

@@ -63,10 +63,4 @@ def lumigraph_weights(points: torch.Tensor, valid: torch.Tensor, virtual_centre,
     raw = torch.exp(-penalty * penalty) * valid.to(dtype)                              # [S, h, w] in [0, 1]
     total = raw.sum(0)
     weights = torch.where(total > 0, raw / total.clamp_min(1e-30), torch.zeros_like(raw))
-    import os
-    if os.environ.get("LUMI_TRUST") == "angle":
-        angle_penalty = angles / math.radians(angle_scale_deg)
-        raw = torch.exp(-angle_penalty * angle_penalty) * valid.to(dtype)
-    if os.environ.get("LUMI_TRUST") == "none":
-        raw = valid.to(dtype)
     return weights[..., None], raw.amax(0)[..., None]
