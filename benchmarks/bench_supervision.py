@@ -80,7 +80,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
     """One held-out view's scores; depths: {camera name: rendered depth}, shared across views
     (a training view is a warp source of several held-out views)."""
     from inceptiongs.bootstrap.generation import blend_target
-    from inceptiongs.bootstrap.source_depth import splatted_depth
+    from inceptiongs.bootstrap.source_depth import depth_from_training_views
     from inceptiongs.bootstrap.supervision import Source, supervise
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.evaluation.generated import photo_of, score
@@ -103,8 +103,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
 
     blend = lambda base, **kw: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
                                             render_depth, True, args.delta, **kw)
-    splat_views = nearest_training_views(camera, scene.cameras, list(split.train), args.splat_views)
-    splatted = splatted_depth(camera, [(render_depth(scene.cameras[i]), scene.cameras[i]) for i in splat_views])
+    splatted = depth_from_training_views(camera, scene.cameras, split.train, args.splat_views, render_depth)
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
     photo_run = lambda **kw: supervise(camera, rendered, dst_depth, photo_sources, delta=args.delta,  # noqa: E731

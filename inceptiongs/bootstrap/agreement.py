@@ -29,6 +29,7 @@ from typing import Sequence
 
 import torch
 
+from ..evaluation.metrics import mse
 from .warp import WarpResult
 
 # Views whose margin (dB) is below this are left out of the refinement (module doc).
@@ -44,8 +45,8 @@ def masked_psnr(a: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> float |
     count = int(mask.sum())
     if count < MIN_COMMON_PIXELS:
         return None
-    mse = float(((a.float() - b.float()) ** 2)[mask].mean())
-    return 10.0 * math.log10(1.0 / max(mse, _MSE_FLOOR))
+    error = float(mse(a.float(), b.float(), mask))
+    return 10.0 * math.log10(1.0 / max(error, _MSE_FLOOR))
 
 
 def agreement_margin_db(render: torch.Tensor, warps: Sequence[WarpResult]) -> float | None:

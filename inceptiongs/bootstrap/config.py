@@ -14,6 +14,7 @@ from ..io.config_json import SavedConfig
 from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")
+VIRTUAL_DEPTHS = ("render", "sources", "both", "auto")
 
 
 @dataclass
@@ -165,8 +166,8 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
         if self.agreement_min_db is not None and not math.isfinite(self.agreement_min_db):
             raise InputError(f"{source}: agreement_min_db must be a finite number (or null: off), got {self.agreement_min_db}")
-        if self.virtual_depth not in ("render", "sources", "both", "auto"):
-            raise InputError(f"{source}: virtual_depth must be 'render', 'sources', 'both' or 'auto', "
+        if self.virtual_depth not in VIRTUAL_DEPTHS:
+            raise InputError(f"{source}: virtual_depth must be one of {', '.join(VIRTUAL_DEPTHS)}, "
                              f"got {self.virtual_depth!r}")
         if self.virtual_pixels not in ("all", "informative"):
             raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")

@@ -163,7 +163,7 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     from ..io.ply import write_ply
     from ..train.checkpoint import save_checkpoint
     from ..train.free_space import render_surface_depth
-    from .source_depth import splatted_depth
+    from .source_depth import depth_from_training_views
     from ..train.optim import gaussians_from_params
     from ..train.run_folder import append_metrics, to_original_frame
     from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
@@ -319,20 +319,21 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
         # One render per (camera, output) for this model: the warps' depths, the fill, the PNGs.
         render_cache: dict[tuple[str, str], torch.Tensor] = {}
 
-        def rendered(camera, output: str) -> torch.Tensor:
+        def cached(camera, output: str, compute: Callable[[], torch.Tensor]) -> torch.Tensor:
             key = (camera.name + str(camera.world_to_camera.tobytes()), output)
             if key not in render_cache:
                 with torch.no_grad():
-                    render_cache[key] = render_fn(current, camera, outputs=(output,))[output]
+                    render_cache[key] = compute()
             return render_cache[key]
+
+        def rendered(camera, output: str) -> torch.Tensor:
+            return cached(camera, output, lambda: render_fn(current, camera, outputs=(output,))[output])
 
         def render_depth(camera) -> torch.Tensor:
             # The scene's own surface: the sky shell blended in pulls a faint surface's depth
             # far behind it, and the warps then place the photos wrongly and reject them.
-            key = (camera.name + str(camera.world_to_camera.tobytes()), "surface_depth")
-            if key not in render_cache:
-                render_cache[key] = render_surface_depth(current, camera, state.sky, render_fn)
-            return render_cache[key]
+            return cached(camera, "surface_depth",
+                          lambda: render_surface_depth(current, camera, state.sky, render_fn))
 
         def render_rgb(camera) -> torch.Tensor:
             return rendered(camera, "rgb").float().clamp(0.0, 1.0)
@@ -347,9 +348,9 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
             report: dict = {}
             if config.virtual_colour:
                 target_depth = None
-                if config.virtual_depth in ("sources", "both", "auto") and sources:
-                    splat = nearest_training_views(camera, cameras, list(split.train), config.splat_views)
-                    target_depth = splatted_depth(camera, [(render_depth(cameras[i]), cameras[i]) for i in splat])
+                if config.virtual_depth != "render" and sources:
+                    target_depth = depth_from_training_views(camera, cameras, split.train, config.splat_views,
+                                                             render_depth)
                 image, mask = blend_target(generated, camera, sources, cameras, data.images, render_depth,
                                            config.blending, config.delta, config.supervision, config.fill,
                                            render_rgb, config.virtual_pixels, config.residual_floor,

@@ -18,13 +18,14 @@ seventeenth), hence ``--virtual-depth auto``.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import torch
 
 from ..camera import Camera
 from ..constants import NEAR_PLANE
-from .warp import unproject
+from .virtual_views import nearest_training_views
+from .warp import project, relative_pose, unproject
 
 # Holes are closed from splatted pixels at most this far away (pixels): a source ~4x farther
 # from the surface than the virtual camera lands one point per ~4 x 4 virtual pixels.
@@ -37,22 +38,15 @@ def splat_into(depth: torch.Tensor, camera: Camera, target: Camera) -> torch.Ten
     z_src = depth[..., 0].to(torch.float64)
     valid = (z_src > 0) & torch.isfinite(z_src)
     points = unproject(torch.where(valid, z_src, torch.zeros_like(z_src)), camera)[valid]       # [P, 3]
-    src_rotation = torch.as_tensor(camera.world_to_camera[:3, :3], dtype=torch.float64)
-    src_translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=torch.float64)
-    world = (points - src_translation) @ src_rotation                                        # R^T (p - t)
-    rotation = torch.as_tensor(target.world_to_camera[:3, :3], dtype=torch.float64)
-    translation = torch.as_tensor(target.world_to_camera[:3, 3], dtype=torch.float64)
-    in_target = world @ rotation.T + translation
-    z = in_target[:, 2]
-    front = z > NEAR_PLANE
-    # Projected only in front of the camera (z > NEAR_PLANE > 0): the division is safe.
-    uvw = in_target[front] @ torch.as_tensor(target.intrinsics, dtype=torch.float64).T
-    u, v = uvw[:, 0] / uvw[:, 2], uvw[:, 1] / uvw[:, 2]
-    x, y = torch.floor(u), torch.floor(v)
+    to_target = torch.as_tensor(relative_pose(target, camera), dtype=torch.float64)
+    in_target = points @ to_target[:3, :3].T + to_target[:3, 3]
+    in_target = in_target[in_target[:, 2] > NEAR_PLANE]     # in front only: project's divide is safe
+    uv = project(in_target, target)
+    x, y = torch.floor(uv[:, 0]), torch.floor(uv[:, 1])
     inside = (x >= 0) & (x < target.width) & (y >= 0) & (y < target.height)
     index = (y[inside].long() * target.width + x[inside].long())
     zbuffer = torch.full((target.height * target.width,), float("inf"), dtype=torch.float64)
-    zbuffer.scatter_reduce_(0, index, z[front][inside], reduce="amin")
+    zbuffer.scatter_reduce_(0, index, in_target[inside, 2], reduce="amin")
     return zbuffer.reshape(target.height, target.width)
 
 
@@ -89,3 +83,11 @@ def splatted_depth(target: Camera, sources: Sequence[tuple[torch.Tensor, Camera]
                            for depth, camera in sources])
     median = torch.nanmedian(torch.where(torch.isinf(stacked), torch.nan, stacked), dim=0).values
     return torch.where(torch.isnan(median), 0.0, median).to(torch.float32)[..., None]      # NaN: no source
+
+
+def depth_from_training_views(target: Camera, cameras: Sequence[Camera], train: Sequence[int], views: int,
+                              depth_of: Callable[[Camera], torch.Tensor]) -> torch.Tensor:
+    """:func:`splatted_depth` at ``target`` from its ``views`` nearest training views
+    (virtual_views.nearest_training_views), each one's depth [H, W, 1] from ``depth_of``."""
+    nearest = nearest_training_views(target, cameras, list(train), views)
+    return splatted_depth(target, [(depth_of(cameras[i]), cameras[i]) for i in nearest])

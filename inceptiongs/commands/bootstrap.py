@@ -15,7 +15,7 @@ HELP = "stage II: repair flagged views of a run by generative bootstrapping (wri
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..bootstrap.config import BootstrapConfig
+    from ..bootstrap.config import VIRTUAL_DEPTHS, BootstrapConfig
 
     d = BootstrapConfig()
     parser.add_argument("run", help="a stage-I run folder (inceptiongs train)")
@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fill", choices=("prior", "inpaint", "render"), default=d.fill,
                         help=f"what fills pixels no photo covers: the prior's image (the paper's, with --supervision "
                              f"blend), the photos inpainted, or the render (default {d.fill})")
-    parser.add_argument("--virtual-depth", choices=("render", "sources", "both", "auto"), default=d.virtual_depth,
+    parser.add_argument("--virtual-depth", choices=VIRTUAL_DEPTHS, default=d.virtual_depth,
                         help="the depth photos are warped into a virtual view with: 'render' (the model's "
                              "surface depth there), 'sources' (the nearest training views' depths splatted "
                              "into it), 'both' (the render's where its warps are trusted, else the splatted) or "
