@@ -7,7 +7,10 @@ kernels; before 2026-11-26 only the composite was). Each (N, backend)
 runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
 minus the interpreter's RSS right before the first render (model and imports excluded).
 
-    python benchmarks/bench_torch_rasterizer.py [--sizes 10000 100000 1000000] [--repeats 3]
+    python benchmarks/bench_torch_rasterizer.py [--sizes 10000 100000 1000000] [--repeats 3] [--device cuda]
+
+``--device cuda`` runs the torch reference on the GPU (numba is CPU-only) and reports the peak
+of torch's CUDA allocator instead of the RSS (docs/rendering.md, "On a GPU").
 
 Timings are medians over --repeats after one warm-up call. The machine is shared: treat the
 figures as indicative.
@@ -30,7 +33,8 @@ WORKER = textwrap.dedent("""
     from inceptiongs.gaussians import Gaussians
     from inceptiongs.rasterizer.rasterize import render
 
-    n, backend, repeats, size = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+    n, backend, repeats, size, device = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
+    cuda = device.startswith("cuda")
     gen = torch.Generator().manual_seed(0)
     # Unit cube centred at the origin, camera 2.5 units away looking at it; per-Gaussian size
     # shrinks with density (~ mean spacing / 3) so the cube looks like a filled volume at every N.
@@ -42,12 +46,20 @@ WORKER = textwrap.dedent("""
         opacity_logits=torch.randn(n, generator=gen),
         sh=0.3 * torch.randn(n, 4, 3, generator=gen),
     )
-    params = {k: v.float().requires_grad_(True) for k, v in params.items()}
+    params = {k: v.float().to(device).requires_grad_(True) for k, v in params.items()}
     g = Gaussians(**params)
     camera = Camera("bench", size, size, 1.1 * size, 1.1 * size, size / 2, size / 2,
                     look_at(np.array([0.3, -0.4, -2.5]), np.zeros(3)))
     outputs = ("rgb", "alpha", "depth")
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    if cuda:
+        torch.cuda.synchronize()
+        allocated_before = torch.cuda.memory_allocated()
+        torch.cuda.reset_peak_memory_stats()
+
+    def sync():
+        if cuda:  # kernels run asynchronously: a timing must wait for them
+            torch.cuda.synchronize()
 
     def forward():
         return render(g, camera, outputs=outputs, backend=backend)
@@ -64,8 +76,10 @@ WORKER = textwrap.dedent("""
         fn()  # warm-up (JIT compilation, allocator)
         times = []
         for _ in range(repeats):
+            sync()
             start = time.perf_counter()
             fn()
+            sync()
             times.append(1000 * (time.perf_counter() - start))
         return statistics.median(times)
 
@@ -74,9 +88,11 @@ WORKER = textwrap.dedent("""
     fwd_bwd_ms = timed(forward_backward)
     out = forward()
     rss_after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak_mb = ((torch.cuda.max_memory_allocated() - allocated_before) / 2**20 if cuda
+               else (rss_after - rss_before) / 1024.0)
     print(json.dumps({
         "n": n, "backend": backend, "forward_ms": fwd_ms, "forward_backward_ms": fwd_bwd_ms,
-        "peak_mb": (rss_after - rss_before) / 1024.0, "visible": int((out["radii"] > 0).sum()),
+        "peak_mb": peak_mb, "visible": int((out["radii"] > 0).sum()),
         "mean_alpha": float(out["alpha"].detach().mean()),
     }))
 """)
@@ -96,16 +112,20 @@ def main() -> None:
     parser.add_argument("--backends", nargs="+", default=None, help="default: torch, and numba if importable")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--image", type=int, default=512, help="square image size in pixels")
+    parser.add_argument("--device", default="cpu", help="torch device (cuda: the torch backend on the GPU)")
     args = parser.parse_args()
-    backends = args.backends or (["torch", "numba"] if numba_available() else ["torch"])
+    on_cpu = args.device == "cpu"
+    backends = args.backends or (["torch", "numba"] if on_cpu and numba_available() else ["torch"])
 
     header = f"{'N':>9} {'backend':>8} {'fwd ms':>10} {'fwd+bwd ms':>11} {'peak MB':>9} {'visible':>9} {'mean a':>7}"
-    print(f"torch rasterizer, {args.image}x{args.image}, 2 threads, median of {args.repeats}")
+    where = "2 threads" if on_cpu else f"{args.device}, peak MB of torch's CUDA allocator"
+    print(f"torch rasterizer, {args.image}x{args.image}, {where}, median of {args.repeats}")
     print(header)
     print("-" * len(header))
     for n in args.sizes:
         for backend in backends:
-            result = subprocess.run([sys.executable, "-c", WORKER, str(n), backend, str(args.repeats), str(args.image)],
+            result = subprocess.run([sys.executable, "-c", WORKER, str(n), backend, str(args.repeats), str(args.image),
+                                     args.device],
                                     capture_output=True, text=True)
             if result.returncode != 0:
                 reason = (result.stderr.strip().splitlines() or ["failed"])[-1]
