@@ -93,6 +93,8 @@ VARIANTS = {
     # Session 17's ingredients one at a time (on top of "full").
     "render-depth": {"virtual_depth": "render"},
     "no-agreement-gate": {"agreement_min_db": None},
+    # Session 18: each warp moved onto the render by optical flow before the blend (align.py).
+    "align": {"align_px": 3.0},
 }
 
 

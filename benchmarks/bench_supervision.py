@@ -9,6 +9,8 @@ each ingredient on its own:
 - ``render``: the stage-I render (what the view shows now);
 - ``blend``: the paper's blending (K nearest photos warped with the stage-I depth, binary
   trusted-pixel mask, uniform mean) over the render;
+- ``blend+flow``: the blend with each warp first moved onto the render by optical flow
+  (align.py; shifts beyond ``--align-px`` untrusted); ``splat+flow``: the same for ``splat``;
 - ``splat``: the same blend, the view's depth splatted from its nearest training views' depths
   (source_depth.py, ``--virtual-depth sources``); ``splat+inp``: and the blend inpainted into
   the pixels no photo reaches (``--fill inpaint``);
@@ -52,9 +54,9 @@ sys.path.insert(0, str(REPO))
 import inceptiongs  # noqa: E402,F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 import torch  # noqa: E402
 
-WITHOUT_PRIOR = ("render", "blend", "splat", "splat+inp", "+depth", "+lumi", "+expo", "inpaint", "+inform")
+WITHOUT_PRIOR = ("render", "blend", "blend+flow", "splat", "splat+flow", "splat+inp", "+depth", "+lumi", "+expo", "inpaint", "+inform")
 WITH_PRIOR = ("repair", "I*blend", "I*photo")
-TRUSTED = ("blend", "splat", "photo", "inform", "inform-flat")
+TRUSTED = ("blend", "blend+flow", "splat", "splat+flow", "photo", "inform", "inform-flat")
 
 
 # A relative depth jump above this between neighbouring pixels is an occlusion edge ...
@@ -113,7 +115,9 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
     began = time.perf_counter()
     images = {"render": rendered}
     images["blend"], blend_mask = blend(rendered)
+    images["blend+flow"], blend_flow_mask = blend(rendered, align_px=args.align_px)
     images["splat"], splat_mask = blend(rendered, target_depth=splatted)
+    images["splat+flow"], splat_flow_mask = blend(rendered, target_depth=splatted, align_px=args.align_px)
     images["splat+inp"], _ = blend(rendered, target_depth=splatted, fill="inpaint")
     images["+depth"] = photo_run(fill="render", lumigraph=False, exposure=False).target
     images["+lumi"] = photo_run(fill="render", exposure=False).target
@@ -130,18 +134,21 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
     edges = near_depth_edges(dst_depth[..., 0])
-    for name, mask in (("blend", blend_mask[..., 0] > 0), ("splat", splat_mask[..., 0] > 0), ("photo", full.mask[..., 0] >= 0.5),
+    for name, mask in (("blend", blend_mask[..., 0] > 0), ("blend+flow", blend_flow_mask[..., 0] > 0),
+                       ("splat", splat_mask[..., 0] > 0), ("splat+flow", splat_flow_mask[..., 0] > 0),
+                       ("photo", full.mask[..., 0] >= 0.5),
                        ("inform", full.informative[..., 0] > 0),
                        ("inform-flat", (full.informative[..., 0] > 0) & ~edges)):
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
-            warped = images[name] if name in ("blend", "splat") else full.blended
+            warped = images[name] if name in ("blend", "blend+flow", "splat", "splat+flow") else full.blended
             row[f"{name}_trusted_warp"] = float(psnr(warped, photo, mask))
             row[f"{name}_trusted_render"] = float(psnr(rendered, photo, mask))
     return row
 
 
 def main(argv=None) -> int:
+    from inceptiongs.bootstrap.align import DEFAULT_MAX_SHIFT_PX
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.runner import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
@@ -170,6 +177,9 @@ def main(argv=None) -> int:
     parser.add_argument("--blended-depth", action="store_true",
                         help="warp with the render's depth, sky shell blended in (before session 17), "
                              "instead of the scene's own surface depth")
+    parser.add_argument("--align-px", type=float, default=DEFAULT_MAX_SHIFT_PX,
+                        help="the +flow columns: each warp moved onto the render by optical flow, shifts "
+                             "beyond this many pixels left untrusted (align.py)")
     parser.add_argument("--views", type=int, default=None, help="score only the first N held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)

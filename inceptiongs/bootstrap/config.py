@@ -79,6 +79,9 @@ class BootstrapConfig(SavedConfig):
     # more than this (dB; agreement.py) is left out of the refinement; None: every view is used.
     agreement_min_db: float | None = -1.0
     splat_views: int = 8
+    # Blend only: each warped photo is first moved onto the render by optical flow, shifts of
+    # more than this many pixels left untrusted (align.py); None: the warps as placed.
+    align_px: float | None = None
 
     # --- refinement --------------------------------------------------------------------------
     # Every n-th step is a virtual view, its loss weighted lambda_virtual against a photo's. The
@@ -166,6 +169,8 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
         if self.agreement_min_db is not None and not math.isfinite(self.agreement_min_db):
             raise InputError(f"{source}: agreement_min_db must be a finite number (or null: off), got {self.agreement_min_db}")
+        if self.align_px is not None and not (math.isfinite(self.align_px) and self.align_px > 0):
+            raise InputError(f"{source}: align_px must be a positive number of pixels (or null: off), got {self.align_px}")
         if self.virtual_depth not in VIRTUAL_DEPTHS:
             raise InputError(f"{source}: virtual_depth must be one of {', '.join(VIRTUAL_DEPTHS)}, "
                              f"got {self.virtual_depth!r}")

@@ -180,7 +180,8 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
                  render_rgb: Callable[[Camera], torch.Tensor] | None = None,
                  pixels: str = "all", residual_floor: float | None = None,
                  target_depth: torch.Tensor | None = None,
-                 report: dict | None = None, combine: str = "none") -> tuple[torch.Tensor, torch.Tensor]:
+                 report: dict | None = None, combine: str = "none",
+                 align_px: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """I* = M * warped + (1 - M) * fill for one virtual view -> (I* [H, W, 3], M [H, W, 1]).
 
     sources: training view indices whose photos are warped in, with the stage-I depth of both
@@ -200,7 +201,9 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
     with ``target_depth`` (``--virtual-depth both``); "auto" keeps whichever depth's blend
     trusts more pixels (``--virtual-depth auto``; report["depth"] says which: "render" or
     "sources"). ``report``: a dict that receives "agreement_db", the warps' agreement margin against the
-    render (agreement.agreement_margin_db; None when not measurable).
+    render (agreement.agreement_margin_db; None when not measurable). ``align_px`` (blend only):
+    each warp is first moved onto the render by optical flow, pixels moved further than this
+    left untrusted (align.align_warp; the render is ``render_rgb(camera)``, else ``generated``).
     """
     if combine not in ("none", "both", "auto"):
         raise ValueError(f"combine must be 'none', 'both' or 'auto', got {combine!r}")
@@ -229,8 +232,13 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
             return target.detach().float().clamp(0.0, 1.0), out.informative.detach().float()
         return out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float()
     def warps_with(depth: torch.Tensor) -> list:
-        return [warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], depth, camera, delta=delta)
-                for index in sources]
+        warps = [warp_to_view(photos[index], render_depth(cameras[index]), cameras[index], depth, camera, delta=delta)
+                 for index in sources]
+        if align_px is None:
+            return warps
+        from .align import align_warp
+        reference = render_rgb(camera) if render_rgb is not None else generated_t
+        return [align_warp(reference, warp, align_px) for warp in warps]
 
     warps = warps_with(dst_depth)
     image, mask = blend_views(generated_t, warps)

@@ -355,7 +355,8 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
                                            config.blending, config.delta, config.supervision, config.fill,
                                            render_rgb, config.virtual_pixels, config.residual_floor,
                                            target_depth, report,
-                                           config.virtual_depth if config.virtual_depth in ("both", "auto") else "none")
+                                           config.virtual_depth if config.virtual_depth in ("both", "auto") else "none",
+                                           config.align_px)
             else:
                 # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
                 # built for nothing. The render stands in for the PNGs, with an empty mask.

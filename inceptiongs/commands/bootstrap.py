@@ -68,6 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "into it), 'both' (the render's where its warps are trusted, else the splatted) or "
                              "'auto' (per view, whichever places more photos; "
                              f"default {d.virtual_depth})")
+    parser.add_argument("--align-px", type=float, default=d.align_px, metavar="PX",
+                        help="with --supervision blend: move each warped photo onto the render by optical flow "
+                             "first, shifts beyond PX pixels untrusted (default: off)")
     parser.add_argument("--virtual-pixels", choices=("all", "informative"), default=d.virtual_pixels,
                         help="which pixels of a virtual view carry loss: 'all' (I*; generated ones weighted by "
                              "--generated-weight) or 'informative' (with --supervision photo: only where the "
@@ -101,6 +104,7 @@ def config_from_args(args):
         regenerate_every=args.regenerate_every, include_target=args.include_target,
         supervision=args.supervision, fill=args.fill, virtual_pixels=args.virtual_pixels,
         virtual_depth=args.virtual_depth,
+        align_px=args.align_px,
         virtual_mode=args.virtual_mode, geometry_weight=args.geometry_weight,
         virtual_colour=not args.no_virtual_colour,
         conscience_tolerance=None if args.conscience_tolerance < 0 else args.conscience_tolerance,

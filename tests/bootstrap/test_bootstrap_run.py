@@ -406,12 +406,14 @@ def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, f
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fill", ["render", "inpaint"])
-def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tmp_path, fill):
+@pytest.mark.parametrize("fill, align_px", [("render", None), ("inpaint", 3.0)])
+def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tmp_path, fill, align_px):
+    """The blend over the render (or inpainted), the warps placed with the splatted depth, and
+    (align_px) moved onto the render by optical flow first."""
     out = tmp_path / f"blend_{fill}"
     result = run_bootstrap(stage1, out, _targets(stage1),
                            _config(iterations=4, fill=fill, virtual_depth="sources", save_views=0, regenerate_every=0,
-                                   agreement_min_db=BootstrapConfig().agreement_min_db),
+                                   agreement_min_db=BootstrapConfig().agreement_min_db, align_px=align_px),
                            progress=False)
     assert result.finished and (out / "model.ply").is_file()
     assert not (out / "prior").exists()
@@ -419,7 +421,10 @@ def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tm
     assert "nothing is generated" in summary["prior"]["description"]
     masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
     assert any(m > 0 for m in masks) and all(0 <= m <= 1 for m in masks)
-    assert json.loads((out / "bootstrap" / "config.json").read_text())["virtual_depth"] == "sources"
+    recorded = json.loads((out / "bootstrap" / "config.json").read_text())
+    assert recorded["virtual_depth"] == "sources" and recorded["align_px"] == align_px
+    with pytest.raises(InputError, match="align_px"):
+        _config(align_px=0.0).validate()
     with pytest.raises(InputError, match="virtual_depth"):
         _config(virtual_depth="mesh").validate()
     with pytest.raises(InputError, match="splat_views"):
