@@ -134,14 +134,16 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
         images["I*photo"] = photo_run(fill="prior", generated=images["repair"]).target
     row.update({name: score(image, photo) for name, image in images.items()})
     edges = near_depth_edges(dst_depth[..., 0])
-    for name, mask in (("blend", blend_mask[..., 0] > 0), ("blend+flow", blend_flow_mask[..., 0] > 0),
-                       ("splat", splat_mask[..., 0] > 0), ("splat+flow", splat_flow_mask[..., 0] > 0),
-                       ("photo", full.mask[..., 0] >= 0.5),
-                       ("inform", full.informative[..., 0] > 0),
-                       ("inform-flat", (full.informative[..., 0] > 0) & ~edges)):
+    # The blend columns are judged by their own image on their own mask, the rest by the photo
+    # supervision's blend.
+    blend_masks = {"blend": blend_mask, "blend+flow": blend_flow_mask, "splat": splat_mask, "splat+flow": splat_flow_mask}
+    trusted = {**{name: m[..., 0] > 0 for name, m in blend_masks.items()},
+               "photo": full.mask[..., 0] >= 0.5, "inform": full.informative[..., 0] > 0,
+               "inform-flat": (full.informative[..., 0] > 0) & ~edges}
+    for name, mask in trusted.items():
         row[f"{name}_trusted_fraction"] = float(mask.float().mean())
         if mask.any():
-            warped = images[name] if name in ("blend", "blend+flow", "splat", "splat+flow") else full.blended
+            warped = images[name] if name in blend_masks else full.blended
             row[f"{name}_trusted_warp"] = float(psnr(warped, photo, mask))
             row[f"{name}_trusted_render"] = float(psnr(rendered, photo, mask))
     return row

@@ -215,10 +215,15 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
 
     delta = DEFAULT_DELTA if delta is None else delta
     dst_depth = render_depth(camera) if target_depth is None else target_depth
+
+    def the_render() -> torch.Tensor:
+        # Asked for only where needed: a caller without ``render_rgb`` passes the render as ``generated``.
+        return render_rgb(camera) if render_rgb is not None else generated_t
+
     if supervision == "photo":
         from .supervision import RESIDUAL_FLOOR, Source, supervise
 
-        render = render_rgb(camera) if render_rgb is not None else generated_t
+        render = the_render()
         out = supervise(camera, render, dst_depth,
                         [Source(photos[i], cameras[i], render_depth(cameras[i])) for i in sources],
                         generated=generated_t, fill=fill, delta=delta,
@@ -237,7 +242,7 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
         if align_px is None:
             return warps
         from .align import align_warp
-        reference = render_rgb(camera) if render_rgb is not None else generated_t
+        reference = the_render()
         return [align_warp(reference, warp, align_px) for warp in warps]
 
     warps = warps_with(dst_depth)
@@ -263,8 +268,7 @@ def blend_target(generated: np.ndarray, camera: Camera, sources: Sequence[int], 
             if report is not None:
                 report["depth"] = "render"
     if report is not None:
-        report["agreement_db"] = agreement_margin_db(render_rgb(camera) if render_rgb is not None else generated_t,
-                                                     warps)
+        report["agreement_db"] = agreement_margin_db(the_render(), warps)
     if fill == "inpaint":
         from .supervision import inpaint
 

@@ -35,12 +35,16 @@ COVERED_PSNR_TOLERANCE_DB = 0.5
 @pytest.fixture(scope="module")
 def stage1(tmp_path_factory) -> Path:
     """A short stage-I run on the demo scene at 48x36 (unstructured protocol: j* exists)."""
-    root = tmp_path_factory.mktemp("bootstrap")
+    return _tiny_stage1(tmp_path_factory.mktemp("bootstrap"), iterations=20, eval_every=20, checkpoint_every=20)
+
+
+def _tiny_stage1(root: Path, iterations: int, eval_every: int, checkpoint_every: int) -> Path:
+    """ROOT/run: stage I on the demo scene (written to ROOT/scene) at 48x36, unstructured protocol."""
     scene = write_demo_scene(root / "scene", progress=False)
-    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20,
+    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=iterations,
                          densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
                          sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
-                         eval_every=20, checkpoint_every=20)
+                         eval_every=eval_every, checkpoint_every=checkpoint_every)
     train(config, root / "run", progress=False)
     return root / "run"
 
@@ -77,17 +81,12 @@ def test_a_short_default_bootstrap_keeps_the_covered_views_within_0_2_db(tmp_pat
     no longer gain a dB each (300 steps at 48x36), 24 bootstrap steps keep the covered views
     within 0.2 dB of the input and of the same 24 steps on the photos alone. Measured here:
     -0.08 dB against the baseline (the paper's loop with an untrained prior: -0.14)."""
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
-    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=300,
-                         densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
-                         sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
-                         eval_every=1000, checkpoint_every=1000)
-    train(config, tmp_path / "run", progress=False)
+    run = _tiny_stage1(tmp_path, iterations=300, eval_every=1000, checkpoint_every=1000)
     steps = 24
-    run_bootstrap(tmp_path / "run", tmp_path / "boot", _targets(tmp_path / "run"),
+    run_bootstrap(run, tmp_path / "boot", _targets(run),
                   BootstrapConfig(seed=0, iterations=steps, k=2, l=2, save_views=0, checkpoint_every=100),
                   progress=False)
-    baseline_run(tmp_path / "run", tmp_path / "baseline", None, steps, seed=0, progress=False)
+    baseline_run(run, tmp_path / "baseline", None, steps, seed=0, progress=False)
     covered = {name: evaluate_run(tmp_path / name, progress=False)["groups"]["covered"]["psnr"]
                for name in ("run", "boot", "baseline")}
     assert covered["boot"] >= covered["run"] - 0.2, covered
