@@ -2,136 +2,171 @@
 
 The stage-I TrainConfig of the input run is kept as it is in RUN2/config.json (so the output
 is a run folder every reader understands); everything that belongs to the bootstrap loop lives
-here.
+here. Each field carries its meaning, unit and role in its metadata (``option``);
+docs/bootstrap_options.md is generated from them (scripts/gen_bootstrap_options.py).
+``BootstrapConfig.load`` reads such a file strictly: `inceptiongs bootstrap --config FILE.json`.
 """
 
 from __future__ import annotations
 
+import difflib
+import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
+from pathlib import Path
 
-from ..io.config_json import SavedConfig
+from ..io.config_json import SavedConfig, read_json_object
 from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")
 VIRTUAL_DEPTHS = ("render", "sources", "both", "auto")
+
+# A field's role (docs/bootstrap_options.md explains them).
+DEFAULT_PATH = "default path"           # its value shapes a run with every default
+EXPERIMENTAL = "experimental variant"   # read only when a non-default variant is chosen (the meaning says which)
+ABLATION = "ablation"                   # one of the paper's ablations; off by default
+BOOKKEEPING = "bookkeeping"             # logs, evaluations, checkpoints, saved images: never the model
+ROLES = (DEFAULT_PATH, EXPERIMENTAL, ABLATION, BOOKKEEPING)
+
+
+def option(default, meaning: str, unit: str = "-", role: str = DEFAULT_PATH):
+    """A BootstrapConfig field with its documentation: what it means, its unit ("-": none) and
+    its role (one of ROLES)."""
+    assert role in ROLES, role
+    return field(default=default, metadata={"meaning": meaning, "unit": unit, "role": role})
 
 
 @dataclass
 class BootstrapConfig(SavedConfig):
     CONFIG_KIND = "bootstrap config"
 
-    seed: int = 0
-    rounds: int = 1
-    iterations: int = 300               # refinement steps per round (real + virtual)
-    minutes: float | None = None        # wall budget for the whole bootstrap (prior + generation + refinement)
+    seed: int = option(0, "seed of the prior's generation and of the virtual-view sampling")
+    rounds: int = option(1, "bootstrap rounds; round r+1 starts from round r's Gaussians with new targets "
+                            "and keeps round r's virtual views", "rounds")
+    iterations: int = option(300, "refinement steps per round, photo and virtual steps together", "steps")
+    minutes: float | None = option(None, "wall budget for the whole bootstrap (prior training, generation, "
+                                         "refinement); whichever of it and the steps ends first. null: no budget",
+                                   "minutes")
 
-    # --- virtual views (engineer A's defaults when None) -------------------------------------
-    k: int | None = None                # nearest training views per target
-    l: int | None = None                # interpolated poses per (target, training view) pair
+    # --- virtual views -----------------------------------------------------------------------
     # Virtual views are generated and rendered at the training resolution: a flagged view made
     # in a large viewer window is scaled so its width matches the training photos'.
-    max_virtual_views: int = 64
-    # Also supervise the target pose itself (t = 0) with the prior's repair of its render: the
-    # view the user flagged is where the repair matters most (statuette, 400 steps: scarce views
-    # +0.05 dB over K * L views alone). Off: |V| = K * L exactly.
-    include_target: bool = True
+    k: int | None = option(None, "nearest training views per target (null: virtual_views.DEFAULT_K, 3)", "views")
+    l: int | None = option(None, "poses interpolated between a target and each of its k training views "
+                                 "(null: virtual_views.DEFAULT_L, 4)", "poses")
+    max_virtual_views: int = option(64, "at most this many virtual views per round; the rest are dropped", "views")
+    # The view the user flagged is where the repair matters most.
+    include_target: bool = option(True, "also supervise the target pose itself (t = 0) with the repair of its "
+                                        "render; false: exactly k * l virtual views per target")
 
-    # --- generation --------------------------------------------------------------------------
-    prior: str = "trained"              # "trained" (the run's, else a short one) | "untrained" (ablation)
-    prior_minutes: float = 2.0          # budget of the short prior training when the run has none
-    prior_steps: int | None = None      # ... or this many steps (whichever ends first)
-    ddim_steps: int = 10
-    # Every this many refinement steps, I* of all virtual views is generated again from the
-    # current Gaussians (their render is what the prior repairs); 0: once per round. Statuette,
-    # 400 steps: scarce views 15.93 -> 16.26 dB with 50, where a fixed I* stayed at ~16.0 dB;
-    # one regeneration of 13 views costs about 20 refinement steps.
-    regenerate_every: int = 50
+    # --- generation (only when a prior is used: fill "prior" or blending off) ---------------
+    prior: str = option("trained", "\"trained\": the run's prior, else a short one trained here; "
+                                   "\"untrained\": a randomly initialised prior (the paper's w/o-FT ablation)",
+                        role=ABLATION)
+    prior_minutes: float = option(2.0, "budget of the short prior training when the run has no prior "
+                                       "(at most half of what is left of `minutes`)", "minutes", EXPERIMENTAL)
+    prior_steps: int | None = option(None, "... or this many prior training steps, whichever ends first; "
+                                           "null: the minutes alone", "steps", EXPERIMENTAL)
+    ddim_steps: int = option(10, "DDIM denoising steps per generated image", "steps", EXPERIMENTAL)
+    regenerate_every: int = option(50, "every this many refinement steps, I* of every virtual view is made "
+                                       "again from the current Gaussians (their render is what is repaired); "
+                                       "0: once per round", "steps")
 
-    # --- blending ----------------------------------------------------------------------------
-    blending: bool = True
-    delta: float | None = None          # relative depth tolerance of the warp (A's default when None)
-    save_views: int = 4                 # PNGs (I*, mask, generated) for this many virtual views
-    # What the warped photos are blended with: "blend" (binary mask, uniform mean; the paper's
-    # with fill "prior") or "photo" (photo-consistent depth, exposure matching, lumigraph
-    # weights, soft mask; supervision.py), and what fills the pixels no photo covers: "prior"
-    # (the generated image), "inpaint" or "render" (no prior is trained or generated then).
-    # bench_supervision on the README courtyard (docs/bootstrap.md, session 17): with the
-    # scene's own depth splatted from the training views, the blend over the render is 1.2 dB
-    # above the render on the scarce views (16.10 vs 14.88) and 0.8 on the covered ones; the
-    # photo supervision's soft mask trusts none of the scarce pixels (its witnesses stand 3-4x
-    # farther from the facade than the view), so it stays at the render. The CPU-trained
-    # prior's repair is 6 dB below the render, so it fills nothing by default.
-    supervision: str = "blend"
-    fill: str = "render"
-    # The depth the photos are warped into a virtual view with: "render" (the model's surface
-    # depth at that view), "sources" (the nearest ``splat_views`` training views' surface
-    # depths splatted into it: source_depth.py), "both" (blend only: the render's depth where
-    # its warps are trusted, the splatted one elsewhere) or "auto" (blend only: per view,
-    # whichever of the two places more photos; the photo supervision uses the splatted one).
-    # Each wins where it places more photos: held-out views as virtual views, I* - render on
-    # the scarce ones, render / sources depth: courtyard +0.65 / +1.22 dB, bonsai +0.85 / +0.48.
-    # In the loop against the same-time baseline (scarce / covered): courtyard "auto" +0.76 /
-    # -0.15 ("sources" +0.69 to +0.74, "both" +0.53), bonsai "auto" +0.05 / -0.01 ("render"
-    # +0.06 / -0.04, "sources" -0.19 / -0.23). docs/bootstrap.md, session 17.
-    virtual_depth: str = "auto"
-    # A virtual view whose warped photos agree with each other worse than with the render by
-    # more than this (dB; agreement.py) is left out of the refinement; None: every view is used.
-    agreement_min_db: float | None = -1.0
-    splat_views: int = 8
-    # Blend only: each warped photo is first moved onto the render by optical flow, shifts of
-    # more than this many pixels left untrusted (align.py); None: the warps as placed.
-    align_px: float | None = None
+    # --- blending: what I* is made of ----------------------------------------------------------
+    blending: bool = option(True, "I* blends the trusted pixels of the warped photos over the fill; "
+                                  "false: I* = the generated image alone (the paper's w/o-blending ablation)",
+                            role=ABLATION)
+    delta: float | None = option(None, "depth tolerance of the warp's occlusion test, relative to the depth "
+                                       "(null: warp.DEFAULT_DELTA, 0.03)", "relative")
+    save_views: int = option(4, "virtual views whose I*, mask and generated image are saved as PNGs in "
+                                "RUN2/bootstrap/views", "views", BOOKKEEPING)
+    supervision: str = option("blend", "\"blend\" (default): the warped photos' uniform mean under a binary "
+                                       "trust mask; \"photo\" (experimental): photo-consistent depth, exposure "
+                                       "matching, lumigraph weights and a soft mask (supervision.py)")
+    fill: str = option("render", "what fills the pixels no photo covers: \"render\" (default: the model's "
+                                 "own render, no prior is trained or generated), \"inpaint\" (the blend "
+                                 "inpainted) or \"prior\" (the generated image; the paper's, with blend)")
+    virtual_depth: str = option("auto", "the depth the photos are warped into a virtual view with: \"render\" "
+                                        "(the model's surface depth there), \"sources\" (the nearest "
+                                        "`splat_views` training views' surface depths splatted into it, "
+                                        "source_depth.py), \"both\" (blend only: the render's where its "
+                                        "warps are trusted, else the splatted) or \"auto\" (default; blend "
+                                        "only: per view, whichever places more photos; the photo "
+                                        "supervision uses the splatted one)")
+    agreement_min_db: float | None = option(-1.0, "a virtual view whose warped photos agree with each other "
+                                                  "worse than with the render by more than this is left out "
+                                                  "of the refinement (agreement.py); null: every view is used",
+                                            "dB")
+    splat_views: int = option(8, "training views whose surface depths are splatted into a virtual view "
+                                 "(virtual_depth \"sources\", \"both\", \"auto\")", "views")
+    align_px: float | None = option(None, "blend only: each warped photo is first moved onto the render by "
+                                          "optical flow, shifts beyond this untrusted (align.py); null: off",
+                                    "px", EXPERIMENTAL)
 
-    # --- refinement --------------------------------------------------------------------------
-    # Every n-th step is a virtual view, its loss weighted lambda_virtual against a photo's. The
-    # README courtyard's bootstrap (92 s) against the same-time baseline: every 2nd at 0.5
-    # +0.35 / -0.31 dB (scarce / covered), every 4th at 1.0 +0.38 / -0.10 (docs/bootstrap.md).
-    virtual_every: int = 4
-    lambda_virtual: float = 1.0
-    tau: float = 0.2                    # perceptual loss when the view's SSIM loss (1 - SSIM) <= tau
-    densify: bool = False               # densify during refinement (measured: new, unconverged Gaussians cost covered views)
-    # Weight of generated (untrusted) pixels against pixels trusted from warped photos in a
-    # virtual view's loss; 1 is the paper's loss on I*. Lower trusts a weak prior less.
-    generated_weight: float = 1.0
-    # Which pixels of a virtual view carry loss: "all" (trusted pixels 1, the fill
-    # ``generated_weight``; the paper's loss on I*) or "informative" (photo supervision only: the
-    # trusted pixels where the photos contradict the render by more than they disagree among
-    # themselves, supervision.informative_mask; L1 + D-SSIM of that residual, nothing elsewhere).
-    # A view without informative pixels is not sampled; when no view has any, the step is a photo step.
-    virtual_pixels: str = "all"
-    # The informative mask's residual floor (None: supervision.RESIDUAL_FLOOR, 4/255): a higher
-    # floor keeps only pixels where the render is grossly wrong (see docs/bootstrap.md).
-    residual_floor: float | None = None
-    # "alternate": every ``virtual_every``-th step is a virtual view instead of a photo; "additive":
-    # that step is a photo step whose gradient also holds the virtual view's loss (one Adam step,
-    # so the photos lose no step to the virtual views).
-    virtual_mode: str = "alternate"
-    # The geometry term (multiview.py): at a virtual view, 1 - NCC between the K source photos'
-    # patches mapped through the rendered depth and planar normal, back-propagated into the
-    # Gaussians' geometry (no warped colour is a target). Its weight against the view's colour
-    # loss; 0: off. 0.15 is stage I's lambda_ncc (PGSR's weight of the same measure).
-    geometry_weight: float = 0.0
-    geometry_samples: int = 4096        # pixels per evaluation (multiview.DEFAULT_SAMPLES)
-    # The colour loss at virtual views (I* or the informative blend); False: a virtual view
-    # carries only the geometry term (which then must be on).
-    virtual_colour: bool = True
-    lpips_weights: str | None = None    # TorchScript LPIPS for the perceptual branch (else MS-SSIM-G)
-    # The conscience (conscience.py): every ``conscience_every`` steps the L1 of the training photos
-    # nearest the targets is measured; above its start value by more than this (relative) the
-    # virtual views' weight halves, and recovers once the photos are back. None: off.
-    conscience_tolerance: float | None = 0.05
-    conscience_every: int = 25
+    # --- refinement ----------------------------------------------------------------------------
+    virtual_every: int = option(4, "every n-th refinement step is a virtual view (virtual_mode "
+                                   "\"additive\": carries one)", "steps")
+    lambda_virtual: float = option(1.0, "loss weight of a virtual view against a photo's", "weight")
+    tau: float = option(0.2, "a virtual view's loss is perceptual when its SSIM loss (1 - SSIM) <= tau, "
+                             "else L1 + D-SSIM", "SSIM loss, in [0, 2]")
+    densify: bool = option(False, "densify the Gaussians during the refinement", role=EXPERIMENTAL)
+    generated_weight: float = option(1.0, "loss weight of a virtual view's untrusted (fill) pixels against "
+                                          "the pixels trusted from warped photos; 1: the paper's loss on I*; "
+                                          "lower trusts a weak fill less", "weight, in [0, 1]")
+    virtual_pixels: str = option("all", "which pixels of a virtual view carry loss: \"all\" (default: "
+                                        "trusted pixels 1, the fill `generated_weight`) or \"informative\" "
+                                        "(experimental, supervision \"photo\" only: the trusted pixels where "
+                                        "the photos contradict the render by more than they disagree among "
+                                        "themselves, supervision.informative_mask; a view without any is "
+                                        "not sampled)")
+    residual_floor: float | None = option(None, "virtual_pixels \"informative\" only: the smallest "
+                                                "photo - render residual that counts (null: "
+                                                "supervision.RESIDUAL_FLOOR, 4/255); higher keeps only "
+                                                "grossly wrong pixels", "colour, in [0, 1]", EXPERIMENTAL)
+    virtual_mode: str = option("alternate", "\"alternate\" (default): a virtual step replaces a photo "
+                                            "step; \"additive\" (experimental): that step is a photo step "
+                                            "whose gradient also holds the virtual view's loss (one Adam "
+                                            "step, so the photos lose no step)")
+    geometry_weight: float = option(0.0, "weight of the geometry term at virtual views (multiview.py): 1 - NCC "
+                                         "of the k source photos' patches mapped through the rendered depth "
+                                         "and planar normal, into the Gaussians' geometry; 0: off (stage I's "
+                                         "lambda_ncc, PGSR's weight of the same measure, is 0.15)",
+                                    "weight", EXPERIMENTAL)
+    geometry_samples: int = option(4096, "pixels per evaluation of the geometry term "
+                                         "(multiview.DEFAULT_SAMPLES)", "pixels", EXPERIMENTAL)
+    virtual_colour: bool = option(True, "the colour loss at virtual views (I* or the informative blend); "
+                                        "false (experimental): only the geometry term, which must then be on")
+    lpips_weights: str | None = option(None, "a TorchScript LPIPS file for the perceptual loss; null: MS-SSIM-G "
+                                             "(weight-free)", "path", EXPERIMENTAL)
+    # The conscience (conscience.py) keeps the virtual views from pulling well observed regions down.
+    conscience_tolerance: float | None = option(0.05, "every `conscience_every` steps the L1 of the training "
+                                                      "photos nearest the targets is measured; above its start "
+                                                      "by more than this, the virtual views' weight halves, "
+                                                      "and recovers once the photos are back; null: off",
+                                                "relative")
+    conscience_every: int = option(25, "refinement steps between the conscience's checks", "steps")
 
     # --- view-adaptive sampling (Algorithm 1) --------------------------------------------------
-    sampling: str = "langevin"          # "langevin" | "uniform" (ablation)
-    langevin_step: float | None = None  # step size on the 7-D pose (A's langevin.DEFAULT_STEP_SIZE when None)
-    langevin_noise: float | None = None # exploration noise scale (A's DEFAULT_NOISE_SCALE when None)
+    sampling: str = option("langevin", "\"langevin\": the next virtual view by Langevin Monte Carlo on the "
+                                       "7-D pose; \"uniform\": drawn uniformly (the paper's ablation)",
+                           role=ABLATION)
+    langevin_step: float | None = option(None, "drift step size on the 7-D pose (null: "
+                                               "langevin.DEFAULT_STEP_SIZE, 0.01)",
+                                         "scene units^2 per unit of log P")
+    langevin_noise: float | None = option(None, "exploration noise scale (null: langevin.DEFAULT_NOISE_SCALE, "
+                                                "0.2; its square is the temperature)", "-")
 
-    # --- bookkeeping -------------------------------------------------------------------------
-    log_every: int = 10
-    eval_every: int = 0                 # 0: evaluate only at the start and after each round
-    checkpoint_every: int = 200
+    # --- bookkeeping ---------------------------------------------------------------------------
+    log_every: int = option(10, "refinement steps between log lines", "steps", BOOKKEEPING)
+    eval_every: int = option(0, "refinement steps between evaluations; 0: only at the start and after "
+                                "each round", "steps", BOOKKEEPING)
+    checkpoint_every: int = option(200, "refinement steps between checkpoints", "steps", BOOKKEEPING)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "BootstrapConfig":
+        """The config in the JSON object at ``path``: any subset of the field names (the others
+        keep their defaults), read strictly (``read_bootstrap_config``)."""
+        return read_bootstrap_config(path)
 
     def needs_prior(self) -> bool:
         """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
@@ -197,3 +232,43 @@ class BootstrapConfig(SavedConfig):
         if self.eval_every < 0 or self.save_views < 0 or self.regenerate_every < 0:
             raise InputError(f"{source}: eval_every, save_views and regenerate_every must be >= 0")
         return self
+
+
+def read_bootstrap_config(path: str | Path) -> BootstrapConfig:
+    """A BootstrapConfig from a JSON object of field names at ``path``, validated. An unknown
+    key (with the nearest field name when one is close), a value of the wrong type, a non-finite
+    number or an out-of-range value is an InputError: one line naming the file and the key."""
+    path = Path(path)
+    data = read_json_object(path, BootstrapConfig.CONFIG_KIND)
+    by_name = {f.name: f for f in fields(BootstrapConfig)}
+    values = {}
+    for key, value in data.items():
+        if key not in by_name:
+            close = difflib.get_close_matches(key, list(by_name), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise InputError(f"{path}: unknown key {key!r}{hint}; docs/bootstrap_options.md lists the keys")
+        values[key] = checked_value(path, key, by_name[key].type, value)
+    return BootstrapConfig(**values).validate(str(path))
+
+
+def checked_value(path: Path, key: str, annotation: str, value):
+    """``value`` from a JSON file when it fits the field's annotation (a string such as
+    "int", "float | None"), an int widened to float for a float field; else an InputError
+    naming ``path`` and ``key``."""
+    kinds = {kind.strip() for kind in str(annotation).split("|")}
+    nullable = "None" in kinds
+    (kind,) = kinds - {"None"}
+    wanted = {"int": "an integer", "float": "a finite number", "str": "a string", "bool": "true or false"}[kind]
+    if value is None and nullable:
+        return None
+    if kind == "bool" and isinstance(value, bool):
+        return value
+    if kind == "int" and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if kind == "str" and isinstance(value, str):
+        return value
+    if (kind == "float" and isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value)):
+        return float(value)
+    shown = json.dumps(value, allow_nan=True)
+    raise InputError(f"{path}: {key} must be {wanted}{' or null' if nullable else ''}, got {shown}")
