@@ -63,11 +63,13 @@ class BootstrapConfig(SavedConfig):
     prior: str = option("trained", "\"trained\": the run's prior, else a short one trained here; "
                                    "\"untrained\": a randomly initialised prior (the paper's w/o-FT ablation)",
                         role=ABLATION)
-    prior_minutes: float = option(2.0, "budget of the short prior training when the run has no prior "
-                                       "(at most half of what is left of `minutes`)", "minutes", EXPERIMENTAL)
-    prior_steps: int | None = option(None, "... or this many prior training steps, whichever ends first; "
-                                           "null: the minutes alone", "steps", EXPERIMENTAL)
-    ddim_steps: int = option(10, "DDIM denoising steps per generated image", "steps", EXPERIMENTAL)
+    prior_minutes: float = option(2.0, "budget of the short prior training when a prior is used (fill "
+                                       "\"prior\" or blending off) and the run has none; at most half of "
+                                       "what is left of `minutes`", "minutes", EXPERIMENTAL)
+    prior_steps: int | None = option(None, "the short prior training also stops after this many steps, "
+                                           "whichever of it and prior_minutes ends first; null: the minutes alone", "steps", EXPERIMENTAL)
+    ddim_steps: int = option(10, "DDIM denoising steps per generated image (a prior is used only with fill "
+                                 "\"prior\" or blending off)", "steps", EXPERIMENTAL)
     regenerate_every: int = option(50, "every this many refinement steps, I* of every virtual view is made "
                                        "again from the current Gaussians (their render is what is repaired); "
                                        "0: once per round", "steps")
