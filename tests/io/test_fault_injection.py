@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.io import atomic
@@ -265,10 +266,15 @@ def test_read_only_scene_through_every_command(tmp_path, capsys, monkeypatch):
         status, lines = cli(["render", run, "--view", "view_01.png", "--backend", "torch",
                              "--out", work / "view.png"], capsys)
         assert status == 0, lines
-        status, lines = cli(["bootstrap", run, "--iterations", "1", "--rounds", "1", "--ddim-steps", "1",
-                             "--untrained-prior", "--k", "1", "--l", "1", "--target-view", "view_03.png"], capsys)
+        settings = work / "settings.json"
+        settings.write_text(json.dumps({"ddim_steps": 1, "prior": "untrained", "k": 1, "l": 1}))
+        status, lines = cli(["bootstrap", run, "--iterations", "1", "--rounds", "1", "--config", settings,
+                             "--target-view", "view_03.png"], capsys)
         assert status == 0, lines
         assert (work / "runs" / "scene_bootstrap" / "model.ply").is_file()
+        # The settings the result records read back as a --config file.
+        saved = BootstrapConfig.load(work / "runs" / "scene_bootstrap" / "bootstrap" / "config.json")
+        assert (saved.iterations, saved.ddim_steps, saved.prior, saved.k, saved.l) == (1, 1, "untrained", 1, 1)
         try:
             from inceptiongs.app.main import main as viewer_main
         except ImportError as exc:  # the viewer's optional dependencies
