@@ -67,7 +67,8 @@ class BootstrapConfig(SavedConfig):
                                        "\"prior\" or blending off) and the run has none; at most half of "
                                        "what is left of `minutes`", "minutes", EXPERIMENTAL)
     prior_steps: int | None = option(None, "the short prior training also stops after this many steps, "
-                                           "whichever of it and prior_minutes ends first; null: the minutes alone", "steps", EXPERIMENTAL)
+                                           "whichever of it and prior_minutes ends first; null: the minutes alone",
+                                       "steps", EXPERIMENTAL)
     ddim_steps: int = option(10, "DDIM denoising steps per generated image (a prior is used only with fill "
                                  "\"prior\" or blending off)", "steps", EXPERIMENTAL)
     regenerate_every: int = option(50, "every this many refinement steps, I* of every virtual view is made "
@@ -219,20 +220,27 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: residual_floor must be >= 0, got {self.residual_floor}")
         if self.virtual_mode not in ("alternate", "additive"):
             raise InputError(f"{source}: virtual_mode must be 'alternate' or 'additive', got {self.virtual_mode!r}")
-        if not self.geometry_weight >= 0 or self.geometry_samples < 1:
-            raise InputError(f"{source}: geometry_weight must be >= 0 and geometry_samples >= 1, got "
-                             f"{self.geometry_weight}, {self.geometry_samples}")
+        if not self.geometry_weight >= 0:
+            raise InputError(f"{source}: geometry_weight must be >= 0, got {self.geometry_weight}")
+        if self.geometry_samples < 1:
+            raise InputError(f"{source}: geometry_samples must be >= 1, got {self.geometry_samples}")
         if not self.virtual_colour and self.geometry_weight == 0:
             raise InputError(f"{source}: virtual_colour off needs a geometry_weight > 0 (else a virtual view carries no loss)")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
             raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:
             raise InputError(f"{source}: lambda_virtual must be >= 0, got {self.lambda_virtual}")
-        if (self.langevin_step is not None and self.langevin_step <= 0) or (
-                self.langevin_noise is not None and self.langevin_noise < 0):
-            raise InputError(f"{source}: langevin_step must be > 0 and langevin_noise >= 0")
-        if self.eval_every < 0 or self.save_views < 0 or self.regenerate_every < 0:
-            raise InputError(f"{source}: eval_every, save_views and regenerate_every must be >= 0")
+        if self.langevin_step is not None and self.langevin_step <= 0:
+            raise InputError(f"{source}: langevin_step must be > 0 (or null: the default), got {self.langevin_step}")
+        if self.langevin_noise is not None and self.langevin_noise < 0:
+            raise InputError(f"{source}: langevin_noise must be >= 0 (or null: the default), got {self.langevin_noise}")
+        for name in ("eval_every", "save_views", "regenerate_every"):
+            if getattr(self, name) < 0:
+                raise InputError(f"{source}: {name} must be >= 0, got {getattr(self, name)}")
+        for f in fields(self):  # a NaN passes every comparison above, an inf most of them
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise InputError(f"{source}: {f.name} must be a finite number, got {value}")
         return self
 
 

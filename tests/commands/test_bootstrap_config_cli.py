@@ -180,3 +180,10 @@ def test_the_doc_check_fails_on_a_changed_default_or_an_undocumented_field():
 
     with pytest.raises(ValueError, match="new_knob"):
         generator.render_options_doc(Undocumented)
+
+
+def test_a_non_finite_flag_is_refused_too(tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["bootstrap", str(tmp_path / "run"), "--minutes", "nan", "--out", str(tmp_path / "out")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "arguments: minutes must be a finite number" in lines[0], lines
