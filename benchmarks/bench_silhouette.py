@@ -1,5 +1,5 @@
 """Where a sky-shell run's held-out error lies, and whether the training views' visual hull
-disagrees with the render there (issue 21, the silhouette step: measure before building).
+disagrees with the render there.
 
     python benchmarks/bench_silhouette.py RUN [--samples 384 | --samples 0] [--dilate 1] [--truth-masks]
 
