@@ -17,7 +17,7 @@ image < 20 s.
 
 The appearance hint alone (--hint RUN): the hash grid + hint head trained on their L1 loss for
 --minutes (default 2) with the grid's finest resolution and level count from --grid-max-res /
---grid-levels (0 levels: the old uncontracted box around 99 % of the Gaussians, 4 levels to
+--grid-levels (0 levels: the uncontracted box around 99 % of the Gaussians, 4 levels to
 128), scored on the held-out views next to the render (the docs' table of grid sizes).
 
     python benchmarks/bench_prior.py --hint RUN [--minutes 2] [--grid-max-res 256 --grid-levels 6]
@@ -117,7 +117,7 @@ def main() -> None:
 
 
 def quality(run: str, minutes: float, eval_every: float, prediction: str = "epsilon") -> None:
-    """The issue's quality targets through the same commands a user runs."""
+    """The prior's quality targets (module docstring) through the same commands a user runs."""
     import json
     from pathlib import Path
 

@@ -1,5 +1,5 @@
 """Where a sky-shell run's held-out error lies, and whether the training views' visual hull
-disagrees with the render there (issue 21, the silhouette step: measure before building).
+disagrees with the render there.
 
     python benchmarks/bench_silhouette.py RUN [--samples 384 | --samples 0] [--dilate 1] [--truth-masks]
 
@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
@@ -223,11 +224,65 @@ class Pool:
                 f"{psnr:>9.2f}")
 
 
+@dataclass
+class ShellRun:
+    """A sky-shell stage-I run split for measuring: the scene, its split, all Gaussians, the
+    foreground ones (inside the shell), the shell ones, the shell's sphere [4] (centre, radius)
+    and the foreground sphere [4] (BACKGROUND_FRACTION of its radius), both float64."""
+
+    scene: object
+    split: object
+    gaussians: object
+    foreground: object
+    shell: object
+    sphere: torch.Tensor
+    foreground_sphere: torch.Tensor
+
+
+@dataclass
+class GroupTotals:
+    """What one held-out group pools over its views: the error per pixel set, each variant's
+    summed error, per-view PSNRs, the shell's figures on truly-sky edge pixels and the hull's
+    votes where it disagrees with the render."""
+
+    pool: Pool
+    variant_error: dict[str, float]
+    view_psnr: dict[str, list[float]]
+    shell_pool: dict[str, float] = field(default_factory=lambda: {
+        "error": 0.0, "pixels": 0, "alpha": 0.0, "true sky error": 0.0, "true sky band error": 0.0})
+    votes: dict[str, int] = field(default_factory=lambda: {
+        f"hull {side}: truth with {who}": 0 for side in ("fg", "bg") for who in ("hull", "render")})
+
+
 def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margin: int) -> None:
     """Print the figures of the module docstring for ``run``; samples 0 skips the hull."""
+    from inceptiongs.train.sky import in_background
+
+    setup = load_shell_run(run)
+    masks, train_alphas, mask_wrong, mask_pixels = training_masks(setup, run, dilation, truth_masks)
+    print(f"{run}: {len(setup.foreground)} foreground / {len(setup.gaussians) - len(setup.foreground)} "
+          f"background Gaussians; "
+          f"{len(masks)} {'ray-traced' if truth_masks else 'rendered'} training masks (dilated {dilation} px), "
+          f"{samples} samples per ray")
+    if mask_pixels:
+        print(f"training masks vs the ray-traced truth: {100 * mask_wrong / mask_pixels:.2f} % of pixels differ")
+    exposure, fill_exposure, hidden = report_shell_exposure(setup, train_alphas, fill_margin)
+    background = in_background(setup.gaussians.means, setup.sphere)
+    variants = {"filled": filled_shell(setup.gaussians, background, fill_exposure),
+                "opaque": opaque_shell(setup.gaussians, background)}
+    for group in ("scarce_test", "covered_test"):
+        totals = GroupTotals(Pool(), {name: 0.0 for name in variants},
+                             {name: [] for name in ("render", *variants)})
+        for view in getattr(setup.split, group):
+            measure_view(setup, view, variants, masks, samples, hidden, totals)
+        print_group(group, len(getattr(setup.split, group)), totals, fill_margin)
+        sys.stdout.flush()
+
+
+def load_shell_run(run: str) -> ShellRun:
+    """Load ``run``'s stage I and split its Gaussians at the sky shell; exit when it has none."""
     from inceptiongs.bootstrap.runner import load_stage1
-    from inceptiongs.rasterizer.rasterize import render
-    from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background, shell_exposure
+    from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background
 
     _, scene, split, payload, gaussians = load_stage1(Path(run))
     sphere = None if payload is None else payload.get("sky")
@@ -236,23 +291,38 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
     sphere = sphere.to(torch.float64)
     foreground_sphere = torch.cat([sphere[:3], sphere[3:] * BACKGROUND_FRACTION])
     foreground = gaussians.subset(~in_background(gaussians.means, sphere))
-    cameras = scene.cameras
-
     shell = gaussians.subset(in_background(gaussians.means, sphere))
+    return ShellRun(scene, split, gaussians, foreground, shell, sphere, foreground_sphere)
 
-    def shell_rgb(camera) -> torch.Tensor:
-        with torch.no_grad():
-            return render(shell, camera)["rgb"]
 
-    def alpha_of(camera) -> torch.Tensor:
-        with torch.no_grad():
-            return render(foreground, camera, outputs=("alpha",))["alpha"][..., 0]
+def render_alpha(gaussians, camera) -> torch.Tensor:
+    """[h, w]: the alpha of ``gaussians`` seen from ``camera``, without gradients."""
+    from inceptiongs.rasterizer.rasterize import render
 
+    with torch.no_grad():
+        return render(gaussians, camera, outputs=("alpha",))["alpha"][..., 0]
+
+
+def render_colour(gaussians, camera) -> torch.Tensor:
+    """[h, w, 3]: the colour render of ``gaussians`` from ``camera`` on black, without gradients."""
+    from inceptiongs.rasterizer.rasterize import render
+
+    with torch.no_grad():
+        return render(gaussians, camera)["rgb"]
+
+
+def training_masks(setup: ShellRun, run: str, dilation: int, truth_masks: bool) -> tuple[list, list, int, int]:
+    """((camera, foreground mask [h, w] bool dilated by ``dilation``) per training view, the
+    foreground alphas [h, w] of those views, the rendered masks' pixels that differ from the
+    ray-traced truth, the pixels compared (both 0 unless the scene is the objects demo))."""
+    from inceptiongs.train.sky import FOREGROUND_ALPHA
+
+    cameras = setup.scene.cameras
     masks, mask_wrong, mask_pixels, train_alphas = [], 0, 0, []
-    for i in split.train:
-        train_alphas.append(alpha_of(cameras[i]))
+    for i in setup.split.train:
+        train_alphas.append(render_alpha(setup.foreground, cameras[i]))
         rendered = train_alphas[-1] > FOREGROUND_ALPHA
-        coverage = true_coverage(scene, cameras[i])
+        coverage = true_coverage(setup.scene, cameras[i])
         if coverage is not None:
             truth = coverage > 0.5
             mask_wrong += int((rendered != truth).sum())
@@ -260,19 +330,25 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
         if truth_masks and coverage is None:
             raise SystemExit(f"{run}: --truth-masks needs the procedural objects demo scene")
         masks.append((cameras[i], dilate(truth if truth_masks else rendered, dilation)))
-    print(f"{run}: {len(foreground)} foreground / {len(gaussians) - len(foreground)} background Gaussians; "
-          f"{len(masks)} {'ray-traced' if truth_masks else 'rendered'} training masks (dilated {dilation} px), "
-          f"{samples} samples per ray")
-    if mask_pixels:
-        print(f"training masks vs the ray-traced truth: {100 * mask_wrong / mask_pixels:.2f} % of pixels differ")
-    exposure = shell_exposure(shell.means, [cameras[i] for i in split.train], train_alphas)
+    return masks, train_alphas, mask_wrong, mask_pixels
+
+
+def report_shell_exposure(setup: ShellRun, train_alphas: list[torch.Tensor],
+                          fill_margin: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(exposure [S], the fill's exposure [S], hidden [S, 1] float) of the shell Gaussians; prints
+    how many are seen as sky, hidden or outside every image, their opacity and, on the demo, their
+    colour error against the true sky."""
+    from inceptiongs.rasterizer.sh import sh_to_color
+    from inceptiongs.train.sky import shell_exposure
+
+    shell, sphere = setup.shell, setup.sphere
+    train_cameras = [setup.scene.cameras[i] for i in setup.split.train]
+    exposure = shell_exposure(shell.means, train_cameras, train_alphas)
     # For the fill only: "seen" may demand sky on every pixel within fill_margin px of the centre's.
     fill_exposure = exposure if fill_margin == 0 else shell_exposure(
-        shell.means, [cameras[i] for i in split.train], [dilate_alpha(a, fill_margin) for a in train_alphas])
+        shell.means, train_cameras, [dilate_alpha(a, fill_margin) for a in train_alphas])
     hidden = (exposure == 0).to(shell.dtype)[:, None]                       # feature [S, 1]
-    sky_colours = true_sky_colours(scene, shell.means, sphere)
-    from inceptiongs.rasterizer.sh import sh_to_color
-
+    sky_colours = true_sky_colours(setup.scene, shell.means, sphere)
     outward = shell.means.detach() - sphere[:3].to(shell.dtype)
     outward = outward / outward.norm(dim=1, keepdim=True)                   # shell points at radius > 0
     shell_colours = sh_to_color(shell.sh.detach(), outward, shell.sh_degree).clamp(0.0, 1.0).double().numpy()
@@ -288,112 +364,153 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
             rms = float(np.sqrt(((shell_colours[where] - sky_colours[where]) ** 2).mean()))
             line += f", RMS colour error against the true sky {rms:.3f}"
         print(line)
+    return exposure, fill_exposure, hidden
 
-    background = in_background(gaussians.means, sphere)
-    variants = {"filled": filled_shell(gaussians, background, fill_exposure),
-                "opaque": opaque_shell(gaussians, background)}
-    for group in ("scarce_test", "covered_test"):
-        pool = Pool()
-        variant_error = {name: 0.0 for name in variants}
-        view_psnr = {name: [] for name in ("render", *variants)}
-        shell_pool = {"error": 0.0, "pixels": 0, "alpha": 0.0, "true sky error": 0.0, "true sky band error": 0.0}
-        votes = {f"hull {side}: truth with {who}": 0 for side in ("fg", "bg") for who in ("hull", "render")}
-        for view in getattr(split, group):
-            camera = cameras[view]
-            with torch.no_grad():
-                out = render(gaussians, camera, outputs=("rgb", "depth"))
-            photo = torch.as_tensor(np.asarray(scene.load_image(view)), dtype=torch.float32)
-            error = ((out["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)                # [h, w]
-            view_psnr["render"].append(psnr_of(error.mean()))
-            for name, variant in variants.items():
-                with torch.no_grad():
-                    variant_squared = ((render(variant, camera)["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)
-                variant_error[name] += float(variant_squared.sum())
-                view_psnr[name].append(psnr_of(variant_squared.mean()))
-            alpha = alpha_of(camera)
-            rendered = alpha > FOREGROUND_ALPHA
-            silhouette = band_of(rendered)
-            depth_edges = edge_band(out["depth"]) & rendered & ~silhouette
-            hull = (visual_hull(camera, masks, foreground_sphere, samples) if samples
-                    else torch.full(rendered.shape, HULL_UNKNOWN, dtype=torch.int8))
-            known = hull != HULL_UNKNOWN
-            disagree = known & ((hull == HULL_FG) != rendered)
-            sets = {
-                f"fg/bg edge (<= {EDGE_BAND} px)": silhouette,
-                "foreground, off the edge": rendered & ~silhouette,
-                f"  of which depth edges (<= {EDGE_BAND} px)": depth_edges,
-                "  of which the rest": rendered & ~silhouette & ~depth_edges,
-                f"  of which alpha < {OPAQUE} (see-through)": rendered & ~silhouette & (alpha < OPAQUE),
-                "background, off the edge": ~rendered & ~silhouette,
-            }
-            if samples:
-                sets.update({
-                    "hull unknown": ~known,
-                    "hull fg, render bg": disagree & (hull == HULL_FG),
-                    "hull bg, render fg": disagree & (hull == HULL_BG),
-                    "hull and render disagree": disagree,
-                    "  of which off the fg/bg edge": disagree & ~silhouette,
-                })
-            coverage = true_coverage(scene, camera)
-            if coverage is not None:
-                truth = coverage > 0.5
-                misplaced = (alpha - coverage).abs() > ALPHA_OFF
-                sets[f"fg/bg edge, |alpha - truth| > {ALPHA_OFF}"] = silhouette & misplaced
-                sets[f"fg/bg edge, |alpha - truth| <= {ALPHA_OFF}"] = silhouette & ~misplaced
-                sets["fg/bg edge, truly all foreground"] = silhouette & (coverage >= 1.0)
-                sets["fg/bg edge, truly mixed"] = silhouette & (coverage > 0.0) & (coverage < 1.0)
-                sets["fg/bg edge, truly all sky"] = silhouette & (coverage <= 0.0)
-                sets["  of which fg alpha > 0.05 (halo)"] = silhouette & (coverage <= 0.0) & (alpha > HALO_ALPHA)
-                if samples:
-                    sets["  of which the hull says sky"] = silhouette & (coverage <= 0.0) & (hull == HULL_BG)
-                with torch.no_grad():
-                    shown = render(shell, camera, outputs=("alpha", "features"), features=hidden)
-                # The shell's own alpha is > 0 wherever it is framed; the floor keeps 0/0 out.
-                hidden_share = shown["features"][..., 0] / shown["alpha"][..., 0].clamp_min(1e-6)
-                sets["  of which the shell there was hidden"] = silhouette & (coverage <= 0.0) & (hidden_share > 0.5)
-                behind = shell_rgb(camera)
-                shell_error = ((behind.clamp(0.0, 1.0) - photo) ** 2).mean(-1)
-                # The render with the true sky (the photo, where all of a pixel's rays miss the
-                # scene) behind the foreground instead of the shell: what the shell costs.
-                sky_band = silhouette & (coverage <= 0.0)
-                true_sky = out["rgb"] - (1.0 - alpha[..., None]) * behind + (1.0 - alpha[..., None]) * photo
-                for name, where in (("true sky error", coverage <= 0.0), ("true sky band error", sky_band)):
-                    oracle = torch.where(where[..., None], true_sky, out["rgb"]).clamp(0.0, 1.0)
-                    shell_pool[name] += float(((oracle - photo) ** 2).mean(-1).sum())
-                shell_pool["error"] += float(shell_error[sky_band].sum())
-                shell_pool["pixels"] += int(sky_band.sum())
-                shell_pool["alpha"] += float(alpha[sky_band].sum())
-                wrong = rendered != truth
-                sets["render fg != truth"] = wrong
-                if samples:
-                    sets["  of which the hull is right"] = wrong & known & ((hull == HULL_FG) == truth)
-                for kind in (HULL_FG, HULL_BG):
-                    here = disagree & (hull == kind)
-                    votes[f"hull {'fg' if kind == HULL_FG else 'bg'}: truth with hull"] += int((here & ((hull == HULL_FG) == truth)).sum())
-                    votes[f"hull {'fg' if kind == HULL_FG else 'bg'}: truth with render"] += int((here & (rendered == truth)).sum())
-            pool.add(error, sets)
-        print(f"\n{group.split('_')[0]} ({len(getattr(split, group))} views, PSNR {psnr_of(torch.tensor(pool.total_error / pool.total_pixels)):.2f})"
-              f"\n{'pixel set':<34}{'error':>10}{'pixels':>10}{'PSNR':>9}")
-        for name in pool.error:
-            print(pool.row(name))
-        if shell_pool["pixels"]:
-            print(f"truly-sky pixels at the fg/bg edge: mean foreground alpha {shell_pool['alpha'] / shell_pool['pixels']:.3f}; "
-                  f"the shell alone scores {psnr_of(torch.tensor(shell_pool['error'] / shell_pool['pixels'])):.2f} dB there; "
-                  f"with the true sky behind the foreground the group scores "
-                  f"{psnr_of(torch.tensor(shell_pool['true sky band error'] / pool.total_pixels)):.2f} dB "
-                  f"(there only), {psnr_of(torch.tensor(shell_pool['true sky error'] / pool.total_pixels)):.2f} dB "
-                  f"(on every truly-sky pixel)")
-        render_psnr = psnr_of(torch.tensor(pool.total_error / pool.total_pixels))
-        for name, label in (("filled", f"the hidden shell filled (colour and opacity) from its {FILL_NEIGHBOURS} nearest "
-                                       f"seen neighbours (seen: sky on every pixel within {fill_margin} px)"),
-                            ("opaque", "every shell Gaussian made opaque")):
-            print(f"{label}: PSNR {psnr_of(torch.tensor(variant_error[name] / pool.total_pixels)):.2f} pooled "
-                  f"(render {render_psnr:.2f}); mean over views {np.mean(view_psnr[name]):.2f} "
-                  f"(render {np.mean(view_psnr['render']):.2f})")
-        if any(votes.values()):
-            print("where hull and render disagree, pixels on each side of the ray-traced truth: "
-                  + "; ".join(f"{name} {count}" for name, count in votes.items()))
-        sys.stdout.flush()
+
+def measure_view(setup: ShellRun, view: int, variants: dict, masks: list, samples: int,
+                 hidden: torch.Tensor, totals: GroupTotals) -> None:
+    """Add one held-out view's squared error [h, w], per pixel set and per variant, to ``totals``."""
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.sky import FOREGROUND_ALPHA
+
+    camera = setup.scene.cameras[view]
+    with torch.no_grad():
+        out = render(setup.gaussians, camera, outputs=("rgb", "depth"))
+    photo = torch.as_tensor(np.asarray(setup.scene.load_image(view)), dtype=torch.float32)
+    error = ((out["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)                # [h, w]
+    totals.view_psnr["render"].append(psnr_of(error.mean()))
+    for name, variant in variants.items():
+        variant_squared = ((render_colour(variant, camera).clamp(0.0, 1.0) - photo) ** 2).mean(-1)
+        totals.variant_error[name] += float(variant_squared.sum())
+        totals.view_psnr[name].append(psnr_of(variant_squared.mean()))
+    alpha = render_alpha(setup.foreground, camera)
+    rendered = alpha > FOREGROUND_ALPHA
+    silhouette = band_of(rendered)
+    hull = (visual_hull(camera, masks, setup.foreground_sphere, samples) if samples
+            else torch.full(rendered.shape, HULL_UNKNOWN, dtype=torch.int8))
+    sets = render_sets(rendered, silhouette, edge_band(out["depth"]) & rendered & ~silhouette,
+                       alpha, hull, samples)
+    coverage = true_coverage(setup.scene, camera)
+    if coverage is not None:
+        sets.update(truth_sets(setup, camera, out["rgb"], photo, alpha, coverage, silhouette, hull,
+                               samples, hidden, totals))
+        add_votes(totals.votes, rendered, coverage > 0.5, hull)
+    totals.pool.add(error, sets)
+
+
+def render_sets(rendered: torch.Tensor, silhouette: torch.Tensor, depth_edges: torch.Tensor,
+                alpha: torch.Tensor, hull: torch.Tensor, samples: int) -> dict[str, torch.Tensor]:
+    """The pixel sets [h, w] bool that need no ground truth: edge bands, foreground, background
+    and, with a hull (samples > 0), where hull and render disagree."""
+    known = hull != HULL_UNKNOWN
+    disagree = known & ((hull == HULL_FG) != rendered)
+    sets = {
+        f"fg/bg edge (<= {EDGE_BAND} px)": silhouette,
+        "foreground, off the edge": rendered & ~silhouette,
+        f"  of which depth edges (<= {EDGE_BAND} px)": depth_edges,
+        "  of which the rest": rendered & ~silhouette & ~depth_edges,
+        f"  of which alpha < {OPAQUE} (see-through)": rendered & ~silhouette & (alpha < OPAQUE),
+        "background, off the edge": ~rendered & ~silhouette,
+    }
+    if samples:
+        sets.update({
+            "hull unknown": ~known,
+            "hull fg, render bg": disagree & (hull == HULL_FG),
+            "hull bg, render fg": disagree & (hull == HULL_BG),
+            "hull and render disagree": disagree,
+            "  of which off the fg/bg edge": disagree & ~silhouette,
+        })
+    return sets
+
+
+def truth_sets(setup: ShellRun, camera, rgb: torch.Tensor, photo: torch.Tensor, alpha: torch.Tensor,
+               coverage: torch.Tensor, silhouette: torch.Tensor, hull: torch.Tensor, samples: int,
+               hidden: torch.Tensor, totals: GroupTotals) -> dict[str, torch.Tensor]:
+    """The pixel sets [h, w] bool that the demo's ray-traced coverage [h, w] allows (in display
+    order); adds the shell's figures on truly-sky edge pixels to ``totals.shell_pool``."""
+    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.train.sky import FOREGROUND_ALPHA
+
+    rendered = alpha > FOREGROUND_ALPHA
+    truth = coverage > 0.5
+    sky = coverage <= 0.0
+    misplaced = (alpha - coverage).abs() > ALPHA_OFF
+    sets = {
+        f"fg/bg edge, |alpha - truth| > {ALPHA_OFF}": silhouette & misplaced,
+        f"fg/bg edge, |alpha - truth| <= {ALPHA_OFF}": silhouette & ~misplaced,
+        "fg/bg edge, truly all foreground": silhouette & (coverage >= 1.0),
+        "fg/bg edge, truly mixed": silhouette & (coverage > 0.0) & (coverage < 1.0),
+        "fg/bg edge, truly all sky": silhouette & sky,
+        "  of which fg alpha > 0.05 (halo)": silhouette & sky & (alpha > HALO_ALPHA),
+    }
+    if samples:
+        sets["  of which the hull says sky"] = silhouette & sky & (hull == HULL_BG)
+    with torch.no_grad():
+        shown = render(setup.shell, camera, outputs=("alpha", "features"), features=hidden)
+    # The shell's own alpha is > 0 wherever it is framed; the floor keeps 0/0 out.
+    hidden_share = shown["features"][..., 0] / shown["alpha"][..., 0].clamp_min(1e-6)
+    sets["  of which the shell there was hidden"] = silhouette & sky & (hidden_share > 0.5)
+    add_shell_figures(totals.shell_pool, render_colour(setup.shell, camera), rgb, photo, alpha, sky,
+                      silhouette & sky)
+    wrong = rendered != truth
+    sets["render fg != truth"] = wrong
+    if samples:
+        sets["  of which the hull is right"] = wrong & (hull != HULL_UNKNOWN) & ((hull == HULL_FG) == truth)
+    return sets
+
+
+def add_shell_figures(shell_pool: dict[str, float], behind: torch.Tensor, rgb: torch.Tensor,
+                      photo: torch.Tensor, alpha: torch.Tensor, sky: torch.Tensor,
+                      sky_band: torch.Tensor) -> None:
+    """Add to ``shell_pool`` the shell's own error and the foreground alpha on truly-sky edge
+    pixels (sky_band [h, w]), and the error of the render with the true sky behind the foreground
+    on every truly-sky pixel (sky [h, w]) and on the band. behind: the shell's render [h, w, 3]."""
+    shell_error = ((behind.clamp(0.0, 1.0) - photo) ** 2).mean(-1)
+    # The render with the true sky (the photo, where all of a pixel's rays miss the
+    # scene) behind the foreground instead of the shell: what the shell costs.
+    true_sky = rgb - (1.0 - alpha[..., None]) * behind + (1.0 - alpha[..., None]) * photo
+    for name, where in (("true sky error", sky), ("true sky band error", sky_band)):
+        oracle = torch.where(where[..., None], true_sky, rgb).clamp(0.0, 1.0)
+        shell_pool[name] += float(((oracle - photo) ** 2).mean(-1).sum())
+    shell_pool["error"] += float(shell_error[sky_band].sum())
+    shell_pool["pixels"] += int(sky_band.sum())
+    shell_pool["alpha"] += float(alpha[sky_band].sum())
+
+
+def add_votes(votes: dict[str, int], rendered: torch.Tensor, truth: torch.Tensor, hull: torch.Tensor) -> None:
+    """Where hull and render disagree, count per hull side the pixels whose truth sides with each."""
+    disagree = (hull != HULL_UNKNOWN) & ((hull == HULL_FG) != rendered)
+    for kind in (HULL_FG, HULL_BG):
+        here = disagree & (hull == kind)
+        side = 'fg' if kind == HULL_FG else 'bg'
+        votes[f"hull {side}: truth with hull"] += int((here & ((hull == HULL_FG) == truth)).sum())
+        votes[f"hull {side}: truth with render"] += int((here & (rendered == truth)).sum())
+
+
+def print_group(group: str, views: int, totals: GroupTotals, fill_margin: int) -> None:
+    """Print one held-out group's table, shell figures, variants and hull votes."""
+    pool, shell_pool = totals.pool, totals.shell_pool
+    print(f"\n{group.split('_')[0]} ({views} views, PSNR {psnr_of(torch.tensor(pool.total_error / pool.total_pixels)):.2f})"
+          f"\n{'pixel set':<34}{'error':>10}{'pixels':>10}{'PSNR':>9}")
+    for name in pool.error:
+        print(pool.row(name))
+    if shell_pool["pixels"]:
+        print(f"truly-sky pixels at the fg/bg edge: mean foreground alpha {shell_pool['alpha'] / shell_pool['pixels']:.3f}; "
+              f"the shell alone scores {psnr_of(torch.tensor(shell_pool['error'] / shell_pool['pixels'])):.2f} dB there; "
+              f"with the true sky behind the foreground the group scores "
+              f"{psnr_of(torch.tensor(shell_pool['true sky band error'] / pool.total_pixels)):.2f} dB "
+              f"(there only), {psnr_of(torch.tensor(shell_pool['true sky error'] / pool.total_pixels)):.2f} dB "
+              f"(on every truly-sky pixel)")
+    render_psnr = psnr_of(torch.tensor(pool.total_error / pool.total_pixels))
+    for name, label in (("filled", f"the hidden shell filled (colour and opacity) from its {FILL_NEIGHBOURS} nearest "
+                                   f"seen neighbours (seen: sky on every pixel within {fill_margin} px)"),
+                        ("opaque", "every shell Gaussian made opaque")):
+        print(f"{label}: PSNR {psnr_of(torch.tensor(totals.variant_error[name] / pool.total_pixels)):.2f} pooled "
+              f"(render {render_psnr:.2f}); mean over views {np.mean(totals.view_psnr[name]):.2f} "
+              f"(render {np.mean(totals.view_psnr['render']):.2f})")
+    if any(totals.votes.values()):
+        print("where hull and render disagree, pixels on each side of the ray-traced truth: "
+              + "; ".join(f"{name} {count}" for name, count in totals.votes.items()))
 
 
 def main(argv=None) -> int:

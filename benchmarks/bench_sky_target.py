@@ -1,4 +1,4 @@
-"""What a background term at virtual views could be worth (issue 21, step 2 of "Silhouettes"):
+"""What a background term at virtual views could be worth:
 the sky that the training photos show, warped to each held-out view and put behind the foreground.
 
     python benchmarks/bench_sky_target.py RUN [--margin 2] [--clear 0.05] [--at-shell]

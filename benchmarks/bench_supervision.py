@@ -31,8 +31,8 @@ trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must 
 there, or blending cannot help (``inform``: the informative pixels; ``inform-flat``: those
 more than 2 px from a depth edge of the render).
 
-Depths are the scene's own surface (the sky shell left out; ``--blended-depth``: as before
-session 17).
+Depths are the scene's own surface (the sky shell left out; ``--blended-depth``: the render's
+blended depth, sky shell included).
 
     python benchmarks/bench_supervision.py RUN [--prior-run RUN2] [--ddim-steps 10] [--k 3]
         [--search 0.1] [--steps 21] [--residual-floor F] [--views N]
@@ -177,7 +177,7 @@ def main(argv=None) -> int:
     parser.add_argument("--splat-views", type=int, default=BootstrapConfig().splat_views,
                         help="training views whose depths are splatted into the view (the splat columns)")
     parser.add_argument("--blended-depth", action="store_true",
-                        help="warp with the render's depth, sky shell blended in (before session 17), "
+                        help="warp with the render's depth, sky shell blended in, "
                              "instead of the scene's own surface depth")
     parser.add_argument("--align-px", type=float, default=DEFAULT_MAX_SHIFT_PX,
                         help="the +flow columns: each warp moved onto the render by optical flow, shifts "

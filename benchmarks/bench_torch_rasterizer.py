@@ -3,8 +3,7 @@
 N random Gaussians in a unit cube in front of the camera, 512x512, 2 torch threads, for the
 "torch" reference (render(backend="torch"): projection, SH colour and composite in torch) and
 (when numba imports) the "numba" fast paths (render(backend="numba"): all three as numba
-kernels; before 2026-11-26 only the composite was). Each (N, backend)
-runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
+kernels). Each (N, backend) runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
 minus the interpreter's RSS right before the first render (model and imports excluded).
 
     python benchmarks/bench_torch_rasterizer.py [--sizes 10000 100000 1000000] [--repeats 3] [--device cuda]

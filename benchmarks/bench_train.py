@@ -11,7 +11,7 @@ measured step rate, as `inceptiongs train --minutes` does) and prints one line p
 training seconds, iteration, Gaussians, PSNR / SSIM of every group the protocol scores
 (all; scarce and covered for the unstructured one), then a summary at the end of the budget
 and, with --plot, PSNR against time per strategy. ``--scene demo`` writes the built-in demo
-scene (its stage I runs at --downscale 2, as `inceptiongs demo`). Targets (issue 4, 2-core CPU):
+scene (its stage I runs at --downscale 2, as `inceptiongs demo`). Targets (2-core CPU):
 fern >= 23 dB within 10 min, 25.17 dB within 30 min. --profile-steps N instead profiles N steps
 with cProfile and prints where the time goes.
 """
@@ -34,6 +34,45 @@ TARGETS = {"fern": [(10, 23.0), (30, 25.17)]}
 
 
 def main() -> int:
+    parser = _parser()
+    args = parser.parse_args()
+
+    from inceptiongs.commands.train import photos_to_exclude
+    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES
+
+    strategies = [name.strip() for name in args.strategies.split(",") if name.strip()]
+    unknown = [name for name in strategies if name not in STRATEGIES]
+    if unknown or not strategies:
+        parser.error(f"--strategies: choose from {', '.join(STRATEGIES)} (got {args.strategies!r})")
+    out = Path(args.out)
+    scene = Path(args.scene)
+    if args.scene == "demo":
+        from inceptiongs.scene.demo import write_demo_scene
+        scene = write_demo_scene(out / "demo_scene", progress=False)
+    excluded = photos_to_exclude(args.exclude_photos)
+    sized = args.iterations is None
+    iterations = args.iterations if not sized else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes))
+
+    def config_for(strategy: str):
+        return _config_for(args, scene, iterations, sized, excluded, strategy)
+
+    if args.profile_steps:
+        _profile(config_for(strategies[0]), args.profile_steps, out)
+        return 0
+
+    curves: dict[str, list[dict]] = {}
+    for strategy in strategies:
+        curves[strategy] = _bench_strategy(strategy, config_for(strategy), out / strategy, scene.name,
+                                           args.minutes)
+    groups = _print_summary(curves, args, scene.name)
+    if args.plot:
+        plot_curves(curves, groups, Path(args.plot), f"{scene.name}: stage I per strategy")
+        print(f"plot: {args.plot}")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The benchmark's command line (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default=str(REPO.parent / "shared" / "data" / "fern"))
     parser.add_argument("--protocol", default="llff")
@@ -65,91 +104,94 @@ def main() -> int:
     parser.add_argument("--plot", help="write PSNR against time per strategy to this PNG")
     parser.add_argument("--out", default="/tmp/bench_train")
     parser.add_argument("--profile-steps", type=int, default=0)
-    args = parser.parse_args()
+    return parser
 
-    from inceptiongs.commands.train import photos_to_exclude
-    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES, TrainConfig, short_run_schedule
+
+def _config_for(args: argparse.Namespace, scene: Path, iterations: int, sized: bool, excluded,
+                strategy: str):
+    """The TrainConfig one strategy trains with: the CLI's short-run schedule plus the overrides
+    given on the command line."""
+    from inceptiongs.train.config import TrainConfig, short_run_schedule
+
+    config = short_run_schedule(TrainConfig(
+        scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
+        iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
+        size_to_minutes=sized, free_space=args.free_space,
+        sky_shell=args.sky_shell, random_background=args.random_background,
+        exclude_photos=excluded))
+    if args.sh_spread is not None:
+        config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
+    if args.prune_screen_radius is not None:
+        config = dataclasses.replace(config, prune_screen_radius=args.prune_screen_radius)
+    if args.sky_min_scale is not None:
+        config = dataclasses.replace(config, sky_min_scale=args.sky_min_scale)
+    if args.prune_large_from is not None:
+        config = dataclasses.replace(config, prune_large_from=args.prune_large_from)
+    return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
+                               checkpoint_every=max(args.eval_every, 500))
+
+
+def _profile(config, steps: int, out: Path) -> None:
+    """Train ``steps`` steps under cProfile and print the 30 most expensive calls (cumulative)."""
     from inceptiongs.train.trainer import train
 
-    strategies = [name.strip() for name in args.strategies.split(",") if name.strip()]
-    unknown = [name for name in strategies if name not in STRATEGIES]
-    if unknown or not strategies:
-        parser.error(f"--strategies: choose from {', '.join(STRATEGIES)} (got {args.strategies!r})")
-    out = Path(args.out)
-    scene = Path(args.scene)
-    if args.scene == "demo":
-        from inceptiongs.scene.demo import write_demo_scene
-        scene = write_demo_scene(out / "demo_scene", progress=False)
-    excluded = photos_to_exclude(args.exclude_photos)
-    sized = args.iterations is None
-    iterations = args.iterations if not sized else max(1, round(BUDGET_STEPS_PER_MINUTE_GUESS * args.minutes))
+    config = dataclasses.replace(config, iterations=steps, minutes=None,
+                                 size_to_minutes=False, eval_every=10 ** 9, checkpoint_every=10 ** 9)
+    shutil.rmtree(out / "profile", ignore_errors=True)
+    profiler = cProfile.Profile()
+    profiler.enable()
+    train(config, out / "profile", progress=False)
+    profiler.disable()
+    pstats.Stats(profiler, stream=sys.stdout).sort_stats("cumulative").print_stats(30)
 
-    def config_for(strategy: str):
-        config = short_run_schedule(TrainConfig(
-            scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
-            iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
-            size_to_minutes=sized, free_space=args.free_space,
-            sky_shell=args.sky_shell, random_background=args.random_background,
-            exclude_photos=excluded))
-        if args.sh_spread is not None:
-            config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
-        if args.prune_screen_radius is not None:
-            config = dataclasses.replace(config, prune_screen_radius=args.prune_screen_radius)
-        if args.sky_min_scale is not None:
-            config = dataclasses.replace(config, sky_min_scale=args.sky_min_scale)
-        if args.prune_large_from is not None:
-            config = dataclasses.replace(config, prune_large_from=args.prune_large_from)
-        return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
-                                   checkpoint_every=max(args.eval_every, 500))
 
-    if args.profile_steps:
-        config = dataclasses.replace(config_for(strategies[0]), iterations=args.profile_steps, minutes=None,
-                                     size_to_minutes=False, eval_every=10 ** 9, checkpoint_every=10 ** 9)
-        shutil.rmtree(out / "profile", ignore_errors=True)
-        profiler = cProfile.Profile()
-        profiler.enable()
-        train(config, out / "profile", progress=False)
-        profiler.disable()
-        pstats.Stats(profiler, stream=sys.stdout).sort_stats("cumulative").print_stats(30)
-        return 0
+def _bench_strategy(strategy: str, config, run: Path, scene_name: str, minutes_budget: float) -> list[dict]:
+    """Train one strategy into ``run`` (emptied first), print its evaluation table, floaters and
+    targets, and return its evaluation records (metrics.jsonl lines that carry scores)."""
+    from inceptiongs.train.trainer import train
 
-    curves: dict[str, list[dict]] = {}
-    for strategy in strategies:
-        run = out / strategy
-        shutil.rmtree(run, ignore_errors=True)
-        # The machine is shared: the load average says how much of it this run had.
-        load_before = os.getloadavg()
-        result = train(config_for(strategy), run)
-        load_after = os.getloadavg()
-        records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-        records = [r for r in records if "all_psnr" in r]
-        curves[strategy] = records
-        groups = _groups(records)
-        print(f"\n== {strategy}: {result.iteration} iterations (schedule "
-              f"{json.loads((run / 'config.json').read_text())['iterations']}), {result.num_gaussians} Gaussians; "
-              f"load average (1/5/15 min) {'/'.join(f'{v:.1f}' for v in load_before)} before, "
-              f"{'/'.join(f'{v:.1f}' for v in load_after)} after, on {os.cpu_count()} cores "
-              f"(figures are noisy when others run)")
-        print(f"{'train_s':>8} {'iter':>6} {'gaussians':>9} "
-              + " ".join(f"{g + '_psnr':>12} {g + '_ssim':>12}" for g in groups))
-        for record in records:
-            print(f"{record['train_s']:8.1f} {record['iteration']:6d} {record['num_gaussians']:9d} "
-                  + " ".join(f"{record[g + '_psnr']:12.2f} {record[g + '_ssim']:12.4f}" for g in groups))
-        worst, over = floaters_in_training_views(run)
-        if worst is not None:
-            print(f"floaters (training-view pixels rendered closer than the camera's near bound): worst view "
-                  f"{100 * worst:.2f} %, {over} view(s) above 1 %")
-        curve = [(r["train_s"], r["all_psnr"]) for r in records]
-        for minutes, target in TARGETS.get(scene.name, []):
-            if minutes > args.minutes:
-                print(f"target {target:.2f} dB within {minutes} min: not measured (ran {args.minutes:g} min)")
-                continue
-            reached = [p for t, p in curve if t <= minutes * 60]
-            best = max(reached) if reached else float("nan")
-            print(f"target {target:.2f} dB within {minutes} min: best {best:.2f} dB -> "
-                  f"{'met' if best >= target else 'NOT met'}")
+    shutil.rmtree(run, ignore_errors=True)
+    # The machine is shared: the load average says how much of it this run had.
+    load_before = os.getloadavg()
+    result = train(config, run)
+    load_after = os.getloadavg()
+    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    records = [r for r in records if "all_psnr" in r]
+    groups = _groups(records)
+    print(f"\n== {strategy}: {result.iteration} iterations (schedule "
+          f"{json.loads((run / 'config.json').read_text())['iterations']}), {result.num_gaussians} Gaussians; "
+          f"load average (1/5/15 min) {'/'.join(f'{v:.1f}' for v in load_before)} before, "
+          f"{'/'.join(f'{v:.1f}' for v in load_after)} after, on {os.cpu_count()} cores "
+          f"(figures are noisy when others run)")
+    print(f"{'train_s':>8} {'iter':>6} {'gaussians':>9} "
+          + " ".join(f"{g + '_psnr':>12} {g + '_ssim':>12}" for g in groups))
+    for record in records:
+        print(f"{record['train_s']:8.1f} {record['iteration']:6d} {record['num_gaussians']:9d} "
+              + " ".join(f"{record[g + '_psnr']:12.2f} {record[g + '_ssim']:12.4f}" for g in groups))
+    worst, over = floaters_in_training_views(run)
+    if worst is not None:
+        print(f"floaters (training-view pixels rendered closer than the camera's near bound): worst view "
+              f"{100 * worst:.2f} %, {over} view(s) above 1 %")
+    _print_targets(records, scene_name, minutes_budget)
+    return records
 
-    print(f"\n== at the end of {args.minutes:g} min ({scene.name}, seed 0, {args.protocol} protocol)")
+
+def _print_targets(records: list[dict], scene_name: str, minutes_budget: float) -> None:
+    """Whether the best PSNR within each of the scene's time targets (TARGETS) met it."""
+    curve = [(r["train_s"], r["all_psnr"]) for r in records]
+    for minutes, target in TARGETS.get(scene_name, []):
+        if minutes > minutes_budget:
+            print(f"target {target:.2f} dB within {minutes} min: not measured (ran {minutes_budget:g} min)")
+            continue
+        reached = [p for t, p in curve if t <= minutes * 60]
+        best = max(reached) if reached else float("nan")
+        print(f"target {target:.2f} dB within {minutes} min: best {best:.2f} dB -> "
+              f"{'met' if best >= target else 'NOT met'}")
+
+
+def _print_summary(curves: dict[str, list[dict]], args: argparse.Namespace, scene_name: str) -> list[str]:
+    """Print each strategy's last evaluation side by side; return the scored groups."""
+    print(f"\n== at the end of {args.minutes:g} min ({scene_name}, seed 0, {args.protocol} protocol)")
     groups = _groups(next(iter(curves.values())))
     print(f"{'strategy':>14} {'iter':>6} {'gaussians':>9} "
           + " ".join(f"{g + '_psnr':>12} {g + '_ssim':>12}" for g in groups))
@@ -157,10 +199,7 @@ def main() -> int:
         last = records[-1]
         print(f"{strategy:>14} {last['iteration']:6d} {last['num_gaussians']:9d} "
               + " ".join(f"{last[g + '_psnr']:12.2f} {last[g + '_ssim']:12.4f}" for g in groups))
-    if args.plot:
-        plot_curves(curves, groups, Path(args.plot), f"{scene.name}: stage I per strategy")
-        print(f"plot: {args.plot}")
-    return 0
+    return groups
 
 
 def floaters_in_training_views(run: Path) -> tuple[float | None, int]:

@@ -13,7 +13,7 @@ Logs per-frame totals and the renderer's sort/draw times for these situations:
             the splats were redrawn)
 Targets: idle >= 10 FPS, moving >= 20 FPS, training >= 5 FPS.
 
-With --jobs, the CPU rows (issue 19; the app's own loop, ``run()``'s wait included):
+With --jobs, the CPU rows (the app's own loop, ``run()``'s wait included):
   job it/s alone        a real stage-I job (the demo scene) on its thread, no viewer: what the
                         command line gets
   job it/s, viewer idle the same job with the viewer running its loop on that model, nobody

@@ -9,7 +9,7 @@ import numpy as np
 
 from inceptiongs.evaluation.metrics import psnr
 
-# Acceptance thresholds of the GL-vs-torch cross-check (issue: rendering core, item 4).
+# Acceptance thresholds of the GL-vs-torch cross-check.
 RGB_PSNR_MIN_DB = 45.0
 ALPHA_TOLERANCE = 2e-3
 ALPHA_FRACTION_MIN = 0.999

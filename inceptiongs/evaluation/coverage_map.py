@@ -183,12 +183,26 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     polar = figure.add_subplot(1, 3, 2, projection="polar")
     bars = figure.add_subplot(1, 3, 3)
 
+    centers = np.array([cam.center for cam in c.cameras])
+    _plot_from_above(figure, top, c, centers)
+    _plot_hemisphere(figure, polar, c, centers)
+    _plot_scarcest(bars, c)
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", bbox_inches="tight")  # the legend sits below the axes
+    atomic_write_bytes(out_path, buffer.getvalue())
+
+
+def _plot_from_above(figure, top, c: Coverage, centers: np.ndarray) -> None:
+    """Bird's-eye panel on axes ``top``: points coloured by views seeing them, camera centres
+    [N, 3] with their headings by role, and the region box."""
     east, north = c.frame[0], c.frame[1]
     px, py = c.points @ east, c.points @ north
     dots = top.scatter(px, py, c=c.counts, s=3, cmap="inferno", vmin=0,
                        vmax=max(float(np.percentile(c.counts, 95)), 1.0))
     figure.colorbar(dots, ax=top, label="training views seeing the point")
-    centers = np.array([cam.center for cam in c.cameras])
     forward = np.array([cam.world_to_camera[2, :3] for cam in c.cameras])
     extent = max(float(np.ptp(np.r_[px, centers @ east])), float(np.ptp(np.r_[py, centers @ north])), 1e-6)
     held = set(c.groups.get("scarce", [])) | set(c.groups.get("covered", []))
@@ -220,7 +234,10 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     top.set_title("from above: points by views seeing them", fontsize=10)
     top.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
 
-    # Polar: theta = azimuth (0 = east, counter-clockwise as in the bird's-eye view), r = zenith angle.
+
+def _plot_hemisphere(figure, polar, c: Coverage, centers: np.ndarray) -> None:
+    """Polar panel: theta = azimuth (0 = east, counter-clockwise as in the bird's-eye view),
+    r = zenith angle; the viewing density and the cameras' directions from the region's centre."""
     theta_edges = np.linspace(0, 2 * math.pi, len(c.azimuth) + 1)
     r_edges = np.degrees(np.linspace(0, math.pi / 2, len(c.elevation) + 1))
     zenith_density = c.density[::-1]          # row 0 = highest elevation = smallest zenith angle
@@ -238,6 +255,9 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
     polar.text(0.5, -0.12, "centre: seen from straight above, rim: from the horizon;\ndots: cameras "
                "(white: sources, red: others)", transform=polar.transAxes, ha="center", va="top", fontsize=7)
 
+
+def _plot_scarcest(bars, c: Coverage) -> None:
+    """Bar panel: the 15 scarcest views' scores, coloured by held-out group."""
     shown = cov.scarcest_views(c.scarcity, 15)
     colours = ["tab:red" if i in c.groups.get("scarce", []) else "tab:green" if i in c.groups.get("covered", [])
                else "tab:blue" for i in shown]
@@ -250,9 +270,3 @@ def plot(c: Coverage, out_path: str | Path, title: str = "") -> None:
                     f"{cov.DIRECTION_WINDOW_DEG:g}°\nof its direction at >= 1/{cov.SCALE_RATIO:g} of its resolution)", fontsize=8)
     bars.set_title("views whose content is seen least" + (" (red: held-out scarce)" if c.groups else ""),
                    fontsize=10)
-    if title:
-        figure.suptitle(title)
-    figure.tight_layout()
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", bbox_inches="tight")  # the legend sits below the axes
-    atomic_write_bytes(out_path, buffer.getvalue())

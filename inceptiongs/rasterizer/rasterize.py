@@ -34,15 +34,8 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     sh_degree caps the SH degree; world_to_camera [4, 4] overrides the camera's pose.
     """
     outputs = tuple(outputs)
-    unknown = [name for name in outputs if name not in OUTPUTS]
-    if unknown:
-        raise ValueError(f"render: unknown outputs {unknown}; choose from {OUTPUTS}")
-    if "features" in outputs and features is None:
-        raise ValueError("render: 'features' requested but no per-Gaussian features given")
+    _check_render_args(outputs, features, len(gaussians))
     device, dtype = gaussians.device, gaussians.dtype
-    n = len(gaussians)
-    if features is not None and features.shape[0] != n:
-        raise ValueError(f"render: features has {features.shape[0]} rows for {n} Gaussians")
     if world_to_camera is None:
         world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=device)
     degree = gaussians.sh_degree if sh_degree is None else max(0, min(sh_degree, gaussians.sh_degree))
@@ -55,7 +48,40 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     keep = torch.nonzero(proj.visible).squeeze(-1)  # [M]
     t = proj.camera_means[keep]
 
-    # The value channels, in order; only what an output needs is computed.
+    channels = _value_channels(gaussians, keep, t, outputs, features, degree, world_to_camera, backend)
+    values = torch.cat([v for _, v in channels], dim=1) if channels else torch.zeros(
+        keep.numel(), 0, dtype=dtype, device=device)
+
+    image, alpha = composite(means2d[keep], proj.conics[keep], proj.opacities[keep], values,
+                             t[:, 2].detach(), proj.extents[keep].detach(), camera.width, camera.height,
+                             backend=backend)
+
+    result = _finish_outputs(outputs, _split_channels(image, channels), alpha, background, camera,
+                             dtype, device)
+    result["means2d"] = means2d
+    result["radii"] = proj.radii
+    return result
+
+
+def _check_render_args(outputs: tuple, features: torch.Tensor | None, n: int) -> None:
+    """Raise ValueError for unknown output names or per-Gaussian features that do not fit."""
+    unknown = [name for name in outputs if name not in OUTPUTS]
+    if unknown:
+        raise ValueError(f"render: unknown outputs {unknown}; choose from {OUTPUTS}")
+    if "features" in outputs and features is None:
+        raise ValueError("render: 'features' requested but no per-Gaussian features given")
+    if features is not None and features.shape[0] != n:
+        raise ValueError(f"render: features has {features.shape[0]} rows for {n} Gaussians")
+
+
+def _value_channels(gaussians: Gaussians, keep: torch.Tensor, t: torch.Tensor, outputs: tuple,
+                    features: torch.Tensor | None, degree: int, world_to_camera: torch.Tensor,
+                    backend: str) -> list[tuple[str, torch.Tensor]]:
+    """The per-Gaussian value channels to composite, in order, as (name, [M, C]) pairs.
+
+    keep [M] indexes the visible Gaussians, t [M, 3] their camera-space centres; only what a
+    requested output needs is computed ("plane_offset" rides along with "normal" for plane depth).
+    """
     channels: list[tuple[str, torch.Tensor]] = []
     if "rgb" in outputs:
         directions = view_directions(gaussians.means[keep], world_to_camera) if degree > 0 else t
@@ -69,20 +95,25 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
         if "plane_depth" in outputs:
             channels.append(("plane_offset", offsets[:, None]))
     if "features" in outputs:
-        channels.append(("features", features[keep].to(dtype)))
-    values = torch.cat([v for _, v in channels], dim=1) if channels else torch.zeros(
-        keep.numel(), 0, dtype=dtype, device=device)
+        channels.append(("features", features[keep].to(gaussians.dtype)))
+    return channels
 
-    image, alpha = composite(means2d[keep], proj.conics[keep], proj.opacities[keep], values,
-                             t[:, 2].detach(), proj.extents[keep].detach(), camera.width, camera.height,
-                             backend=backend)
 
+def _split_channels(image: torch.Tensor, channels: list[tuple[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Cut the composited image [H, W, C_total] back into one [H, W, C] slice per named channel."""
     blended: dict[str, torch.Tensor] = {}
     start = 0
     for name, v in channels:
         blended[name] = image[..., start:start + v.shape[1]]
         start += v.shape[1]
+    return blended
 
+
+def _finish_outputs(outputs: tuple, blended: dict[str, torch.Tensor], alpha: torch.Tensor,
+                    background, camera: Camera, dtype: torch.dtype,
+                    device: torch.device) -> dict[str, torch.Tensor]:
+    """Turn blended channels and alpha [H, W, 1] into the requested outputs, in request order;
+    the background [3] is made a tensor of the Gaussians' ``dtype`` on ``device``."""
     result: dict[str, torch.Tensor] = {}
     covered = alpha >= ALPHA_EPS
     for name in outputs:
@@ -104,8 +135,6 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
             result["plane_depth"] = _plane_depth(blended["plane_offset"], blended["normal"], covered, camera)
         elif name == "features":
             result["features"] = blended["features"]
-    result["means2d"] = means2d
-    result["radii"] = proj.radii
     return result
 
 

@@ -1,4 +1,4 @@
-"""Stiff and extreme cases for the torch rasterizer (issue 3, item 5; the torch side).
+"""Stiff and extreme cases for the torch rasterizer.
 
 Each case either matches the brute-force float64 reference (tests/rasterize_cases.py) or
 is removed by a named culling rule, and outputs plus gradients stay finite. The rules:
