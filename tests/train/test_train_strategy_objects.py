@@ -117,8 +117,8 @@ def test_mcmc_adds_its_weighted_regularisers_and_the_default_adds_nothing():
     total = MCMCStrategy(opacity_reg=0.5, scale_reg=0.25).add_loss_terms(loss, terms, state)
     opacity = float(torch.sigmoid(state.params["opacity_logits"].detach()).mean())
     scale = float(torch.exp(state.params["log_scales"].detach()).mean())
-    assert float(terms["opacity_reg"]) == pytest.approx(opacity)
-    assert float(total) == pytest.approx(1.0 + 0.5 * opacity + 0.25 * scale)
+    assert float(terms["opacity_reg"].detach()) == pytest.approx(opacity)
+    assert float(total.detach()) == pytest.approx(1.0 + 0.5 * opacity + 0.25 * scale)
 
 
 def test_mcmc_noise_runs_within_the_schedule_only():
