@@ -64,7 +64,8 @@ class DropGaussianOptions:
 
 # The stage-I strategies by name (inceptiongs.train.strategies.STRATEGIES holds their objects) and
 # the class of each one's options: a TrainConfig field of the strategy's name (None: no options).
-STRATEGY_OPTIONS: dict[str, type | None] = {"default": None, "mcmc": MCMCOptions, "dropgaussian": DropGaussianOptions}
+STRATEGY_OPTIONS: dict[str, type | None] = {"default": None, "mcmc": MCMCOptions,
+                                             "dropgaussian": DropGaussianOptions}
 STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
 # Flat keys of older config.json files -> (strategy, option): the loader moves them into the
 # strategy's options.
@@ -84,10 +85,10 @@ class TrainConfig(SavedConfig):
     scene: str = ""
     # Photos are read at 1/downscale of their size (integer factor >= 1).
     downscale: int = 1
-    # Photos wider than this many pixels are scaled down to it (None: no cap).
+    # Pixels: every photo is scaled down further so that the widest is at most this wide (None: no cap).
     max_width: int | None = None
-    # Which views are held out for evaluation: "llff" (every 8th), "unstructured" (a scarce
-    # cluster plus random views), "none" (train on all).
+    # Which views are held out for evaluation (inceptiongs.evaluation.protocols): "llff" (every
+    # 8th), "unstructured" (most of one scarce cluster of views, a few of every other), "none".
     protocol: str = "none"
     # Seeds the view order, the initial points and every random draw of the strategies.
     seed: int = 0
@@ -113,7 +114,8 @@ class TrainConfig(SavedConfig):
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
 
-    # --- Adam learning rates (per parameter, in that parameter's units per step) -------------
+    # --- Adam learning rates: step sizes in the stored parameter's units (log scale, -----------
+    # --- quaternion component, opacity logit, SH coefficient) ---------------------------------
     # Position lr is multiplied by the scene extent and decays log-linearly to the final value.
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
@@ -124,7 +126,7 @@ class TrainConfig(SavedConfig):
     lr_sh_rest: float = 2.5e-3 / 20.0
 
     # --- photometric ----------------------------------------------------------------------
-    # Weight of the D-SSIM term against L1 (loss = (1 - w) L1 + w D-SSIM).
+    # Weight of the D-SSIM term against L1: loss = (1 - w) L1 + w (1 - SSIM).
     lambda_dssim: float = 0.2
     # Each training step renders over a uniform random colour instead of black, so no pixel can
     # match its photo by staying transparent (docs/training.md, "A random background").

@@ -94,7 +94,8 @@ def mcmc_noise(params: dict[str, torch.Tensor], position_lr: float, noise_lr: fl
         gate = torch.sigmoid(MCMC_NOISE_K * ((1.0 - opacity) - MCMC_NOISE_X0))
         scales = torch.exp(params["log_scales"].clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
         rotations = _rotations(params["quats"])
-        eta = torch.randn(means.shape, generator=generator, dtype=means.dtype, device=generator.device).to(means.device)
+        eta = torch.randn(means.shape, generator=generator, dtype=means.dtype,
+                          device=generator.device).to(means.device)
         # Sigma eta = R (s^2 (R^T eta)) as broadcast sums: no [N, 3, 3] covariance and no
         # batched 3x3 matmuls (three of them took ~25 ms a step at 100k Gaussians).
         local = (rotations * eta[:, :, None]).sum(1) * (scales * scales)                  # s^2 R^T eta
