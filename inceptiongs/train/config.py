@@ -114,9 +114,10 @@ class TrainConfig(SavedConfig):
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
 
-    # --- Adam learning rates: step sizes in the stored parameter's units (log scale, -----------
-    # --- quaternion component, opacity logit, SH coefficient) ---------------------------------
-    # Position lr is multiplied by the scene extent and decays log-linearly to the final value.
+    # --- Adam learning rates -------------------------------------------------------------------
+    # Step sizes in the stored parameter's units (log scale, quaternion component, opacity logit,
+    # SH coefficient); the position lr is in scene extents: multiplied by the extent, it decays
+    # log-linearly to ``lr_means_final``.
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
     lr_log_scales: float = 5e-3
