@@ -34,7 +34,7 @@ class JobSettings:
     iterations: int = SIZED_TO_BUDGET
     downscale: int = 2
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
-    strategy: str = "default"       # inceptiongs.train.config.STRATEGIES
+    strategy: str = "default"       # inceptiongs.train.config.STRATEGY_NAMES
     sky_shell: bool | None = None   # None: TrainConfig's default (as `inceptiongs train` without the flag)
     # Photos the next run leaves out (--exclude-photos): the Training panel fills it with the open
     # run's poorly fit photos when the user asks.

@@ -11,7 +11,7 @@ from .jobs import SIZED_TO_BUDGET, start_bootstrap
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
-from inceptiongs.train.config import STRATEGIES, TrainConfig, schedule_length
+from inceptiongs.train.config import STRATEGY_NAMES, TrainConfig, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
@@ -432,9 +432,9 @@ def _job_settings(viewer) -> None:
     changed, index = _combo(viewer, "held-out views", protocols.index(settings.protocol), protocols)
     if changed:
         settings.protocol = protocols[index]
-    changed, index = _combo(viewer, "strategy", STRATEGIES.index(settings.strategy), list(STRATEGIES))
+    changed, index = _combo(viewer, "strategy", STRATEGY_NAMES.index(settings.strategy), list(STRATEGY_NAMES))
     if changed:
-        settings.strategy = STRATEGIES[index]
+        settings.strategy = STRATEGY_NAMES[index]
     sky_on = TrainConfig.sky_shell if settings.sky_shell is None else settings.sky_shell
     changed, sky_on = imgui.checkbox("sky shell (far backdrop)", sky_on)
     _remember(viewer, "sky shell")

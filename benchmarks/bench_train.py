@@ -38,12 +38,12 @@ def main() -> int:
     args = parser.parse_args()
 
     from inceptiongs.commands.train import photos_to_exclude
-    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGIES
+    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGY_NAMES
 
     strategies = [name.strip() for name in args.strategies.split(",") if name.strip()]
-    unknown = [name for name in strategies if name not in STRATEGIES]
+    unknown = [name for name in strategies if name not in STRATEGY_NAMES]
     if unknown or not strategies:
-        parser.error(f"--strategies: choose from {', '.join(STRATEGIES)} (got {args.strategies!r})")
+        parser.error(f"--strategies: choose from {', '.join(STRATEGY_NAMES)} (got {args.strategies!r})")
     out = Path(args.out)
     scene = Path(args.scene)
     if args.scene == "demo":

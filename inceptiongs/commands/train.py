@@ -9,7 +9,8 @@ from pathlib import Path
 
 from ..errors import InputError
 
-from ..train.config import STRATEGIES, TrainConfig
+from ..train.config import TrainConfig
+from ..train.strategies import STRATEGIES
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 
@@ -30,7 +31,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
     parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
-    parser.add_argument("--strategy", choices=STRATEGIES, default="default",
+    parser.add_argument("--strategy", choices=list(STRATEGIES), default="default",
                         help="default: 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed budget); "
                              "dropgaussian: random drops with opacity compensation")
     parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,

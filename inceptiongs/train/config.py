@@ -10,26 +10,87 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
-from ..io.config_json import SavedConfig
+from ..io.config_json import SavedConfig, dataclass_from_dict, read_json_object
 from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
-# Stage-I strategies sharing the trainer (inceptiongs.train.strategy): the 3DGS adaptive density
-# control, 3DGS-MCMC (Kheradmand et al. 2024) and DropGaussian (Park et al. 2025).
-STRATEGIES = ("default", "mcmc", "dropgaussian")
 # A schedule sized to a time budget (``size_to_minutes``) starts from this many steps a minute
 # (the 2-core machine at a 100-200k Gaussian budget); the trainer re-sizes it from the rate it measures.
 BUDGET_STEPS_PER_MINUTE_GUESS = 70
 
 
+@dataclass(frozen=True)
+class MCMCOptions:
+    """3DGS-MCMC's options (strategy "mcmc", inceptiongs.train.strategies.MCMCStrategy); the
+    defaults are the paper's."""
+
+    # Position noise gain: the noise is Sigma eta * noise_lr * (position learning rate), Sigma the
+    # Gaussian's covariance (scene units squared), gated to nearly transparent Gaussians.
+    noise_lr: float = 5e5
+    # Loss weight of the mean opacity (opacity in [0, 1]).
+    opacity_reg: float = 0.01
+    # Loss weight of the mean scale (scene units).
+    scale_reg: float = 0.01
+    # A Gaussian at or below this opacity (in [0, 1]) is dead: relocated, or removed past the
+    # densification window.
+    dead_opacity: float = 0.005
+    # Least growth of the count per relocation (a fraction of the count), until ``max_gaussians``.
+    growth: float = 0.05
+
+    def validate(self, source: str) -> None:
+        for name in ("noise_lr", "opacity_reg", "scale_reg", "growth"):
+            if not getattr(self, name) >= 0.0:   # also refuses NaN
+                raise InputError(f"{source}: mcmc.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.dead_opacity < 1.0:
+            raise InputError(f"{source}: mcmc.dead_opacity must be in [0, 1), got {self.dead_opacity!r}")
+
+
+@dataclass(frozen=True)
+class DropGaussianOptions:
+    """DropGaussian's options (strategy "dropgaussian",
+    inceptiongs.train.strategies.DropGaussianStrategy)."""
+
+    # Drop probability reached at the last step of the schedule (a fraction in [0, 1)); the rate
+    # at step t is rate_max * t / iterations.
+    rate_max: float = 0.1
+
+    def validate(self, source: str) -> None:
+        if not 0.0 <= self.rate_max < 1.0:
+            raise InputError(f"{source}: dropgaussian.rate_max must be in [0, 1), got {self.rate_max}")
+
+
+# The stage-I strategies by name (inceptiongs.train.strategies.STRATEGIES holds their objects) and
+# the class of each one's options: a TrainConfig field of the strategy's name (None: no options).
+STRATEGY_OPTIONS: dict[str, type | None] = {"default": None, "mcmc": MCMCOptions,
+                                             "dropgaussian": DropGaussianOptions}
+STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
+# Flat keys of older config.json files -> (strategy, option): the loader moves them into the
+# strategy's options.
+FLAT_STRATEGY_KEYS = {
+    "mcmc_noise_lr": ("mcmc", "noise_lr"),
+    "mcmc_opacity_reg": ("mcmc", "opacity_reg"),
+    "mcmc_scale_reg": ("mcmc", "scale_reg"),
+    "mcmc_dead_opacity": ("mcmc", "dead_opacity"),
+    "mcmc_growth": ("mcmc", "growth"),
+    "drop_rate_max": ("dropgaussian", "rate_max"),
+}
+
+
 @dataclass
 class TrainConfig(SavedConfig):
+    # Scene folder (absolute path).
     scene: str = ""
+    # Photos are read at 1/downscale of their size (integer factor >= 1).
     downscale: int = 1
+    # Pixels: every photo is scaled down further so that the widest is at most this wide (None: no cap).
     max_width: int | None = None
+    # Which views are held out for evaluation (inceptiongs.evaluation.protocols): "llff" (every
+    # 8th), "unstructured" (most of one scarce cluster of views, a few of every other), "none".
     protocol: str = "none"
+    # Seeds the view order, the initial points and every random draw of the strategies.
     seed: int = 0
     # Unstructured protocol: these views (names) form the scarce cluster instead of a seeded
     # random one (the demo declares the cameras of its thin region).
@@ -37,9 +98,14 @@ class TrainConfig(SavedConfig):
     # Photos (names) left out entirely: neither trained on nor held out (e.g. the ones a
     # previous run fitted poorly, inceptiongs.train.view_fit; `train --exclude-photos`).
     exclude_photos: list[str] = dataclasses.field(default_factory=list)
+    # Length of the schedule in steps.
     iterations: int = 30_000
+    # Wall-clock budget in minutes: stops the loop early (None: no budget).
     minutes: float | None = None
+    # PGSR planar terms (flatten, normal, multi-view); off: plain 3DGS.
     pgsr: bool = True
+    # Densification strategy by name (STRATEGY_NAMES); its options are the field of the same
+    # name below, when it has any.
     strategy: str = "default"
     # --minutes without --iterations: the trainer sizes ``iterations`` (and the schedule) to the
     # time budget from the measured step rate, and re-sizes it when the rate changes a lot.
@@ -48,8 +114,10 @@ class TrainConfig(SavedConfig):
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
 
-    # --- Adam learning rates (per parameter) ---------------------------------------------
-    # Position lr is multiplied by the scene extent and decays log-linearly to the final value.
+    # --- Adam learning rates -------------------------------------------------------------------
+    # Step sizes in the stored parameter's units (log scale, quaternion component, opacity logit,
+    # SH coefficient); the position lr is in scene extents: multiplied by the extent, it decays
+    # log-linearly to ``lr_means_final``.
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
     lr_log_scales: float = 5e-3
@@ -59,51 +127,48 @@ class TrainConfig(SavedConfig):
     lr_sh_rest: float = 2.5e-3 / 20.0
 
     # --- photometric ----------------------------------------------------------------------
+    # Weight of the D-SSIM term against L1: loss = (1 - w) L1 + w (1 - SSIM).
     lambda_dssim: float = 0.2
     # Each training step renders over a uniform random colour instead of black, so no pixel can
-    # match its photo by staying transparent. Off: measured in docs/training.md ("A random
-    # background"): +0.2 dB on the courtyard, -0.75 to -1.4 dB scarce on the objects demo.
+    # match its photo by staying transparent (docs/training.md, "A random background").
     random_background: bool = False
 
-    # --- densification ---------------------------------------------------------------------
+    # --- densification (every strategy's window: MCMC relocates on the same steps) -----------
+    # Steps: densify (or relocate) every ``densify_every`` steps from ``densify_from`` until
+    # ``densify_until``; pruning continues to the end of the run.
     densify_from: int = 500
     densify_until: int = 15_000
     densify_every: int = 100
     densify_grad_threshold: float = 2e-4   # |d loss / d mean2d| in NDC units, averaged over views
     percent_dense: float = 0.01            # clone below, split above this fraction of the extent
-    prune_opacity: float = 0.005
+    prune_opacity: float = 0.005           # opacity in [0, 1] at or below which a Gaussian is pruned
     # Oversized Gaussians (3DGS's rules, without waiting for an opacity reset): pruned from
     # ``prune_large_from`` on, every ``densify_every`` steps; the screen-size rule while
     # densification can still refill what it removes, the world-size rule until the end of the run.
-    # The screen-size rule is off by default (0): it pruned fern's large, legitimate background
-    # and leaf Gaussians that a budget-capped short run does not refill (-0.52 dB at step 900 of
-    # 2 300; the demo at 600 steps is +0.06 dB without it). 3DGS's value is 20 px.
+    # The screen-size rule is off by default: it removes large, legitimate background Gaussians
+    # that a budget-capped short run does not refill. 3DGS's value is 20 px.
     prune_screen_radius: float = 0.0       # pixels of footprint radius (the largest over the views); 0 = off
     prune_world_fraction: float = 0.1      # of the extent
-    prune_large_from: int = 3_000
-    opacity_reset_every: int = 3_000
-    max_gaussians: int = 2_000_000
+    prune_large_from: int = 3_000          # step
+    opacity_reset_every: int = 3_000       # steps (default strategy only)
+    max_gaussians: int = 2_000_000         # count: densification stops, MCMC grows up to it
 
     # --- free space (inceptiongs.train.free_space) ---------------------------------------------
-    # Per-camera near bound: this low percentile of the sparse points' depths in that camera,
-    # times ``near_margin`` (real content lies at or beyond it; the margin leaves room for the
-    # points' own noise and for surfaces between the sparse points).
-    # On by default since the camera ball (``camera_ball``): on the demo at 600 steps +0.48 dB on
-    # the scarce, covered and all groups against the same run without the rules, no training-view
-    # floater pixels; at 2400 steps covered 22.42 dB (18.82 before any rule; docs/training.md).
+    # Remove Gaussians at and around the training cameras, before their near bounds and those the
+    # views look through (docs/training.md).
     free_space: bool = True
     # A shell of Gaussians far beyond the scene where the photos show no sparse point
     # (inceptiongs.train.sky): a place for the sky (or a far backdrop) other than disks beside
-    # the cameras. On by default since it measured better on every scene (docs/training.md,
-    # session 2026-11-25): demo covered 22.42 -> 28.53 dB at 2400 steps, statuette +1.5 dB.
+    # the cameras (docs/training.md).
     sky_shell: bool = True
     # The shell's Gaussians keep every axis at least this fraction of their initial size (half the
     # directions' spacing at the radius) after each step, so that the shell stays closed (0: off;
     # inceptiongs.train.sky.hold_shell_scales). Left free, the photos shrink it to specks with
-    # black between them. On since session 2026-11-25 (twelfth; docs/training.md, "A closed
-    # shell"): courtyard 330 steps +2.1 / +2.3 dB scarce (seeds 0 / 1), objects demo 600 steps
-    # +1.4 / +7.5 dB scarce; 2.0 gains the courtyard more but costs the demo's covered views 0.5 dB.
+    # black between them (docs/training.md, "A closed shell").
     sky_min_scale: float = 1.0
+    # Per-camera near bound: this low percentile (percent) of the sparse points' depths in that
+    # camera, times ``near_margin`` (a fraction: real content lies at or beyond it; the margin
+    # leaves room for the points' own noise and for surfaces between the sparse points).
     near_percentile: float = 2.0
     near_margin: float = 0.5
     # A Gaussian whose ellipsoid holds a training camera centre within this many sigmas is removed.
@@ -112,11 +177,12 @@ class TrainConfig(SavedConfig):
     # camera centre, in any direction (beside and behind it too), is removed (0: off).
     camera_ball: float = 0.5
     # A Gaussian seen by at least this many training views, in front of the rendered surface
-    # (by ``see_through_tolerance`` of its depth) in every one of them, is see-through floater.
+    # (by ``see_through_tolerance``, a fraction of its depth) in every one of them, is see-through floater.
     see_through_min_views: int = 3
     see_through_tolerance: float = 0.2
 
     # --- SH schedule ------------------------------------------------------------------------
+    # Highest SH degree (0..3), raised by one every ``sh_increase_every`` steps.
     sh_degree_max: int = 3
     sh_increase_every: int = 1_000
     # Per-Gaussian SH degree from the angular spread of the training views that see it: one
@@ -125,47 +191,72 @@ class TrainConfig(SavedConfig):
     sh_spread_deg_per_degree: float = 10.0
     sh_min_views: int = 3
 
-    # --- 3DGS-MCMC (strategy "mcmc"; values from the paper) ------------------------------------
-    mcmc_noise_lr: float = 5e5
-    mcmc_opacity_reg: float = 0.01
-    mcmc_scale_reg: float = 0.01
-    mcmc_dead_opacity: float = 0.005
-    mcmc_growth: float = 0.05           # budget grows by this fraction per relocation until max_gaussians
+    # --- the strategies' own options (inceptiongs.train.strategies) -----------------------------
+    mcmc: MCMCOptions = dataclasses.field(default_factory=MCMCOptions)
+    dropgaussian: DropGaussianOptions = dataclasses.field(default_factory=DropGaussianOptions)
 
-    # --- DropGaussian (strategy "dropgaussian") ------------------------------------------------
-    drop_rate_max: float = 0.1          # drop rate rises linearly to this over the run
-
-    # --- PGSR terms -------------------------------------------------------------------------
-    lambda_flatten: float = 100.0
-    lambda_normal: float = 0.015
+    # --- PGSR terms (loss weights are dimensionless; "_from" fields are steps) -----------------
+    lambda_flatten: float = 100.0       # weight of the smallest scale axis (flattened Gaussians)
+    lambda_normal: float = 0.015        # single-view normal vs the normal of the rendered depth
     normal_from: int = 7_000
-    lambda_geo: float = 0.03
-    lambda_ncc: float = 0.15
+    lambda_geo: float = 0.03            # multi-view geometric consistency (reprojection, pixels)
+    lambda_ncc: float = 0.15            # multi-view photometric consistency (NCC of patches)
     multiview_from: int = 7_000
-    multiview_every: int = 2          # the multi-view terms need a second render
+    multiview_every: int = 2          # steps; the multi-view terms need a second render
     multiview_scale: float = 0.5      # neighbour depth rendered at this fraction of the size
-    multiview_pixel_noise_max: float = 1.0
-    ncc_patch_radius: int = 3         # 7x7 patches
-    ncc_samples: int = 4096
-    neighbours_max: int = 8
-    neighbours_max_angle_deg: float = 30.0
+    multiview_pixel_noise_max: float = 1.0   # pixels: reprojection errors above it are not trusted
+    ncc_patch_radius: int = 3         # pixels (7x7 patches)
+    ncc_samples: int = 4096           # pixels sampled per step
+    neighbours_max: int = 8           # neighbour views per training view
+    neighbours_max_angle_deg: float = 30.0   # degrees between viewing directions
 
-    # --- bookkeeping ------------------------------------------------------------------------
+    # --- bookkeeping (steps, and a count of checkpoints kept) -------------------------------
     log_every: int = 20
     eval_every: int = 500
     checkpoint_every: int = 500
     keep_checkpoints: int = 2
 
     # A run's config.json written before the shell's scale floor was trained with a free shell:
-    # without this its shell would be raised at the first step of a bootstrap or a resume (on the
-    # demo that cost the training views 3.45 dB).
+    # without this its shell would be raised at the first step of a bootstrap or a resume.
     LEGACY_VALUES: ClassVar[dict] = {"sky_min_scale": 0.0}
 
+    def __post_init__(self) -> None:
+        # A strategy's options given as a dict (``TrainConfig(**config.to_json_dict())``) become
+        # its dataclass; strict: an unknown option is a TypeError.
+        for name, options in STRATEGY_OPTIONS.items():
+            value = getattr(self, name, None) if options is not None else None
+            if isinstance(value, dict):
+                setattr(self, name, options(**value))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        """The config in ``path``, strictly, with a file that lacks a key getting its
+        ``LEGACY_VALUES`` and the strategies' flat keys (FLAT_STRATEGY_KEYS) moved into their
+        strategy's options."""
+        data = {**cls.LEGACY_VALUES, **read_json_object(path, cls.CONFIG_KIND)}
+        return cls.from_json_dict(data, str(path))
+
+    @classmethod
+    def from_json_dict(cls, data: dict, source: str) -> "TrainConfig":
+        """A validated config from a config.json's object (nested or flat strategy options)."""
+        data = migrate_flat_strategy_keys(data, source)
+        for name, options in STRATEGY_OPTIONS.items():
+            if options is not None and name in data:
+                if not isinstance(data[name], dict):
+                    raise InputError(f"{source}: {name} must be an object of the {name} strategy's options")
+                data[name] = dataclass_from_dict(options, data[name], source, f"{name} options")
+        return dataclass_from_dict(cls, data, source, cls.CONFIG_KIND).validate(source)
+
     def validate(self, source: str = "config") -> "TrainConfig":
-        if self.strategy not in STRATEGIES:
-            raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
-        if not 0.0 <= self.drop_rate_max < 1.0:
-            raise InputError(f"{source}: drop_rate_max must be in [0, 1), got {self.drop_rate_max}")
+        if self.strategy not in STRATEGY_NAMES:
+            raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGY_NAMES)}, "
+                             f"got {self.strategy!r}")
+        for name, options in STRATEGY_OPTIONS.items():
+            if options is not None:
+                if not isinstance(getattr(self, name), options):
+                    raise InputError(f"{source}: {name} must hold the {name} strategy's options, "
+                                     f"got {getattr(self, name)!r}")
+                getattr(self, name).validate(source)
         if not 0.0 <= self.camera_ball <= 1.0:
             raise InputError(f"{source}: camera_ball must be in [0, 1] (a fraction of the near bound), "
                              f"got {self.camera_ball!r}")
@@ -193,6 +284,21 @@ class TrainConfig(SavedConfig):
             if getattr(self, name) < 1:
                 raise InputError(f"{source}: {name} must be >= 1")
         return self
+
+
+def migrate_flat_strategy_keys(data: dict, source: str) -> dict:
+    """``data`` (a config.json's object) with the flat strategy keys (FLAT_STRATEGY_KEYS) moved
+    into their strategy's options (a new dict); a key given both ways is an InputError."""
+    data = dict(data)
+    for flat, (strategy, option) in FLAT_STRATEGY_KEYS.items():
+        if flat not in data:
+            continue
+        options = dict(data.get(strategy, {}))
+        if option in options:
+            raise InputError(f"{source}: {flat} and {strategy}.{option} both given")
+        options[option] = data.pop(flat)
+        data[strategy] = options
+    return data
 
 
 SHORT_RUN_RESET_MIN = 10_000
@@ -244,14 +350,13 @@ def short_run_schedule(config: TrainConfig) -> TrainConfig:
         densify_from=scaled(config.densify_from, min(100, config.iterations // 10)),
         densify_until=scaled(config.densify_until, 2),
         densify_every=scaled(config.densify_every, min(25, max(1, config.iterations // 20))),
-        # Opacities need hundreds of steps to recover from a reset (fern: 14.7 -> 5.6 dB
-        # right after one, 13.5 dB 33 steps later), more than a short run can spare; the
-        # floaters a reset removes are few when training starts from triangulated points.
+        # Opacities need hundreds of steps to recover from a reset, more than a short run can
+        # spare; the floaters a reset removes are few when training starts from triangulated points.
         # So runs below SHORT_RUN_RESET_MIN steps never reset.
         # Size pruning starts once densification has had half its window to cover the scene
         # with smaller Gaussians (3DGS: 25 densifications before its first at step 3000). From
-        # the first densification, it pruned the demo's early, large sky Gaussians before they
-        # were split: a hole no gradient refills (held-out view 025: 21.7 -> 13.7 dB).
+        # the first densification, it prunes early, large sky Gaussians before they are split:
+        # a hole no gradient refills.
         prune_large_from=max(scaled(config.prune_large_from, 1),
                              (scaled(config.densify_from, min(100, config.iterations // 10))
                               + scaled(config.densify_until, 2)) // 2),

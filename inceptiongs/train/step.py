@@ -22,14 +22,14 @@ from ..errors import InputError
 from ..gaussians import Gaussians
 from . import losses
 from .config import TrainConfig
-from . import strategy as strategies
-from .densify import DensifyStats, accumulate, densify_and_prune, remove_rows, reset_opacity
+from .densify import DensifyStats, accumulate
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
                          near_a_camera, near_bounds, seen_through, sh_rest_mask, surface_depth,
                          surface_depth_features)
 from .init_gaussians import gaussians_from_points, gaussians_from_sparse_depth, initial_gaussians, scene_extent
 from .neighbours import neighbour_views
 from .sky import SKY_OPACITY, hold_shell_scales, in_background, shell_log_scale_floor, sky_shell
+from .strategies import strategy_for
 from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
                     position_learning_rate, set_learning_rate)
 from .triangulate import training_points
@@ -282,10 +282,8 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
             outputs += ("features",)
             features = surface_depth_features(gaussians.means, in_background(gaussians.means.detach(), state.sky),
                                               camera)
-    rendered = gaussians
-    if config.strategy == "dropgaussian":
-        rendered = strategies.drop_gaussians(gaussians, strategies.drop_rate(step, config.iterations,
-                                                                             config.drop_rate_max), state.generator)
+    strategy = strategy_for(config)
+    rendered = strategy.prepare_render(step, gaussians, state, config)
     # Black (the renderer's default), or with random_background a colour the model cannot predict
     # behind any pixel it leaves partly transparent, so no edge or sky can be fitted by letting
     # the black show through (a transparent shell Gaussian behind a silhouette is otherwise a free
@@ -303,9 +301,7 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     if math.isfinite(mse):  # a non-finite render says nothing about the photo
         state.view_mse[view] = mse
     terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
-    if config.strategy == "mcmc":
-        terms["opacity_reg"], terms["scale_reg"] = strategies.mcmc_regularisers(state.params)
-        loss = loss + config.mcmc_opacity_reg * terms["opacity_reg"] + config.mcmc_scale_reg * terms["scale_reg"]
+    loss = strategy.add_loss_terms(loss, terms, state)
     if config.pgsr:
         terms["flatten"] = losses.flatten_loss(state.params["log_scales"])
         loss = loss + config.lambda_flatten * terms["flatten"]
@@ -389,9 +385,8 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
         hold_shell_scales(state.params["log_scales"], in_background(state.params["means"].detach(), state.sky),
                           shell_log_scale_floor(state.sky, [data.cameras[i] for i in data.train],
                                                 config.sky_min_scale))
-    if config.strategy == "mcmc" and step <= config.iterations:
-        strategies.mcmc_noise(state.params, position_learning_rate(step, config, data.extent),
-                              config.mcmc_noise_lr, state.generator)
+    strategy = strategy_for(config)
+    strategy.after_optimizer_step(step, state, data, config)
 
     record: dict = {}
     if maintenance_due(step, config):
@@ -401,8 +396,7 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
             state.view_stats.reset_window()
             if limit_sh:
                 update_sh_limits(state, config)
-    if config.strategy != "mcmc" and step < config.densify_until and step % config.opacity_reset_every == 0:
-        reset_opacity(state.params, state.optimizer)
+    strategy.after_maintenance(step, state, config)
     record["num_gaussians"] = int(state.params["means"].shape[0])
     return record
 
@@ -411,7 +405,7 @@ def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig, ce
     """[N] bool: Gaussians in space the training cameras (centres [C, 3]) see through
     (inceptiongs.train.free_space)."""
     params = state.params
-    flags = torch.zeros(params["means"].shape[0], dtype=torch.bool)
+    flags = torch.zeros(params["means"].shape[0], dtype=torch.bool, device=params["means"].device)
     if not config.free_space:
         return flags
     cameras = [data.cameras[i] for i in data.train]
@@ -426,51 +420,18 @@ def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig, ce
 
 
 def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig) -> dict:
-    """The strategy's periodic edit of the model; returns its counts."""
+    """The periodic edit of the model: the free-space rules flag Gaussians (within stage I's
+    schedule), the strategy removes or relocates them and densifies; returns the counts."""
     in_schedule = step <= config.iterations    # stage-II continuations: no new pruning rules
-    growing = step < config.densify_until
-    prune_large = in_schedule and step >= config.prune_large_from
     carried = state.view_stats.tensors() if state.view_stats is not None else {}
     centers = torch.tensor(np.stack([data.cameras[i].center for i in data.train]))    # [C, 3]
     flags = free_space_flags(state, data, config, centers) if in_schedule else torch.zeros(
-        state.params["means"].shape[0], dtype=torch.bool)
+        state.params["means"].shape[0], dtype=torch.bool, device=state.params["means"].device)
     counts: dict = {"free_space": int(flags.sum())}
-    if config.strategy == "mcmc":
-        # No size rule: the paper's answer to large Gaussians is its scale regulariser, and
-        # relocation (by opacity) never refills what a size rule removes (on the demo it emptied
-        # the sky: 9.2 dB).
-        dead = torch.sigmoid(state.params["opacity_logits"].detach()) <= config.mcmc_dead_opacity
-        dead |= flags
-        if growing:
-            counts["relocated"] = strategies.relocate(state.params, state.optimizer, dead, state.generator, carried)
-            n = state.params["means"].shape[0]
-            rate = strategies.growth_rate(n, config.max_gaussians, config.mcmc_growth,
-                                          relocations_left(step, config))
-            room = min(config.max_gaussians, int(n * (1.0 + rate))) - n
-            counts["added"] = strategies.grow(state.params, state.optimizer, room, state.generator, carried)
-        else:
-            # Past the growth window a relocated copy would have no time to be fitted: remove.
-            counts["pruned"] = remove_rows(state.params, state.optimizer, dead, carried)
-    else:
-        if bool(flags.all()):
-            flags[torch.argmax(state.params["opacity_logits"].detach())] = False  # never empty the model
-        keep_stats = ~flags
-        removed = remove_rows(state.params, state.optimizer, flags, carried)
-        if removed:
-            state.stats = DensifyStats(*(t[keep_stats] for t in state.stats.tensors().values()))
-        counts.update(densify_and_prune(state.params, state.optimizer, state.stats, config, data.extent,
-                                        prune_large=prune_large, generator=state.generator, grow=growing,
-                                        carried=carried, background=in_background(state.params["means"].detach(),
-                                                                                  state.sky),
-                                        camera_centers=centers))
+    counts.update(strategy_for(config).maintenance(step, state, data, config, flags, carried, centers))
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts
-
-
-def relocations_left(step: int, config: TrainConfig) -> int:
-    """Maintenance steps from ``step`` (included) to the end of the densification window (>= 1)."""
-    return max(1, (config.densify_until - 1 - step) // config.densify_every + 1)
 
 
 def update_sh_limits(state: TrainState, config: TrainConfig) -> None:

@@ -1,20 +1,22 @@
-"""What differs between the stage-I strategies (``TrainConfig.strategy``); the trainer, the
-checkpoints, the PGSR terms, the free-space and size rules are shared.
+"""The math of the 3DGS-MCMC and DropGaussian strategies (:mod:`.strategies` holds the strategy
+objects and calls these); the trainer, the checkpoints, the PGSR terms, the free-space and size
+rules are shared.
 
-* ``default``: 3DGS adaptive density control (clone / split / prune, :mod:`.densify`).
-* ``mcmc``: 3DGS-MCMC (Kheradmand et al. 2024). Gaussians are samples of a distribution: after
-  every Adam step positions get noise scaled by the covariance and by how transparent the
-  Gaussian is (:func:`mcmc_noise`); instead of pruning, dead Gaussians (opacity <= 0.005) are
-  relocated onto live ones sampled by opacity, with the opacity and scale of the N copies
-  corrected so that together they render like the source (:func:`relocation_correction`); the
-  count grows by at least 5 % per relocation up to a fixed budget (``max_gaussians``), faster
-  in a short run so that it still reaches the budget (:func:`growth_rate`; a run sized to a time
-  budget gets the budget its time affords, train/budget.py); an L1 regulariser
-  on opacities and scales (:func:`mcmc_regularisers`) keeps Gaussians from hiding unused.
-* ``dropgaussian``: DropGaussian (Park et al. 2025): 3DGS, but each training render drops
-  Gaussians at random with rate r_t = r_max t / T and renders the kept ones with opacity
-  o / (1 - r), so every pixel's expected contribution stays the same (:func:`drop_gaussians`).
-  Evaluation renders every Gaussian with its own opacity.
+* 3DGS-MCMC (Kheradmand et al. 2024). Gaussians are samples of a distribution: after every Adam
+  step positions get noise scaled by the covariance and by how transparent the Gaussian is
+  (:func:`mcmc_noise`); instead of pruning, dead Gaussians are relocated onto live ones sampled
+  by opacity, with the opacity and scale of the N copies corrected so that together they render
+  like the source (:func:`relocation_correction`); the count grows by at least a minimum
+  fraction per relocation up to a fixed budget (``max_gaussians``), faster in a short run so
+  that it still reaches the budget (:func:`growth_rate`; a run sized to a time budget gets the
+  budget its time affords, train/budget.py); an L1 regulariser on opacities and scales
+  (:func:`mcmc_regularisers`) keeps Gaussians from hiding unused.
+* DropGaussian (Park et al. 2025): 3DGS, but each training render drops Gaussians at random
+  with rate r_t = r_max t / T and renders the kept ones with opacity o / (1 - r), so every
+  pixel's expected contribution stays the same (:func:`drop_gaussians`). Evaluation renders
+  every Gaussian with its own opacity.
+
+Random draws come from the CPU or device generator given; results land on the parameters' device.
 """
 
 from __future__ import annotations
@@ -35,8 +37,8 @@ MCMC_MAX_COPIES = 51
 MCMC_NOISE_K = 100.0
 MCMC_NOISE_X0 = 0.995
 # At most this fractional growth per relocation: a growth window shortened late (a re-sized
-# schedule) would otherwise multiply the count, and the step cost, several times at once
-# (statuette: 6 649 -> 25 785 -> 100 000 in two relocations) where no budget check can react.
+# schedule) would otherwise multiply the count, and the step cost, several times at once,
+# where no budget check can react.
 MCMC_MAX_GROWTH = 0.5
 # A corrected opacity stays inside (dead threshold, 1): its logit must be finite.
 _OPACITY_CEIL = 1.0 - 1e-6
@@ -61,7 +63,7 @@ def drop_gaussians(gaussians: Gaussians, rate: float, generator: torch.Generator
     if rate <= 0.0:
         return gaussians
     n = len(gaussians)
-    kept = torch.rand(n, generator=generator) >= rate
+    kept = torch.rand(n, generator=generator, device=generator.device).to(gaussians.opacity_logits.device) >= rate
     # 1 - rate > 0 (rate < 1, validated); the ceiling keeps the logit finite where o / (1 - r) >= 1
     # (there the renderer's alpha cap would clip the centre anyway).
     scaled = (torch.sigmoid(gaussians.opacity_logits) / (1.0 - rate)).clamp(max=_OPACITY_CEIL)
@@ -92,7 +94,8 @@ def mcmc_noise(params: dict[str, torch.Tensor], position_lr: float, noise_lr: fl
         gate = torch.sigmoid(MCMC_NOISE_K * ((1.0 - opacity) - MCMC_NOISE_X0))
         scales = torch.exp(params["log_scales"].clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
         rotations = _rotations(params["quats"])
-        eta = torch.randn(means.shape, generator=generator, dtype=means.dtype)
+        eta = torch.randn(means.shape, generator=generator, dtype=means.dtype,
+                          device=generator.device).to(means.device)
         # Sigma eta = R (s^2 (R^T eta)) as broadcast sums: no [N, 3, 3] covariance and no
         # batched 3x3 matmuls (three of them took ~25 ms a step at 100k Gaussians).
         local = (rotations * eta[:, :, None]).sum(1) * (scales * scales)                  # s^2 R^T eta
@@ -133,8 +136,9 @@ def growth_rate(count: int, budget: int, minimum: float, relocations_left: int) 
 def _sample_by_opacity(opacity: torch.Tensor, candidates: torch.Tensor, count: int,
                        generator: torch.Generator) -> torch.Tensor:
     """``count`` indices drawn with replacement from ``candidates`` [C] with probability ~ opacity."""
-    weights = opacity[candidates].to(torch.float64).clamp_min(1e-12)  # multinomial needs a positive sum
-    return candidates[torch.multinomial(weights, count, replacement=True, generator=generator)]
+    weights = opacity[candidates].to(generator.device, torch.float64).clamp_min(1e-12)  # a positive sum
+    picked = torch.multinomial(weights, count, replacement=True, generator=generator)
+    return candidates[picked.to(candidates.device)]
 
 
 def _zero_moments(optimizer: torch.optim.Adam, rows: torch.Tensor) -> None:
@@ -191,14 +195,14 @@ def grow(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, count: in
     with torch.no_grad():
         n = params["means"].shape[0]
         opacity = torch.sigmoid(params["opacity_logits"].detach())
-        sources = _sample_by_opacity(opacity, torch.arange(n), count, generator)
+        sources = _sample_by_opacity(opacity, torch.arange(n, device=opacity.device), count, generator)
         copies = torch.bincount(sources, minlength=n)[sources] + 1
         new_logit, new_log_scale = _corrected_sources(params, sources, copies)
         params["opacity_logits"].data[sources] = new_logit.to(params["opacity_logits"].dtype)
         params["log_scales"].data[sources] = new_log_scale.to(params["log_scales"].dtype)
         _zero_moments(optimizer, sources)
         appended = {name: t.detach()[sources].clone() for name, t in params.items()}
-        replace_rows(optimizer, params, torch.ones(n, dtype=torch.bool), appended)
+        replace_rows(optimizer, params, torch.ones(n, dtype=torch.bool, device=opacity.device), appended)
         for name, tensor in carried.items():
             carried[name] = torch.cat([tensor, tensor[sources]])
     return count
