@@ -123,11 +123,6 @@ def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
                         config=config or BootstrapConfig())
 
 
-def start_bootstrap(viewer, config=None) -> None:
-    """The viewer's "Bootstrap" action (Jobs.start_bootstrap), for callers holding the viewer."""
-    viewer.jobs.start_bootstrap(config)
-
-
 class Jobs:
     """The viewer's job: the dialog's settings, the live job (training: a LiveTraining, None
     before the first), the open run (what Resume continues and Bootstrap repairs) with the

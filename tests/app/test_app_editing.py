@@ -86,12 +86,13 @@ def test_lasso_is_drawn_and_selects_what_it_encloses(viewer):
 def test_a_flag_made_here_draws_no_lines_across_the_window(viewer):
     viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
     # A nudge (a fraction of the flag's drawn size): its frustum is around the eye.
-    viewer.view.nav.center = viewer.view.nav.center + 0.02 * viewer.view.nav.rotation[0] - 0.01 * viewer.view.nav.rotation[2]
+    nav = viewer.view.nav
+    nav.center = nav.center + 0.02 * nav.rotation[0] - 0.01 * nav.rotation[2]
     image = viewer.capture_window()
     flag_red = (image[..., 0] > 0.9) & (np.abs(image[..., 1] - 0.3) < 0.1) & (np.abs(image[..., 2] - 0.2) < 0.1)
     assert flag_red[:, 420:].sum() < 20
     # Step back and left: the flag stands ahead, right of the panel, and is drawn.
-    viewer.view.nav.center = viewer.view.nav.center - 2.0 * viewer.view.nav.rotation[2] - 0.8 * viewer.view.nav.rotation[0]
+    nav.center = nav.center - 2.0 * nav.rotation[2] - 0.8 * nav.rotation[0]
     flag_red = (lambda im: (im[..., 0] > 0.9) & (np.abs(im[..., 1] - 0.3) < 0.1))(viewer.capture_window())
     assert flag_red[:, 420:].sum() >= 20
 
@@ -102,7 +103,8 @@ def test_crop_box_fits_the_model_and_its_handles_drag(xvfb, tmp_path):
 
     with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 900, 600) as viewer:
         viewer.view.settings.show_training_cameras = False
-        viewer.view.nav.center = viewer.view.nav.center - 1.2 * viewer.view.nav.rotation[0]  # the model right of the panel
+        nav = viewer.view.nav
+        nav.center = nav.center - 1.2 * nav.rotation[0]  # the model right of the panel
         viewer.editor.enable_crop()
         lo, hi = np.array(viewer.view.settings.crop_min), np.array(viewer.view.settings.crop_max)
         # Fitted to the table (x, y in [-1, 1], z in [0, 0.5]), not a fixed +-1 cube.

@@ -12,9 +12,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, resume_job_for, start_bootstrap,
+from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstrap_job_for, resume_job_for,
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
+from inceptiongs.app.settings import StatusLine
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.errors import InputError
 from viewer_cases import opened
@@ -131,10 +132,11 @@ def test_jobs_write_fresh_folders(tmp_path):
     job = train_job_for(source, JobSettings(iterations=100))
     assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / "train_2" and not job.resume
     flags_file = tmp_path / "flags.json"
-    viewer = SimpleNamespace(training=None, run_dir=run, flags_file=flags_file, flags=[], status="",
-                             job_settings=JobSettings())
-    start_bootstrap(viewer)
-    assert viewer.jobs.training is None and "no flagged views" in viewer.status
+    status = StatusLine()
+    jobs = Jobs(SimpleNamespace(source=source), SimpleNamespace(file=flags_file, items=[]), status, lambda: None)
+    assert jobs.run_dir == run
+    jobs.start_bootstrap()
+    assert jobs.training is None and "no flagged views" in status.text
     save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
     (tmp_path / "runs" / "train_bootstrap").mkdir()
     job = bootstrap_job_for(run, flags_file)
@@ -358,7 +360,8 @@ def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, m
         older = runs[0]
         viewer.jobs.open_run(older)  # what the panel's "runs of this scene" list does
         assert viewer.jobs.run_dir == older and str(older) in viewer.title
-        assert viewer.view.edit.base["means"].shape != shown.shape or not np.allclose(viewer.view.edit.base["means"], shown)
+        means = viewer.view.edit.base["means"]
+        assert means.shape != shown.shape or not np.allclose(means, shown)
         viewer.step()
         assert "runs of this scene" in viewer.ui.rects  # the list is in the Training panel
     monkeypatch.chdir(demo_scene.parent)  # from elsewhere, the command line's ./runs is not looked at
@@ -534,7 +537,8 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
         click_widget(viewer, "next poorly fit photo")
         assert viewer.view.cameras[viewer.view.camera_index].name == second["name"]
         assert second["name"] in viewer.status and "7.0 dB" in viewer.status
-        np.testing.assert_allclose(viewer.view.nav.center, viewer.view.cameras[viewer.view.camera_index].center, atol=1e-9)
+        view = viewer.view
+        np.testing.assert_allclose(view.nav.center, view.cameras[view.camera_index].center, atol=1e-9)
         click_widget(viewer, "next poorly fit photo")
         assert viewer.view.cameras[viewer.view.camera_index].name == first["name"]
         click_widget(viewer, "next poorly fit photo")  # around again

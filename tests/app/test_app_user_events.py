@@ -249,7 +249,8 @@ def test_n_and_p_keys_step_through_the_training_cameras(xvfb, demo_scene):
         viewer.step()
         assert viewer.view.camera_index == 1
         np.testing.assert_allclose(viewer.view.nav.center, cameras[1].center, atol=1e-9)
-        np.testing.assert_allclose(viewer.view.nav.rotation[2], cameras[1].rotation[2], atol=1e-9)  # its viewing direction
+        # Its viewing direction too.
+        np.testing.assert_allclose(viewer.view.nav.rotation[2], cameras[1].rotation[2], atol=1e-9)
         press_key(viewer, glfw.KEY_P)
         press_key(viewer, glfw.KEY_P)  # before the first: the last
         viewer.step()
@@ -312,7 +313,8 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         _scroll_panel(viewer, "file")                        # the panel's end, below a 480-pixel window
         type_into(viewer, "file", str(out))
         click_widget(viewer, "save PLY")
-        assert out.is_file(), (viewer.status, viewer.editor.save_path, viewer.ui.rects["file"], viewer.ui.rects["save PLY"])
+        rects = viewer.ui.rects
+        assert out.is_file(), (viewer.status, viewer.editor.save_path, rects["file"], rects["save PLY"])
         saved = read_ply(out)
         assert len(saved) == viewer.view.edit.count, viewer.status
         np.testing.assert_allclose(saved.numpy()["means"], kept, atol=1e-6)

@@ -28,19 +28,18 @@ def run_dir(tmp_path_factory) -> Path:
 
 
 def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
-    from inceptiongs.app.jobs import start_bootstrap
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.bootstrap.config import BootstrapConfig
 
     with opened(Viewer, open_source(run_dir), 320, 240) as viewer:
         viewer.step()
-        start_bootstrap(viewer)
+        viewer.jobs.start_bootstrap()
         assert viewer.jobs.training is None and "no flagged views" in viewer.status
         viewer.view.snap_to_camera(0)
         viewer.flags.flag_current_view()          # a 320x240 flag; the job rescales it to 48x36
         # The button's action with a tiny configuration (its default is a full bootstrap).
-        start_bootstrap(viewer, BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained",
+        viewer.jobs.start_bootstrap(BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained",
                                                 log_every=1, save_views=0))
         job = viewer.jobs.training.job
         assert job.targets_file == viewer.flags.file and job.run_dir == run_dir
@@ -60,7 +59,7 @@ def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
         # Bootstrapping again (here: the original run) writes a new folder; the first result stays.
         first_bytes = first.read_bytes()
         viewer.jobs.run_dir = run_dir
-        start_bootstrap(viewer, BootstrapConfig(iterations=2, k=1, l=2, ddim_steps=1, prior="untrained",
+        viewer.jobs.start_bootstrap(BootstrapConfig(iterations=2, k=1, l=2, ddim_steps=1, prior="untrained",
                                                 log_every=1, save_views=0))
         assert viewer.jobs.training.job.out_dir == run_dir.with_name("run_bootstrap_2")
         assert "run_bootstrap_2" in viewer.title
