@@ -2,8 +2,8 @@
 camera or the model moves, full size once still, nothing when nothing changed), the torch
 reference comparison, and the world-space overlays (cameras, flags, crop box, selection).
 
-The drawer owns only GL resources and render caching; what to draw is read from the viewer
-it is given (settings, navigation, edit state, flags)."""
+The drawer owns GL resources, render caching and the coverage colouring; what to draw is read
+from the view.View it is given (settings, camera, model), and the flags and photo fit drawn over it."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import numpy as np
 from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
+from .coverage_mode import CoverageMode
 from .editing import box_handles
 from .frustums import away_from, segments_for_cameras
 from .images import compose_photo, visualize
@@ -75,7 +76,8 @@ def box_segments(box_min, box_max) -> np.ndarray:
 
 
 class FrameDrawer:
-    """GL drawing for one viewer: scene texture, overlays, the reference worker."""
+    """GL drawing for one viewer: scene texture, overlays, the reference worker, the coverage
+    mode's colours."""
 
     def __init__(self, ctx: moderngl.Context, renderer) -> None:
         self.ctx = ctx
@@ -89,19 +91,20 @@ class FrameDrawer:
         self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
         self.moving_level = 0  # index into MOVING_RENDER_SCALES
+        self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
 
-    def upload_model(self, viewer) -> None:
-        """Hand the viewer's visible Gaussians to the renderer when they changed (recoloured by
+    def upload_model(self, view) -> None:
+        """Hand the view's visible Gaussians to the renderer when they changed (recoloured by
         their view counts in the coverage mode)."""
-        model = (viewer.model_version, viewer.edit.version)
-        coverage = viewer.settings.mode == "coverage"
+        model = (view.model_version, view.edit.version)
+        coverage = view.settings.mode == "coverage"
         version = model + (("coverage",) if coverage else ())
         if version != self.uploaded_version:
-            arrays = viewer.edit.visible_arrays()
+            arrays = view.edit.visible_arrays()
             if coverage:
                 # Depth for the occlusion test comes from the model as it is (its own colours).
                 self.renderer.set_gaussians(arrays, version=hash(model) & 0x7FFFFFFF)
-                arrays = viewer.coverage.update(arrays, viewer.cameras, self.depth_of, model)
+                arrays = self.coverage.update(arrays, view.cameras, self.depth_of, model)
             self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
 
@@ -109,22 +112,24 @@ class FrameDrawer:
         """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
         return self.renderer.render(camera, "depth")[..., 0]
 
-    def draw_scene(self, viewer, screen: moderngl.Framebuffer) -> None:
+    def draw_scene(self, view, stats, model_changed_at: float, screen: moderngl.Framebuffer) -> None:
+        """The splats of ``view`` into the scene texture and onto ``screen``; ``stats``: the
+        FrameStats to fill; model_changed_at: perf_counter() of the last snapshot shown."""
         now = time.perf_counter()
-        moving = (now - viewer.last_motion < STILL_SECONDS
-                  or now - viewer.last_snapshot_time < MODEL_STILL_SECONDS)
+        moving = (now - view.last_motion < STILL_SECONDS
+                  or now - model_changed_at < MODEL_STILL_SECONDS)
         scale = MOVING_RENDER_SCALES[self.moving_level] if moving else 1.0
-        self.upload_model(viewer)
-        settings, stats = viewer.settings, viewer.stats
+        self.upload_model(view)
+        settings = view.settings
         mode = settings.mode
-        camera = viewer.current_camera(scale)
-        photo_index = viewer.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
+        camera = view.current_camera(scale)
+        photo_index = view.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
                camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
                settings.splat_scale, tuple(settings.background), settings.photo, settings.photo_alpha, photo_index)
-        photo = viewer.training_photo(photo_index) if photo_index is not None else None
+        photo = view.training_photo(photo_index) if photo_index is not None else None
         if mode == "reference":
-            self.draw_reference(viewer)
+            self.draw_reference(view)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
             if photo is not None:
@@ -155,11 +160,11 @@ class FrameDrawer:
             self.last_render_key = key
         self.scene_texture.blit(screen)
 
-    def draw_reference(self, viewer) -> None:
+    def draw_reference(self, view) -> None:
         """GL and torch at the same reduced camera; the torch image comes from the worker. The
         comparison is computed once per new result (and view choice), then the texture is reused."""
-        settings = viewer.settings
-        camera = viewer.current_camera()
+        settings = view.settings
+        camera = view.current_camera()
         if camera.width > REFERENCE_MAX_WIDTH:
             camera = camera.scaled(camera.width / REFERENCE_MAX_WIDTH)
         if self.reference is None:
@@ -167,7 +172,7 @@ class FrameDrawer:
         request_key = (camera.world_to_camera.tobytes(), camera.width, self.uploaded_version,
                        settings.sh_degree_cap)
         if self.reference_request != request_key:
-            arrays = viewer.edit.visible_arrays()
+            arrays = view.edit.visible_arrays()
             cap = min(settings.sh_degree_cap, sh_degree_from_count(arrays["sh"].shape[1]))
             self.reference.request(arrays, hash(self.uploaded_version), camera, settings.background, cap)
             self.reference_request = request_key
@@ -193,24 +198,26 @@ class FrameDrawer:
         return worker.error is not None or (self.reference_shown is not None
                                             and self.reference_shown[0] is worker.result())
 
-    def draw_overlays(self, viewer, screen: moderngl.Framebuffer) -> None:
-        settings, edit, flags = viewer.settings, viewer.edit, viewer.flags
-        camera = viewer.current_camera()
+    def draw_overlays(self, view, flag_book, poorly_fit, screen: moderngl.Framebuffer) -> None:
+        """Over the scene: training cameras (``poorly_fit``: image names drawn apart), the
+        flags of ``flag_book`` (flags.FlagBook), the crop box and the selection."""
+        settings, edit, flags = view.settings, view.edit, flag_book.items
+        camera = view.current_camera()
         screen.use()
-        depth = max(viewer.nav.speed * 0.1, 1e-3)
-        training = away_from(viewer.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
+        depth = max(view.nav.speed * 0.1, 1e-3)
+        training = away_from(view.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
         if settings.show_training_cameras and training:
-            shown_cameras = [viewer.cameras[i] for i in training]
+            shown_cameras = [view.cameras[i] for i in training]
             segments = segments_for_cameras(shown_cameras, depth)
-            self.overlay.draw_segments(camera, segments, frustum_colors(shown_cameras, viewer.poorly_fit))
+            self.overlay.draw_segments(camera, segments, frustum_colors(shown_cameras, poorly_fit))
         # A flag made where the camera stands would be drawn around the eye, its lines across the
         # whole window: flags that close are left out until the camera moves away.
         shown = away_from([f.camera for f in flags], camera.center, FLAG_HIDE_DISTANCE * depth)
         if settings.show_flags and shown:
             segments = segments_for_cameras([flags[i].camera for i in shown], depth * 1.5)
             colors = np.tile(FLAG_COLOR, (len(segments), 1))
-            if viewer.selected_flag in shown:
-                slot = shown.index(viewer.selected_flag)
+            if flag_book.selected in shown:
+                slot = shown.index(flag_book.selected)
                 colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
         if settings.crop_enabled:

@@ -1,5 +1,6 @@
 """Splat editing without GL: selection by screen rectangle, brush, thresholds and crop box,
-delete with undo/redo, and the arrays the renderer should show. Pure numpy.
+delete with undo/redo, and the arrays the renderer should show. Pure numpy, but for
+:class:`Editor`, the Edit panel's and the edit tools' actions on the view's model.
 
 Edits never touch the loaded arrays: an :class:`EditState` keeps a boolean ``alive`` mask
 [N] over them, and undo/redo swap masks, so any number of edits costs N bytes each.
@@ -8,11 +9,16 @@ Edits never touch the loaded arrays: an :class:`EditState` keeps a boolean ``ali
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from inceptiongs.camera import Camera
+from inceptiongs.errors import InputError
 from inceptiongs.constants import NEAR_PLANE, OPACITY_LOGIT_ABS_MAX, LOG_SCALE_MAX, LOG_SCALE_MIN
+
+# A crop-box handle is grabbed within this many pixels of the cursor.
+CROP_HANDLE_PIXELS = 12.0
 
 
 def project_means(means: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -211,3 +217,122 @@ class EditState:
         if self.alive.all():
             return self.base
         return {key: value[self.alive] for key, value in self.base.items()}
+
+
+class Editor:
+    """Selection, deletion, crop box and saving on the model a view.View shows (its EditState
+    ``view.edit``; the tool, selection mode and crop box are in ``view.settings``). Positions
+    are window pixels, as the mouse gives them. ``status``: the status line."""
+
+    def __init__(self, view, status) -> None:
+        self.view, self.status = view, status
+        self.save_path = str(view.source.work_dir / "edited.ply")  # the Edit panel's "file" field
+
+    def projected_means(self):
+        return project_means(self.view.edit.base["means"], self.view.current_camera())
+
+    def rectangle_select(self, corner_a, corner_b) -> None:
+        pixels, _ = self.projected_means()
+        a = self.view.window_to_framebuffer(*corner_a)
+        b = self.view.window_to_framebuffer(*corner_b)
+        self.view.edit.select(select_rectangle(pixels, a, b), self.view.settings.selection_mode)
+
+    def lasso_select(self, points) -> None:
+        """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""
+        pixels, _ = self.projected_means()
+        polygon = np.array([self.view.window_to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
+        self.view.edit.select(select_lasso(pixels, polygon), self.view.settings.selection_mode)
+
+    def brush_select(self, x: float, y: float, stroke_start: bool = True) -> None:
+        """One dab of the brush; a drag's later dabs join its first one's undo step."""
+        settings = self.view.settings
+        pixels, _ = self.projected_means()
+        center = self.view.window_to_framebuffer(x, y)
+        mode = "add" if settings.selection_mode == "replace" else settings.selection_mode
+        self.view.edit.select(select_brush(pixels, center, settings.brush_radius), mode, record=stroke_start)
+
+    def threshold_select(self) -> None:
+        base, settings = self.view.edit.base, self.view.settings
+        mask = select_thresholds(base["opacity_logits"], base["log_scales"], settings.max_opacity,
+                                 settings.min_size)
+        self.view.edit.select(mask, settings.selection_mode)
+
+    def delete_selection(self) -> None:
+        if self.view.edit.delete_selected():
+            self.status.text = f"deleted; {self.view.edit.count} Gaussians left"
+
+    def undo(self) -> None:
+        self.view.edit.undo()
+
+    def redo(self) -> None:
+        self.view.edit.redo()
+
+    # --- the crop box --------------------------------------------------------------------------
+    def fit_crop_box(self) -> None:
+        """The crop box around the model's robust bounds (2-98 % of the shown means, 5 % margin)."""
+        means = self.view.edit.visible_arrays()["means"]
+        if len(means) == 0:
+            return
+        lo, hi = np.percentile(means, [2, 98], axis=0)
+        margin = 0.05 * (hi - lo)
+        self.view.settings.crop_min, self.view.settings.crop_max = (lo - margin).tolist(), (hi + margin).tolist()
+
+    def enable_crop(self, enabled: bool = True) -> None:
+        """Show the crop box; the first time, fitted to the model (not a fixed +-1)."""
+        settings = self.view.settings
+        if enabled and settings.crop_min is None:
+            self.fit_crop_box()
+        settings.crop_enabled = enabled and settings.crop_min is not None
+
+    def crop_handle_at(self, x: float, y: float) -> int | None:
+        """The crop-box handle (box_handles index) within CROP_HANDLE_PIXELS of window position
+        (x, y), nearest first; None when the box is hidden or none is that close."""
+        settings = self.view.settings
+        if not settings.crop_enabled:
+            return None
+        pixels, _ = project_means(box_handles(settings.crop_min, settings.crop_max), self.view.current_camera())
+        distance = np.hypot(*(pixels - np.array(self.view.window_to_framebuffer(x, y))).T)
+        distance = np.where(np.isnan(distance), np.inf, distance)
+        best = int(np.argmin(distance))
+        return best if distance[best] <= CROP_HANDLE_PIXELS else None
+
+    def drag_crop_handle(self, handle: int, start, end) -> None:
+        """Move a crop face by the mouse motion start -> end (window positions) projected on the
+        face's axis as the screen shows it."""
+        settings, view = self.view.settings, self.view
+        point = box_handles(settings.crop_min, settings.crop_max)[handle]
+        axis = np.eye(3)[handle // 2]
+        step = max(float(np.max(np.subtract(settings.crop_max, settings.crop_min))) * 0.01, 1e-6)
+        pixels, _ = project_means(np.stack([point, point + axis * step]), view.current_camera())
+        screen_axis = (pixels[1] - pixels[0]) / step  # pixels per scene unit along the axis
+        length2 = float(screen_axis @ screen_axis)
+        if not np.isfinite(length2) or length2 < 1e-9:
+            return  # the axis points at the eye: no screen direction to drag along
+        motion = np.subtract(view.window_to_framebuffer(*end), view.window_to_framebuffer(*start))
+        settings.crop_min, settings.crop_max = drag_box_face(
+            settings.crop_min, settings.crop_max, handle, float(motion @ screen_axis) / length2)
+
+    def apply_crop(self) -> None:
+        settings = self.view.settings
+        if self.view.edit.crop(np.array(settings.crop_min), np.array(settings.crop_max)):
+            self.status.text = f"cropped; {self.view.edit.count} Gaussians left"
+
+    # --- saving --------------------------------------------------------------------------------
+    def save_ply(self, path: str | Path) -> Path:
+        """Write the shown Gaussians (atomic). Models of a scene are stored in the scene's
+        original frame, like the trainer's model.ply."""
+        from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 (torch only when saving)
+        from inceptiongs.io.ply import write_ply  # noqa: PLC0415
+
+        source = self.view.source
+        scene = source.scene
+        path = Path(path).expanduser()
+        if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
+            raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
+                             f"save elsewhere (the default is the work folder {source.work_dir})")
+        gaussians = Gaussians.from_numpy(self.view.edit.visible_arrays())
+        if scene is not None:  # everything shown for a scene or run is in its normalised frame
+            gaussians = scene.normalization.gaussians_to_original(gaussians)
+        write_ply(gaussians, path)
+        self.status.text = f"saved {len(gaussians)} Gaussians to {path}"
+        return Path(path)

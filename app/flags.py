@@ -1,14 +1,20 @@
-"""Making flags in the viewer: names, the current view, a view aimed at a clicked point.
+"""Making flags in the viewer: names, the current view, a view aimed at a clicked point, and
+:class:`FlagBook`, the source's flags as the Flags panel edits them (kept in its flags.json).
 The flags.json format itself is the library's (:mod:`inceptiongs.io.flags`)."""
 
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from inceptiongs.camera import Camera, look_at
+from inceptiongs.errors import InputError
+from inceptiongs.io import flags as flag_io
 from inceptiongs.io.flags import Flag, now_iso
+
+from .coverage_mode import SUGGESTED_FLAGS
 
 
 def unique_flag_name(flags: list[Flag], prefix: str = "flag") -> str:
@@ -39,3 +45,78 @@ def flag_aimed_at(camera: Camera, target: np.ndarray, name: str) -> Flag:
     up = -camera.rotation[1]
     pose = look_at(camera.center, target, up)
     return Flag(name, camera.with_pose(pose, name=name), now_iso())
+
+
+class FlagBook:
+    """The open source's flags (items, saved to ``file`` after every change) and the one selected
+    in the Flags panel (-1: none). ``view``: the view.View whose camera flags are made from and
+    jumped to; ``status``: the status line."""
+
+    def __init__(self, file: Path, view, status) -> None:
+        self.file, self.view, self.status = Path(file), view, status
+        self.selected = -1
+        try:
+            self.items: list[Flag] = flag_io.load_flags(self.file)
+        except InputError as exc:
+            self.items, status.text = [], f"flags not loaded: {exc}"
+
+    def save(self) -> None:
+        flag_io.save_flags(self.file, self.items)
+
+    def flag_current_view(self) -> None:
+        name = unique_flag_name(self.items)
+        self.items.append(flag_camera(self.view.current_camera(), name))
+        self.save()
+        self.status.text = f"flagged the current view as {name!r}"
+
+    def flag_view_at_pixel(self, x: float, y: float) -> None:
+        point = self.view.pick_point(x, y)
+        if point is None:
+            self.status.text = "right-click: no surface under the cursor, nothing flagged"
+            return
+        name = unique_flag_name(self.items)
+        self.items.append(flag_aimed_at(self.view.current_camera(), point, name))
+        self.save()
+        self.status.text = f"flagged a view aimed at {np.round(point, 3).tolist()} as {name!r}"
+
+    def suggest(self, drawing, k: int | None = None) -> list[str]:
+        """Flag the k cameras whose content the other cameras see least (the coverage mode's
+        suggestion, drawing.FrameDrawer's coverage); returns the new flags' names."""
+        view = self.view
+        view.settings.mode, previous = "rgb", view.settings.mode
+        drawing.upload_model(view)  # depth of the model itself, not of its coverage colours
+        indices = drawing.coverage.suggest(view.edit.visible_arrays(), view.cameras, drawing.depth_of,
+                                           SUGGESTED_FLAGS if k is None else k)
+        view.settings.mode = previous
+        names = []
+        for index in indices:
+            name = unique_flag_name(self.items, prefix="scarce")
+            self.items.append(flag_camera(view.cameras[index], name))
+            names.append(name)
+        if names:
+            self.save()
+        self.status.text = (f"flagged the scarcest views: {', '.join(view.cameras[i].name for i in indices)}"
+                            if names else "no cameras to suggest flags from")
+        return names
+
+    def rename(self, index: int, name: str) -> None:
+        """Rename flag ``index``, unless another flag has that name (the bootstrap names its
+        targets and their files after the flags: two of one name would mix up)."""
+        if any(other.name == name for number, other in enumerate(self.items) if number != index):
+            self.status.text = f"not renamed: a flag named {name!r} exists"
+            return
+        flag = self.items[index]
+        self.items[index] = Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name), flag.created)
+        self.save()
+
+    def delete(self, index: int) -> None:
+        """Delete flag ``index``; the selection stays on the flag it was on (none if deleted)."""
+        del self.items[index]
+        if self.selected == index:
+            self.selected = -1
+        elif self.selected > index:
+            self.selected -= 1  # the selected flag moved up one row
+        self.save()
+
+    def jump_to(self, index: int) -> None:
+        self.view.look_from(self.items[index].camera)

@@ -2,7 +2,8 @@
 registered as the window's callbacks, so tests inject events exactly as GLFW delivers them.
 
 The controller keeps only input state (keys held, the drag in progress, the last click); what
-an event does is a public method of the viewer it is given."""
+an event does is a public method of the object it acts on: the viewer's view (camera, render
+settings), flags, editor, or the viewer itself (screenshot)."""
 
 from __future__ import annotations
 
@@ -57,35 +58,40 @@ class InputController:
             self.keys_down.add(key)
         if action != glfw.PRESS:
             return
-        ctrl = bool(mods & glfw.MOD_CONTROL)
+        self.key_pressed(key, bool(mods & glfw.MOD_CONTROL))
+
+    def key_pressed(self, key: int, ctrl: bool) -> None:
+        """What a key press does (KEY_BINDINGS), once the panel has not taken it."""
+        viewer = self.viewer
+        view, settings, editor = viewer.view, viewer.view.settings, viewer.editor
         if key == glfw.KEY_F and not ctrl:
-            viewer.flag_current_view()
+            viewer.flags.flag_current_view()
         elif key == glfw.KEY_Z and ctrl:
-            viewer.undo()
+            editor.undo()
         elif key == glfw.KEY_Y and ctrl:
-            viewer.redo()
+            editor.redo()
         elif key == glfw.KEY_DELETE:
-            viewer.delete_selection()
+            editor.delete_selection()
         elif key == glfw.KEY_N or key == glfw.KEY_PAGE_DOWN:
-            viewer.snap_to_camera(viewer.camera_index + 1)
+            view.snap_to_camera(view.camera_index + 1)
         elif key == glfw.KEY_P or key == glfw.KEY_PAGE_UP:
-            viewer.snap_to_camera(viewer.camera_index - 1)
+            view.snap_to_camera(view.camera_index - 1)
         elif key == glfw.KEY_R and not ctrl:
-            viewer.reset_view()
+            view.reset_view()
         elif key == glfw.KEY_HOME:
-            viewer.frame_model()
+            view.frame_model()
         elif key == glfw.KEY_TAB:
-            viewer.settings.show_panel = not viewer.settings.show_panel
+            settings.show_panel = not settings.show_panel
         elif key in (glfw.KEY_H, glfw.KEY_F1):
-            viewer.show_help = not viewer.show_help
+            viewer.ui.show_help = not viewer.ui.show_help
         elif key == glfw.KEY_T:
-            viewer.settings.show_training_cameras = not viewer.settings.show_training_cameras
+            settings.show_training_cameras = not settings.show_training_cameras
         elif key == glfw.KEY_O:
-            viewer.settings.orbit = not viewer.settings.orbit
+            settings.orbit = not settings.orbit
         elif key == glfw.KEY_F12:
             viewer.save_screenshot()
         elif glfw.KEY_1 <= key <= glfw.KEY_1 + len(RENDER_MODES) - 1:
-            viewer.settings.mode = RENDER_MODES[key - glfw.KEY_1]
+            settings.mode = RENDER_MODES[key - glfw.KEY_1]
 
     def on_char(self, window, codepoint) -> None:
         self.last_event = time.perf_counter()
@@ -99,11 +105,12 @@ class InputController:
             viewer.imgui_impl.scroll_callback(window, x_offset, y_offset)
         if ui_wants_mouse(viewer.imgui_impl):
             return
-        if viewer.settings.orbit:
-            viewer.nav.zoom(y_offset)
+        view = viewer.view
+        if view.settings.orbit:
+            view.nav.zoom(y_offset)
         else:
-            viewer.nav.scale_speed(y_offset)
-        viewer.moved()
+            view.nav.scale_speed(y_offset)
+        view.moved()
 
     def on_cursor(self, window, x, y) -> None:
         self.last_event = time.perf_counter()
@@ -114,27 +121,28 @@ class InputController:
         if previous is None or self.dragging_button is None:
             return
         dx, dy = x - previous[0], y - previous[1]
+        view, editor = viewer.view, viewer.editor
         if self.dragging_button == glfw.MOUSE_BUTTON_LEFT:
-            tool = viewer.settings.edit_tool
+            tool = view.settings.edit_tool
             if self.crop_handle is not None:
-                viewer.drag_crop_handle(self.crop_handle, previous, (x, y))
+                editor.drag_crop_handle(self.crop_handle, previous, (x, y))
             elif tool == "brush":
-                viewer.brush_select(x, y, stroke_start=False)
+                editor.brush_select(x, y, stroke_start=False)
             elif tool == "rectangle":
                 pass  # the rectangle is applied on release (the panels draw it meanwhile)
             elif tool == "lasso":
                 last = self.lasso[-1] if self.lasso else (math.inf, math.inf)
                 if math.hypot(x - last[0], y - last[1]) >= LASSO_STEP_PIXELS:
                     self.lasso.append((x, y))
-            elif viewer.settings.orbit:
-                viewer.nav.orbit(dx, dy)
-                viewer.moved()
+            elif view.settings.orbit:
+                view.nav.orbit(dx, dy)
+                view.moved()
             else:
-                viewer.nav.look(dx, dy)
-                viewer.moved()
+                view.nav.look(dx, dy)
+                view.moved()
         elif self.dragging_button == glfw.MOUSE_BUTTON_MIDDLE:
-            viewer.nav.fly(np.array([-dx, -dy, 0.0]), seconds=0.01)
-            viewer.moved()
+            view.nav.fly(np.array([-dx, -dy, 0.0]), seconds=0.01)
+            view.moved()
 
     def on_mouse_button(self, window, button, action, mods) -> None:
         self.last_event = time.perf_counter()
@@ -142,13 +150,14 @@ class InputController:
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.io.add_mouse_button_event(button, action == glfw.PRESS)
         x, y = glfw.get_cursor_pos(window) if self.last_cursor is None else self.last_cursor
+        view, editor = viewer.view, viewer.editor
         if action == glfw.RELEASE:
             if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None
                     and self.crop_handle is None):
-                if viewer.settings.edit_tool == "rectangle":
-                    viewer.rectangle_select(self.drag_start, (x, y))
-                elif viewer.settings.edit_tool == "lasso":
-                    viewer.lasso_select(self.lasso + [(x, y)])
+                if view.settings.edit_tool == "rectangle":
+                    editor.rectangle_select(self.drag_start, (x, y))
+                elif view.settings.edit_tool == "lasso":
+                    editor.lasso_select(self.lasso + [(x, y)])
             self.lasso = []
             self.crop_handle = None
             self.dragging_button = None
@@ -157,22 +166,22 @@ class InputController:
             return
         self.last_cursor = (x, y)
         if button == glfw.MOUSE_BUTTON_RIGHT:
-            viewer.flag_view_at_pixel(x, y)
+            viewer.flags.flag_view_at_pixel(x, y)
             return
         self.dragging_button = button
         self.drag_start = (x, y)
         if button == glfw.MOUSE_BUTTON_LEFT:
-            self.crop_handle = viewer.crop_handle_at(x, y)  # a handle wins over tools and looking
+            self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:
                 return
             then, px, py = self.last_click
             now = time.perf_counter()
             if now - then < DOUBLE_CLICK_SECONDS and math.hypot(x - px, y - py) < DOUBLE_CLICK_PIXELS:
-                viewer.set_pivot_at_pixel(x, y)
+                view.set_pivot_at_pixel(x, y)
                 now = -1e9  # a third click starts a new pair
-            elif viewer.settings.edit_tool == "brush":
-                viewer.brush_select(x, y)
-            elif viewer.settings.edit_tool == "lasso":
+            elif view.settings.edit_tool == "brush":
+                editor.brush_select(x, y)
+            elif view.settings.edit_tool == "lasso":
                 self.lasso = [(x, y)]
             self.last_click = (now, x, y)
 
@@ -187,5 +196,5 @@ class InputController:
         ], np.float64)
         if np.any(direction):
             boost = 4.0 if (glfw.KEY_LEFT_SHIFT in keys or glfw.KEY_RIGHT_SHIFT in keys) else 1.0
-            self.viewer.nav.fly(direction, seconds, boost)
-            self.viewer.moved()
+            self.viewer.view.nav.fly(direction, seconds, boost)
+            self.viewer.view.moved()

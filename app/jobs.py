@@ -1,22 +1,31 @@
 """The jobs the viewer runs on a thread, built from the job dialog's settings: stage-I training
 of the scene into a fresh run folder, "Resume" of the open run from its newest checkpoint, and
 stage-II bootstrapping of the flagged views into a fresh folder beside the run (app/runs.py).
-Built when the user presses the button, so flags made during the session count."""
+Built when the user presses the button, so flags made since the viewer opened count.
+:class:`Jobs` is the Training panel's object: the live job, its hand-off and the open run."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from inceptiongs.errors import InputError
+from inceptiongs.train.view_fit import read_poorly_fit
 
-from .runs import new_bootstrap_dir, new_train_dir, resume_blocked_reason
+from .live_training import LiveTraining
+from .progress import closing_line, final_scores, format_duration, plan_of
+from .runs import describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of
+from .sources import open_scene_run
 
 # The dialog's "schedule iterations" when the schedule is sized to the time budget, as
 # `inceptiongs train --minutes M` without --iterations (a typed length is a fixed schedule).
 SIZED_TO_BUDGET = 0
+# While a job trains, its snapshots replace the model at most this often: each one costs a
+# re-render, and the job publishes faster than software GL can draw them.
+TRAINING_REFRESH_SECONDS = 0.3
 # The viewer's jobs evaluate the held-out views this often (the command lines: every 500 steps
 # for stage I, only per round for stage II), so the panel's PSNR curve has points within a
 # few-minute budget. Evaluation time does not count against the training budget.
@@ -114,16 +123,185 @@ def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
                         config=config or BootstrapConfig())
 
 
-def start_bootstrap(viewer, config=None) -> None:
-    """The viewer's "Bootstrap" action: stage II on the flagged views of the open run as the
-    live job (config: default the job dialog's settings)."""
-    if viewer.training is not None and viewer.training.alive:
-        viewer.status = "a job is running: stop it before bootstrapping"
-        return
-    try:
-        job = bootstrap_job_for(viewer.run_dir, viewer.flags_file, config or viewer.job_settings.bootstrap_config())
-    except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
-        viewer.status = f"bootstrap could not start: {exc}"
-        return
-    viewer.start_job(job, job.out_dir, f"bootstrapping {len(viewer.flags)} flagged view(s) of {job.run_dir}")
+class Jobs:
+    """The viewer's job: the dialog's settings, the live job (training: a LiveTraining, None
+    before the first), the open run (what Resume continues and Bootstrap repairs) with the
+    training photos it fits poorly, and the hand-off of the job's snapshots to the view.
 
+    ``view``: the view.View whose model the job's snapshots replace; ``flags``: the
+    flags.FlagBook the bootstrap repairs; ``status``: the status line; ``retitle``: called when
+    what the window title names changes (window_title); ``factory``: source -> job for "train"
+    (None: the dialog's stage-I training)."""
+
+    def __init__(self, view, flags, status, retitle, factory=None) -> None:
+        self.view, self.flags, self.status, self.retitle = view, flags, status, retitle
+        self.factory = factory
+        self.settings = JobSettings()
+        self.training: LiveTraining | None = None
+        self.run_dir = run_dir_of(view.source)  # the open run: what Resume continues, Bootstrap repairs
+        # The open run's training photos it fits poorly (image name -> PSNR, worst first): their
+        # frustums are drawn apart and the Training panel steps through them.
+        self.poorly_fit: dict[str, float] = {}
+        self.poorly_fit_shown = -1  # which of them "next poorly fit photo" went to last
+        self.out_dir: Path | None = None  # where the current (or last) job writes
+        self.reported = False  # the closing line of the last job has replaced the status
+        self.fold_settings = False  # panels.py closes the job dialog once a job has started
+        self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
+        self.title_state: str | None = None  # the job state the window title names
+        # While a job trains, the share of the time the viewer leaves to it: after a frame that
+        # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
+        # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
+        self.training_utilisation = 0.95
+        self.read_view_fit()
+
+    @property
+    def alive(self) -> bool:
+        """A job has started and not ended (paused counts)."""
+        return self.training is not None and self.training.alive
+
+    def running(self) -> bool:
+        """A job is training now (started, not paused, not ended)."""
+        return self.alive and not self.training.control.pause.is_set()
+
+    def window_title(self) -> str:
+        """The window's title: the model shown, the file or the job folder it comes from."""
+        if self.training is not None and self.out_dir is not None:
+            shown = f"{self.out_dir} ({self.training.state})"
+        else:
+            shown = describe_model(self.view.source, self.run_dir)
+        self.title_state = None if self.training is None else self.training.state
+        return f"InceptionGS — {shown}"
+
+    # --- starting --------------------------------------------------------------------------------
+    def start_training(self) -> None:
+        """A new stage-I run (the job dialog's settings) in a fresh run folder."""
+        if self.alive:
+            return
+        try:
+            job = (self.factory(self.view.source) if self.factory is not None
+                   else train_job_for(self.view.source, self.settings))
+        except Exception as exc:  # noqa: BLE001 - a job that cannot be built is shown, not fatal
+            self.status.text = f"training could not start: {type(exc).__name__}: {exc}"
+            return
+        out_dir = getattr(job, "run_dir", None)
+        self.start_job(job, out_dir, f"training into {out_dir}" if out_dir else "training")
+
+    def resume_training(self) -> None:
+        """Continue the open run from its newest checkpoint."""
+        if self.alive:
+            return
+        try:
+            job = resume_job_for(self.run_dir, self.settings)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line
+            self.status.text = f"resume could not start: {exc}"
+            return
+        self.start_job(job, job.run_dir, f"resuming {job.run_dir}")
+
+    def start_bootstrap(self, config=None) -> None:
+        """Stage II on the flagged views of the open run as the live job (config: default the job
+        dialog's settings)."""
+        if self.alive:
+            self.status.text = "a job is running: stop it before bootstrapping"
+            return
+        try:
+            job = bootstrap_job_for(self.run_dir, self.flags.file, config or self.settings.bootstrap_config())
+        except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
+            self.status.text = f"bootstrap could not start: {exc}"
+            return
+        self.start_job(job, job.out_dir, f"bootstrapping {len(self.flags.items)} flagged view(s) of {job.run_dir}")
+
+    def start_job(self, job, out_dir: Path | None, message: str) -> None:
+        """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
+        self.training = LiveTraining(job, plan=plan_of(job))
+        self.training.start()
+        self.fold_settings = True  # the dialog closes: the job's progress is what to watch
+        self.reported = False
+        self.out_dir = Path(out_dir) if out_dir is not None else None
+        source = self.view.source
+        if self.out_dir is not None:
+            self.run_dir = self.out_dir
+            if source.kind == "scene" and self.out_dir not in source.runs:
+                source.runs.append(self.out_dir)  # the panel's list of the scene's runs
+        self.status.text = message
+        self.retitle()
+
+    # --- while it runs ---------------------------------------------------------------------------
+    def take_snapshot(self) -> None:
+        """Once a frame: the job's newest model replaces the shown one (throttled), and the
+        closing line replaces the status once the job has ended."""
+        run = self.training
+        if run is None:
+            return
+        if run.state != self.title_state:
+            self.retitle()  # running -> paused -> finished shows in the title
+        run.refresh_scores()
+        run.refresh_plan()  # the end of a schedule the trainer re-sized to its budget
+        now = time.perf_counter()
+        # Throttled while the job runs; once it has ended its last snapshot is taken at once.
+        if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and run.alive:
+            return
+        ended = not run.alive  # read before the poll: the job's last publish is then in
+        gaussians = run.poll_gaussians()
+        if gaussians is not None:
+            self.last_snapshot_time = now
+            self.view.show_model(gaussians)
+        if ended and not self.reported:
+            self.report_job_end()
+
+    def report_job_end(self) -> None:
+        """Replace the running status with the closing line: time, iteration, final scores."""
+        run = self.training
+        run.refresh_scores(force=True)
+        run.refresh_plan()
+        self.reported = True
+        if run.error:
+            self.status.text = f"{run.plan.kind} failed after {format_duration(run.elapsed_s)}: {run.error}"
+            return
+        self.status.text = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
+                                        final_scores(run.progress.psnr), self.out_dir)
+        if self.out_dir is not None and self.out_dir == self.run_dir:
+            self.read_view_fit()  # a finished run has just written its report
+
+    # --- the scene's runs --------------------------------------------------------------------------
+    def open_run(self, run_dir: Path) -> None:
+        """Show another run of the open scene (the Training panel's list): its model replaces the
+        shown one, and it becomes the open run (Resume, Bootstrap). Not while a job runs."""
+        if self.alive:
+            self.status.text = "a job is running: stop it before opening another run"
+            return
+        source = self.view.source
+        try:
+            opened = open_scene_run(source.path, source.work_dir, source.runs, Path(run_dir))
+        except (InputError, OSError) as exc:
+            self.status.text = f"run not opened: {exc}"
+            return
+        self.training, self.out_dir = None, None
+        self.view.show_source(opened)
+        self.run_dir = run_dir_of(opened)
+        self.status.text = f"opened run {run_dir}"
+        self.read_view_fit()
+        self.retitle()
+        self.view.moved()
+
+    def read_view_fit(self) -> None:
+        """The open run's poorly fit training photos (RUN/view_fit.json; none without one)."""
+        self.poorly_fit, self.poorly_fit_shown = {}, -1
+        if self.run_dir is None:
+            return
+        try:
+            self.poorly_fit = read_poorly_fit(self.run_dir)
+        except InputError as exc:
+            self.status.text = f"photo fit report not read: {exc}"
+
+    def next_poorly_fit_photo(self) -> None:
+        """Stand at the next poorly fit training photo's camera (worst first, then around)."""
+        view = self.view
+        indices = {camera.name: i for i, camera in enumerate(view.cameras)}
+        names = [name for name in self.poorly_fit if name in indices]
+        if not names:
+            return
+        self.poorly_fit_shown = (self.poorly_fit_shown + 1) % len(names)
+        name = names[self.poorly_fit_shown]
+        view.snap_to_camera(indices[name])
+        self.status.text = (f"{name}: training photo {self.poorly_fit_shown + 1} of {len(names)} the model fits "
+                            f"poorly ({self.poorly_fit[name]:.1f} dB)")

@@ -1,5 +1,7 @@
-"""The imgui panels: view, inspect, flags, training, edit. Each panel reads and changes the
-Viewer's state through its public methods; nothing here owns state of its own."""
+"""The imgui panels: view, inspect, flags, training, edit. Each panel reads and changes the one
+object it edits (view.View, flags.FlagBook, jobs.Jobs, editing.Editor) through its public
+methods; draw_panels hands each its object. What the panels remember between frames (widget
+rectangles, the help overlay) is the viewer's settings.PanelState, passed as ``ui``."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ import numpy as np
 from imgui_bundle import imgui, implot
 
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
-from .jobs import SIZED_TO_BUDGET, start_bootstrap
+from .jobs import SIZED_TO_BUDGET
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
@@ -31,10 +33,10 @@ PLOTS = (("training loss", "loss", ("loss", "l1")),
          ("Gaussians", "count", ("num_gaussians",)))
 
 
-def draw_tool_feedback(viewer) -> None:
+def draw_tool_feedback(view, controls) -> None:
     """What the edit tool will select, drawn over the scene: the rectangle being dragged, the
-    brush circle at the cursor, the lasso's path."""
-    tool, controls = viewer.settings.edit_tool, viewer.input
+    brush circle at the cursor, the lasso's path. controls: the input.InputController."""
+    tool = view.settings.edit_tool
     cursor = controls.last_cursor
     if tool == "none" or cursor is None:
         return
@@ -47,8 +49,8 @@ def draw_tool_feedback(viewer) -> None:
                       0.0, TOOL_LINE_WIDTH)
     elif tool == "brush":
         # The brush radius is in framebuffer pixels; the cursor in window pixels.
-        scale = viewer.window_to_framebuffer(1.0, 1.0)[0]
-        draw.add_circle(imgui.ImVec2(*cursor), viewer.settings.brush_radius / max(scale, 1e-6), color, 0,
+        scale = view.window_to_framebuffer(1.0, 1.0)[0]
+        draw.add_circle(imgui.ImVec2(*cursor), view.settings.brush_radius / max(scale, 1e-6), color, 0,
                         TOOL_LINE_WIDTH)
     elif tool == "lasso" and dragging and controls.lasso:
         points = [imgui.ImVec2(x, y) for x, y in controls.lasso + [cursor]]
@@ -64,38 +66,39 @@ def draw_panels(viewer) -> None:
         imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
         imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
-    draw_tool_feedback(viewer)
-    if not viewer.settings.show_panel:  # Tab hid it: the scene and the tools' outlines only
-        if viewer.show_help:
-            _help(viewer)
+    view, ui = viewer.view, viewer.ui
+    draw_tool_feedback(view, viewer.input)
+    if not view.settings.show_panel:  # Tab hid it: the scene and the tools' outlines only
+        if ui.show_help:
+            _help(ui)
         return
     imgui.begin("InceptionGS")
-    _stats(viewer)
+    _stats(viewer.stats, view.edit, viewer.last_gl_error)
     if imgui.small_button("keys and mouse (H)"):
-        viewer.show_help = not viewer.show_help
-    if _header(viewer, "View", imgui.TreeNodeFlags_.default_open):
-        _view(viewer)
-    if _header(viewer, "Inspect", imgui.TreeNodeFlags_.default_open):
-        _inspect(viewer)
-    if _header(viewer, "Flags", imgui.TreeNodeFlags_.default_open):
-        _flags(viewer)
-    if _header(viewer, "Training", imgui.TreeNodeFlags_.default_open):
-        _training(viewer)
-    if _header(viewer, "Edit"):
-        _edit(viewer)
-    if viewer.status:
+        ui.show_help = not ui.show_help
+    if _header(ui, "View", imgui.TreeNodeFlags_.default_open) and _view(ui, view):
+        viewer.save_screenshot()
+    if _header(ui, "Inspect", imgui.TreeNodeFlags_.default_open) and _inspect(ui, view, viewer.drawing):
+        viewer.flags.suggest(viewer.drawing)
+    if _header(ui, "Flags", imgui.TreeNodeFlags_.default_open):
+        _flags(ui, viewer.flags)
+    if _header(ui, "Training", imgui.TreeNodeFlags_.default_open):
+        _training(ui, viewer.jobs)
+    if _header(ui, "Edit"):
+        _edit(ui, viewer.editor)
+    if viewer.status_line.text:
         imgui.separator()
-        imgui.text_wrapped(viewer.status)
-    viewer.panel_layout = _layout()
+        imgui.text_wrapped(viewer.status_line.text)
+    ui.layout = _layout()
     imgui.end()
-    if viewer.show_help:
-        _help(viewer)
+    if ui.show_help:
+        _help(ui)
 
 
-def _header(viewer, label: str, flags: int = 0) -> bool:
+def _header(ui, label: str, flags: int = 0) -> bool:
     """imgui.collapsing_header, its rectangle kept under its label (a test opens it with a click)."""
     opened = imgui.collapsing_header(label, flags)
-    _remember(viewer, label)
+    _remember(ui, label)
     return opened
 
 
@@ -110,12 +113,12 @@ def _layout() -> dict:
             "content_right": window.dc.cursor_max_pos.x}
 
 
-def _help(viewer) -> None:
+def _help(ui) -> None:
     """The key bindings, over the middle of the window (H / F1 or its close button hides it)."""
     width, height = imgui.get_io().display_size
     imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(0.92)
-    opened, viewer.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
+    opened, ui.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
     if opened:
         if imgui.begin_table("bindings", 2):
             for keys, action in KEY_BINDINGS:
@@ -128,11 +131,11 @@ def _help(viewer) -> None:
     imgui.end()
 
 
-def _button(viewer, label: str) -> bool:
-    """imgui.button, its window rectangle kept in viewer.ui_rects[label] (x0, y0, x1, y1): a
+def _button(ui, label: str) -> bool:
+    """imgui.button, its window rectangle kept in ui.rects[label] (x0, y0, x1, y1): a
     test clicks it there with mouse events as GLFW delivers them."""
     pressed = imgui.button(label)
-    _remember(viewer, label)
+    _remember(ui, label)
     return pressed
 
 
@@ -154,31 +157,31 @@ def _same_line_if_fits(label: str) -> None:
         imgui.same_line()
 
 
-def _combo(viewer, label: str, current: int, items: list) -> tuple[bool, int]:
+def _combo(ui, label: str, current: int, items: list) -> tuple[bool, int]:
     """imgui.combo sized by _fit, its frame kept under ``label`` and, while open, each choice under
     "label/choice" (_remember): a test opens it and picks a choice with mouse clicks as a user
     does. -> (changed, chosen index)."""
     _fit(label)
     items = [str(item) for item in items]
     opened = imgui.begin_combo(label, items[current] if 0 <= current < len(items) else "")
-    _remember(viewer, label)
+    _remember(ui, label)
     changed, chosen = False, current
     if opened:
         for index, item in enumerate(items):
             imgui.push_id(index)
             if imgui.selectable(item, index == current)[0]:
                 changed, chosen = index != current, index
-            _remember(viewer, f"{label}/{item}")
+            _remember(ui, f"{label}/{item}")
             imgui.pop_id()
         imgui.end_combo()
     return changed, chosen
 
 
-def _remember(viewer, label: str) -> None:
-    """Keep the last widget's window rectangle in viewer.ui_rects[label] (x0, y0, x1, y1); for a
+def _remember(ui, label: str) -> None:
+    """Keep the last widget's window rectangle in ui.rects[label] (x0, y0, x1, y1); for a
     field with +/- buttons it spans field, buttons and label, the field at its left end."""
     low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
-    viewer.ui_rects[label] = (low.x, low.y, high.x, high.y)
+    ui.rects[label] = (low.x, low.y, high.x, high.y)
 
 
 def _hint(text: str) -> None:
@@ -188,84 +191,87 @@ def _hint(text: str) -> None:
     imgui.pop_text_wrap_pos()
 
 
-def _stats(viewer) -> None:
-    s = viewer.stats
+def _stats(s, edit, gl_error: str | None) -> None:
+    """The frame statistics (settings.FrameStats), the model's size, a GL error if one came."""
     imgui.text_wrapped(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  "
                        f"draw {s.draw_ms:5.1f} ms")
-    imgui.text_wrapped(f"{viewer.edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
-    if viewer.last_gl_error:
-        imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {viewer.last_gl_error}")
+    imgui.text_wrapped(f"{edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+    if gl_error:
+        imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {gl_error}")
 
 
-def _view(viewer) -> None:
-    nav = viewer.nav
+def _view(ui, view) -> bool:
+    """Camera, overlays, world up, training cameras; True when "screenshot" was pressed."""
+    nav = view.nav
     _fit("field of view")
     changed, fov = imgui.slider_float("field of view", nav.fov_y_deg, 5.0, 150.0)
     if changed:
         nav.set_fov(fov)
-        viewer.moved()
-    _, viewer.settings.orbit = imgui.checkbox("orbit (O; double-click sets the pivot)", viewer.settings.orbit)
-    _, viewer.settings.show_training_cameras = imgui.checkbox("training cameras (T)",
-                                                              viewer.settings.show_training_cameras)
+        view.moved()
+    _, view.settings.orbit = imgui.checkbox("orbit (O; double-click sets the pivot)", view.settings.orbit)
+    _, view.settings.show_training_cameras = imgui.checkbox("training cameras (T)",
+                                                            view.settings.show_training_cameras)
     imgui.same_line()
-    _, viewer.settings.show_flags = imgui.checkbox("flags", viewer.settings.show_flags)
+    _, view.settings.show_flags = imgui.checkbox("flags", view.settings.show_flags)
     imgui.text(f"speed {nav.speed:.3g} (scroll; Shift x4)")
     names = list(UP_AXES)
-    current = up_axis_name(viewer.up)
-    labels = names if current is not None else names + [up_label(viewer.up)]
-    changed, index = _combo(viewer, f"up, {viewer.up_source}", names.index(current) if current else len(names),
+    current = up_axis_name(view.up)
+    labels = names if current is not None else names + [up_label(view.up)]
+    changed, index = _combo(ui, f"up, {view.up_source}", names.index(current) if current else len(names),
                             labels)
     if changed and index < len(names):
-        viewer.set_up(UP_AXES[names[index]])
-    if _button(viewer, "frame the model (Home)"):
-        viewer.frame_model()
+        view.set_up(UP_AXES[names[index]])
+    if _button(ui, "frame the model (Home)"):
+        view.frame_model()
     _same_line_if_fits("reset view (R)")
-    if _button(viewer, "reset view (R)"):
-        viewer.reset_view()
-    if viewer.cameras:
+    if _button(ui, "reset view (R)"):
+        view.reset_view()
+    if view.cameras:
         _same_line_if_fits("< prev (P)")
-        if _button(viewer, "< prev (P)"):
-            viewer.snap_to_camera(viewer.camera_index - 1)
+        if _button(ui, "< prev (P)"):
+            view.snap_to_camera(view.camera_index - 1)
         _same_line_if_fits("next (N) >")
-        if _button(viewer, "next (N) >"):
-            viewer.snap_to_camera(viewer.camera_index + 1)
-        names = [c.name for c in viewer.cameras]
-        changed, index = _combo(viewer, "camera", max(viewer.camera_index, 0), names)
+        if _button(ui, "next (N) >"):
+            view.snap_to_camera(view.camera_index + 1)
+        names = [c.name for c in view.cameras]
+        changed, index = _combo(ui, "camera", max(view.camera_index, 0), names)
         if changed:
-            viewer.snap_to_camera(index)
-    if _button(viewer, "screenshot (F12)"):
-        viewer.save_screenshot()
+            view.snap_to_camera(index)
+    return _button(ui, "screenshot (F12)")
 
 
-def _inspect(viewer) -> None:
-    settings = viewer.settings
-    changed, index = _combo(viewer, f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
+def _inspect(ui, view, drawing) -> bool:
+    """Render mode, the reference comparison (drawing: the FrameDrawer), training photo, SH cap
+    and splat scale; True when the coverage mode's "suggest flags" was pressed."""
+    settings = view.settings
+    suggest = False
+    changed, index = _combo(ui, f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
                             list(RENDER_MODES))
     if changed:
         settings.mode = RENDER_MODES[index]
     if settings.mode == "coverage":
-        _coverage(viewer)
+        suggest = _coverage(ui, drawing.coverage)
     if settings.mode == "reference":
         views = ["heat-map", "side by side"]
-        changed, index = _combo(viewer, "show", views.index(settings.reference_view), views)
+        changed, index = _combo(ui, "show", views.index(settings.reference_view), views)
         if changed:
             settings.reference_view = views[index]
-        worker = viewer.drawing.reference
+        worker = drawing.reference
         if worker is not None and worker.error:
             imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"reference failed: {worker.error}")
-        elif viewer.drawing.reference_psnr is not None:
-            imgui.text(f"GL vs torch PSNR {viewer.drawing.reference_psnr:.2f} dB"
+        elif drawing.reference_psnr is not None:
+            imgui.text(f"GL vs torch PSNR {drawing.reference_psnr:.2f} dB"
                        + (" (updating...)" if worker is not None and worker.busy else ""))
         else:
             imgui.text("torch reference rendering...")
-    if viewer.cameras and viewer.source.scene is not None:
+    if view.cameras and view.source.scene is not None:
         views = list(PHOTO_VIEWS)
-        changed, index = _combo(viewer, "training photo", views.index(settings.photo), views)
+        changed, index = _combo(ui, "training photo", views.index(settings.photo), views)
         if changed:
             settings.photo = views[index]
         if settings.photo != "off":
-            nearest = viewer.nearest_camera_index(viewer.current_camera())
-            _hint(f"nearest training camera: {viewer.cameras[nearest].name}")
+            nearest = view.nearest_camera_index(view.current_camera())
+            _hint(f"nearest training camera: {view.cameras[nearest].name}")
             if settings.photo == "blended":
                 _fit("photo weight")
                 _, settings.photo_alpha = imgui.slider_float("photo weight", settings.photo_alpha, 0.0, 1.0)
@@ -274,191 +280,193 @@ def _inspect(viewer) -> None:
     _fit("splat scale")
     _, settings.splat_scale = imgui.slider_float("splat scale", settings.splat_scale, 0.05, 2.0)
     settings.splat_scale = max(settings.splat_scale, 0.05)
+    return suggest
 
 
-def _coverage(viewer) -> None:
-    """Colour bar of the coverage mode and the flag suggestion."""
+def _coverage(ui, coverage) -> bool:
+    """Colour bar of the coverage mode (coverage_mode.CoverageMode); True when its flag
+    suggestion was asked for."""
     from inceptiongs.evaluation.coverage import ramp_colours
 
-    vmax = viewer.coverage.vmax
+    vmax = coverage.vmax
     imgui.text(f"views seeing each splat: 0 (dark) .. {vmax:.0f}+ (bright)")
     for step, colour in enumerate(ramp_colours(np.linspace(0, vmax, 6), vmax)):
         imgui.color_button(f"##bar{step}", imgui.ImVec4(*colour.tolist(), 1.0), 0, imgui.ImVec2(24, 12))
         imgui.same_line(0, 0)
     imgui.new_line()
-    if _button(viewer, "suggest flags (the 3 scarcest views)"):
-        viewer.suggest_flags()
+    return _button(ui, "suggest flags (the 3 scarcest views)")
 
 
-def _flags(viewer) -> None:
-    if _button(viewer, "flag this view (F)"):
-        viewer.flag_current_view()
+def _flags(ui, flags) -> None:
+    """The flags (flags.FlagBook): flag this view, each flag's row (go, delete), rename."""
+    if _button(ui, "flag this view (F)"):
+        flags.flag_current_view()
     _hint("right-click: flag a view aimed at the point")
-    _hint(str(viewer.flags_file))
+    _hint(str(flags.file))
     # Each row's widgets are kept under "flag N/name", "flag N/go", "flag N/delete" (N from 1).
-    for index, flag in enumerate(list(viewer.flags)):
+    for index, flag in enumerate(list(flags.items)):
         imgui.push_id(f"flag{index}")
         row = f"flag {index + 1}"
-        if imgui.selectable(flag.name, viewer.selected_flag == index, size=imgui.ImVec2(140, 0))[0]:
-            viewer.selected_flag = index
-        _remember(viewer, f"{row}/name")
+        if imgui.selectable(flag.name, flags.selected == index, size=imgui.ImVec2(140, 0))[0]:
+            flags.selected = index
+        _remember(ui, f"{row}/name")
         imgui.same_line()
         go = imgui.small_button("go")
-        _remember(viewer, f"{row}/go")
+        _remember(ui, f"{row}/go")
         if go:
-            viewer.jump_to_flag(index)
+            flags.jump_to(index)
         imgui.same_line()
         delete = imgui.small_button("delete")
-        _remember(viewer, f"{row}/delete")
+        _remember(ui, f"{row}/delete")
         if delete:
-            viewer.delete_flag(index)
+            flags.delete(index)
             imgui.pop_id()
             break
         imgui.pop_id()
-    if 0 <= viewer.selected_flag < len(viewer.flags):
-        flag = viewer.flags[viewer.selected_flag]
+    if 0 <= flags.selected < len(flags.items):
+        flag = flags.items[flags.selected]
         _fit("rename")
         changed, name = imgui.input_text("rename", flag.name, imgui.InputTextFlags_.enter_returns_true)
-        _remember(viewer, "rename")
+        _remember(ui, "rename")
         if changed and name.strip():
-            viewer.rename_flag(viewer.selected_flag, name.strip())
+            flags.rename(flags.selected, name.strip())
 
 
-def _training(viewer) -> None:
-    run = viewer.training
-    imgui.text_wrapped(f"open run: {viewer.run_dir or '(none: train first)'}")
-    _runs(viewer)
-    _poorly_fit(viewer)
+def _training(ui, jobs) -> None:
+    """The open run, the scene's runs, the job dialog and buttons, the live job (jobs.Jobs)."""
+    run = jobs.training
+    imgui.text_wrapped(f"open run: {jobs.run_dir or '(none: train first)'}")
+    _runs(ui, jobs)
+    _poorly_fit(ui, jobs)
     if run is None or not run.alive:
-        _job_settings(viewer)
-        if _button(viewer, "train (new run)"):
-            viewer.start_training()
-        blocked = resume_blocked_reason(viewer.run_dir)
-        if can_resume(viewer.run_dir) or blocked is not None:
+        _job_settings(ui, jobs)
+        if _button(ui, "train (new run)"):
+            jobs.start_training()
+        blocked = resume_blocked_reason(jobs.run_dir)
+        if can_resume(jobs.run_dir) or blocked is not None:
             _same_line_if_fits("resume")
             imgui.begin_disabled(blocked is not None)  # shown, greyed, with the reason: not hidden
-            if _button(viewer, "resume"):
-                viewer.resume_training()
+            if _button(ui, "resume"):
+                jobs.resume_training()
             imgui.end_disabled()
             if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
                 imgui.set_tooltip(blocked)
         _same_line_if_fits("Bootstrap flagged views")
-        if _button(viewer, "Bootstrap flagged views"):
-            start_bootstrap(viewer)
+        if _button(ui, "Bootstrap flagged views"):
+            jobs.start_bootstrap()
         if blocked is not None:
             _hint(f"no resume here: {blocked}")
-            _remember(viewer, "why no resume")
+            _remember(ui, "why no resume")
     else:
         if run.control.pause.is_set():
-            if _button(viewer, "continue"):
+            if _button(ui, "continue"):
                 run.resume()
-        elif _button(viewer, "pause"):
+        elif _button(ui, "pause"):
             run.pause()
         _same_line_if_fits("stop")
-        if _button(viewer, "stop"):
+        if _button(ui, "stop"):
             run.control.stop.set()
     if run is None:
         return
-    settings = viewer.settings
     _fit("job's share of the CPU")
-    _, settings.training_utilisation = imgui.slider_float("job's share of the CPU", settings.training_utilisation,
-                                                          0.5, MAX_TRAINING_UTILISATION, "%.2f")
-    _remember(viewer, "job's share of the CPU")
-    if viewer.job_out_dir is not None:
-        imgui.text_wrapped(f"job writes: {viewer.job_out_dir}")
-    _progress(viewer, run)
+    _, jobs.training_utilisation = imgui.slider_float("job's share of the CPU", jobs.training_utilisation,
+                                                      0.5, MAX_TRAINING_UTILISATION, "%.2f")
+    _remember(ui, "job's share of the CPU")
+    if jobs.out_dir is not None:
+        imgui.text_wrapped(f"job writes: {jobs.out_dir}")
+    _progress(jobs, run)
     _plots(run.progress)
 
 
-def _poorly_fit(viewer) -> None:
+def _poorly_fit(ui, jobs) -> None:
     """The open run's training photos it fits poorly (view_fit.json): how many, and a button that
     steps through them (their frustums are drawn in POORLY_FIT_COLOR)."""
-    if not viewer.poorly_fit:
+    if not jobs.poorly_fit:
         return
-    worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(viewer.poorly_fit.items())[:3])
+    worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(jobs.poorly_fit.items())[:3])
     imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0),
-                       f"{len(viewer.poorly_fit)} training photos fit poorly (orange frustums)")
-    _remember(viewer, "poorly fit photos")
+                       f"{len(jobs.poorly_fit)} training photos fit poorly (orange frustums)")
+    _remember(ui, "poorly fit photos")
     if imgui.is_item_hovered():
         imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: they "
                           f"disagree with the others (moved objects, wrong poses, exposure changes) or show what "
                           f"no other photo sees. Worst: {worst}")
-    if _button(viewer, "next poorly fit photo"):
-        viewer.next_poorly_fit_photo()
-    settings = viewer.job_settings
-    leave_out = bool(settings.exclude_photos) and set(settings.exclude_photos) == set(viewer.poorly_fit)
+    if _button(ui, "next poorly fit photo"):
+        jobs.next_poorly_fit_photo()
+    settings = jobs.settings
+    leave_out = bool(settings.exclude_photos) and set(settings.exclude_photos) == set(jobs.poorly_fit)
     changed, leave_out = imgui.checkbox("leave them out of the next run", leave_out)
-    _remember(viewer, "leave them out of the next run")
+    _remember(ui, "leave them out of the next run")
     if changed:
-        settings.exclude_photos = list(viewer.poorly_fit) if leave_out else []
+        settings.exclude_photos = list(jobs.poorly_fit) if leave_out else []
 
 
-def _runs(viewer) -> None:
+def _runs(ui, jobs) -> None:
     """The scene's runs (its jobs' and the command line's ./runs/NAME), newest last; choosing one
     shows it and makes it the open run."""
-    runs = viewer.source.runs
+    runs = jobs.view.source.runs
     if not runs:
         return
     names = [f"{run.name}  ({run.parent})" for run in runs]
-    current = runs.index(viewer.run_dir) if viewer.run_dir in runs else -1
-    changed, index = _combo(viewer, "runs of this scene", current, names)
-    if changed and 0 <= index < len(runs) and runs[index] != viewer.run_dir:
-        viewer.open_run(runs[index])
+    current = runs.index(jobs.run_dir) if jobs.run_dir in runs else -1
+    changed, index = _combo(ui, "runs of this scene", current, names)
+    if changed and 0 <= index < len(runs) and runs[index] != jobs.run_dir:
+        jobs.open_run(runs[index])
 
 
-def _job_settings(viewer) -> None:
+def _job_settings(ui, jobs) -> None:
     """The job dialog: the command lines' main settings. Each field's rectangle is kept under its
     label (_remember), so a test can click into it and type as a user does."""
-    settings = viewer.job_settings
-    if viewer.fold_job_settings:  # a job started: its progress, then its closing line, show first
+    settings = jobs.settings
+    if jobs.fold_settings:  # a job started: its progress, then its closing line, show first
         imgui.set_next_item_open(False, imgui.Cond_.always)
-        viewer.fold_job_settings = False
+        jobs.fold_settings = False
     opened = imgui.tree_node("job settings")
-    _remember(viewer, "job settings")
+    _remember(ui, "job settings")
     if not opened:
         return
     imgui.text_disabled("stage I (train)")
-    settings.minutes = _optional_minutes(viewer, "time budget min", "time budget", settings.minutes, 3.0)
+    settings.minutes = _optional_minutes(ui, "time budget min", "time budget", settings.minutes, 3.0)
     _fit("schedule iterations")
     _, settings.iterations = imgui.input_int("schedule iterations", settings.iterations, 100, 1000)
-    _remember(viewer, "schedule iterations")
+    _remember(ui, "schedule iterations")
     settings.iterations = max(settings.iterations, SIZED_TO_BUDGET)
     _hint(_schedule_hint(settings))
     _fit("downscale")
     _, settings.downscale = imgui.input_int("downscale", settings.downscale)
-    _remember(viewer, "downscale")
+    _remember(ui, "downscale")
     settings.downscale = max(settings.downscale, 1)
     protocols = ["none", "unstructured", "llff"]
-    changed, index = _combo(viewer, "held-out views", protocols.index(settings.protocol), protocols)
+    changed, index = _combo(ui, "held-out views", protocols.index(settings.protocol), protocols)
     if changed:
         settings.protocol = protocols[index]
-    changed, index = _combo(viewer, "strategy", STRATEGY_NAMES.index(settings.strategy), list(STRATEGY_NAMES))
+    changed, index = _combo(ui, "strategy", STRATEGY_NAMES.index(settings.strategy), list(STRATEGY_NAMES))
     if changed:
         settings.strategy = STRATEGY_NAMES[index]
     sky_on = TrainConfig.sky_shell if settings.sky_shell is None else settings.sky_shell
     changed, sky_on = imgui.checkbox("sky shell (far backdrop)", sky_on)
-    _remember(viewer, "sky shell")
+    _remember(ui, "sky shell")
     if imgui.is_item_hovered():
         imgui.set_tooltip("far Gaussians where the photos show no sparse point: a place for the sky")
     if changed:
         settings.sky_shell = sky_on
     imgui.text_disabled("stage II (bootstrap)")
-    settings.bootstrap_minutes = _optional_minutes(viewer, "bootstrap budget min", "bootstrap budget",
+    settings.bootstrap_minutes = _optional_minutes(ui, "bootstrap budget min", "bootstrap budget",
                                                    settings.bootstrap_minutes, 4.0)
     _fit("refinement steps")
     _, settings.bootstrap_iterations = imgui.input_int("refinement steps", settings.bootstrap_iterations, 10, 100)
-    _remember(viewer, "refinement steps")
+    _remember(ui, "refinement steps")
     settings.bootstrap_iterations = max(settings.bootstrap_iterations, 1)
     _fit("K nearest views (0: default)")
     _, settings.k = imgui.input_int("K nearest views (0: default)", settings.k)
-    _remember(viewer, "K nearest views (0: default)")
+    _remember(ui, "K nearest views (0: default)")
     _fit("L poses each (0: default)")
     _, settings.l = imgui.input_int("L poses each (0: default)", settings.l)
-    _remember(viewer, "L poses each (0: default)")
+    _remember(ui, "L poses each (0: default)")
     settings.k, settings.l = max(settings.k, 0), max(settings.l, 0)
     _fit("prior min (if none)")
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
-    _remember(viewer, "prior min (if none)")
+    _remember(ui, "prior min (if none)")
     settings.prior_minutes = _minutes_typed(settings.prior_minutes)
     imgui.tree_pop()
 
@@ -473,11 +481,11 @@ def _schedule_hint(settings) -> str:
             "re-sized from the measured rate)")
 
 
-def _optional_minutes(viewer, key: str, checkbox: str, minutes, default: float):
+def _optional_minutes(ui, key: str, checkbox: str, minutes, default: float):
     """A budget that can be switched off (None: run the whole schedule): the checkbox, then the
     minutes labelled "min" beside it (its rectangle kept under ``key``)."""
     changed, on = imgui.checkbox(checkbox, minutes is not None)
-    _remember(viewer, checkbox)
+    _remember(ui, checkbox)
     if changed:
         minutes = default if on else None
     if minutes is not None:
@@ -485,7 +493,7 @@ def _optional_minutes(viewer, key: str, checkbox: str, minutes, default: float):
         label = f"min##{key}"  # the checkbox names the budget; "##": a widget id of its own
         _fit(label)
         _, minutes = imgui.input_float(label, minutes, 0.5, 1.0, "%.1f")
-        _remember(viewer, key)
+        _remember(ui, key)
         minutes = _minutes_typed(minutes)
     return minutes
 
@@ -496,10 +504,10 @@ def _minutes_typed(value: float) -> float:
     return max(round(float(value), 2), 0.1)
 
 
-def _progress(viewer, run) -> None:
+def _progress(jobs, run) -> None:
     progress, plan = run.progress, run.plan
-    if not run.alive and viewer.job_reported:
-        imgui.text_wrapped(viewer.status)  # the closing line: time, iteration, final scores
+    if not run.alive and jobs.reported:
+        imgui.text_wrapped(jobs.status.text)  # the closing line: time, iteration, final scores
     else:
         done = progress.iteration - plan.start_iteration
         total = plan.steps
@@ -546,14 +554,15 @@ def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
     implot.end_plot()
 
 
-def _edit(viewer) -> None:
-    settings = viewer.settings
+def _edit(ui, editor) -> None:
+    """The edit tools' settings, thresholds, delete / undo / redo, crop box, save (editing.Editor)."""
+    settings, edit = editor.view.settings, editor.view.edit
     tools = list(EDIT_TOOLS)
-    changed, index = _combo(viewer, "tool (left mouse)", tools.index(settings.edit_tool), tools)
+    changed, index = _combo(ui, "tool (left mouse)", tools.index(settings.edit_tool), tools)
     if changed:
         settings.edit_tool = tools[index]
     modes = ["replace", "add", "subtract"]
-    changed, index = _combo(viewer, "selection", modes.index(settings.selection_mode), modes)
+    changed, index = _combo(ui, "selection", modes.index(settings.selection_mode), modes)
     if changed:
         settings.selection_mode = modes[index]
     if settings.edit_tool == "brush":
@@ -563,38 +572,38 @@ def _edit(viewer) -> None:
     _, settings.max_opacity = imgui.slider_float("opacity below", settings.max_opacity, 0.0, 1.0)
     _fit("or size above")
     _, settings.min_size = imgui.input_float("or size above", settings.min_size)
-    if _button(viewer, "select by thresholds"):
-        viewer.threshold_select()
-    imgui.text(f"{int(viewer.edit.selected.sum())} selected")
-    if _button(viewer, "delete (Del)"):
-        viewer.delete_selection()
+    if _button(ui, "select by thresholds"):
+        editor.threshold_select()
+    imgui.text(f"{int(edit.selected.sum())} selected")
+    if _button(ui, "delete (Del)"):
+        editor.delete_selection()
     _same_line_if_fits("undo (Ctrl+Z)")
-    if _button(viewer, "undo (Ctrl+Z)"):
-        viewer.undo()
+    if _button(ui, "undo (Ctrl+Z)"):
+        editor.undo()
     _same_line_if_fits("redo (Ctrl+Y)")
-    if _button(viewer, "redo (Ctrl+Y)"):
-        viewer.redo()
+    if _button(ui, "redo (Ctrl+Y)"):
+        editor.redo()
     changed, enabled = imgui.checkbox("crop box (drag its handles)", settings.crop_enabled)
-    _remember(viewer, "crop box (drag its handles)")
+    _remember(ui, "crop box (drag its handles)")
     if changed:
-        viewer.enable_crop(enabled)
+        editor.enable_crop(enabled)
     if settings.crop_enabled:
         _fit("min")
         _, settings.crop_min = imgui.input_float3("min", settings.crop_min)
-        _remember(viewer, "min")  # x's field at its left end
+        _remember(ui, "min")  # x's field at its left end
         _fit("max")
         _, settings.crop_max = imgui.input_float3("max", settings.crop_max)
-        _remember(viewer, "max")
-        if _button(viewer, "crop to box"):
-            viewer.apply_crop()
+        _remember(ui, "max")
+        if _button(ui, "crop to box"):
+            editor.apply_crop()
         _same_line_if_fits("fit to the model")
-        if _button(viewer, "fit to the model"):
-            viewer.fit_crop_box()
+        if _button(ui, "fit to the model"):
+            editor.fit_crop_box()
     _fit("file")
-    _, viewer.save_path = imgui.input_text("file", viewer.save_path)
-    _remember(viewer, "file")
-    if _button(viewer, "save PLY"):
+    _, editor.save_path = imgui.input_text("file", editor.save_path)
+    _remember(ui, "file")
+    if _button(ui, "save PLY"):
         try:
-            viewer.save_ply(viewer.save_path)
+            editor.save_ply(editor.save_path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line
-            viewer.status = f"save failed: {exc}"
+            editor.status.text = f"save failed: {exc}"

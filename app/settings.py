@@ -1,9 +1,10 @@
-"""What the user chose to see (render mode, SH cap, overlays, edit tool, crop box) and the
-frame statistics the panel shows. Plain data: every other part of the viewer reads these."""
+"""What the user chose to see (render mode, SH cap, overlays, edit tool, crop box), the frame
+statistics and the status line the panel shows, and what the panels remember between frames.
+Plain data: every other part of the viewer reads these."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference", "coverage")
 # The viewer's mode names -> the GL renderer's. "coverage" draws splats recoloured by their view
@@ -67,10 +68,10 @@ class ViewSettings:
     crop_max: list | None = None
     max_opacity: float = 0.05
     min_size: float = 0.5
-    # While a job trains, the share of the time the viewer leaves to it: after a frame that
-    # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
-    # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
-    training_utilisation: float = 0.95
+
+
+# FrameStats.frame_ms and fps average over this many frames.
+FRAME_TIME_WINDOW = 30
 
 
 @dataclass
@@ -82,3 +83,33 @@ class FrameStats:
     rendered_scale: float = 1.0
     frames: int = 0
     splat_renders: int = 0
+    frame_times: list = field(default_factory=list)  # seconds of the last FRAME_TIME_WINDOW frames
+
+    def add_frame(self, seconds: float) -> None:
+        """Count one drawn frame that took ``seconds``; frame_ms and fps follow the recent mean."""
+        self.frames += 1
+        self.frame_times.append(seconds)
+        if len(self.frame_times) > FRAME_TIME_WINDOW:
+            self.frame_times.pop(0)
+        mean = sum(self.frame_times) / len(self.frame_times)
+        self.frame_ms = 1000.0 * mean
+        self.fps = 1.0 / mean if mean > 0 else 0.0
+
+
+@dataclass
+class StatusLine:
+    """The one line under the panel that answers the last action; every part that acts on the
+    user's behalf (view, flags, editor, jobs) writes it."""
+
+    text: str = ""
+
+
+@dataclass
+class PanelState:
+    """What the panels remember between frames: the help overlay's visibility (H / F1), and where
+    each widget was last drawn, in window pixels, so a test can click it as a user does: rects
+    maps a widget's label to (x0, y0, x1, y1); layout is the panel's rectangle and reach."""
+
+    show_help: bool = False
+    rects: dict = field(default_factory=dict)
+    layout: dict = field(default_factory=dict)

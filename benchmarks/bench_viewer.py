@@ -129,16 +129,16 @@ def job_rows(seconds: float) -> list[str]:
             alone.stop(timeout=120)
         viewer = Viewer(source, 1280, 720)
         try:
-            viewer.job_settings = settings
-            viewer.start_training()
-            rate_viewer = _job_rate(viewer.training, seconds, lambda s: _loop_for(viewer, s))
-            viewer.training.pause()
+            viewer.jobs.settings = settings
+            viewer.jobs.start_training()
+            rate_viewer = _job_rate(viewer.jobs.training, seconds, lambda s: _loop_for(viewer, s))
+            viewer.jobs.training.pause()
             time.sleep(1.0)
             paused_cpu, paused_frames = _loop_for(viewer, seconds / 2)
-            viewer.training.stop(timeout=120)
+            viewer.jobs.training.stop(timeout=120)
             _loop_for(viewer, 2.0)  # the last snapshot's refine
             idle_cpu, idle_frames = _loop_for(viewer, seconds / 2)
-            viewer.settings.mode = "reference"
+            viewer.view.settings.mode = "reference"
             deadline = time.perf_counter() + 120
             while not viewer.drawing.reference_settled() and time.perf_counter() < deadline:
                 viewer.step()
@@ -188,17 +188,17 @@ def main() -> int:
         results["idle, cached"] = _measure(viewer, args.frames, lambda _: None)
 
         def turn(_):
-            viewer.nav.look(4.0, 0.0)
-            viewer.moved()
+            viewer.view.nav.look(4.0, 0.0)
+            viewer.view.moved()
         results["moving"] = _measure(viewer, args.frames, turn)
         time.sleep(STILL_SECONDS)
-        viewer.start_training()
+        viewer.jobs.start_training()
         time.sleep(0.3)
         results["training"] = _measure(viewer, args.frames, lambda _: None)
     finally:
         viewer.close()
     targets = {"idle": 10.0, "moving": 20.0, "training": 5.0}
-    print(f"{args.ply.name} at {width}x{height}, {viewer.edit.count} Gaussians, {args.frames} frames each; "
+    print(f"{args.ply.name} at {width}x{height}, {viewer.view.edit.count} Gaussians, {args.frames} frames each; "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (figures are noisy on a shared machine)")
     for name, r in results.items():
         target = targets.get(name)

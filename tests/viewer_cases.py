@@ -82,7 +82,7 @@ def open_grid_viewer(source_path: Path, width: int = 640, height: int = 480, **k
     """open_viewer on the synthetic grid, seen from the front: the grid is a wall (its plane's
     normal, which the viewer would take as up, is horizontal), so -Y is chosen as up."""
     viewer = open_viewer(source_path, width, height, **kwargs)
-    viewer.set_up((0.0, -1.0, 0.0))
+    viewer.view.set_up((0.0, -1.0, 0.0))
     return viewer
 
 
@@ -128,20 +128,20 @@ def golden_window_images(model: Path) -> dict:
     from inceptiongs.app.navigation import NavigationState
 
     with opened(open_viewer, model, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
-        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
-        viewer.settings.show_training_cameras = False
+        viewer.view.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.view.settings.show_training_cameras = False
         images = {}
-        viewer.settings.mode = "opacity"
+        viewer.view.settings.mode = "opacity"
         images["viewer_window_opacity_320x240.png"] = viewer.capture_window()
     # Orientation: a model without cameras opens upright (its up from its dominant plane).
     table = write_table_model(Path(model).with_name("table.ply"))
     with opened(open_viewer, table, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
         images["viewer_window_table_up_320x240.png"] = viewer.capture_window()
         # The crop box, fitted to the model, drawn in 3-D with its face handles.
-        viewer.settings.orbit = True
-        viewer.nav.orbit(60.0, 40.0)  # from above at an angle: all three axes show
-        viewer.enable_crop()
-        viewer.frame_model()
+        viewer.view.settings.orbit = True
+        viewer.view.nav.orbit(60.0, 40.0)  # from above at an angle: all three axes show
+        viewer.editor.enable_crop()
+        viewer.view.frame_model()
         images["viewer_window_table_crop_320x240.png"] = viewer.capture_window()
     images.update(golden_tool_images(model))
     return images
@@ -157,22 +157,22 @@ def golden_tool_images(model: Path) -> dict:
 
     images = {}
     with opened(open_viewer, model, *GOLDEN_WINDOW_SIZE) as viewer:
-        viewer.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
-        viewer.settings.show_training_cameras = False
+        viewer.view.nav = NavigationState.from_camera(front_camera(*GOLDEN_WINDOW_SIZE))
+        viewer.view.settings.show_training_cameras = False
         press_key(viewer, glfw.KEY_TAB)  # hide the panel
         viewer.step()
-        viewer.settings.edit_tool = "rectangle"
+        viewer.view.settings.edit_tool = "rectangle"
         viewer.input.on_cursor(viewer.window, 70, 50)
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
         viewer.input.on_cursor(viewer.window, 230, 170)
         images["viewer_window_rectangle_320x240.png"] = viewer.capture_window()
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
-        viewer.edit.select(np.zeros(viewer.edit.count, bool))  # the rectangle's selection off again
-        viewer.settings.edit_tool = "brush"
-        viewer.settings.brush_radius = 35.0
+        viewer.view.edit.select(np.zeros(viewer.view.edit.count, bool))  # the rectangle's selection off again
+        viewer.view.settings.edit_tool = "brush"
+        viewer.view.settings.brush_radius = 35.0
         viewer.input.on_cursor(viewer.window, 200, 110)
         images["viewer_window_brush_320x240.png"] = viewer.capture_window()
-        viewer.settings.edit_tool = "lasso"
+        viewer.view.settings.edit_tool = "lasso"
         path = [(60, 60), (150, 40), (260, 80), (240, 190), (120, 200), (80, 150)]
         viewer.input.on_cursor(viewer.window, *path[0])
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
@@ -188,12 +188,12 @@ def golden_photo_images(scene: Path) -> dict:
     (blended at weight 0.5, and as the inset beside it) at the demo scene's camera 3."""
     images = {}
     with opened(open_viewer, scene, *GOLDEN_WINDOW_SIZE, with_ui=False) as viewer:
-        viewer.settings.show_training_cameras = False
-        viewer.snap_to_camera(3)
+        viewer.view.settings.show_training_cameras = False
+        viewer.view.snap_to_camera(3)
         time.sleep(0.2)  # still: full-resolution frames
-        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 0.5
+        viewer.view.settings.photo, viewer.view.settings.photo_alpha = "blended", 0.5
         images["viewer_window_photo_blended_320x240.png"] = viewer.capture_window()
-        viewer.settings.photo = "beside"
+        viewer.view.settings.photo = "beside"
         images["viewer_window_photo_beside_320x240.png"] = viewer.capture_window()
     return images
 
@@ -215,9 +215,9 @@ def click_at(viewer, x: float, y: float) -> None:
 
 
 def click_widget(viewer, label: str) -> None:
-    """Click the middle of a panel widget the panels recorded in viewer.ui_rects."""
+    """Click the middle of a panel widget the panels recorded in viewer.ui.rects."""
     viewer.step()  # the panel as it is now (a click may have changed which widgets show)
-    x0, y0, x1, y1 = viewer.ui_rects[label]
+    x0, y0, x1, y1 = viewer.ui.rects[label]
     click_at(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
 
 
@@ -254,7 +254,7 @@ def type_into(viewer, label: str, text: str) -> None:
     import glfw
 
     viewer.step()
-    x0, y0, x1, y1 = viewer.ui_rects[label]
+    x0, y0, x1, y1 = viewer.ui.rects[label]
     click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
     viewer.input.on_key(viewer.window, glfw.KEY_LEFT_CONTROL, 0, glfw.PRESS, glfw.MOD_CONTROL)
     viewer.step()

@@ -81,7 +81,7 @@ def test_coverage_mode_golden_screenshot_and_flag_suggestion(xvfb, tmp_path):
 
     source = ViewerSource("ply", tmp_path / "model.ply", _grid(), _cameras(), tmp_path)
     with opened(Viewer, source, 320, 240, visible=False, with_ui=False) as viewer:
-        viewer.settings.mode = "coverage"
+        viewer.view.settings.mode = "coverage"
         camera = _camera((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), "shot", size=(160, 120))
         image = viewer.render_image(camera)
         assert image.shape == (120, 160, 3)
@@ -94,7 +94,7 @@ def test_coverage_mode_golden_screenshot_and_flag_suggestion(xvfb, tmp_path):
             pytest.fail(f"{GOLDEN} missing: regenerate with INCEPTIONGS_REGEN_GOLDEN=1")
         difference = np.abs(shot.astype(float) - read_png(GOLDEN).astype(float)) / 255.0
         assert difference.mean() <= 1.5 / 255 and np.percentile(difference, 99) <= 24 / 255
-        names = viewer.suggest_flags(k=1)
-        assert names == ["scarce 1"] and viewer.settings.mode == "coverage"
-        flags = load_flags(viewer.flags_file)
+        names = viewer.flags.suggest(viewer.drawing, k=1)
+        assert names == ["scarce 1"] and viewer.view.settings.mode == "coverage"
+        flags = load_flags(viewer.flags.file)
         assert [f.camera.world_to_camera.tolist() for f in flags] == [source.cameras[3].world_to_camera.tolist()]

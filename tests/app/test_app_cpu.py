@@ -36,8 +36,8 @@ def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
         viewer.step()
         _settle(viewer)
         assert _loop(viewer, 1.2) <= 2  # waits for events (up to 2 s at a time)
-        viewer.start_training()
-        viewer.settings.training_utilisation = 0.98  # the viewer draws ~2 % of the time
+        viewer.jobs.start_training()
+        viewer.jobs.training_utilisation = 0.98  # the viewer draws ~2 % of the time
         assert not viewer.is_idle()
         for _ in range(3):
             viewer.step()  # a frame-time estimate
@@ -45,10 +45,10 @@ def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
         assert wait == pytest.approx(min(viewer.stats.frame_ms / 1000 * 49, MAX_TRAINING_WAIT_SECONDS), rel=1e-6)
         running = _loop(viewer, 1.5)
         assert 1 <= running <= 1.5 / wait + 2, (running, wait)
-        assert viewer.model_version > 1  # the job's snapshots still reach the screen
-        viewer.training.pause()
+        assert viewer.view.model_version > 1  # the job's snapshots still reach the screen
+        viewer.jobs.training.pause()
         _settle(viewer)
-        assert viewer.is_idle() and viewer.training.alive
+        assert viewer.is_idle() and viewer.jobs.training.alive
         steps = job.steps
         assert _loop(viewer, 1.2) <= 2
         assert job.steps == steps
@@ -56,7 +56,7 @@ def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
 
 def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
     with opened(open_viewer, write_grid_model(tmp_path / "model.ply")) as viewer:
-        viewer.settings.mode = "reference"
+        viewer.view.settings.mode = "reference"
         deadline = time.perf_counter() + 60
         while not viewer.drawing.reference_settled() and time.perf_counter() < deadline:
             viewer.step()
@@ -67,7 +67,7 @@ def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
         viewer.renderer.render = lambda *a, **k: calls.append(1) or original(*a, **k)
         assert viewer.is_idle()
         assert _loop(viewer, 1.2) <= 2 and not calls  # nothing re-rendered while nothing changes
-        viewer.settings.reference_view = "side by side"  # a change: one new comparison
+        viewer.view.settings.reference_view = "side by side"  # a change: one new comparison
         for _ in range(3):
             viewer.step()
         assert len(calls) == 1

@@ -28,14 +28,14 @@ def test_h_shows_the_help_overlay(xvfb, tmp_path):
         viewer.step()
         before = viewer.capture_window()
         viewer.input.on_key(viewer.window, glfw.KEY_H, 0, glfw.PRESS, 0)
-        assert viewer.show_help
+        assert viewer.ui.show_help
         viewer.step()  # imgui sizes an auto-resizing window on its first frame, shows it on the next
         during = viewer.capture_window()
         # A window over the middle of the screen (right of the panel: x > 420).
         middle = np.s_[200:400, 430:560]
         assert np.abs(during[middle] - before[middle]).mean() > 0.05
         viewer.input.on_key(viewer.window, glfw.KEY_F1, 0, glfw.PRESS, 0)
-        assert not viewer.show_help
+        assert not viewer.ui.show_help
         after = viewer.capture_window()
         assert np.abs(after[middle] - before[middle]).mean() < 0.01
 

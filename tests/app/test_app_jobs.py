@@ -12,9 +12,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, JobSettings, bootstrap_job_for, resume_job_for, start_bootstrap,
+from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstrap_job_for, resume_job_for,
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
+from inceptiongs.app.settings import StatusLine
 from inceptiongs.train.config import TrainConfig
 from inceptiongs.errors import InputError
 from viewer_cases import opened
@@ -131,10 +132,11 @@ def test_jobs_write_fresh_folders(tmp_path):
     job = train_job_for(source, JobSettings(iterations=100))
     assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / "train_2" and not job.resume
     flags_file = tmp_path / "flags.json"
-    viewer = SimpleNamespace(training=None, run_dir=run, flags_file=flags_file, flags=[], status="",
-                             job_settings=JobSettings())
-    start_bootstrap(viewer)
-    assert viewer.training is None and "no flagged views" in viewer.status
+    status = StatusLine()
+    jobs = Jobs(SimpleNamespace(source=source), SimpleNamespace(file=flags_file, items=[]), status, lambda: None)
+    assert jobs.run_dir == run
+    jobs.start_bootstrap()
+    assert jobs.training is None and "no flagged views" in status.text
     save_flags(flags_file, [Flag("flag 1", Camera("c", 64, 48, 50.0, 50.0, 32.0, 24.0, np.eye(4)), "")])
     (tmp_path / "runs" / "train_bootstrap").mkdir()
     job = bootstrap_job_for(run, flags_file)
@@ -176,39 +178,39 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
 
     with opened(Viewer, open_source(demo_scene), 900, 1000) as viewer:
         # The scene's work folder is in the cache directory: nothing is written into the scene.
-        runs = viewer.source.work_dir / "runs"
+        runs = viewer.view.source.work_dir / "runs"
         assert demo_scene not in runs.parents
         assert "sparse points" in viewer.title
         # A long schedule, stopped early: what a user does who trains "until it looks good".
-        viewer.job_settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
-        viewer.start_training()
-        assert viewer.job_out_dir == runs / "train" and str(runs / "train") in viewer.title
-        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
-        viewer.training.stop()
-        _wait(viewer, lambda: not viewer.training.alive)
+        viewer.jobs.settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
+        viewer.jobs.start_training()
+        assert viewer.jobs.out_dir == runs / "train" and str(runs / "train") in viewer.title
+        _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 10)
+        viewer.jobs.training.stop()
+        _wait(viewer, lambda: not viewer.jobs.training.alive)
         first = latest_checkpoint(runs / "train")
         assert first is not None
         first_bytes = first.read_bytes()
         # A second "train" (its button, clicked) starts a new run beside the first, leaving it as it was.
         click_widget(viewer, "train (new run)")
-        assert viewer.job_out_dir == runs / "train_2"
+        assert viewer.jobs.out_dir == runs / "train_2"
         assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
-        _wait(viewer, lambda: viewer.training.progress.iteration >= 10)
-        viewer.training.stop()
-        _wait(viewer, lambda: not viewer.training.alive)
+        _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 10)
+        viewer.jobs.training.stop()
+        _wait(viewer, lambda: not viewer.jobs.training.alive)
         assert first.read_bytes() == first_bytes
         stopped_at = list_checkpoints(runs / "train_2")[-1][0]
         # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
-        assert viewer.run_dir == runs / "train_2"
+        assert viewer.jobs.run_dir == runs / "train_2"
         click_widget(viewer, "resume")
-        job = viewer.training.job
+        job = viewer.jobs.training.job
         assert job.resume and job.run_dir == runs / "train_2"
         seen = []
-        _wait(viewer, lambda: (seen.append(viewer.training.progress.iteration) or True)
-              and viewer.training.progress.iteration > stopped_at)
-        viewer.training.stop()
-        _wait(viewer, lambda: not viewer.training.alive)
-        assert viewer.training.error is None, viewer.training.error
+        _wait(viewer, lambda: (seen.append(viewer.jobs.training.progress.iteration) or True)
+              and viewer.jobs.training.progress.iteration > stopped_at)
+        viewer.jobs.training.stop()
+        _wait(viewer, lambda: not viewer.jobs.training.alive)
+        assert viewer.jobs.training.error is None, viewer.jobs.training.error
         # A fresh run would show iteration 10 first; the resumed one starts past its checkpoint.
         assert min(i for i in seen if i > 0) > stopped_at
         assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
@@ -225,16 +227,16 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
     from viewer_cases import click_widget
 
     with opened(Viewer, open_source(demo_scene), 1200, 1000) as viewer:
-        viewer.job_settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
+        viewer.jobs.settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
         click_widget(viewer, "train (new run)")
-        plan = viewer.training.plan
+        plan = viewer.jobs.training.plan
         assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
-        _wait(viewer, lambda: viewer.training.progress.iteration >= 30)
-        assert viewer.training.elapsed_s > 0 and viewer.training.progress.iterations_per_second > 0
-        _wait(viewer, lambda: not viewer.training.alive, 300)
+        _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 30)
+        assert viewer.jobs.training.elapsed_s > 0 and viewer.jobs.training.progress.iterations_per_second > 0
+        _wait(viewer, lambda: not viewer.jobs.training.alive, 300)
         viewer.step()
-        assert viewer.training.error is None, viewer.training.error
-        psnr = viewer.training.progress.psnr
+        assert viewer.jobs.training.error is None, viewer.jobs.training.error
+        psnr = viewer.jobs.training.progress.psnr
         assert psnr and all(len(iterations) >= 3 for iterations, _ in psnr.values())  # 0, 50, 70
         # The closing line replaced "training into ...": time, iteration and the final scores.
         assert viewer.status.startswith("training finished in ") and "at iteration 70" in viewer.status
@@ -244,7 +246,7 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
         write_png(tmp_path / "progress.png", image)
         # The plots' axes follow the data: every point lies inside the drawn ranges, and the
         # x range spans the run rather than sitting at its first point.
-        limits = viewer.training.progress.plot_limits
+        limits = viewer.jobs.training.progress.plot_limits
         (x0, x1), (y0, y1) = limits["held-out PSNR"]
         for iterations, values in psnr.values():
             assert x0 <= min(iterations) and max(iterations) <= x1
@@ -273,22 +275,22 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
     minutes = 0.2
     monkeypatch.setattr("inceptiongs.train.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
     with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
-        viewer.job_settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
+        viewer.jobs.settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
         click_widget(viewer, "train (new run)")
-        job = viewer.training.job
+        job = viewer.jobs.training.job
         guess = job.config.iterations
         assert job.config.size_to_minutes and guess == round(6000 * minutes)
-        assert viewer.training.plan.end_iteration == guess
-        _wait(viewer, lambda: not viewer.training.alive, 180)
+        assert viewer.jobs.training.plan.end_iteration == guess
+        _wait(viewer, lambda: not viewer.jobs.training.alive, 180)
         viewer.step()
-        assert viewer.training.error is None, viewer.training.error
+        assert viewer.jobs.training.error is None, viewer.jobs.training.error
         stored = TrainConfig.load(job.run_dir / "config.json")
         assert stored.iterations < guess / 2  # re-sized to the measured rate
-        assert viewer.training.plan.end_iteration == stored.iterations
+        assert viewer.jobs.training.plan.end_iteration == stored.iterations
         # The milestones were re-sized with it (densification ends inside the run).
         assert stored.densify_until < stored.iterations
         last = list_checkpoints(job.run_dir)[-1][0]
-        assert last == viewer.training.progress.iteration
+        assert last == viewer.jobs.training.progress.iteration
         # Decayed: the schedule's end, or (rate fell late in the run) within the frozen slack.
         assert last >= (1.0 - BUDGET_FREEZE) * stored.iterations, (last, stored.iterations)
         assert f"at iteration {last}" in viewer.status
@@ -304,14 +306,14 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
     if source.run_dir is None:
         pytest.skip("needs the runs of test_train_twice_then_resume_never_overwrites (same module)")
     with opened(Viewer, source, 320, 240) as viewer:
-        viewer.edit.select(np.arange(viewer.edit.count) % 2 == 0)
-        viewer.delete_selection()
-        shown = viewer.edit.visible_arrays()["means"]
-        saved = viewer.save_ply(source.work_dir / "edited.ply")
+        viewer.view.edit.select(np.arange(viewer.view.edit.count) % 2 == 0)
+        viewer.editor.delete_selection()
+        shown = viewer.view.edit.visible_arrays()["means"]
+        saved = viewer.editor.save_ply(source.work_dir / "edited.ply")
     with opened(Viewer, open_source(demo_scene), 320, 240) as reopened:
-        assert reopened.source.model_path == saved and "edited.ply" in reopened.title
-        assert reopened.run_dir is None and "edited.ply" in reopened.status
-        np.testing.assert_allclose(reopened.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
+        assert reopened.view.source.model_path == saved and "edited.ply" in reopened.title
+        assert reopened.jobs.run_dir is None and "edited.ply" in reopened.status
+        np.testing.assert_allclose(reopened.view.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
     time.sleep(0.05)
     # A run written to after the PLY is the newest again.
     (source.work_dir / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
@@ -349,18 +351,19 @@ def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, m
     (stranger / "checkpoints").mkdir(parents=True)
     (stranger / "config.json").write_text(json.dumps({"scene": str(tmp_path / "elsewhere")}))
     with opened(Viewer, open_source(demo_scene), 640, 480) as viewer:
-        runs = viewer.source.runs
+        runs = viewer.view.source.runs
         assert cli_run in runs and stranger not in runs
         assert any(work_dir in run.parents for run in runs), "the viewer's own runs are listed too"
-        assert runs[-1] == cli_run and viewer.run_dir == cli_run  # the newest is the one opened
+        assert runs[-1] == cli_run and viewer.jobs.run_dir == cli_run  # the newest is the one opened
         assert str(cli_run) in viewer.title and str(cli_run) in viewer.status
-        shown = viewer.edit.base["means"].copy()
+        shown = viewer.view.edit.base["means"].copy()
         older = runs[0]
-        viewer.open_run(older)  # what the panel's "runs of this scene" list does
-        assert viewer.run_dir == older and str(older) in viewer.title
-        assert viewer.edit.base["means"].shape != shown.shape or not np.allclose(viewer.edit.base["means"], shown)
+        viewer.jobs.open_run(older)  # what the panel's "runs of this scene" list does
+        assert viewer.jobs.run_dir == older and str(older) in viewer.title
+        means = viewer.view.edit.base["means"]
+        assert means.shape != shown.shape or not np.allclose(means, shown)
         viewer.step()
-        assert "runs of this scene" in viewer.ui_rects  # the list is in the Training panel
+        assert "runs of this scene" in viewer.ui.rects  # the list is in the Training panel
     monkeypatch.chdir(demo_scene.parent)  # from elsewhere, the command line's ./runs is not looked at
     assert cli_run not in open_source(demo_scene).runs
 
@@ -374,19 +377,19 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
     from inceptiongs.app.viewer import Viewer
 
     with opened(Viewer, open_source(demo_scene), 384, 288, with_ui=False) as viewer:
-        viewer.settings.show_training_cameras = False
-        viewer.snap_to_camera(3)
+        viewer.view.settings.show_training_cameras = False
+        viewer.view.snap_to_camera(3)
         time.sleep(0.2)  # still: the full-resolution frames follow
         viewer.step()
-        photo = viewer.source.scene.load_image(3)
-        assert viewer.nearest_camera_index(viewer.current_camera()) == 3
+        photo = viewer.view.source.scene.load_image(3)
+        assert viewer.view.nearest_camera_index(viewer.view.current_camera()) == 3
         render = viewer.capture_window()
-        viewer.settings.photo, viewer.settings.photo_alpha = "blended", 1.0
+        viewer.view.settings.photo, viewer.view.settings.photo_alpha = "blended", 1.0
         blended = viewer.capture_window()
         expected = cv2.resize(photo, (384, 288), interpolation=cv2.INTER_AREA)
         assert np.abs(blended - expected).mean() < 0.02           # the photo itself at weight 1
         assert np.abs(render - expected).mean() > np.abs(blended - expected).mean()
-        viewer.settings.photo = "beside"
+        viewer.view.settings.photo = "beside"
         beside = viewer.capture_window()
         inset_w = int(384 * PHOTO_INSET_FRACTION)
         inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
@@ -416,42 +419,42 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         click_widget(viewer, "job settings")  # open the dialog (a tree node, closed at first)
         for label, text in typed.items():
             type_into(viewer, label, text)
-        assert (viewer.job_settings.minutes, viewer.job_settings.iterations, viewer.job_settings.downscale) == (
+        assert (viewer.jobs.settings.minutes, viewer.jobs.settings.iterations, viewer.jobs.settings.downscale) == (
             1.5, 700, 3)
         click_widget(viewer, "sky shell")  # the checkbox flips the command line's default
         sky = not TrainConfig.sky_shell
-        assert viewer.job_settings.sky_shell is sky
+        assert viewer.jobs.settings.sky_shell is sky
         click_widget(viewer, "train (new run)")
-        job = viewer.training.job
+        job = viewer.jobs.training.job
         assert (job.config.minutes, job.config.iterations, job.config.downscale, job.config.sky_shell) == (
             1.5, 700, 3, sky)
-        _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.training.progress.iteration >= 10)
+        _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.jobs.training.progress.iteration >= 10)
         stored = TrainConfig.load(job.run_dir / "config.json")
         assert (stored.minutes, stored.iterations, stored.downscale, stored.sky_shell) == (1.5, 700, 3, sky)
         click_widget(viewer, "stop")
-        _wait(viewer, lambda: not viewer.training.alive)
-        assert viewer.training.error is None, viewer.training.error
+        _wait(viewer, lambda: not viewer.jobs.training.alive)
+        assert viewer.jobs.training.error is None, viewer.jobs.training.error
         # The bootstrap's part of the dialog, then "Bootstrap flagged views" on the run just made.
         press_key(viewer, glfw.KEY_F)  # flag the current view
-        assert viewer.flags, viewer.status
-        viewer.ui_rects.clear()
+        assert viewer.flags.items, viewer.status
+        viewer.ui.rects.clear()
         viewer.step()
-        assert "refinement steps" not in viewer.ui_rects  # the dialog closed when the job started
+        assert "refinement steps" not in viewer.ui.rects  # the dialog closed when the job started
         click_widget(viewer, "job settings")  # ... and the user opens it again
         boot = {"bootstrap budget min": "0.5", "refinement steps": "25", "K nearest views (0: default)": "2",
                 "L poses each (0: default)": "3", "prior min (if none)": "0.7"}
         for label, text in boot.items():
             type_into(viewer, label, text)
         click_widget(viewer, "Bootstrap flagged views")
-        assert viewer.training is not None and viewer.training.job is not job, viewer.status
-        config = viewer.training.job.config
+        assert viewer.jobs.training is not None and viewer.jobs.training.job is not job, viewer.status
+        config = viewer.jobs.training.job.config
         expected = (0.5, 25, 2, 3, 0.7)
         assert (config.minutes, config.iterations, config.k, config.l, config.prior_minutes) == expected
-        stored_file = viewer.training.job.out_dir / "bootstrap" / "config.json"
+        stored_file = viewer.jobs.training.job.out_dir / "bootstrap" / "config.json"
         _wait(viewer, stored_file.is_file)
         stored = BootstrapConfig.load(stored_file)
         assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
-        viewer.training.stop()
+        viewer.jobs.training.stop()
 
 
 @pytest.mark.gl
@@ -480,24 +483,24 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
     BootstrapConfig().save(boot / "bootstrap" / "config.json")
     before = sorted(p.name for p in (boot / "checkpoints").iterdir())
     with opened(Viewer, open_source(boot), 900, 1000) as viewer:
-        assert viewer.run_dir == boot
+        assert viewer.jobs.run_dir == boot
         viewer.step()
-        assert "resume" in viewer.ui_rects and "why no resume" in viewer.ui_rects
+        assert "resume" in viewer.ui.rects and "why no resume" in viewer.ui.rects
         click_widget(viewer, "resume")
         for _ in range(3):
             viewer.step()
-        assert viewer.training is None, "resume must not start stage-I training on a bootstrap result"
+        assert viewer.jobs.training is None, "resume must not start stage-I training on a bootstrap result"
         assert sorted(p.name for p in (boot / "checkpoints").iterdir()) == before
-        viewer.resume_training()  # the action itself refuses too, in the status line
-        assert viewer.training is None and "bootstrap" in viewer.status
+        viewer.jobs.resume_training()  # the action itself refuses too, in the status line
+        assert viewer.jobs.training is None and "bootstrap" in viewer.status
         with pytest.raises(InputError, match="bootstrap"):
             resume_job_for(boot)
     with opened(Viewer, open_source(run), 900, 1000) as viewer:
         viewer.step()
-        assert "why no resume" not in viewer.ui_rects
+        assert "why no resume" not in viewer.ui.rects
         click_widget(viewer, "resume")
-        assert viewer.training is not None and viewer.training.job.resume, viewer.status
-        viewer.training.stop()
+        assert viewer.jobs.training is not None and viewer.jobs.training.job.resume, viewer.status
+        viewer.jobs.training.stop()
 
 
 @pytest.mark.gl
@@ -524,31 +527,32 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
     second.update(psnr=7.0, poorly_fit=True)
     (run / VIEW_FIT_FILE).write_text(json.dumps(report))
     with opened(Viewer, open_source(run), 900, 1000) as viewer:
-        assert list(viewer.poorly_fit) == [second["name"], first["name"]]  # worst first
-        colors = frustum_colors(viewer.cameras, viewer.poorly_fit)
-        for index, camera in enumerate(viewer.cameras):
+        assert list(viewer.jobs.poorly_fit) == [second["name"], first["name"]]  # worst first
+        colors = frustum_colors(viewer.view.cameras, viewer.jobs.poorly_fit)
+        for index, camera in enumerate(viewer.view.cameras):
             expected = POORLY_FIT_COLOR if camera.name in (first["name"], second["name"]) else TRAINING_COLOR
             assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
         viewer.step()
-        assert "poorly fit photos" in viewer.ui_rects
+        assert "poorly fit photos" in viewer.ui.rects
         click_widget(viewer, "next poorly fit photo")
-        assert viewer.cameras[viewer.camera_index].name == second["name"]
+        assert viewer.view.cameras[viewer.view.camera_index].name == second["name"]
         assert second["name"] in viewer.status and "7.0 dB" in viewer.status
-        np.testing.assert_allclose(viewer.nav.center, viewer.cameras[viewer.camera_index].center, atol=1e-9)
+        view = viewer.view
+        np.testing.assert_allclose(view.nav.center, view.cameras[view.camera_index].center, atol=1e-9)
         click_widget(viewer, "next poorly fit photo")
-        assert viewer.cameras[viewer.camera_index].name == first["name"]
+        assert viewer.view.cameras[viewer.view.camera_index].name == first["name"]
         click_widget(viewer, "next poorly fit photo")  # around again
-        assert viewer.cameras[viewer.camera_index].name == second["name"]
+        assert viewer.view.cameras[viewer.view.camera_index].name == second["name"]
         # The next run from the panel can leave them out (train --exclude-photos).
-        assert viewer.job_settings.exclude_photos == []
+        assert viewer.jobs.settings.exclude_photos == []
         click_widget(viewer, "leave them out of the next run")
-        assert viewer.job_settings.exclude_photos == [second["name"], first["name"]]
-        assert viewer.job_settings.train_config(demo_scene).exclude_photos == [second["name"], first["name"]]
+        assert viewer.jobs.settings.exclude_photos == [second["name"], first["name"]]
+        assert viewer.jobs.settings.train_config(demo_scene).exclude_photos == [second["name"], first["name"]]
         click_widget(viewer, "leave them out of the next run")
-        assert viewer.job_settings.exclude_photos == []
+        assert viewer.jobs.settings.exclude_photos == []
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:
-        assert viewer.poorly_fit == {} and str(run / VIEW_FIT_FILE) in viewer.status
+        assert viewer.jobs.poorly_fit == {} and str(run / VIEW_FIT_FILE) in viewer.status
         viewer.step()
-        assert "next poorly fit photo" not in viewer.ui_rects
+        assert "next poorly fit photo" not in viewer.ui.rects

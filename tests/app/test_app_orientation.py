@@ -29,20 +29,22 @@ def _red_and_grey_rows(image: np.ndarray) -> tuple[float, float]:
 @pytest.mark.gl
 def test_a_model_without_cameras_opens_upright_and_orbits_level(xvfb, tmp_path):
     with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 480, 360) as viewer:
-        np.testing.assert_array_equal(viewer.up, [0, 0, 1])
-        nav = viewer.nav
-        assert abs(nav.rotation[0] @ viewer.up) < 1e-9 and -nav.rotation[1] @ viewer.up > 0.3  # level, upright
+        np.testing.assert_array_equal(viewer.view.up, [0, 0, 1])
+        nav = viewer.view.nav
+        up = viewer.view.up
+        assert abs(nav.rotation[0] @ up) < 1e-9 and -nav.rotation[1] @ up > 0.3  # level, upright
         red_row, grey_row = _red_and_grey_rows(viewer.render_image())
         assert red_row < grey_row  # the block stands above the table
         np.testing.assert_allclose(nav.pivot, np.median(synthetic_table()["means"], axis=0), atol=1e-6)
-        viewer.settings.orbit = True
+        viewer.view.settings.orbit = True
         for _ in range(40):  # drag left-right around the model: no tumbling
-            viewer.nav.orbit(25.0, 0.0)
-        assert abs(viewer.nav.rotation[0] @ viewer.up) < 1e-6 and -viewer.nav.rotation[1] @ viewer.up > 0.3
+            viewer.view.nav.orbit(25.0, 0.0)
+        rotation, up = viewer.view.nav.rotation, viewer.view.up
+        assert abs(rotation[0] @ up) < 1e-6 and -rotation[1] @ up > 0.3
         # The control: -Z turns the world over (the block hangs below the table).
-        viewer.set_up(UP_AXES["-Z"])
+        viewer.view.set_up(UP_AXES["-Z"])
         red_row, grey_row = _red_and_grey_rows(viewer.render_image())
-        assert red_row > grey_row and viewer.up_source == "chosen"
+        assert red_row > grey_row and viewer.view.up_source == "chosen"
 
 
 @pytest.mark.gl
@@ -50,11 +52,11 @@ def test_home_key_frames_the_model(xvfb, tmp_path):
     import glfw
 
     with opened(open_viewer, write_table_model(tmp_path / "table.ply"), 480, 360, with_ui=False) as viewer:
-        viewer.nav.center = viewer.nav.center - 30.0 * viewer.nav.rotation[2]  # far away: a dot
-        forward = viewer.nav.rotation[2].copy()
+        viewer.view.nav.center = viewer.view.nav.center - 30.0 * viewer.view.nav.rotation[2]  # far away: a dot
+        forward = viewer.view.nav.rotation[2].copy()
         viewer.input.on_key(viewer.window, glfw.KEY_HOME, 0, glfw.PRESS, 0)
         viewer.input.on_key(viewer.window, glfw.KEY_HOME, 0, glfw.RELEASE, 0)
-        np.testing.assert_allclose(viewer.nav.rotation[2], forward)  # same viewing direction
+        np.testing.assert_allclose(viewer.view.nav.rotation[2], forward)  # same viewing direction
         coverage = viewer.render_image().max(axis=2) > 0.1
         rows, cols = np.nonzero(coverage)
         # The model fills the view without leaving it: its extent spans much of the narrower side.

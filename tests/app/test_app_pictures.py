@@ -73,7 +73,7 @@ def test_training_photo_matches_its_golden_images(xvfb, demo_scene):
 def _assert_panel_fits(viewer, width: int, height: int, what: str) -> None:
     from inceptiongs.app.panels import PANEL_MARGIN
 
-    layout = viewer.panel_layout
+    layout = viewer.ui.layout
     x0, y0, x1, y1 = layout["rect"]
     # The panel follows the window: as tall as it (less the margins), never past its edges.
     assert (y0, y1) == (PANEL_MARGIN, height - PANEL_MARGIN), (what, width, height, layout)
@@ -98,25 +98,25 @@ def test_panel_follows_the_window_and_never_clips(xvfb, demo_scene):
         viewer.step()
         _assert_panel_fits(viewer, *sizes[0], "as opened")
         press_key(viewer, glfw.KEY_F)  # a flag, selected: its rename field shows
-        viewer.selected_flag = 0
-        viewer.settings.photo = "blended"
-        viewer.settings.edit_tool = "brush"
-        viewer.enable_crop()
+        viewer.flags.selected = 0
+        viewer.view.settings.photo = "blended"
+        viewer.view.settings.edit_tool = "brush"
+        viewer.editor.enable_crop()
         viewer.step()
         click_widget(viewer, "Edit")
         click_widget(viewer, "job settings")
-        assert "crop to box" in viewer.ui_rects, "the Edit section should be open"
-        assert "refinement steps" in viewer.ui_rects, "the job dialog should be open"
+        assert "crop to box" in viewer.ui.rects, "the Edit section should be open"
+        assert "refinement steps" in viewer.ui.rects, "the job dialog should be open"
         for width, height in sizes:
             glfw.set_window_size(viewer.window, width, height)
             viewer.step()
             viewer.step()
-            assert viewer.framebuffer_size == (width, height)
+            assert viewer.view.framebuffer_size == (width, height)
             _assert_panel_fits(viewer, width, height, "idle, every section open")
-        viewer.start_training()  # (its button, below the open sections, is tested elsewhere)
+        viewer.jobs.start_training()  # (its button, below the open sections, is tested elsewhere)
         for _ in range(5):
             viewer.step()
-        assert viewer.training is not None and viewer.training.progress.history.get("loss"), viewer.status
+        assert viewer.jobs.training is not None and viewer.jobs.training.progress.history.get("loss"), viewer.status
         for width, height in reversed(sizes):
             glfw.set_window_size(viewer.window, width, height)
             viewer.step()
@@ -153,12 +153,12 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
 
     fern = require_data("fern")
     with opened(open_viewer, fern, 320, 240) as viewer:
-        assert viewer.edit.count == 0 and "triangulating" in viewer.status
+        assert viewer.view.edit.count == 0 and "triangulating" in viewer.status
         deadline = time.time() + 300
         while viewer.points_worker is not None and time.time() < deadline:
             viewer.wait_for_next_frame()
             viewer.step()
-        assert viewer.edit.count > 500, viewer.status
+        assert viewer.view.edit.count > 500, viewer.status
         assert "triangulated from the photos" in viewer.status
         viewer.step()
         image = viewer.render_image()
@@ -176,13 +176,13 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
     from viewer_cases import choose, open_viewer
 
     with opened(open_viewer, demo_scene, 900, 700) as viewer:
-        viewer.settings.show_training_cameras = False
+        viewer.view.settings.show_training_cameras = False
         viewer.step()
         choose(viewer, "training photo", "beside")
-        assert viewer.settings.photo == "beside"
+        assert viewer.view.settings.photo == "beside"
         time.sleep(0.2)  # still: the full-resolution frame
         window = viewer.capture_window()
-        photo = viewer.source.scene.load_image(viewer.nearest_camera_index(viewer.current_camera()))
+        photo = viewer.view.source.scene.load_image(viewer.view.nearest_camera_index(viewer.view.current_camera()))
         inset_w = int(900 * PHOTO_INSET_FRACTION)
         inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
         inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)
@@ -196,7 +196,7 @@ def test_training_frustums_at_the_eye_draw_no_lines_across_the_window(xvfb, demo
 
     with opened(open_viewer, demo_scene, 640, 480, with_ui=False) as viewer:
         for index in range(4):
-            viewer.snap_to_camera(index)
+            viewer.view.snap_to_camera(index)
             image = viewer.capture_window()
             blue = (image[..., 2] > 0.9) & (image[..., 0] < 0.35) & (np.abs(image[..., 1] - 0.6) < 0.15)
             # No frustum line runs along most of a row or a column (the far frustums are small).

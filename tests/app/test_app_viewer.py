@@ -142,9 +142,9 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
         viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.RELEASE, 0)
         # A right-click on a covered pixel away from the panel (the panel starts at the top left).
-        viewer.settings.mode = "opacity"
+        viewer.view.settings.mode = "opacity"
         coverage = viewer.render_image()[..., 0]
-        viewer.settings.mode = "rgb"
+        viewer.view.settings.mode = "rgb"
         rows, cols = np.nonzero(coverage[:, 380:] > 0.5)
         assert len(rows), "the model should cover part of the right side of the window"
         x, y = float(cols[len(cols) // 2] + 380), float(rows[len(rows) // 2])
@@ -152,8 +152,8 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
         viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
         viewer.step()
-        current = viewer.current_camera()
-        flags = load_flags(viewer.flags_file)
+        current = viewer.view.current_camera()
+        flags = load_flags(viewer.flags.file)
         assert [f.name for f in flags] == ["flag 1", "flag 2"], viewer.status
         np.testing.assert_allclose(flags[0].camera.world_to_camera, current.world_to_camera, atol=1e-9)
         aimed = flags[1].camera
@@ -168,37 +168,37 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         assert abs(point[2]) < 0.1
     # Reloaded on start.
     with opened(open_grid_viewer, model) as viewer:
-        assert [f.name for f in viewer.flags] == ["flag 1", "flag 2"]
-        viewer.delete_flag(0)
-        viewer.rename_flag(0, "bad corner")
-        assert [f.name for f in load_flags(viewer.flags_file)] == ["bad corner"]
+        assert [f.name for f in viewer.flags.items] == ["flag 1", "flag 2"]
+        viewer.flags.delete(0)
+        viewer.flags.rename(0, "bad corner")
+        assert [f.name for f in load_flags(viewer.flags.file)] == ["bad corner"]
 
 
 def test_live_training_updates_frames_and_stops_on_close(xvfb, model):
     job = MovingGridJob()
     with opened(open_grid_viewer, model, job_factory=lambda source: job) as viewer:
         viewer.step()
-        viewer.start_training()
+        viewer.jobs.start_training()
         images, frames = [], viewer.stats.frames
         deadline = time.time() + 60
         while len(images) < 3 and time.time() < deadline:
-            before = viewer.model_version
+            before = viewer.view.model_version
             viewer.step()
-            if viewer.model_version != before:
+            if viewer.view.model_version != before:
                 images.append(viewer.render_image())
         assert len(images) == 3, "the job's snapshots should reach the renderer"
         assert viewer.stats.frames >= frames + 3  # the UI kept drawing frames meanwhile
         for a, b in zip(images, images[1:]):
             assert np.abs(a - b).mean() > 1e-3, "the rendered frame should change as the job publishes"
-        assert viewer.training.progress.history["loss"][1]
-        viewer.training.pause()
+        assert viewer.jobs.training.progress.history["loss"][1]
+        viewer.jobs.training.pause()
         time.sleep(0.2)
         viewer.step()
         steps = job.steps
         time.sleep(0.2)
-        assert job.steps == steps and viewer.training.state == "paused"
-        viewer.training.resume()
-    assert job.checkpoint_written and viewer.training.state == "stopped"
+        assert job.steps == steps and viewer.jobs.training.state == "paused"
+        viewer.jobs.training.resume()
+    assert job.checkpoint_written and viewer.jobs.training.state == "stopped"
 
 
 def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
@@ -207,13 +207,13 @@ def test_failing_job_is_shown_and_app_keeps_running(xvfb, model):
             raise ValueError("CUDA out of memory (pretend)")
 
     with opened(open_grid_viewer, model, job_factory=lambda source: Broken()) as viewer:
-        viewer.start_training()
-        viewer.training._thread.join(10)
+        viewer.jobs.start_training()
+        viewer.jobs.training._thread.join(10)
         frames = viewer.stats.frames
         viewer.step()
         viewer.step()
         assert viewer.stats.frames == frames + 2
-        assert viewer.training.state == "failed" and "out of memory" in viewer.training.error
+        assert viewer.jobs.training.state == "failed" and "out of memory" in viewer.jobs.training.error
 
 
 def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
@@ -221,21 +221,21 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
 
     with opened(open_grid_viewer, model) as viewer:
         viewer.step()
-        total = viewer.edit.count
-        viewer.rectangle_select((320, 0), (640, 480))  # the right half of the window
-        selected = int(viewer.edit.selected.sum())
+        total = viewer.view.edit.count
+        viewer.editor.rectangle_select((320, 0), (640, 480))  # the right half of the window
+        selected = int(viewer.view.edit.selected.sum())
         assert 0 < selected < total
         before = viewer.render_image()
-        viewer.delete_selection()
+        viewer.editor.delete_selection()
         viewer.step()
         after = viewer.render_image()
-        assert viewer.edit.count == total - selected
+        assert viewer.view.edit.count == total - selected
         assert np.abs(after[:, 380:] - before[:, 380:]).mean() > 1e-3  # right side changed
-        saved = viewer.save_ply(tmp_path / "edited.ply")
+        saved = viewer.editor.save_ply(tmp_path / "edited.ply")
         assert len(read_ply(saved)) == total - selected
         viewer.input.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
         viewer.step()
-        assert viewer.edit.count == total
+        assert viewer.view.edit.count == total
         np.testing.assert_allclose(viewer.render_image(), before, atol=1e-6)
 
 
@@ -244,20 +244,20 @@ def test_navigation_keys_move_the_camera(xvfb, model):
 
     with opened(open_grid_viewer, model) as viewer:
         viewer.step()
-        start = viewer.nav.center.copy()
-        forward = viewer.nav.rotation[2].copy()
+        start = viewer.view.nav.center.copy()
+        forward = viewer.view.nav.rotation[2].copy()
         viewer.input.on_key(viewer.window, glfw.KEY_W, 0, glfw.PRESS, 0)
         for _ in range(3):
             viewer.step()
         viewer.input.on_key(viewer.window, glfw.KEY_W, 0, glfw.RELEASE, 0)
-        moved = viewer.nav.center - start
+        moved = viewer.view.nav.center - start
         assert moved @ forward > 0 and np.linalg.norm(np.cross(moved, forward)) < 1e-9
         assert viewer.stats.rendered_scale < 1.0  # reduced resolution while moving
         time.sleep(0.2)
         viewer.step()
         assert viewer.stats.rendered_scale == 1.0  # refined once still
         viewer.input.on_key(viewer.window, glfw.KEY_R, 0, glfw.PRESS, 0)
-        np.testing.assert_allclose(viewer.nav.center, start)
+        np.testing.assert_allclose(viewer.view.nav.center, start)
 
 
 def test_window_opens_after_a_headless_egl_context_on_the_same_thread(xvfb):
@@ -286,12 +286,12 @@ def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
     with opened(open_grid_viewer, model, 900, 900, job_factory=lambda source: job) as viewer:
         viewer.step()
         click_widget(viewer, "train (new run)")
-        assert viewer.training is not None and viewer.training.alive
+        assert viewer.jobs.training is not None and viewer.jobs.training.alive
         click_widget(viewer, "pause")
-        assert viewer.training.state == "paused"
+        assert viewer.jobs.training.state == "paused"
         click_widget(viewer, "continue")
-        assert viewer.training.state == "running"
+        assert viewer.jobs.training.state == "running"
         click_widget(viewer, "stop")
-        viewer.training.stop()
-        assert viewer.training.state == "stopped" and job.checkpoint_written
-        assert not viewer.edit.selected.any()  # the clicks went to the panel, not to the scene
+        viewer.jobs.training.stop()
+        assert viewer.jobs.training.state == "stopped" and job.checkpoint_written
+        assert not viewer.view.edit.selected.any()  # the clicks went to the panel, not to the scene

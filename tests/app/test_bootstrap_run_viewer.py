@@ -28,42 +28,41 @@ def run_dir(tmp_path_factory) -> Path:
 
 
 def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):
-    from inceptiongs.app.jobs import start_bootstrap
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.bootstrap.config import BootstrapConfig
 
     with opened(Viewer, open_source(run_dir), 320, 240) as viewer:
         viewer.step()
-        start_bootstrap(viewer)
-        assert viewer.training is None and "no flagged views" in viewer.status
-        viewer.snap_to_camera(0)
-        viewer.flag_current_view()          # a 320x240 flag; the job rescales it to 48x36
+        viewer.jobs.start_bootstrap()
+        assert viewer.jobs.training is None and "no flagged views" in viewer.status
+        viewer.view.snap_to_camera(0)
+        viewer.flags.flag_current_view()          # a 320x240 flag; the job rescales it to 48x36
         # The button's action with a tiny configuration (its default is a full bootstrap).
-        start_bootstrap(viewer, BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained",
+        viewer.jobs.start_bootstrap(BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained",
                                                 log_every=1, save_views=0))
-        job = viewer.training.job
-        assert job.targets_file == viewer.flags_file and job.run_dir == run_dir
+        job = viewer.jobs.training.job
+        assert job.targets_file == viewer.flags.file and job.run_dir == run_dir
         versions, deadline = set(), time.time() + 120
-        while viewer.training.alive and time.time() < deadline:
-            before = viewer.model_version
+        while viewer.jobs.training.alive and time.time() < deadline:
+            before = viewer.view.model_version
             viewer.step()
-            if viewer.model_version != before:
-                versions.add(viewer.model_version)
-        assert viewer.training.error is None, viewer.training.error
+            if viewer.view.model_version != before:
+                versions.add(viewer.view.model_version)
+        assert viewer.jobs.training.error is None, viewer.jobs.training.error
         viewer.step()
         assert len(versions) >= 1, "the job's snapshots should reach the renderer"
-        assert "bootstrap finished" in viewer.training.progress.message
+        assert "bootstrap finished" in viewer.jobs.training.progress.message
         first = run_dir.with_name("run_bootstrap") / "model.ply"
         assert first.is_file()
-        assert viewer.run_dir == run_dir.with_name("run_bootstrap")  # the result is the open run now
+        assert viewer.jobs.run_dir == run_dir.with_name("run_bootstrap")  # the result is the open run now
         # Bootstrapping again (here: the original run) writes a new folder; the first result stays.
         first_bytes = first.read_bytes()
-        viewer.run_dir = run_dir
-        start_bootstrap(viewer, BootstrapConfig(iterations=2, k=1, l=2, ddim_steps=1, prior="untrained",
+        viewer.jobs.run_dir = run_dir
+        viewer.jobs.start_bootstrap(BootstrapConfig(iterations=2, k=1, l=2, ddim_steps=1, prior="untrained",
                                                 log_every=1, save_views=0))
-        assert viewer.training.job.out_dir == run_dir.with_name("run_bootstrap_2")
+        assert viewer.jobs.training.job.out_dir == run_dir.with_name("run_bootstrap_2")
         assert "run_bootstrap_2" in viewer.title
-        viewer.training.stop(timeout=120)
+        viewer.jobs.training.stop(timeout=120)
         assert first.read_bytes() == first_bytes
         assert (run_dir.with_name("run_bootstrap") / "checkpoints").is_dir()
