@@ -14,6 +14,7 @@ summary.json, cache/, views/*.png) and RUN2/prior/ when a prior was trained here
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import json
 import shutil
@@ -39,6 +40,7 @@ from .virtual_views import DEFAULT_K, nearest_training_views
 from .generation import GenerationCache, VirtualTarget, blend_target, gaussians_version, generate_cached, \
     obtain_prior, prior_version
 from ..io.flags import FLAGS_FILE_NAME
+from .stage1 import Stage1, as_stage1, load_stage1  # noqa: F401 (load_stage1: re-exported)
 from .targets import Target, flag_targets, named_target, round_targets, split_targets
 
 BOOTSTRAP_DIR = "bootstrap"
@@ -78,27 +80,6 @@ def check_output_folder(out_dir: Path, overwrite: bool) -> None:
 
 
 # --- inputs ----------------------------------------------------------------------------------------
-def load_stage1(run_dir: Path):
-    """RUN -> (TrainConfig, Scene, Split, checkpoint payload or None, Gaussians (normalised frame))."""
-    from ..evaluation.protocols import Split
-    from ..train.checkpoint import latest_checkpoint, load_checkpoint
-    from ..train.run_folder import load_run
-
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: run folder does not exist")
-    gaussians, scene, config = load_run(run_dir)
-    split_path = run_dir / "split.json"
-    if not split_path.is_file():
-        raise InputError(f"{split_path}: the run has no split (was it trained by `inceptiongs train`?)")
-    split = Split.load(split_path, scene.cameras)
-    if not split.train:
-        raise InputError(f"{split_path}: no training views")
-    checkpoint = latest_checkpoint(run_dir)
-    payload = load_checkpoint(checkpoint) if checkpoint is not None else None
-    return config, scene, split, payload, gaussians
-
-
 def default_flag_files(scene, run_dir: str | Path | None = None) -> list[Path]:
     """Where the viewer's flags.json may be, first found wins: the run folder, the scene's
     cache folder, then (read-only) the scene folder's .inceptiongs/ written by older versions."""
@@ -150,12 +131,12 @@ def expected_total_steps(done: int, spent_s: float, left_s: float, cap: int, min
 
 
 # --- the loop --------------------------------------------------------------------------------------
-def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Target] | None,
+def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequence[Target] | None,
                   config: BootstrapConfig, control=None,
                   on_snapshot: Callable[[int, Gaussians, dict], None] | None = None, snapshot_every: int = 0,
                   log: Callable[[str], None] | None = None, progress: bool = True,
                   render_fn=None, overwrite: bool = False) -> BootstrapResult:
-    """Bootstrap RUN into RUN2 (see the module doc). ``targets=None`` with an empty pool is the
+    """Bootstrap RUN (a loaded :class:`Stage1`, or its folder) into RUN2 (see the module doc). ``targets=None`` with an empty pool is the
     same-time baseline: the stage-I loop continued on the photos alone (``baseline_run``).
     An ``out_dir`` that already holds a result is refused (InputError) unless ``overwrite``
     (see ``inceptiongs.train.run_folder.next_free_folder`` for a fresh name instead)."""
@@ -176,11 +157,13 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
     config.validate()
     use_torch_threads()
     clock_start = time.perf_counter()   # moved forward by pauses: paused time is nobody's time
-    run_dir, out_dir = Path(run_dir), Path(out_dir)
-    if out_dir.resolve() == run_dir.resolve():
+    out_dir = Path(out_dir)
+    if out_dir.resolve() == Path(run if not isinstance(run, Stage1) else run.run_dir).resolve():
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
     check_output_folder(out_dir, overwrite)
-    stage1, scene, split, payload, gaussians0 = load_stage1(run_dir)
+    run = as_stage1(run)
+    run_dir, stage1, scene, split, payload, gaussians0 = (run.run_dir, run.config, run.scene, run.split, run.payload,
+                                                          run.gaussians)
     baseline = targets is None
     rounds = round_targets(targets, config.rounds) if not baseline else [[] for _ in range(config.rounds)]
 
@@ -200,7 +183,9 @@ def run_bootstrap(run_dir: str | Path, out_dir: str | Path, targets: Sequence[Ta
 
     data = prepare_data(scene, split, train_config, log)
     sh_max = supported_sh_degree(len(data.train), train_config.sh_degree_max)
-    state = (restore_state(payload, data, train_config) if payload is not None
+    # A copy: the optimiser adopts the payload's moment tensors and updates them in place, and
+    # the same Stage1 may start another run (the demo's baseline).
+    state = (restore_state(copy.deepcopy(payload), data, train_config) if payload is not None
              else state_from_gaussians(gaussians0, data, train_config))
     state.iteration = start
     cameras = list(scene.cameras)
@@ -549,11 +534,11 @@ def _blend_sources(camera, cameras, train: Sequence[int], config: BootstrapConfi
     return nearest_training_views(camera, cameras, list(train), config.k or DEFAULT_K)
 
 
-def baseline_run(run_dir: str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
+def baseline_run(run: Stage1 | str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
                  seed: int = 0, progress: bool = True, log=None, eval_every: int = 0,
                  overwrite: bool = False) -> BootstrapResult:
     """Stage I continued on the photos alone, with the same continuation schedule the bootstrap
     uses, for ``minutes`` (the bootstrap's total time) or ``iterations``: the comparison baseline."""
     config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1, log_every=1,
                              eval_every=eval_every)
-    return run_bootstrap(run_dir, out_dir, None, config, progress=progress, log=log, overwrite=overwrite)
+    return run_bootstrap(run, out_dir, None, config, progress=progress, log=log, overwrite=overwrite)
