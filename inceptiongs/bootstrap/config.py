@@ -54,7 +54,7 @@ class BootstrapConfig(SavedConfig):
     save_views: int = 4                 # PNGs (I*, mask, generated) for this many virtual views
     # What the warped photos are blended with: "blend" (binary mask, uniform mean; the paper's
     # with fill "prior") or "photo" (photo-consistent depth, exposure matching, lumigraph
-    # weights, soft mask; supervision.py), and what fills the pixels no photo covers: "prior"
+    # weights, soft mask; experimental/photo_supervision.py), and what fills the pixels no photo covers: "prior"
     # (the generated image), "inpaint" or "render" (no prior is trained or generated then).
     # bench_supervision on the README courtyard (docs/bootstrap.md, session 17): with the
     # scene's own depth splatted from the training views, the blend over the render is 1.2 dB
@@ -80,7 +80,7 @@ class BootstrapConfig(SavedConfig):
     agreement_min_db: float | None = -1.0
     splat_views: int = 8
     # Blend only: each warped photo is first moved onto the render by optical flow, shifts of
-    # more than this many pixels left untrusted (align.py); None: the warps as placed.
+    # more than this many pixels left untrusted (experimental/align.py); None: the warps as placed.
     align_px: float | None = None
 
     # --- refinement --------------------------------------------------------------------------
@@ -97,17 +97,17 @@ class BootstrapConfig(SavedConfig):
     # Which pixels of a virtual view carry loss: "all" (trusted pixels 1, the fill
     # ``generated_weight``; the paper's loss on I*) or "informative" (photo supervision only: the
     # trusted pixels where the photos contradict the render by more than they disagree among
-    # themselves, supervision.informative_mask; L1 + D-SSIM of that residual, nothing elsewhere).
+    # themselves, experimental/photo_supervision.informative_mask; L1 + D-SSIM of that residual, nothing elsewhere).
     # A view without informative pixels is not sampled; when no view has any, the step is a photo step.
     virtual_pixels: str = "all"
-    # The informative mask's residual floor (None: supervision.RESIDUAL_FLOOR, 4/255): a higher
+    # The informative mask's residual floor (None: photo_supervision.RESIDUAL_FLOOR, 4/255): a higher
     # floor keeps only pixels where the render is grossly wrong (see docs/bootstrap.md).
     residual_floor: float | None = None
     # "alternate": every ``virtual_every``-th step is a virtual view instead of a photo; "additive":
     # that step is a photo step whose gradient also holds the virtual view's loss (one Adam step,
     # so the photos lose no step to the virtual views).
     virtual_mode: str = "alternate"
-    # The geometry term (multiview.py): at a virtual view, 1 - NCC between the K source photos'
+    # The geometry term (experimental/multiview.py): at a virtual view, 1 - NCC between the K source photos'
     # patches mapped through the rendered depth and planar normal, back-propagated into the
     # Gaussians' geometry (no warped colour is a target). Its weight against the view's colour
     # loss; 0: off. 0.15 is stage I's lambda_ncc (PGSR's weight of the same measure).

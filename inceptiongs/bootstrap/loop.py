@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..errors import InputError
 from ..evaluation.run import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
@@ -341,7 +340,7 @@ class Bootstrap:
         scale = self.conscience.scale if self.conscience is not None else 1.0
         view = active[choice.index]
         if config.virtual_mode == "additive":
-            from .refine import additive_step
+            from .experimental.additive import additive_step
 
             record = additive_step(step, self.state, self.data, self.train_config, self.sh_max, view, choice, config,
                                    self.render_fn,

@@ -16,6 +16,8 @@ from ..gaussians import Gaussians
 from ..io.images import write_png
 from ..train.free_space import render_surface_depth
 from .config import BootstrapConfig
+from .source_depth import depth_from_training_views
+from .supervise import ViewContext, supervise_view
 from .generation import GenerationCache, VirtualTarget, gaussians_version, generate_cached
 from .virtual_views import DEFAULT_K, nearest_training_views
 
@@ -96,15 +98,16 @@ class TargetMaker:
 
     def make(self, camera: Camera, round_number: int, save: bool) -> tuple[VirtualTarget, list[int]]:
         """-> (the view's VirtualTarget, the training views warped into it)."""
-        from .supervise import supervise_view
-
         s, config = self.setting, self.setting.config
         generated, hit = self.fill(camera)
         sources = blend_sources(camera, s.cameras, s.train, config)
         report: dict = {}
         if config.virtual_colour:
-            image, mask = supervise_view(config, generated, camera, sources, s.cameras, s.train, s.photos, self.renders,
-                                         report)
+            supervision = supervise_view(ViewContext(
+                config, camera, generated, sources, s.cameras, s.photos, self.renders.depth, self.renders.rgb,
+                source_depth=lambda: depth_from_training_views(camera, s.cameras, s.train, config.splat_views,
+                                                               self.renders.depth)))
+            image, mask, report = supervision.image, supervision.mask, supervision.report
         else:
             # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
             # built for nothing. The render stands in for the PNGs, with an empty mask.
@@ -124,7 +127,7 @@ class TargetMaker:
     def geometry_sources(self, sources: Sequence[int]) -> list:
         """The geometry term's sources: grey photos (NCC ignores colour balance) and the current
         depth of each (its visibility reference)."""
-        from .multiview import GeometrySource
+        from .experimental.multiview import GeometrySource
 
         s = self.setting
         return [GeometrySource(s.photos[i].float().mean(-1, keepdim=True), s.cameras[i], self.renders.depth(s.cameras[i]))
