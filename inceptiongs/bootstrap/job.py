@@ -31,7 +31,8 @@ class BootstrapJob:
         # No folder given: a fresh one, never an earlier result.
         out_dir = Path(self.out_dir) if self.out_dir is not None else next_free_folder(default_out_dir(self.run_dir))
         stage1 = load_stage1(self.run_dir)
-        targets = resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds, run_dir=self.run_dir)
+        targets = resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds,
+                                  run_dir=self.run_dir)
         out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
         result = run_bootstrap(stage1, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,

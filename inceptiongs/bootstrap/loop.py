@@ -199,8 +199,9 @@ class Bootstrap:
         """The conscience watches the training photos nearest the targets (none for the
         baseline, which has no virtual views to restrain)."""
         cameras, train, config = list(self.run.scene.cameras), list(self.run.split.train), self.config
+        k = config.k or DEFAULT_K
         self.conscience_views = sorted({i for r in self.rounds for t in r
-                                        for i in nearest_training_views(t.camera, cameras, train, config.k or DEFAULT_K)})
+                                        for i in nearest_training_views(t.camera, cameras, train, k)})
         if config.conscience_tolerance is not None and self.conscience_views:
             self.conscience = Conscience(config.conscience_tolerance)
 
@@ -336,7 +337,8 @@ class Bootstrap:
             return record
         sh_degree = sh_degree_at(step, self.train_config, self.sh_max)
         frozen = self.model()
-        choice = self.sampler.choose(active, lambda i, w2c: render_l1(self.render_fn, frozen, active[i], sh_degree, w2c))
+        choice = self.sampler.choose(active,
+                                     lambda i, w2c: render_l1(self.render_fn, frozen, active[i], sh_degree, w2c))
         scale = self.conscience.scale if self.conscience is not None else 1.0
         view = active[choice.index]
         if config.virtual_mode == "additive":

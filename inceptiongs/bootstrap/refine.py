@@ -7,7 +7,7 @@ appearance is pulled towards I*), else L1 + D-SSIM. Both kinds of step go throug
 ``optimizer_step`` (Adam, densification statistics and schedule), so nothing is duplicated.
 
 Which virtual view comes next is chosen by :class:`ViewSampler`: Langevin steps on the 7-D pose
-(the paper's Algorithm 1; engineer A's inceptiongs.bootstrap.langevin) or uniformly (ablation).
+(the paper's Algorithm 1; inceptiongs.bootstrap.langevin) or uniformly (ablation).
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from ..train.optim import gaussians_from_params, position_learning_rate, set_lea
 from ..train.step import optimizer_step, sh_degree_at
 from .config import BootstrapConfig
 from .generation import VirtualTarget
+from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, pose_to_vector, \
+    snap_to_nearest
 from .perceptual import perceptual_distance
 
 # Opacity resets wipe every Gaussian's opacity; in a refinement of a few hundred steps the
@@ -92,8 +94,6 @@ class ViewSampler:
         self._pool_names: tuple[str, ...] = ()
 
     def _pool_poses(self, pool: Sequence[VirtualTarget]) -> np.ndarray:
-        from .langevin import pose_to_vector
-
         # Keyed on the members, not the size: the views that may be sampled change as a view's
         # informative pixels come and go.
         names = tuple(v.name for v in pool)
@@ -107,16 +107,13 @@ class ViewSampler:
         """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index])."""
         if self.config.sampling == "uniform":
             return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
-        from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, \
-            snap_to_nearest
-
         poses = self._pool_poses(pool)
         if self.pose is None:
             self.pose = poses[0].copy()
         current = int(snap_to_nearest(self.pose, poses))
         camera = pool[current].camera
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
-        # pose through the differentiable rasterizer, chained to the 7-D pose by A's module).
+        # pose through the differentiable rasterizer, chained to the 7-D pose by langevin.py).
         grad = pose_gradient(lambda w2c: loss_at(current, w2c), camera.world_to_camera)
         step = DEFAULT_STEP_SIZE if self.config.langevin_step is None else self.config.langevin_step
         noise = DEFAULT_NOISE_SCALE if self.config.langevin_noise is None else self.config.langevin_noise

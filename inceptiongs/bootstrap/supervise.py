@@ -30,9 +30,8 @@ def supervision_kind(name: str) -> SupervisionKind:
 def supervise_view(context: ViewContext) -> ViewSupervision:
     """I* of the view by ``config.supervision``; without blending (ablation) or photos: the fill
     and an all-zero mask."""
-    fill = torch.as_tensor(context.fill, dtype=torch.float32)
     if not context.config.blending or not context.sources:
-        return ViewSupervision(fill, torch.zeros((*fill.shape[:2], 1)))
+        return ViewSupervision(context.fill, torch.zeros((*context.fill.shape[:2], 1)))
     return supervision_kind(context.config.supervision)(context)
 
 
@@ -98,8 +97,7 @@ def choose_placement(context: ViewContext, fill: torch.Tensor) -> tuple[PlacedBl
 @register_supervision("blend")
 def blend_supervision(context: ViewContext) -> ViewSupervision:
     """The uniform mean of the binary-masked warps over the fill (the paper's blending)."""
-    fill = torch.as_tensor(context.fill, dtype=torch.float32)
-    placed, depth_name = choose_placement(context, fill)
+    placed, depth_name = choose_placement(context, context.fill)
     report = {} if depth_name is None else {"depth": depth_name}
     report["agreement_db"] = agreement_margin_db(context.render(), placed.warps)
     image = placed.image

@@ -38,6 +38,9 @@ class ViewContext:
     render_rgb: Callable[[Camera], torch.Tensor] | None = None
     source_depth: Callable[[], torch.Tensor] | None = None
 
+    def __post_init__(self) -> None:
+        self.fill = torch.as_tensor(self.fill, dtype=torch.float32)   # a generated image arrives as numpy
+
     @property
     def delta(self) -> float:
         return DEFAULT_DELTA if self.config.delta is None else self.config.delta

@@ -29,7 +29,8 @@ def view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor, 
     return np.round(image * 255.0).astype(np.uint8)
 
 
-def blend_sources(camera: Camera, cameras: Sequence[Camera], train: Sequence[int], config: BootstrapConfig) -> list[int]:
+def blend_sources(camera: Camera, cameras: Sequence[Camera], train: Sequence[int],
+                  config: BootstrapConfig) -> list[int]:
     """The K training photos nearest the virtual view (warped into it for blending)."""
     if not config.blending:
         return []
@@ -130,5 +131,6 @@ class TargetMaker:
         from .experimental.multiview import GeometrySource
 
         s = self.setting
-        return [GeometrySource(s.photos[i].float().mean(-1, keepdim=True), s.cameras[i], self.renders.depth(s.cameras[i]))
+        return [GeometrySource(s.photos[i].float().mean(-1, keepdim=True), s.cameras[i],
+                               self.renders.depth(s.cameras[i]))
                 for i in sources]

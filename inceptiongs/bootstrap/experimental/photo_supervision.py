@@ -241,7 +241,7 @@ def photo_supervision(context: ViewContext) -> ViewSupervision:
     sources = [Source(context.photos[i], context.cameras[i], context.render_depth(context.cameras[i]))
                for i in context.sources]
     out = supervise(context.camera, render, context.placing_depth(), sources,
-                    generated=torch.as_tensor(context.fill, dtype=torch.float32), fill=config.fill,
+                    generated=context.fill, fill=config.fill,
                     delta=context.delta,
                     residual_floor=RESIDUAL_FLOOR if config.residual_floor is None else config.residual_floor)
     report = {"agreement_db": agreement_margin_db(render, out.warps)}
