@@ -2,7 +2,7 @@
 
     python benchmarks/bench_bootstrap.py [--scenes demo statuette] [--out runs/bench_bootstrap]
         [--stage1-iterations 300] [--stage1-minutes 10] [--stage1-run RUN] [--bootstrap-iterations 200]
-        [--prior-minutes 2] [--variants full no-blending uniform-sampling untrained-prior no-regeneration]
+        [--prior-minutes 2] [--variants default no-blending uniform-sampling paper-loop-untrained-prior ...]
 
 Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/data/statuette
 or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
@@ -17,8 +17,8 @@ or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
    longest variant's total time (prior + generation + refinement); each variant is compared with
    the baseline's final scores (d) and with its curve at the variant's own time (d@time).
 
-Prints the table and writes OUT/bench.json. Targets (issue 7): scarce PSNR >= +1.0 dB over the
-baseline, scarce SSIM up, covered PSNR >= -0.2 dB.
+Prints the table and writes OUT/bench.json. Targets (for the default): scarce PSNR >= +1.0 dB
+over the baseline, scarce SSIM up, covered PSNR >= -0.2 dB.
 """
 
 from __future__ import annotations
@@ -39,63 +39,84 @@ from inceptiongs.threads import use_torch_threads
 REPO = Path(__file__).resolve().parents[1]
 # The paper's loop: the render's depth, every view used, alternating steps at weight 0.5.
 PAPER_LOOP = {"virtual_depth": "render", "agreement_min_db": None, "virtual_every": 2, "lambda_virtual": 0.5}
+# The informative pixels (photo supervision only), added to photo steps, views drawn uniformly.
+INFORMATIVE_ADDITIVE = {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive",
+                        "sampling": "uniform"}
+# Only the geometry term at virtual views (no colour target), added to photo steps, drawn uniformly.
+GEOMETRY_ONLY = {"virtual_colour": False, "virtual_mode": "additive", "sampling": "uniform"}
+# Each variant: the BootstrapConfig fields it changes from the default, named after them.
 VARIANTS = {
-    # The default (session 17): the blend over the render, warped with the depth splatted from
-    # the training views, views the render outvotes left out, every 4th step at weight 1; the
-    # conscience.
-    "full": {},
-    # The session 4-16 default: photo supervision (photo-consistent depth, exposure matching,
-    # lumigraph weights, soft mask) over the render, in the paper's loop.
-    "photo": {"supervision": "photo", **PAPER_LOOP},
-    # The paper's I*: the warps (stage-I depth, binary mask, uniform mean) over the prior's image.
-    "paper": {"supervision": "blend", "fill": "prior", **PAPER_LOOP},
+    # The default: the blend over the render, warped with the depth splatted from the training
+    # views (or the render's, whichever places more photos), views the render outvotes left out,
+    # every 4th step at weight 1; the conscience.
+    "default": {},
+    # The paper's I*: the warps (render depth, binary mask, uniform mean) over the prior's image,
+    # every view used, every 2nd step at 0.5.
+    "paper-loop": {"supervision": "blend", "fill": "prior", **PAPER_LOOP},
+    # The paper's ablations.
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
-    "untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior", **PAPER_LOOP},
-    # The new ingredients one at a time (on top of "full").
+    "paper-loop-untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior", **PAPER_LOOP},
+    # Photo supervision (photo-consistent depth, exposure matching, lumigraph weights, soft mask)
+    # over the render, in the paper's loop.
+    "photo-supervision": {"supervision": "photo", **PAPER_LOOP},
+    # One ingredient of the default changed at a time.
     "fill-prior": {"fill": "prior"},
     "fill-inpaint": {"fill": "inpaint"},
     "no-conscience": {"conscience_tolerance": None},
-    # Virtual steps learn only from pixels the photos are trusted on (the fill gives no gradient).
-    "masked": {"generated_weight": 0.0},
-    # Virtual steps learn only where the photos contradict the render (supervision.informative_mask),
-    # and only views with such pixels are sampled; no informative view: a photo step.
-    "informative": {"supervision": "photo", "virtual_pixels": "informative"},
-    # ... with uniform sampling (no pose gradient per virtual step: cheaper).
-    "informative-uniform": {"supervision": "photo", "virtual_pixels": "informative", "sampling": "uniform"},
-    # ... added to a photo step's gradient instead of replacing the photo step.
-    "informative-additive": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform"},
-    # ... with twice the virtual weight (lambda_virtual 1.0: an informative pixel pulls as hard as a photo's).
-    "informative-additive-x2": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
-                                "lambda_virtual": 1.0},
-    # ... and a residual floor of 0.1 (only where the render is grossly wrong).
-    "informative-strict": {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive", "sampling": "uniform",
-                           "lambda_virtual": 1.0, "residual_floor": 0.1},
-    # The geometry term (multiview.py, issue 21's design step): 1 - NCC of the source photos
-    # mapped through the rendered depth and normal at each virtual view, on top of "full"
-    # (weight 0.15: stage I's lambda_ncc) ...
-    "geometry": {"geometry_weight": 0.15},
-    # ... four times as strong ...
-    "geometry-x4": {"geometry_weight": 0.6},
-    # ... and alone: no colour target at virtual views, added to photo steps (the photos lose no step).
-    "geometry-only": {"geometry_weight": 0.15, "virtual_colour": False, "virtual_mode": "additive",
-                      "sampling": "uniform"},
-    "geometry-only-x4": {"geometry_weight": 0.6, "virtual_colour": False, "virtual_mode": "additive",
-                         "sampling": "uniform"},
-    "geometry-only-x16": {"geometry_weight": 2.4, "virtual_colour": False, "virtual_mode": "additive",
-                          "sampling": "uniform"},
-    # Not an ablation of the paper: I* generated once per round from stage I's render, never
-    # regenerated from the refined Gaussians (what the loop did before regenerate_every).
-    "no-regeneration": {"regenerate_every": 0},
-    # Not an ablation of the paper: generated pixels weighted 0.2 against photo-trusted ones
-    # (a weak CPU-trained prior paints noise where no photo is trusted).
-    "generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2, **PAPER_LOOP},
-    # Session 17's ingredients one at a time (on top of "full").
     "render-depth": {"virtual_depth": "render"},
     "no-agreement-gate": {"agreement_min_db": None},
-    # Session 18: each warp moved onto the render by optical flow before the blend (align.py).
-    "align": {"align_px": 3.0},
+    # I* generated once per round from stage I's render, never regenerated from the refined Gaussians.
+    "no-regeneration": {"regenerate_every": 0},
+    # Virtual steps learn only from pixels the photos are trusted on (the fill gives no gradient).
+    "generated-weight-0": {"generated_weight": 0.0},
+    # Generated pixels weighted 0.2 against photo-trusted ones in the paper's loop (a weak
+    # CPU-trained prior paints noise where no photo is trusted).
+    "paper-loop-generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2,
+                                        **PAPER_LOOP},
+    # Each warp moved onto the render by optical flow before the blend (experimental/align.py).
+    "flow-alignment-3px": {"align_px": 3.0},
+    # Virtual steps learn only where the photos contradict the render (photo_supervision
+    # .informative_mask), and only views with such pixels are sampled; no informative view: a photo step.
+    "informative-pixels": {"supervision": "photo", "virtual_pixels": "informative"},
+    # ... with uniform sampling (no pose gradient per virtual step: cheaper).
+    "informative-pixels-uniform": {"supervision": "photo", "virtual_pixels": "informative", "sampling": "uniform"},
+    # ... added to a photo step's gradient instead of replacing the photo step ...
+    "informative-pixels-additive": INFORMATIVE_ADDITIVE,
+    # ... at virtual weight 1 (an informative pixel pulls as hard as a photo's) ...
+    "informative-pixels-additive-weight-1": {**INFORMATIVE_ADDITIVE, "lambda_virtual": 1.0},
+    # ... and a residual floor of 0.1 (only where the render is grossly wrong).
+    "informative-pixels-additive-floor-0.1": {**INFORMATIVE_ADDITIVE, "lambda_virtual": 1.0, "residual_floor": 0.1},
+    # The geometry term (experimental/multiview.py): 1 - NCC of the source photos mapped through
+    # the rendered depth and normal at each virtual view, on top of the default, at weight 0.15
+    # (stage I's lambda_ncc) and 0.6 ...
+    "geometry-term-0.15": {"geometry_weight": 0.15},
+    "geometry-term-0.6": {"geometry_weight": 0.6},
+    # ... and alone (no colour target at virtual views) at 0.15, 0.6 and 2.4.
+    "geometry-only-0.15": {"geometry_weight": 0.15, **GEOMETRY_ONLY},
+    "geometry-only-0.6": {"geometry_weight": 0.6, **GEOMETRY_ONLY},
+    "geometry-only-2.4": {"geometry_weight": 2.4, **GEOMETRY_ONLY},
 }
+# The variants' names in the runs docs/bootstrap.md records, still accepted by --variants.
+RECORDED_NAMES = {
+    "full": "default", "paper": "paper-loop", "untrained-prior": "paper-loop-untrained-prior",
+    "photo": "photo-supervision", "masked": "generated-weight-0",
+    "generated-weight-0.2": "paper-loop-generated-weight-0.2", "align": "flow-alignment-3px",
+    "informative": "informative-pixels", "informative-uniform": "informative-pixels-uniform",
+    "informative-additive": "informative-pixels-additive",
+    "informative-additive-x2": "informative-pixels-additive-weight-1",
+    "informative-strict": "informative-pixels-additive-floor-0.1",
+    "geometry": "geometry-term-0.15", "geometry-x4": "geometry-term-0.6", "geometry-only": "geometry-only-0.15",
+    "geometry-only-x4": "geometry-only-0.6", "geometry-only-x16": "geometry-only-2.4",
+}
+
+
+def variant_name(name: str) -> str:
+    """A --variants name (a recorded one included) -> its key in VARIANTS."""
+    name = RECORDED_NAMES.get(name, name)
+    if name not in VARIANTS:
+        raise argparse.ArgumentTypeError(f"unknown variant {name!r}; one of: {', '.join(VARIANTS)}")
+    return name
 
 
 def data_root() -> Path | None:
@@ -212,7 +233,8 @@ def base_config(args):
 
 
 def bench_scene(name: str, args) -> dict:
-    from inceptiongs.bootstrap.runner import baseline_run, load_stage1, resolve_targets, run_bootstrap
+    from inceptiongs.bootstrap.runner import baseline_run, resolve_targets, run_bootstrap
+    from inceptiongs.bootstrap.stage1 import load_stage1
 
     out = Path(args.out)
     source = None
@@ -226,13 +248,13 @@ def bench_scene(name: str, args) -> dict:
     if any(c.needs_prior() and c.prior != "untrained" for c in configs.values()):
         prior_s = train_prior(run_dir, args.prior_minutes, args.seed)
         print(f"[{name}] prior: {prior_s:.0f} s", flush=True)
-    _, scene, split, _, _ = load_stage1(run_dir)
-    targets = resolve_targets(scene, split, None, None, 1)
+    stage1 = load_stage1(run_dir)
+    targets = resolve_targets(stage1.scene, stage1.split, None, None, 1)
     rows = {"stage I": {"seconds": 0.0, **scores(run_dir)}}
     curves = {}
     for variant, config in configs.items():
         print(f"[{name}] {variant} ...", flush=True)
-        result = run_bootstrap(run_dir, out / name / variant, targets, config, progress=False, overwrite=True)
+        result = run_bootstrap(stage1, out / name / variant, targets, config, progress=False, overwrite=True)
         # A prior trained for the run counts towards the time of every variant that uses it.
         extra = prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
         rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
@@ -250,7 +272,7 @@ def bench_scene(name: str, args) -> dict:
             print(f"[{name}] baseline reused ({seconds:.0f} s; this run's longest variant: {total_s:.0f} s)", flush=True)
         else:
             print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
-            seconds = baseline_run(run_dir, baseline_dir, total_s / 60.0, iterations, seed=args.seed, progress=False,
+            seconds = baseline_run(stage1, baseline_dir, total_s / 60.0, iterations, seed=args.seed, progress=False,
                                    eval_every=max(iterations // 4, 1), overwrite=True).wall_s
         rows["baseline (same time)"] = {"seconds": seconds, **scores(baseline_dir)}
         curves["baseline (same time)"] = eval_curve(out / name / "baseline")
@@ -273,18 +295,18 @@ def table(name: str, result: dict) -> str:
     rows = result["rows"]
     baseline = rows.get("baseline (same time)")
     lines = [f"{name}: held-out PSNR (dB) / SSIM; deltas against the same-time baseline",
-             f"{'variant':<22}{'total s':>9}{'scarce':>9}{'ssim':>8}{'covered':>9}{'ssim':>8}"
+             f"{'variant':<38}{'total s':>9}{'scarce':>9}{'ssim':>8}{'covered':>9}{'ssim':>8}"
              f"{'d scarce':>10}{'d covered':>11}{'d@time sc/cov':>15}"]
     curve = result["curves"].get("baseline (same time)", [])
     for variant, row in rows.items():
         delta = lambda key: "" if baseline is None else f"{row[key] - baseline[key]:+.2f}"  # noqa: E731
         same = [at_same_time(curve, row["seconds"], key) for key in ("scarce_psnr", "covered_psnr")]
         at_time = "" if None in same else f"{row['scarce_psnr'] - same[0]:+.2f}/{row['covered_psnr'] - same[1]:+.2f}"
-        lines.append(f"{variant:<22}{row['seconds']:>9.0f}{row['scarce_psnr']:>9.2f}{row['scarce_ssim']:>8.4f}"
+        lines.append(f"{variant:<38}{row['seconds']:>9.0f}{row['scarce_psnr']:>9.2f}{row['scarce_ssim']:>8.4f}"
                      f"{row['covered_psnr']:>9.2f}{row['covered_ssim']:>8.4f}{delta('scarce_psnr'):>10}"
                      f"{delta('covered_psnr'):>11}{at_time:>15}")
-    if baseline is not None and "full" in rows:
-        full = rows["full"]  # the targets are checked for the default; other variants: the d columns
+    if baseline is not None and "default" in rows:
+        full = rows["default"]  # the targets are checked for the default; other variants: the d columns
         checks = [("scarce PSNR >= baseline + 1.0 dB", full["scarce_psnr"] - baseline["scarce_psnr"] >= 1.0),
                   ("scarce SSIM rises", full["scarce_ssim"] > baseline["scarce_ssim"]),
                   ("covered PSNR >= baseline - 0.2 dB", full["covered_psnr"] - baseline["covered_psnr"] >= -0.2)]
@@ -313,7 +335,8 @@ def main(argv=None) -> int:
     parser.add_argument("--reuse-baseline", action="store_true",
                         help="reuse OUT/<scene>/baseline from an earlier invocation (same stage I) instead of "
                              "running it again; compare by the d@time column when its time differs")
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--variants", nargs="+", type=variant_name, default=list(VARIANTS), metavar="VARIANT",
+                        help=f"which variants to run (default: all): {', '.join(VARIANTS)}")
     args = parser.parse_args(argv)
     use_torch_threads()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")

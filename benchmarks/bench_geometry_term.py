@@ -1,5 +1,5 @@
 """How photo-consistent a run's geometry is at its held-out views: the geometry term of stage II
-(inceptiongs.bootstrap.multiview) evaluated with each held-out view as the virtual view.
+(inceptiongs.bootstrap.experimental.multiview) evaluated with each held-out view as the virtual view.
 
     python benchmarks/bench_geometry_term.py RUN [RUN ...] [--k 3]
 
@@ -54,12 +54,13 @@ def psnr_of(squared_error: torch.Tensor) -> float:
 
 
 def group_figures(run: str, k: int) -> dict:
-    from inceptiongs.bootstrap.multiview import GeometrySource, multiview_consistency
-    from inceptiongs.bootstrap.runner import load_stage1
+    from inceptiongs.bootstrap.experimental.multiview import GeometrySource, multiview_consistency
+    from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.rasterizer.rasterize import render
 
-    _, scene, split, _, gaussians = load_stage1(run)
+    stage1 = load_stage1(run)
+    scene, split, gaussians = stage1.scene, stage1.split, stage1.gaussians
     cameras = scene.cameras
     greys = {i: torch.as_tensor(np.asarray(scene.load_image(i)), dtype=torch.float32).mean(-1, keepdim=True)
              for i in split.train}

@@ -281,10 +281,11 @@ def measure(run: str, samples: int, dilation: int, truth_masks: bool, fill_margi
 
 def load_shell_run(run: str) -> ShellRun:
     """Load ``run``'s stage I and split its Gaussians at the sky shell; exit when it has none."""
-    from inceptiongs.bootstrap.runner import load_stage1
+    from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.train.sky import BACKGROUND_FRACTION, in_background
 
-    _, scene, split, payload, gaussians = load_stage1(Path(run))
+    stage1 = load_stage1(Path(run))
+    scene, split, payload, gaussians = stage1.scene, stage1.split, stage1.payload, stage1.gaussians
     sphere = None if payload is None else payload.get("sky")
     if sphere is None:
         raise SystemExit(f"{run}: no sky shell in the checkpoint (train with --sky-shell)")

@@ -36,7 +36,7 @@ import torch.nn.functional as F
 
 from bench_geometry_term import psnr_of
 from bench_silhouette import dilate_alpha, pixel_rays, ray_depths
-from inceptiongs.bootstrap.supervision import inpaint
+from inceptiongs.bootstrap.experimental.inpaint import inpaint
 from inceptiongs.train.sky import FOREGROUND_ALPHA
 
 # Foreground alpha below which a held-out pixel is open sky (the self-check's pixels).
@@ -89,11 +89,12 @@ def sky_target(camera, training: list, sphere: torch.Tensor | None, clear: float
 
 def measure(run: str, margin: int, clear: float, at_shell: bool) -> None:
     """Print the figures of the module docstring for ``run``."""
-    from inceptiongs.bootstrap.runner import load_stage1
+    from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.rasterizer.rasterize import render
     from inceptiongs.train.sky import in_background
 
-    _, scene, split, payload, gaussians = load_stage1(Path(run))
+    stage1 = load_stage1(Path(run))
+    scene, split, payload, gaussians = stage1.scene, stage1.split, stage1.payload, stage1.gaussians
     sphere = None if payload is None else payload.get("sky")
     if sphere is None:
         raise SystemExit(f"{run}: no sky shell in the checkpoint (train with the shell on)")

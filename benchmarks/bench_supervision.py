@@ -81,9 +81,10 @@ def near_depth_edges(depth: torch.Tensor) -> torch.Tensor:
 def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky=None) -> dict:
     """One held-out view's scores; depths: {camera name: rendered depth}, shared across views
     (a training view is a warp source of several held-out views)."""
-    from inceptiongs.bootstrap.generation import blend_target
+    from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.source_depth import depth_from_training_views
-    from inceptiongs.bootstrap.supervision import Source, supervise
+    from inceptiongs.bootstrap.supervise import ViewContext, supervise_view
+    from inceptiongs.bootstrap.experimental.photo_supervision import Source, supervise
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.evaluation.generated import photo_of, score
     from inceptiongs.evaluation.metrics import psnr
@@ -103,8 +104,12 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
                                     else render_surface_depth(gaussians, cam, sky))
         return depths[cam.name]
 
-    blend = lambda base, **kw: blend_target(base.numpy(), camera, sources, scene.cameras, photos,  # noqa: E731
-                                            render_depth, True, args.delta, **kw)
+    def blend(base, virtual_depth: str = "render", **fields):
+        config = BootstrapConfig(supervision="blend", virtual_depth=virtual_depth, delta=args.delta, **fields)
+        out = supervise_view(ViewContext(config, camera, base.numpy(), sources, scene.cameras, photos, render_depth,
+                                         source_depth=lambda: splatted))
+        return out.image, out.mask
+
     splatted = depth_from_training_views(camera, scene.cameras, split.train, args.splat_views, render_depth)
     photo_sources = [Source(photos[i], scene.cameras[i], render_depth(scene.cameras[i])) for i in sources]
     dst_depth = render_depth(camera)
@@ -116,9 +121,9 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
     images = {"render": rendered}
     images["blend"], blend_mask = blend(rendered)
     images["blend+flow"], blend_flow_mask = blend(rendered, align_px=args.align_px)
-    images["splat"], splat_mask = blend(rendered, target_depth=splatted)
-    images["splat+flow"], splat_flow_mask = blend(rendered, target_depth=splatted, align_px=args.align_px)
-    images["splat+inp"], _ = blend(rendered, target_depth=splatted, fill="inpaint")
+    images["splat"], splat_mask = blend(rendered, "sources")
+    images["splat+flow"], splat_flow_mask = blend(rendered, "sources", align_px=args.align_px)
+    images["splat+inp"], _ = blend(rendered, "sources", fill="inpaint")
     images["+depth"] = photo_run(fill="render", lumigraph=False, exposure=False).target
     images["+lumi"] = photo_run(fill="render", exposure=False).target
     full = photo_run(fill="render")
@@ -150,12 +155,12 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
 
 
 def main(argv=None) -> int:
-    from inceptiongs.bootstrap.align import DEFAULT_MAX_SHIFT_PX
+    from inceptiongs.bootstrap.experimental.align import DEFAULT_MAX_SHIFT_PX
     from inceptiongs.bootstrap.config import BootstrapConfig
-    from inceptiongs.bootstrap.runner import load_stage1
+    from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.bootstrap.virtual_views import DEFAULT_K
-    from inceptiongs.bootstrap.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
-    from inceptiongs.bootstrap.supervision import RESIDUAL_FLOOR
+    from inceptiongs.bootstrap.experimental.photo_depth import DEFAULT_SEARCH, DEFAULT_STEPS
+    from inceptiongs.bootstrap.experimental.photo_supervision import RESIDUAL_FLOOR
     from inceptiongs.bootstrap.warp import DEFAULT_DELTA
     from inceptiongs.evaluation.scoring import GROUPS, group_of
     from inceptiongs.prior.trainer import load_prior
@@ -186,7 +191,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
 
-    _, scene, split, payload, gaussians = load_stage1(Path(args.run))
+    stage1 = load_stage1(Path(args.run))
+    scene, split, payload, gaussians = stage1.scene, stage1.split, stage1.payload, stage1.gaussians
     sky = payload.get("sky") if payload is not None else None
     prior_run = Path(args.prior_run or args.run)
     prior = load_prior(prior_run) if (prior_run / "prior" / "prior.pt").is_file() else None

@@ -14,8 +14,8 @@ their best consensus and the warps would only add their misplacement: the view i
 of the refinement (its steps go back to the photos).
 
 Measured over 31 held-out views of three scenes, as if they were virtual views (blend of the
-3 nearest photos warped with the splatted depth, over the render; docs/bootstrap.md, session
-17): the margin (source - render agreement) was +0.5 to +7.2 dB on the README courtyard, where
+3 nearest photos warped with the splatted depth, over the render; docs/bootstrap.md): the
+margin (source - render agreement) was +0.5 to +7.2 dB on the README courtyard, where
 the blend beat the render against the held-out photo on every view (+0.22 to +2.05 dB);
 -0.6 to +1.0 dB on bonsai, where it beat the render on every view (+0.07 to +1.21 dB); and
 -1.5 to -3.2 dB on statuette, where it lost on 6 of 8 views (down to -1.73 dB) and gained

@@ -85,7 +85,7 @@ class BootstrapConfig(SavedConfig):
                                 "RUN2/bootstrap/views", "views", BOOKKEEPING)
     supervision: str = option("blend", "\"blend\" (default): the warped photos' uniform mean under a binary "
                                        "trust mask; \"photo\" (experimental): photo-consistent depth, exposure "
-                                       "matching, lumigraph weights and a soft mask (supervision.py)")
+                                       "matching, lumigraph weights and a soft mask (experimental/photo_supervision.py)")
     fill: str = option("render", "what fills the pixels no photo covers: \"render\" (default: the model's "
                                  "own render, no prior is trained or generated), \"inpaint\" (the blend "
                                  "inpainted) or \"prior\" (the generated image; the paper's, with blend)")
@@ -103,7 +103,7 @@ class BootstrapConfig(SavedConfig):
     splat_views: int = option(8, "training views whose surface depths are splatted into a virtual view "
                                  "(virtual_depth \"sources\", \"both\", \"auto\")", "views")
     align_px: float | None = option(None, "blend only: each warped photo is first moved onto the render by "
-                                          "optical flow, shifts beyond this untrusted (align.py); null: off",
+                                          "optical flow, shifts beyond this untrusted (experimental/align.py); null: off",
                                     "px", EXPERIMENTAL)
 
     # --- refinement ----------------------------------------------------------------------------
@@ -120,17 +120,17 @@ class BootstrapConfig(SavedConfig):
                                         "trusted pixels 1, the fill `generated_weight`) or \"informative\" "
                                         "(experimental, supervision \"photo\" only: the trusted pixels where "
                                         "the photos contradict the render by more than they disagree among "
-                                        "themselves, supervision.informative_mask; a view without any is "
+                                        "themselves, experimental/photo_supervision.informative_mask; a view without any is "
                                         "not sampled)")
     residual_floor: float | None = option(None, "virtual_pixels \"informative\" only: the smallest "
                                                 "photo - render residual that counts (null: "
-                                                "supervision.RESIDUAL_FLOOR, 4/255); higher keeps only "
+                                                "experimental/photo_supervision.RESIDUAL_FLOOR, 4/255); higher keeps only "
                                                 "grossly wrong pixels", "colour, in [0, 1]", EXPERIMENTAL)
     virtual_mode: str = option("alternate", "\"alternate\" (default): a virtual step replaces a photo "
                                             "step; \"additive\" (experimental): that step is a photo step "
                                             "whose gradient also holds the virtual view's loss (one Adam "
                                             "step, so the photos lose no step)")
-    geometry_weight: float = option(0.0, "weight of the geometry term at virtual views (multiview.py): 1 - NCC "
+    geometry_weight: float = option(0.0, "weight of the geometry term at virtual views (experimental/multiview.py): 1 - NCC "
                                          "of the k source photos' patches mapped through the rendered depth "
                                          "and planar normal, into the Gaussians' geometry; 0: off (stage I's "
                                          "lambda_ncc, PGSR's weight of the same measure, is 0.15)",

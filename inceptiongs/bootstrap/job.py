@@ -24,15 +24,17 @@ class BootstrapJob:
 
     def run(self, box: SnapshotBox, control: JobControl) -> None:
         from ..train.run_folder import next_free_folder
-        from .runner import default_out_dir, load_stage1, resolve_targets, run_bootstrap
+        from .runner import default_out_dir, resolve_targets, run_bootstrap
+        from .stage1 import load_stage1
 
         out = JobPublisher(box)
         # No folder given: a fresh one, never an earlier result.
         out_dir = Path(self.out_dir) if self.out_dir is not None else next_free_folder(default_out_dir(self.run_dir))
-        _, scene, split, _, _ = load_stage1(Path(self.run_dir))
-        targets = resolve_targets(scene, split, self.targets_file, None, self.config.rounds, run_dir=self.run_dir)
+        stage1 = load_stage1(self.run_dir)
+        targets = resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds,
+                                  run_dir=self.run_dir)
         out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
-        result = run_bootstrap(self.run_dir, out_dir, targets, self.config, control=control,
+        result = run_bootstrap(stage1, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False, overwrite=self.overwrite)
         used = (f"{result.virtual_views} virtual views" if result.supervised_views in (None, result.virtual_views)

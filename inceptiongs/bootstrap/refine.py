@@ -7,7 +7,7 @@ appearance is pulled towards I*), else L1 + D-SSIM. Both kinds of step go throug
 ``optimizer_step`` (Adam, densification statistics and schedule), so nothing is duplicated.
 
 Which virtual view comes next is chosen by :class:`ViewSampler`: Langevin steps on the 7-D pose
-(the paper's Algorithm 1; engineer A's inceptiongs.bootstrap.langevin) or uniformly (ablation).
+(the paper's Algorithm 1; inceptiongs.bootstrap.langevin) or uniformly (ablation).
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ from ..train.optim import gaussians_from_params, position_learning_rate, set_lea
 from ..train.step import optimizer_step, sh_degree_at
 from .config import BootstrapConfig
 from .generation import VirtualTarget
+from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, pose_to_vector, \
+    snap_to_nearest
+from .perceptual import perceptual_distance
 
 # Opacity resets wipe every Gaussian's opacity; in a refinement of a few hundred steps the
 # covered regions would not recover, so the continuation never resets (a step count no run reaches).
@@ -91,8 +94,6 @@ class ViewSampler:
         self._pool_names: tuple[str, ...] = ()
 
     def _pool_poses(self, pool: Sequence[VirtualTarget]) -> np.ndarray:
-        from .langevin import pose_to_vector
-
         # Keyed on the members, not the size: the views that may be sampled change as a view's
         # informative pixels come and go.
         names = tuple(v.name for v in pool)
@@ -106,16 +107,13 @@ class ViewSampler:
         """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index])."""
         if self.config.sampling == "uniform":
             return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
-        from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, \
-            snap_to_nearest
-
         poses = self._pool_poses(pool)
         if self.pose is None:
             self.pose = poses[0].copy()
         current = int(snap_to_nearest(self.pose, poses))
         camera = pool[current].camera
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
-        # pose through the differentiable rasterizer, chained to the 7-D pose by A's module).
+        # pose through the differentiable rasterizer, chained to the 7-D pose by langevin.py).
         grad = pose_gradient(lambda w2c: loss_at(current, w2c), camera.world_to_camera)
         step = DEFAULT_STEP_SIZE if self.config.langevin_step is None else self.config.langevin_step
         noise = DEFAULT_NOISE_SCALE if self.config.langevin_noise is None else self.config.langevin_noise
@@ -126,10 +124,6 @@ class ViewSampler:
             l1 = float(loss_at(chosen, torch.as_tensor(pool[chosen].camera.world_to_camera)))
         p = probability(l1)
         return ViewChoice(chosen, 1.0 / p, p)  # p >= 1: the division is safe
-
-
-# A virtual view whose informative mask sums to less than this many pixels has nothing to teach.
-MIN_INFORMATIVE_PIXELS = 16.0
 
 
 def pixel_weights(mask: torch.Tensor, generated_weight: float, virtual_pixels: str = "all") -> torch.Tensor | None:
@@ -149,21 +143,10 @@ def active_views(pool: Sequence[VirtualTarget], virtual_pixels: str) -> list[int
     ``"informative"`` only those with at least MIN_INFORMATIVE_PIXELS informative pixels."""
     if virtual_pixels != "informative":
         return [i for i, view in enumerate(pool) if view.supervised]
+    from .experimental.informative import MIN_INFORMATIVE_PIXELS
+
     return [i for i, view in enumerate(pool)
             if view.supervised and float(view.mask.sum()) >= MIN_INFORMATIVE_PIXELS]
-
-
-def informative_loss(rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, dict]:
-    """rgb, target [H, W, 3], mask [H, W, 1] (informative) -> (loss, record): the L1 of the box
-    means (supervision.box_mean, the scale the informative mask was judged at) weighted by the
-    mask, averaged over all pixels like a photo's L1, so an informative pixel is pulled as a
-    photo would pull it. The warps' resampling blur below that scale is not taught; SSIM and
-    the perceptual branch are left out (the residual is zero outside a few pixels)."""
-    from .supervision import box_mean
-
-    l1 = (mask * (box_mean(rgb) - box_mean(target)).abs()).mean()
-    value = float(l1.detach())
-    return l1, {"virtual_l1": value, "virtual_loss": value, "virtual_branch": "informative_l1"}
 
 
 def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: BootstrapConfig,
@@ -172,9 +155,9 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
     """rgb, target: [H, W, 3] -> (loss, record). Perceptual when 1 - SSIM <= tau, else L1 + D-SSIM.
     weights: optional [H, W, 1] per-pixel confidence (pixel_weights). With ``virtual_pixels=
     "informative"``: :func:`informative_loss` (weights = the informative mask)."""
-    from .perceptual import perceptual_distance
-
     if config.virtual_pixels == "informative":
+        from .experimental.informative import informative_loss
+
         return informative_loss(rgb, target, weights)
     if weights is not None:
         # Scaling the residual by the per-pixel confidence W gives L1 = mean(W |r - I*|) and an
@@ -191,22 +174,6 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
         record["virtual_branch"] = "l1_ssim"
     record["virtual_loss"] = float(loss.detach())
     return loss, record
-
-
-def geometry_loss(out: dict, view: VirtualTarget, config: BootstrapConfig, step: int
-                  ) -> tuple[torch.Tensor | None, dict]:
-    """The geometry term (multiview.py) of a virtual view's render ``out`` (with "depth" and
-    "normal") against its source photos -> (1 - NCC or None where no pair is valid, record).
-    The pixel subset is drawn from a generator seeded by the step: reproducible, and the
-    trainer's own random stream (view order, photo steps) is left as the baseline has it."""
-    from .multiview import multiview_consistency
-
-    generator = torch.Generator().manual_seed(config.seed * 1_000_003 + step)
-    term = multiview_consistency(out["depth"], out["normal"], view.camera, view.geometry,
-                                 samples=config.geometry_samples, generator=generator)
-    record = {"geometry_pairs": term.pairs, "geometry_ncc": term.ncc,
-              "geometry_loss": None if term.loss is None else float(term.loss.detach())}
-    return term.loss, record
 
 
 def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
@@ -230,6 +197,8 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
         total = 0.0 * out["rgb"].sum()
         record = {"virtual_loss": 0.0, "virtual_branch": "geometry"}
     if geometry:
+        from .experimental.multiview import geometry_loss
+
         term, geometry_record = geometry_loss(out, view, config, step)
         record.update(geometry_record)
         if term is not None:
@@ -249,23 +218,6 @@ def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int,
         total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
     record.update(kind="virtual", loss=float(total.detach()))
     record.update(optimizer_step(step, total, out, view.camera, state, data, train_config))
-    return record
-
-
-def additive_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
-                  choice: ViewChoice, config: BootstrapConfig, render_fn, photo_step: Callable[[], dict],
-                  lpips=None, scale: float = 1.0) -> dict:
-    """A photo step whose gradient also holds a virtual view's loss: the virtual loss is
-    back-propagated first (gradients accumulate in the parameters' .grad), then ``photo_step``
-    (the stage-I trainer's step) adds its own and takes the one Adam step, which zeroes them.
-    The photos lose no step; the virtual view costs one render and backward."""
-    total, _, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, render_fn, lpips,
-                                    scale)
-    total.backward()
-    virtual_record = {f"virtual_{key}" if not key.startswith("virtual_") else key: value
-                      for key, value in record.items()}
-    record = photo_step()
-    record.update(virtual_record, kind="additive", virtual_total=float(total.detach()))
     return record
 
 

@@ -12,8 +12,8 @@ On the README courtyard's close views of its north facade (stage I of the demo, 
 the photos warped with the splatted depth scored 16.10 dB against 15.54 with the view's own
 surface depth (render 14.88): the splatted depth is no more accurate (34 % of the pixels within
 5 % of the ray-traced truth, against 36 %), but its warps are trusted on 73 % of the pixels
-against 49 %. On bonsai it is the other way round (docs/bootstrap.md, session 2026-11-26,
-seventeenth), hence ``--virtual-depth auto``.
+against 49 %. On bonsai it is the other way round (docs/bootstrap.md, 2026-11-26), hence
+``--virtual-depth auto``.
 """
 
 from __future__ import annotations

@@ -74,10 +74,10 @@ def run(args) -> int:
     else:  # the default name never lands on an earlier result: the next free one is chosen
         out_dir = default_out_dir(run_dir) if args.overwrite else next_free_folder(default_out_dir(run_dir))
     check_output_folder(out_dir, args.overwrite)  # before loading anything
-    _, scene, split, _, _ = load_stage1(run_dir)
-    targets = resolve_targets(scene, split, args.targets, args.target_view, config.rounds, run_dir=run_dir)
+    stage1 = load_stage1(run_dir)
+    targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds, run_dir=run_dir)
     print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
-    result = run_bootstrap(run_dir, out_dir, targets, config, overwrite=args.overwrite)
+    result = run_bootstrap(stage1, out_dir, targets, config, overwrite=args.overwrite)
     print(f"prior: {result.prior}")
     if result.supervised_views is not None and result.supervised_views < result.virtual_views:
         print(f"{result.virtual_views - result.supervised_views} of {result.virtual_views} virtual views took no step: "

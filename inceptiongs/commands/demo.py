@@ -293,31 +293,15 @@ def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_
     return "\n".join(lines)
 
 
-def run(args) -> int:
-    from ..bootstrap.config import BootstrapConfig
-    from ..bootstrap.runner import baseline_run, run_bootstrap
-    from ..bootstrap.targets import split_targets
-    from ..evaluation import coverage_map
-    from ..evaluation.protocols import Split
-    from ..evaluation.report import read_metrics, run_duration
-    from ..evaluation.run import evaluate_run
-    from ..evaluation.scoring import format_table
-    from ..io.atomic import atomic_write_text
+def _stage1(args, out: Path, progress: Progress, timings: dict):
+    """OUT/scene and OUT/run: the courtyard and stage I on it -> (TrainResult, Stage1)."""
+    from ..bootstrap.stage1 import load_stage1
     from ..scene.courtyard import write_courtyard_scene
-    from ..scene.loader import load_scene
     from ..train.config import TrainConfig, short_run_schedule
     from ..train.trainer import train
 
-    _check(args)
-    out = Path(args.out)
-    boot_s = 60.0 * args.bootstrap_minutes
-    progress = Progress([("scene", _FIXED_ESTIMATES_S["scene"]), ("stage I", 60.0 * args.minutes),
-                         ("coverage", _FIXED_ESTIMATES_S["coverage"]), ("bootstrap", boot_s),
-                         ("baseline", boot_s), ("evaluation", _FIXED_ESTIMATES_S["evaluation"]),
-                         ("report", _FIXED_ESTIMATES_S["report"])])
-    timings: dict[str, float] = {}
-    began = time.perf_counter()
     progress.stage("writing the courtyard scene")
+    began = time.perf_counter()
     scene_dir = write_courtyard_scene(out / "scene", size=args.size, seed=args.seed)
     meta = json.loads((scene_dir / "demo_scene.json").read_text())
     timings["scene"] = time.perf_counter() - began
@@ -329,18 +313,31 @@ def run(args) -> int:
                                             scarce_views=list(meta["scarce_cameras"]), seed=args.seed,
                                             downscale=args.downscale, iterations=args.iterations,
                                             minutes=args.minutes, eval_every=DEMO_EVAL_EVERY))
-    stage1_result = train(config, run_dir)
+    result = train(config, run_dir)
     timings["stage I"] = time.perf_counter() - began
+    return result, load_stage1(run_dir)
+
+
+def _coverage(run_dir: Path, out: Path, progress: Progress, timings: dict) -> dict:
+    """OUT/coverage.png -> its summary figures."""
+    from ..evaluation import coverage_map
 
     progress.stage("coverage of stage I's Gaussians by the training views")
     began = time.perf_counter()
     coverage = coverage_map.run_coverage(run_dir, max_points=DEMO_COVERAGE_POINTS, depth_width=DEMO_DEPTH_WIDTH)
     coverage_map.plot(coverage, out / "coverage.png", title="demo courtyard: coverage by stage I's training views")
-    coverage_figures = coverage_map.summary(coverage)
     timings["coverage"] = time.perf_counter() - began
+    return coverage_map.summary(coverage)
 
-    scene = load_scene(config.scene, downscale=config.downscale)
-    split = Split.load(run_dir / "split.json", scene.cameras)
+
+def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings: dict):
+    """OUT/run_bootstrap on j*, then OUT/run_baseline for the bootstrap's time -> (boot, baseline) results."""
+    from ..bootstrap.config import BootstrapConfig
+    from ..bootstrap.runner import baseline_run, run_bootstrap
+    from ..bootstrap.targets import split_targets
+    from ..evaluation.report import read_metrics, run_duration
+
+    scene, split = stage1.scene, stage1.split
     boot_config = BootstrapConfig(seed=args.seed, iterations=args.bootstrap_iterations,
                                   minutes=args.bootstrap_minutes, prior_minutes=args.prior_minutes,
                                   prior_steps=args.prior_steps, ddim_steps=args.ddim_steps, k=DEMO_K, l=DEMO_L,
@@ -351,7 +348,7 @@ def run(args) -> int:
     began = time.perf_counter()
     boot_dir = out / "run_bootstrap"
     # The demo's own output folder: a rerun of the demo replaces its previous demo result.
-    boot_result = run_bootstrap(run_dir, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
+    boot_result = run_bootstrap(stage1, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
                                 log=lambda message: print(f"      {message}", flush=True))
     timings["bootstrap"] = time.perf_counter() - began
 
@@ -360,30 +357,56 @@ def run(args) -> int:
     progress.replan("baseline", base_s)
     progress.stage(f"baseline: stage I continued on the photos alone for the bootstrap's {base_s:.0f} s")
     began = time.perf_counter()
-    base_dir = out / "run_baseline"
-    base_result = baseline_run(run_dir, base_dir, base_s / 60.0, BASELINE_ITERATION_CAP, seed=args.seed,
+    base_result = baseline_run(stage1, out / "run_baseline", base_s / 60.0, BASELINE_ITERATION_CAP, seed=args.seed,
                                eval_every=DEMO_EVAL_EVERY)
     timings["baseline"] = time.perf_counter() - began
+    return boot_result, base_result
+
+
+def _evaluate(dirs: dict[str, Path], progress: Progress, timings: dict) -> dict:
+    """Held-out scores of the three runs, printed as tables -> {label: eval}."""
+    from ..evaluation.run import evaluate_run
+    from ..evaluation.scoring import format_table
 
     progress.stage("evaluating stage I, the baseline and the bootstrap on the held-out views")
     began = time.perf_counter()
-    dirs = dict(zip(RUN_LABELS, (run_dir, base_dir, boot_dir)))
     evals = {label: evaluate_run(path, progress=False) for label, path in dirs.items()}
     for label in RUN_LABELS:
         print(f"{label}\n{format_table(evals[label])}")
     timings["evaluation"] = time.perf_counter() - began
+    return evals
+
+
+def run(args) -> int:
+    from ..evaluation.report import read_metrics
+    from ..io.atomic import atomic_write_text
+
+    _check(args)
+    out = Path(args.out)
+    boot_s = 60.0 * args.bootstrap_minutes
+    progress = Progress([("scene", _FIXED_ESTIMATES_S["scene"]), ("stage I", 60.0 * args.minutes),
+                         ("coverage", _FIXED_ESTIMATES_S["coverage"]), ("bootstrap", boot_s),
+                         ("baseline", boot_s), ("evaluation", _FIXED_ESTIMATES_S["evaluation"]),
+                         ("report", _FIXED_ESTIMATES_S["report"])])
+    timings: dict[str, float] = {}
+    stage1_result, stage1 = _stage1(args, out, progress, timings)
+    run_dir, scene, split = stage1.run_dir, stage1.scene, stage1.split
+    coverage_figures = _coverage(run_dir, out, progress, timings)
+    boot_result, base_result = _bootstrap_and_baseline(args, stage1, out, progress, timings)
+    dirs = dict(zip(RUN_LABELS, (run_dir, out / "run_baseline", out / "run_bootstrap")))
+    evals = _evaluate(dirs, progress, timings)
 
     progress.stage("report")
     _target_image(scene, split, list(dirs.values()), out / "target.png")
     curves = time_curves(read_metrics(run_dir / "metrics.jsonl"),
                          {label: read_metrics(dirs[label] / "metrics.jsonl") for label in ("baseline", "bootstrap")})
     plot_time(curves, out / "report.png")
-    boot_summary = json.loads((boot_dir / "bootstrap" / "summary.json").read_text())
+    boot_summary = json.loads((dirs["bootstrap"] / "bootstrap" / "summary.json").read_text())
     atomic_write_text(out / "report.md", report_markdown(scene, split, evals, stage1_result, boot_result, base_result,
                                                          boot_summary, coverage_figures, timings))
     print(f"total {Progress.clock(time.perf_counter() - progress.began)}")
     print(gap_sentence(evals["stage I"]))
     print(verdict(*(evals[label] for label in RUN_LABELS)))
     print(f"report: {out / 'report.md'}")
-    print(f"open the result in the viewer:\n  inceptiongs-viewer {boot_dir}")
+    print(f"open the result in the viewer:\n  inceptiongs-viewer {dirs['bootstrap']}")
     return 0

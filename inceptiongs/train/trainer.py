@@ -12,30 +12,29 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from tqdm import tqdm
-
 from ..errors import InputError
+from ..evaluation.protocols import make_split
+from ..scene.loader import load_scene
 from ..io.atomic import OutputError, atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
-from ..live import wait_while_paused
 from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
                      RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
                      growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
+from .loop import StepLoop, default_log, save_model
 from .optim import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
-from .run_folder import append_metrics, logged_iterations, to_original_frame, truncate_metrics
+from .run_folder import append_metrics, logged_iterations, truncate_metrics
 from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
-                   sh_degree_at, supported_sh_degree, train_step, trim_sh)
+                   supported_sh_degree, train_step)
 
 
 @dataclass
@@ -59,15 +58,34 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     after_step(iteration, detached Gaussians, checkpointed) after every step (e.g. one
     diffusion-prior step, `inceptiongs train --prior`); its time counts as training time.
     """
-    from ..evaluation.protocols import make_split
-    from ..scene.loader import load_scene
-
     if render_fn is None:
         from ..rasterizer.rasterize import render as render_fn
-    log = log or (lambda message: tqdm.write(message, file=sys.stderr))
+    log = log or default_log
     use_torch_threads()
     run_dir = Path(run_dir)
     config.validate()
+    checkpoint, payload, scene, split, data = _start(config, run_dir, resume, log)
+    config.save(run_dir / "config.json")
+    split.save(run_dir / "split.json")
+    sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
+    state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log)
+    if config.pgsr and not any(data.neighbours.values()):
+        log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
+
+    loop = StepLoop(control, total=config.iterations, desc="train", progress=progress, initial=state.iteration,
+                    wall_start_s=state.wall_s, train_start_s=state.train_s, on_snapshot=on_snapshot,
+                    snapshot_every=snapshot_every)
+    run = StageOne(config, run_dir, scene, split, data, state, sh_max, render_fn, log, loop, after_step)
+    try:
+        run.steps()
+    finally:
+        loop.close()
+    return run.finish()
+
+
+def _start(config: TrainConfig, run_dir: Path, resume: bool, log):
+    """Everything that can fail before the run writes anything -> (checkpoint path or None,
+    its payload or None, scene, split, prepared data)."""
     created = not run_dir.exists()
     check_writable_dir(run_dir)  # before any work: one line now, not a traceback hours later
     remove_stale_temp_files(run_dir, max_age_s=0.0)  # this run owns the folder: its temp files are dead
@@ -92,61 +110,56 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
             with contextlib.suppress(OSError):
                 run_dir.rmdir()
         raise
-    config.save(run_dir / "config.json")
-    split.save(run_dir / "split.json")
-    sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
+    return checkpoint, payload, scene, split, data
 
+
+def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene, split, data, sh_max: int, log):
+    """The resumed state (metrics after it dropped), or a new one with its iteration-0 scores logged."""
     if payload is not None:
         state = restore_state(payload, data, config)
         truncate_metrics(run_dir, state.iteration)
         log(f"resumed from {checkpoint.name} (iteration {state.iteration})")
-    else:
-        state = new_state(scene, data, config, sh_max, log)
-        (run_dir / "metrics.jsonl").unlink(missing_ok=True)
-        # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
-        initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data)
-        if initial_eval:
-            append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
-                                     "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
-    if config.pgsr and not any(data.neighbours.values()):
-        log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
+        return state
+    state = new_state(scene, data, config, sh_max, log)
+    (run_dir / "metrics.jsonl").unlink(missing_ok=True)
+    # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
+    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data)
+    if initial_eval:
+        append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
+                                 "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
+    return state
 
-    budget_s = None if config.minutes is None else config.minutes * 60.0
-    last_eval: dict = {}
-    last_eval_iteration = -1
-    finished = True
-    bar = tqdm(total=config.iterations, initial=state.iteration, desc="train", file=sys.stderr,
-               dynamic_ncols=True, disable=not progress, unit="it")
-    session_start = time.perf_counter() - state.wall_s
-    train_clock = time.perf_counter() - state.train_s
 
-    def stop_clocks() -> None:
-        state.wall_s = time.perf_counter() - session_start
-        state.train_s = time.perf_counter() - train_clock
+@dataclass
+class ScheduleSizer:
+    """``size_to_minutes``: every slice of the time budget, the schedule (and, while the model
+    grows, its Gaussian budget) is re-sized to what the measured step rate can finish."""
 
-    def checkpoint_now() -> None:
-        stop_clocks()
-        save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints)
+    config: TrainConfig
+    budget_s: float
+    rate_mark: tuple[int, float]          # (step, train seconds) of the last check
+    next_check: tuple[int, float]         # (step, train seconds) from which the next check is due: both must pass
+    cost_points: list[tuple[float, float]] = field(default_factory=list)   # (mean Gaussians, s/step) per check
+    window: RateWindow = field(default_factory=RateWindow)                 # the steps since the last check
 
-    sizing = config.size_to_minutes and budget_s is not None
-    rate_mark = (state.iteration, time.perf_counter() - train_clock)   # (step, train seconds) of the last check
-    # (step, train seconds) from which the next check is due: both must have passed.
-    next_check = (state.iteration + BUDGET_CALIBRATION_STEPS, 0.0)
+    @classmethod
+    def starting(cls, config: TrainConfig, budget_s: float, iteration: int, train_s: float) -> "ScheduleSizer":
+        return cls(config, budget_s, (iteration, train_s), (iteration + BUDGET_CALIBRATION_STEPS, 0.0))
 
-    cost_points: list[tuple[float, float]] = []   # (mean Gaussians, s/step) of each check's window
-    window = RateWindow()                          # the steps since the last check
+    def due(self, step: int, train_s: float) -> bool:
+        return step >= self.next_check[0] and train_s >= self.next_check[1]
 
-    def plan(step: int, rate: float, remaining_s: float) -> tuple[int | None, int | None]:
+    def plan(self, step: int, count: int, rate: float, remaining_s: float) -> tuple[int | None, int | None]:
         """(new schedule length or None, new Gaussian budget or None) at this check."""
-        count = state.params["means"].shape[0]
-        cost_points.append((window.mean_count(count), 1.0 / rate))
+        config = self.config
+        self.cost_points.append((self.window.mean_count(count), 1.0 / rate))
         if step >= config.densify_until:
             return budget_iterations(step, config.iterations, rate, remaining_s), None
         # The model still grows: size the schedule at the mean cost of growing to the budget (MCMC
         # does, on its plan; densification may), with the budget where a step costs
-        # BUDGET_COST_RATIO times one of the session's first model.
-        cost = fit_step_cost(cost_points)
-        first_count = cost_points[0][0]
+        # BUDGET_COST_RATIO times one of the run's first model.
+        cost = fit_step_cost(self.cost_points)
+        first_count = self.cost_points[0][0]
         limit = sized_schedule(config, config.iterations).max_gaussians
         budget = min(limit, max(count, affordable_count(
             cost, BUDGET_COST_RATIO * (cost[0] + cost[1] * first_count))))
@@ -154,137 +167,167 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         wanted = growing_budget_iterations(step, cost, count, budget, growth_fraction, remaining_s)
         return far_off(step, config.iterations, wanted), budget
 
-    def resize(step: int) -> None:
-        nonlocal config, rate_mark, next_check, window
-        elapsed = time.perf_counter() - train_clock
-        steps, seconds = step - rate_mark[0], elapsed - rate_mark[1]
-        if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * budget_s:  # a rate needs both
-            wanted, grow_budget = plan(step, steps / seconds, budget_s - elapsed)
-            before = config
+    def resize(self, step: int, count: int, elapsed: float, log) -> bool:
+        """Re-plan at ``step`` (``elapsed`` training seconds, ``count`` Gaussians) -> whether
+        ``self.config`` changed."""
+        steps, seconds = step - self.rate_mark[0], elapsed - self.rate_mark[1]
+        before = self.config
+        if steps > 0 and seconds > 0 and elapsed < (1.0 - BUDGET_FREEZE) * self.budget_s:  # a rate needs both
+            wanted, grow_budget = self.plan(step, count, steps / seconds, self.budget_s - elapsed)
             if wanted is not None:
-                log(f"time budget: {steps / seconds:.2f} steps/s at {state.params['means'].shape[0]} Gaussians, "
-                    f"schedule re-sized from {config.iterations} to {wanted} iterations")
+                log(f"time budget: {steps / seconds:.2f} steps/s at {count} Gaussians, "
+                    f"schedule re-sized from {self.config.iterations} to {wanted} iterations")
                 # A budget the time set stays (past the growth window it is not re-planned).
-                resized = sized_schedule(config, wanted)
-                config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians, config.max_gaussians))
-            if grow_budget is not None and grow_budget != config.max_gaussians:
-                config = dataclasses.replace(config, max_gaussians=grow_budget)
+                resized = sized_schedule(self.config, wanted)
+                self.config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians,
+                                                                             self.config.max_gaussians))
+            if grow_budget is not None and grow_budget != self.config.max_gaussians:
+                self.config = dataclasses.replace(self.config, max_gaussians=grow_budget)
                 if abs(grow_budget - before.max_gaussians) > 0.1 * before.max_gaussians:   # >= 1: validated
                     log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "
                         f"{BUDGET_COST_RATIO:g}x the cost of the first model's)")
-            if config is not before:   # each change above built a new config
-                config.save(run_dir / "config.json")
-                bar.total = config.iterations
-        rate_mark = (step, elapsed)
-        window = RateWindow()
+        self.rate_mark = (step, elapsed)
+        self.window = RateWindow()
         # The next look once another slice of the budget has passed, in training time: counted
         # in steps at this rate it came 25 minutes late on fern (3.3 steps/s at 30k Gaussians
         # became 0.35 at 300k), and the schedule never shrank to what the budget could finish.
-        next_check = (step + BUDGET_CALIBRATION_STEPS, elapsed + BUDGET_CHECK_FRACTION * budget_s)
+        self.next_check = (step + BUDGET_CALIBRATION_STEPS, elapsed + BUDGET_CHECK_FRACTION * self.budget_s)
+        return self.config is not before   # each change above built a new config
 
-    shell_filled = False
 
-    def fill_shell() -> bool:
+@dataclass
+class StageOne:
+    """Stage I's loop over a prepared run: :meth:`steps` until the schedule, the budget or a
+    stop ends it, then :meth:`finish` (model, view fit, last metrics line, checkpoint)."""
+
+    config: TrainConfig
+    run_dir: Path
+    scene: object
+    split: object
+    data: object
+    state: object
+    sh_max: int
+    render_fn: Callable
+    log: Callable[[str], None]
+    loop: StepLoop
+    after_step: Callable[[int, Gaussians, bool], None] | None = None
+    last_eval: dict = field(default_factory=dict)
+    last_eval_iteration: int = -1
+    finished: bool = True
+    shell_filled: bool = False
+    pending_counts: dict = field(default_factory=dict)
+
+    def steps(self) -> None:
+        budget_s = None if self.config.minutes is None else self.config.minutes * 60.0
+        sizer = (ScheduleSizer.starting(self.config, budget_s, self.state.iteration, self.loop.train_s())
+                 if self.config.size_to_minutes and budget_s is not None else None)
+        while self.state.iteration < self.config.iterations:
+            if budget_s is not None and self.loop.train_s() >= budget_s:
+                break
+            if sizer is not None and sizer.due(self.state.iteration, self.loop.train_s()):
+                if sizer.resize(self.state.iteration, self.state.params["means"].shape[0], self.loop.train_s(),
+                                self.log):
+                    self.config = sizer.config
+                    self.config.save(self.run_dir / "config.json")
+                    self.loop.bar.total = self.config.iterations
+            if self.loop.wait_or_stop():
+                self.finished = False
+                break
+            record = self.step()
+            if sizer is not None:
+                sizer.window.add(record["num_gaussians"])
+
+    def step(self) -> dict:
+        """One training step with its metrics line, snapshot, checkpoint and ``after_step``."""
+        config, state = self.config, self.state
+        step = state.iteration + 1
+        record = train_step(step, state, self.data, config, self.sh_max, self.render_fn, self.log)
+        state.iteration = step
+        self.loop.advance()
+        if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
+            self.fill_shell()
+        self.pending_counts = add_maintenance_counts(self.pending_counts, record)
+        if step % config.log_every == 0 or step == config.iterations:
+            self.log_step(step, record)
+        self.loop.snapshot(step, state.params, record)
+        # The last step's checkpoint is the final save's, written after the model (below).
+        if step % config.checkpoint_every == 0 and step < config.iterations:
+            self.stop_clocks()
+            save_checkpoint(self.run_dir, state.iteration, state.payload(config), config.keep_checkpoints)
+        if self.after_step is not None:
+            self.after_step(step, gaussians_from_params(state.params).detach(), step % config.checkpoint_every == 0)
+        return record
+
+    def log_step(self, step: int, record: dict) -> None:
+        """The metrics line of ``step`` (with every densification since the last one), evaluated on cadence."""
+        record.update(self.pending_counts)
+        self.pending_counts = {}
+        record.update(iteration=step, **self.loop.clocks())
+        if step % self.config.eval_every == 0 or step == self.config.iterations:
+            eval_start = time.perf_counter()
+            self.last_eval = evaluate_held_out(gaussians_from_params(self.state.params).detach(), self.scene,
+                                               self.split, self.data)
+            self.last_eval_iteration = step
+            record.update(self.last_eval)
+            self.loop.exclude(time.perf_counter() - eval_start)  # evaluation is not training time
+        append_metrics(self.run_dir, record)
+        self.loop.bar.set_postfix(loss=f"{record['loss']:.4f}", n=record["num_gaussians"],
+                                  **({"psnr": f"{self.last_eval['all_psnr']:.2f}"} if "all_psnr" in self.last_eval
+                                     else {}))
+
+    def stop_clocks(self) -> None:
+        self.state.wall_s, self.state.train_s = self.loop.wall_s(), self.loop.train_s()
+
+    def fill_shell(self) -> bool:
         """At the end of training: the sky shell no training view saw takes its seen neighbours'
         colour (:func:`fill_shell_behind_scene`). -> whether the model changed."""
-        nonlocal shell_filled
-        shell_filled = True
-        if state.sky is None:
+        self.shell_filled = True
+        if self.state.sky is None:
             return False
-        filled = fill_shell_behind_scene(state.params, state.sky, [data.cameras[i] for i in data.train], render_fn)
+        train_cameras = [self.data.cameras[i] for i in self.data.train]
+        filled = fill_shell_behind_scene(self.state.params, self.state.sky, train_cameras, self.render_fn)
         if filled:
-            log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
-                f"of their seen neighbours")
+            self.log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
+                     f"of their seen neighbours")
         return filled > 0
 
-    pending_counts: dict[str, int] = {}
-    try:
-        while state.iteration < config.iterations:
-            if budget_s is not None and time.perf_counter() - train_clock >= budget_s:
-                break
-            if (sizing and state.iteration >= next_check[0]
-                    and time.perf_counter() - train_clock >= next_check[1]):
-                resize(state.iteration)
-            stop, paused_s = wait_while_paused(control)
-            session_start += paused_s
-            train_clock += paused_s
-            if stop:
-                finished = False
-                break
-            step = state.iteration + 1
-            record = train_step(step, state, data, config, sh_max, render_fn, log)
-            state.iteration = step
-            window.add(record["num_gaussians"])
-            bar.update(1)
-            if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
-                fill_shell()
-            pending_counts = add_maintenance_counts(pending_counts, record)
+    def finish(self) -> TrainResult:
+        """Final save: the small model first, then its log line, then the (large) checkpoint. Each
+        is attempted even when an earlier one fails (a full disk), and each is atomic, so what
+        fails leaves the previous version: the newest complete checkpoint stays resumable."""
+        state, config, run_dir = self.state, self.config, self.run_dir
+        self.stop_clocks()  # the checkpoint holds the clocks as they stood when training stopped
+        # A time budget ended the run before its schedule's last step: fill now, evaluate again.
+        if self.finished and not self.shell_filled and self.fill_shell():
+            self.last_eval_iteration = -1
+        gaussians = gaussians_from_params(state.params).detach()
+        failures: list[InputError] = []
 
-            if step % config.log_every == 0 or step == config.iterations:
-                record.update(pending_counts)  # every densification since the last logged line
-                pending_counts = {}
-                record.update(iteration=step, wall_s=time.perf_counter() - session_start,
-                              train_s=time.perf_counter() - train_clock)
-                if step % config.eval_every == 0 or step == config.iterations:
-                    eval_start = time.perf_counter()
-                    gaussians = gaussians_from_params(state.params).detach()
-                    last_eval = evaluate_held_out(gaussians, scene, split, data)
-                    last_eval_iteration = step
-                    record.update(last_eval)
-                    train_clock += time.perf_counter() - eval_start  # evaluation is not training time
-                append_metrics(run_dir, record)
-                bar.set_postfix(loss=f"{record['loss']:.4f}", n=record["num_gaussians"],
-                                **({"psnr": f"{last_eval['all_psnr']:.2f}"} if "all_psnr" in last_eval else {}))
-            if on_snapshot is not None and snapshot_every > 0 and step % snapshot_every == 0:
-                on_snapshot(step, gaussians_from_params(state.params).detach(), record)
-            # The last step's checkpoint is the final save's, written after the model (below).
-            if step % config.checkpoint_every == 0 and step < config.iterations:
-                checkpoint_now()
-            if after_step is not None:
-                after_step(step, gaussians_from_params(state.params).detach(),
-                           step % config.checkpoint_every == 0)
-    finally:
-        bar.close()
+        def attempt(write) -> None:
+            try:
+                write()
+            except OutputError as exc:
+                failures.append(exc)
 
-    stop_clocks()  # the checkpoint holds the clocks as they stood when training stopped
-    # A time budget ended the run before its schedule's last step: fill now, evaluate again.
-    if finished and not shell_filled and fill_shell():
-        last_eval_iteration = -1
-    gaussians = gaussians_from_params(state.params).detach()
-    # Final save: the small model first, then its log line, then the (large) checkpoint. Each
-    # is attempted even when an earlier one fails (a full disk), and each is atomic, so what
-    # fails leaves the previous version: the newest complete checkpoint stays resumable.
-    failures: list[InputError] = []
-
-    def attempt(write) -> None:
-        try:
-            write()
-        except OutputError as exc:
-            failures.append(exc)
-
-    if finished:
-        if last_eval_iteration != state.iteration:
-            last_eval = evaluate_held_out(gaussians, scene, split, data)
-        from ..io.ply import write_ply
-        attempt(lambda: write_ply(to_original_frame(
-            trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)), scene.normalization),
-            run_dir / "model.ply"))
-        if state.view_mse:
-            report = view_fit_report(state.view_mse, {i: data.cameras[i].name for i in state.view_mse})
-            attempt(lambda: atomic_write_text(run_dir / VIEW_FIT_FILE, json.dumps(report, indent=1)))
-            line = summary_line(report, str(run_dir / VIEW_FIT_FILE))
-            if line:
-                log(line)
-        # A resumed finished run logs nothing twice.
-        if last_eval and state.iteration not in logged_iterations(run_dir):
-            attempt(lambda: append_metrics(run_dir, {
-                "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
-                "num_gaussians": len(gaussians), **last_eval}))
-    attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
-    if failures:
-        for later in failures[1:]:  # one line each; the first is raised (the CLI prints it)
-            log(f"error: {later}")
-        raise failures[0]
-    return TrainResult(run_dir, state.iteration, finished, len(gaussians), last_eval)
-
-
+        if self.finished:
+            if self.last_eval_iteration != state.iteration:
+                self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data)
+            attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,
+                                       self.scene.normalization))
+            if state.view_mse:
+                report = view_fit_report(state.view_mse, {i: self.data.cameras[i].name for i in state.view_mse})
+                attempt(lambda: atomic_write_text(run_dir / VIEW_FIT_FILE, json.dumps(report, indent=1)))
+                line = summary_line(report, str(run_dir / VIEW_FIT_FILE))
+                if line:
+                    self.log(line)
+            # A resumed finished run logs nothing twice.
+            if self.last_eval and state.iteration not in logged_iterations(run_dir):
+                attempt(lambda: append_metrics(run_dir, {
+                    "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
+                    "num_gaussians": len(gaussians), **self.last_eval}))
+        attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
+        if failures:
+            for later in failures[1:]:  # one line each; the first is raised (the CLI prints it)
+                self.log(f"error: {later}")
+            raise failures[0]
+        return TrainResult(run_dir, state.iteration, self.finished, len(gaussians), self.last_eval)

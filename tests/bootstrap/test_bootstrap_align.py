@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.bootstrap.align import MIN_SIZE_PX, align_warp
+from inceptiongs.bootstrap.experimental.align import MIN_SIZE_PX, align_warp
 from inceptiongs.bootstrap.warp import WarpResult
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.bootstrap.multiview import GeometrySource, multiview_consistency, patch_ncc
+from inceptiongs.bootstrap.experimental.multiview import GeometrySource, multiview_consistency, patch_ncc
 from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at, plane_grey
 
 

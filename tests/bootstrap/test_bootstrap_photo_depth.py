@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.bootstrap.photo_depth import pairwise_ncc, photo_consistent_depth, subpixel_offset
+from inceptiongs.bootstrap.experimental.photo_depth import pairwise_ncc, photo_consistent_depth, subpixel_offset
 from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at, plane_grey
 
 

@@ -312,7 +312,9 @@ def test_informative_views_and_the_additive_step():
     from types import SimpleNamespace
 
     from inceptiongs.bootstrap.generation import VirtualTarget
-    from inceptiongs.bootstrap.refine import MIN_INFORMATIVE_PIXELS, ViewChoice, active_views, additive_step
+    from inceptiongs.bootstrap.experimental.additive import additive_step
+    from inceptiongs.bootstrap.experimental.informative import MIN_INFORMATIVE_PIXELS
+    from inceptiongs.bootstrap.refine import ViewChoice, active_views
 
     size = (16, 16)
     target = torch.full((*size, 3), 0.8)

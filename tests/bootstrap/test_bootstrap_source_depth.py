@@ -67,7 +67,8 @@ def test_close_holes_takes_the_nearest_depth_and_leaves_far_holes_empty():
 def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsewhere():
     """--virtual-depth both: where the view's own depth places a trusted warp, its blend; where
     it has no depth (a hole in the render), the blend placed with the splatted depth."""
-    from inceptiongs.bootstrap.generation import blend_target
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.supervise import ViewContext, supervise_view
     from test_bootstrap_photo_depth import photo_of_plane
 
     cameras = [camera_at("a", (-0.3, 0.0, 0.0)), camera_at("b", (0.3, 0.0, 0.0)), camera_at("v", (0.0, 0.05, 0.5))]
@@ -77,11 +78,16 @@ def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsew
     depth_of = lambda cam: own if cam.name == "v" else plane_depth(cam)  # noqa: E731
     render = torch.zeros(HEIGHT, WIDTH, 3)
     splat = splatted_depth(cameras[2], [(plane_depth(c), c) for c in cameras[:2]])
-    kwargs = dict(supervision="blend", fill="render", target_depth=splat)
-    alone, alone_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None)
-    both, both_mask = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
-                                   combine="both", **kwargs)
-    splat_only, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None, **kwargs)
+
+    def blend(virtual_depth: str, splatted: torch.Tensor = splat):
+        config = BootstrapConfig(supervision="blend", fill="render", virtual_depth=virtual_depth)
+        out = supervise_view(ViewContext(config, cameras[2], render.numpy(), [0, 1], cameras, photos, depth_of,
+                                         source_depth=lambda: splatted))
+        return out.image, out.mask, out.report
+
+    alone, alone_mask, _ = blend("render")
+    both, both_mask, _ = blend("both")
+    splat_only, _, _ = blend("sources")
     left = both_mask[:, 4: WIDTH // 2 - 4, 0]
     assert float(alone_mask[:, : WIDTH // 2].max()) == 0.0 and float(left.mean()) > 0.8
     right = alone_mask[..., 0] > 0
@@ -89,12 +95,7 @@ def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsew
     hole = (both_mask[..., 0] > 0) & ~right
     assert torch.allclose(both[hole], splat_only[hole])
     # "auto": the depth whose blend trusts more pixels, whole; the report names it.
-    report: dict = {}
-    auto, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
-                           combine="auto", report=report, **kwargs)
+    auto, _, report = blend("auto")
     assert report["depth"] == "sources" and torch.equal(auto, splat_only)
-    report = {}
-    empty = torch.zeros_like(splat)
-    auto, _ = blend_target(render.numpy(), cameras[2], [0, 1], cameras, photos, depth_of, True, None,
-                           supervision="blend", fill="render", target_depth=empty, combine="auto", report=report)
+    auto, _, report = blend("auto", torch.zeros_like(splat))
     assert report["depth"] == "render" and torch.equal(auto, alone)

@@ -8,10 +8,11 @@ import math
 import pytest
 import torch
 
-from inceptiongs.bootstrap.exposure import apply_affine_colour, fit_affine_colour
-from inceptiongs.bootstrap.lumigraph import lumigraph_weights, ray_angles
-from inceptiongs.bootstrap.photo_depth import DEFAULT_CONFIDENCE_MIN
-from inceptiongs.bootstrap.supervision import FILLS, Source, inpaint, match_exposures, supervise
+from inceptiongs.bootstrap.experimental.exposure import apply_affine_colour, fit_affine_colour
+from inceptiongs.bootstrap.experimental.lumigraph import lumigraph_weights, ray_angles
+from inceptiongs.bootstrap.experimental.photo_depth import DEFAULT_CONFIDENCE_MIN
+from inceptiongs.bootstrap.experimental.inpaint import inpaint
+from inceptiongs.bootstrap.experimental.photo_supervision import FILLS, Source, match_exposures, supervise
 from inceptiongs.evaluation.metrics import psnr
 
 from test_bootstrap_photo_depth import HEIGHT, PLANE_Z, WIDTH, camera_at, photo_of_plane
@@ -154,7 +155,7 @@ def test_informative_pixels_are_where_the_photos_contradict_the_render(plane_vie
 
 
 def test_informative_mask_needs_confirmed_depth_and_a_residual_above_the_sources_spread():
-    from inceptiongs.bootstrap.supervision import RESIDUAL_FLOOR, informative_mask, source_spread
+    from inceptiongs.bootstrap.experimental.photo_supervision import RESIDUAL_FLOOR, informative_mask, source_spread
 
     render = torch.full((2, 3, 3), 0.5)
     blended = render.clone()
@@ -177,14 +178,17 @@ def test_informative_mask_needs_confirmed_depth_and_a_residual_above_the_sources
 
 
 def test_informative_target_holds_the_blended_photos_where_the_mask_is_on(plane_views):
-    from inceptiongs.bootstrap.generation import blend_target
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.supervise import ViewContext, supervise_view
 
     virtual, sources, truth, blurred, prior_depth = plane_views
     cameras = [s.camera for s in sources] + [virtual]
     photos = {i: s.photo for i, s in enumerate(sources)}
     depth_of = lambda camera: prior_depth  # noqa: E731  (every view sees the plane at that depth)
-    target, mask = blend_target(blurred.numpy(), virtual, [0, 1, 2], cameras, photos, depth_of, True, None,
-                                "photo", "render", lambda camera: blurred, pixels="informative")
+    config = BootstrapConfig(supervision="photo", fill="render", virtual_depth="render", virtual_pixels="informative")
+    out = supervise_view(ViewContext(config, virtual, blurred.numpy(), [0, 1, 2], cameras, photos, depth_of,
+                                     lambda camera: blurred))
+    target, mask = out.image, out.mask
     full = supervise(virtual, blurred, prior_depth, sources, fill="render")
     on = mask[..., 0] > 0
     assert torch.equal(mask, full.informative) and int(on.sum()) > 50

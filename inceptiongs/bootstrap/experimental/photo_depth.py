@@ -28,9 +28,9 @@ from typing import Sequence
 import torch
 import torch.nn.functional as F
 
-from ..camera import Camera
-from ..constants import NEAR_PLANE
-from .warp import bilinear_taps, relative_pose, sample_bilinear, unproject
+from ...camera import Camera
+from ...constants import NEAR_PLANE
+from ..warp import bilinear_taps, relative_pose, sample_bilinear, unproject
 
 # Hypotheses span +-10 % of the stage-I depth: the render's depth passes a 3 % visibility
 # test yet misplaces photos by pixels, and surfaces stage I got badly wrong are not what this

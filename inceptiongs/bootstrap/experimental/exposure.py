@@ -5,7 +5,7 @@ Photos of one capture differ in exposure and white balance; the Gaussians' colou
 average. Blending an uncorrected bright photo next to a dark one leaves seams that the
 refinement would faithfully learn. Per source, c' = A c + b (A [3, 3], b [3]) is fitted by
 weighted least squares against a reference (the other photos' consensus, see
-:func:`inceptiongs.bootstrap.supervision.match_exposures`), with a ridge pulling A towards the
+:func:`inceptiongs.bootstrap.experimental.photo_supervision.match_exposures`), with a ridge pulling A towards the
 identity and b towards 0: with few or uninformative pixels the map stays (nearly) the identity
 instead of inventing a colour cast.
 """

@@ -1,0 +1,108 @@
+"""I* at one virtual view by its supervision kind (``BootstrapConfig.supervision``; the
+interface and the registry: supervision_kinds.py).
+
+The core kind is "blend" (:func:`blend_supervision`): the K nearest photos warped in with the
+model's depth (or the training views' depth splatted into the view, ``virtual_depth``), their
+binary-masked mean over the fill: I* = M * warped + (1 - M) * fill, the paper's blending. The
+kinds that were measured and left off by default live in :mod:`.experimental` and register
+themselves there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .agreement import agreement_margin_db
+from .supervision_kinds import (SUPERVISION_KINDS, SupervisionKind, ViewContext, ViewSupervision,
+                                register_supervision)
+from .warp import WarpResult, blend_views, warp_to_view
+
+
+def supervision_kind(name: str) -> SupervisionKind:
+    """The kind registered as ``name`` (the experimental ones are imported when first asked for)."""
+    if name not in SUPERVISION_KINDS:
+        from .experimental import photo_supervision  # noqa: F401 (registers "photo")
+    return SUPERVISION_KINDS[name]
+
+
+def supervise_view(context: ViewContext) -> ViewSupervision:
+    """I* of the view by ``config.supervision``; without blending (ablation) or photos: the fill
+    and an all-zero mask."""
+    if not context.config.blending or not context.sources:
+        return ViewSupervision(context.fill, torch.zeros((*context.fill.shape[:2], 1)))
+    return supervision_kind(context.config.supervision)(context)
+
+
+# --- the core kind: the paper's blend --------------------------------------------------------------
+def warp_sources(context: ViewContext, depth: torch.Tensor) -> list[WarpResult]:
+    """Each source photo warped into the view placed with ``depth`` [H, W, 1] (and, with
+    ``align_px``, moved onto the render by optical flow: experimental.align)."""
+    warps = [warp_to_view(context.photos[i], context.render_depth(context.cameras[i]), context.cameras[i], depth,
+                          context.camera, delta=context.delta)
+             for i in context.sources]
+    if context.config.align_px is None:
+        return warps
+    from .experimental.align import align_warp
+
+    reference = context.render()
+    return [align_warp(reference, warp, context.config.align_px) for warp in warps]
+
+
+@dataclass
+class PlacedBlend:
+    """The warps placed with one depth and their blend over the fill."""
+
+    warps: list[WarpResult]
+    image: torch.Tensor
+    mask: torch.Tensor
+    depth: torch.Tensor
+
+
+def placed_blend(context: ViewContext, fill: torch.Tensor, depth: torch.Tensor) -> PlacedBlend:
+    warps = warp_sources(context, depth)
+    image, mask = blend_views(fill, warps)
+    return PlacedBlend(warps, image, mask, depth)
+
+
+def both_depths(own: PlacedBlend, splatted: PlacedBlend) -> PlacedBlend:
+    """``virtual_depth="both"``: per pixel the blend placed with the view's own depth where it is
+    trusted, else the one placed with the splatted depth (per source for the warps, so the
+    agreement is judged on the photos as they enter the blend)."""
+    warps = [WarpResult(torch.where(a.mask > 0, a.image, b.image), torch.maximum(a.mask, b.mask))
+             for a, b in zip(own.warps, splatted.warps)]
+    return PlacedBlend(warps, torch.where(own.mask > 0, own.image, splatted.image),
+                       torch.maximum(own.mask, splatted.mask),
+                       torch.where(own.depth > 0, own.depth, splatted.depth))
+
+
+def choose_placement(context: ViewContext, fill: torch.Tensor) -> tuple[PlacedBlend, str | None]:
+    """The blend by ``virtual_depth`` -> (it, the depth's name for the report, None: the render's
+    alone). "auto" keeps whichever depth's blend trusts more pixels."""
+    mode = context.config.virtual_depth
+    if mode == "render" or context.source_depth is None:
+        return placed_blend(context, fill, context.own_depth()), None
+    splatted = placed_blend(context, fill, context.source_depth())
+    if mode == "sources":
+        return splatted, "sources"
+    own = placed_blend(context, fill, context.own_depth())
+    if mode == "both":
+        return both_depths(own, splatted), "both"
+    if float(own.mask.sum()) > float(splatted.mask.sum()):
+        return own, "render"
+    return splatted, "sources"
+
+
+@register_supervision("blend")
+def blend_supervision(context: ViewContext) -> ViewSupervision:
+    """The uniform mean of the binary-masked warps over the fill (the paper's blending)."""
+    placed, depth_name = choose_placement(context, context.fill)
+    report = {} if depth_name is None else {"depth": depth_name}
+    report["agreement_db"] = agreement_margin_db(context.render(), placed.warps)
+    image = placed.image
+    if context.config.fill == "inpaint":
+        from .experimental.inpaint import inpaint_fill
+
+        image = inpaint_fill(image, placed.mask, placed.depth)
+    return ViewSupervision(image.detach().float().clamp(0.0, 1.0), placed.mask.detach().float(), report)

@@ -1,0 +1,136 @@
+"""I* at a virtual view from the Gaussians as they are now: the fill (the prior's image, or the
+render), the photos warped in over it (the supervision kind: ``supervise.py``), the agreement
+gate, and the PNG of the view."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..gaussians import Gaussians
+from ..io.images import write_png
+from ..train.free_space import render_surface_depth
+from .config import BootstrapConfig
+from .source_depth import depth_from_training_views
+from .supervise import ViewContext, supervise_view
+from .generation import GenerationCache, VirtualTarget, gaussians_version, generate_cached
+from .virtual_views import DEFAULT_K, nearest_training_views
+
+
+def view_png(generated: torch.Tensor, mask: torch.Tensor, target: torch.Tensor, render: torch.Tensor) -> np.ndarray:
+    """generated | mask | I* | stage-I render, side by side: [H, 4W, 3] uint8."""
+    panels = [generated, mask.expand(-1, -1, 3), target, render]
+    image = torch.cat([p.detach().float().clamp(0, 1).cpu() for p in panels], dim=1).numpy()
+    return np.round(image * 255.0).astype(np.uint8)
+
+
+def blend_sources(camera: Camera, cameras: Sequence[Camera], train: Sequence[int],
+                  config: BootstrapConfig) -> list[int]:
+    """The K training photos nearest the virtual view (warped into it for blending)."""
+    if not config.blending:
+        return []
+    return nearest_training_views(camera, cameras, list(train), config.k or DEFAULT_K)
+
+
+class ModelRenders:
+    """One render per (camera, output) of one model: the warps' depths, the fill, the PNGs."""
+
+    def __init__(self, gaussians: Gaussians, render_fn, sky) -> None:
+        self.gaussians, self.render_fn, self.sky = gaussians, render_fn, sky
+        self._cache: dict[tuple[str, str], torch.Tensor] = {}
+
+    def _cached(self, camera: Camera, output: str, compute: Callable[[], torch.Tensor]) -> torch.Tensor:
+        key = (camera.name + str(camera.world_to_camera.tobytes()), output)
+        if key not in self._cache:
+            with torch.no_grad():
+                self._cache[key] = compute()
+        return self._cache[key]
+
+    def depth(self, camera: Camera) -> torch.Tensor:
+        """[H, W, 1] the scene's own surface depth: the sky shell blended in pulls a faint
+        surface's depth far behind it, and the warps then place the photos wrongly and reject them."""
+        return self._cached(camera, "surface_depth",
+                            lambda: render_surface_depth(self.gaussians, camera, self.sky, self.render_fn))
+
+    def rgb(self, camera: Camera) -> torch.Tensor:
+        """[H, W, 3] float32 in [0, 1]."""
+        render = self._cached(camera, "rgb", lambda: self.render_fn(self.gaussians, camera, outputs=("rgb",))["rgb"])
+        return render.float().clamp(0.0, 1.0)
+
+
+@dataclass
+class TargetSetting:
+    """What every virtual view's I* in a run is made with (fixed for the run)."""
+
+    config: BootstrapConfig
+    cameras: Sequence[Camera]
+    train: Sequence[int]
+    photos: dict
+    cache: GenerationCache
+    views_dir: Path
+    render_fn: Callable
+    prior: object = None
+    prior_hash: str = ""
+
+
+class TargetMaker:
+    """I* at virtual views from ``current`` (its G-buffer, its render for the prior's start and
+    as the fill, its depth for warping)."""
+
+    def __init__(self, setting: TargetSetting, current: Gaussians, sky) -> None:
+        self.setting = setting
+        self.current = current
+        self.renders = ModelRenders(current, setting.render_fn, sky)
+        self.gaussians_hash = gaussians_version(current)
+
+    def fill(self, camera: Camera) -> tuple[np.ndarray, bool]:
+        """(what fills the pixels no photo covers [H, W, 3] float32, read from the cache)."""
+        s = self.setting
+        if s.prior is not None:
+            return generate_cached(s.prior, self.current, camera, s.config.seed, s.config.ddim_steps, s.cache,
+                                   s.prior_hash, self.gaussians_hash)
+        # The fill is the render itself (or inpainted around it): nothing to generate.
+        return self.renders.rgb(camera).numpy(), False
+
+    def make(self, camera: Camera, round_number: int, save: bool) -> tuple[VirtualTarget, list[int]]:
+        """-> (the view's VirtualTarget, the training views warped into it)."""
+        s, config = self.setting, self.setting.config
+        generated, hit = self.fill(camera)
+        sources = blend_sources(camera, s.cameras, s.train, config)
+        report: dict = {}
+        if config.virtual_colour:
+            supervision = supervise_view(ViewContext(
+                config, camera, generated, sources, s.cameras, s.photos, self.renders.depth, self.renders.rgb,
+                source_depth=lambda: depth_from_training_views(camera, s.cameras, s.train, config.splat_views,
+                                                               self.renders.depth)))
+            image, mask, report = supervision.image, supervision.mask, supervision.report
+        else:
+            # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
+            # built for nothing. The render stands in for the PNGs, with an empty mask.
+            image, mask = torch.as_tensor(generated, dtype=torch.float32), torch.zeros(camera.height, camera.width, 1)
+        geometry = self.geometry_sources(sources) if config.geometry_weight > 0 else []
+        agreement = report.get("agreement_db")
+        # Only the photos' colour is gated: a geometry-only view has no warped colour to judge.
+        supervised = (config.agreement_min_db is None or agreement is None or not config.virtual_colour
+                      or agreement >= config.agreement_min_db)
+        entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number,
+                              geometry, agreement, supervised, report.get("depth", "render"))
+        if save:
+            write_png(s.views_dir / f"{camera.name}.png", view_png(entry.generated, mask, image,
+                                                                    self.renders.rgb(camera)))
+        return entry, sources
+
+    def geometry_sources(self, sources: Sequence[int]) -> list:
+        """The geometry term's sources: grey photos (NCC ignores colour balance) and the current
+        depth of each (its visibility reference)."""
+        from .experimental.multiview import GeometrySource
+
+        s = self.setting
+        return [GeometrySource(s.photos[i].float().mean(-1, keepdim=True), s.cameras[i],
+                               self.renders.depth(s.cameras[i]))
+                for i in sources]
