@@ -262,13 +262,15 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
         except OutputError as exc:
             failures.append(exc)
 
+    from ..io.ply import write_ply
+    # A stopped run saves its model too (stop means save: Ctrl+C, SIGTERM, the viewer's stop);
+    # `--resume` continues from the checkpoint written beside it.
+    attempt(lambda: write_ply(to_original_frame(
+        trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)), scene.normalization),
+        run_dir / "model.ply"))
     if finished:
         if last_eval_iteration != state.iteration:
             last_eval = evaluate_held_out(gaussians, scene, split, data)
-        from ..io.ply import write_ply
-        attempt(lambda: write_ply(to_original_frame(
-            trim_sh(gaussians, sh_degree_at(max(state.iteration, 1), config, sh_max)), scene.normalization),
-            run_dir / "model.ply"))
         if state.view_mse:
             report = view_fit_report(state.view_mse, {i: data.cameras[i].name for i in state.view_mse})
             attempt(lambda: atomic_write_text(run_dir / VIEW_FIT_FILE, json.dumps(report, indent=1)))
