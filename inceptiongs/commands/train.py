@@ -99,6 +99,9 @@ def photos_to_exclude(value: str | None) -> list[str]:
 
 
 def run(args) -> int:
+    from ..io.run_lock import run_folder_lock
+    from ..live import JobControl
+    from ..stop_signals import stop_on_signals
     from ..train.config import TrainConfig
     from ..train.run_folder import default_run_dir
     from ..train.trainer import train
@@ -118,11 +121,17 @@ def run(args) -> int:
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
     joint = joint_prior(args, out, config) if args.prior else None
-    result = train(config, out, resume=args.resume, after_step=joint)
+    control = JobControl()
+    with run_folder_lock(out), stop_on_signals(control) as stopping:
+        result = train(config, out, resume=args.resume, after_step=joint, control=control)
     if joint is not None:
         saved = joint.finish()
         if saved is not None:
             print(f"{saved}: prior at step {joint.trainer.step_count} ({joint.trainer.train_s:.0f} s of prior training)")
+    if stopping.signum is not None:
+        print(f"{out}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint "
+              f"(continue with: inceptiongs train {args.scene} --out {out} --resume)", file=sys.stderr)
+        return stopping.exit_status
     summary = ", ".join(f"{k} {v:.3f}" for k, v in result.last_eval.items())
     print(f"{out}: {result.iteration} iterations, {result.num_gaussians} Gaussians"
           + (f"; {summary}" if summary else ""))

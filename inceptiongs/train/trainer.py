@@ -309,11 +309,13 @@ class StageOne:
             except OutputError as exc:
                 failures.append(exc)
 
+        if self.finished and self.last_eval_iteration != state.iteration:
+            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data)
+        # A stopped run saves its model too (stop means save: Ctrl+C, SIGTERM, the viewer's stop);
+        # `--resume` continues from the checkpoint written after it.
+        attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,
+                                   self.scene.normalization))
         if self.finished:
-            if self.last_eval_iteration != state.iteration:
-                self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data)
-            attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,
-                                       self.scene.normalization))
             if state.view_mse:
                 report = view_fit_report(state.view_mse, {i: self.data.cameras[i].name for i in state.view_mse})
                 attempt(lambda: atomic_write_text(run_dir / VIEW_FIT_FILE, json.dumps(report, indent=1)))

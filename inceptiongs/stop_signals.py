@@ -1,0 +1,69 @@
+"""Ctrl+C and SIGTERM during a long job: stop means save.
+
+The first signal asks the job to stop after its current step; the job then saves what it has
+(checkpoint and model.ply, as its final save does) and returns. A second signal stops at once
+(KeyboardInterrupt), for a user who would rather lose the step than wait for it. Python
+handlers replace whatever a native library installed (pycolmap's prints a stack dump on
+SIGTERM), so a stop prints one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import threading
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+from .live import JobControl
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@dataclass
+class StopRequest:
+    """Which signal asked the job to stop (None: none did)."""
+
+    signum: int | None = None
+
+    @property
+    def exit_status(self) -> int:
+        """The shell's convention for a process ended by a signal: 128 + its number (130, 143)."""
+        return 128 + self.signum if self.signum is not None else 0
+
+
+def _say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def stop_on_signals(control: JobControl, say: Callable[[str], None] = _say) -> Iterator[StopRequest]:
+    """While inside: SIGINT/SIGTERM set ``control.stop`` (the job saves and returns); the
+    same signal again raises KeyboardInterrupt. Handlers can only be set from the main
+    thread; elsewhere (a viewer job) this does nothing and the caller's own stop applies."""
+    request = StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+
+    def handle(signum, _frame) -> None:
+        if request.signum is not None:
+            raise KeyboardInterrupt
+        request.signum = signum
+        control.stop.set()
+        say(f"{signal.Signals(signum).name}: stopping after this step and saving the model and a checkpoint "
+            f"(again to quit without saving)")
+
+    # pycolmap installs native failure handlers (a stack dump on SIGTERM) when first imported,
+    # which would replace ours if the job imported it later: import it before installing.
+    with contextlib.suppress(ImportError):
+        import pycolmap  # noqa: F401
+    previous = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, handle)
+    try:
+        yield request
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)

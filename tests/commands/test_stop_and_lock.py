@@ -1,0 +1,93 @@
+"""Stop means save (Ctrl+C and SIGTERM during `train`), and one writer per run folder."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from inceptiongs.cli import main
+from inceptiongs.errors import InputError
+from inceptiongs.io.run_lock import LOCK_INFO_FILE, run_folder_lock
+from inceptiongs.live import JobControl
+from inceptiongs.scene.demo import write_demo_scene
+from inceptiongs.stop_signals import stop_on_signals
+from inceptiongs.train.checkpoint import list_checkpoints
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    return write_demo_scene(tmp_path_factory.mktemp("stop") / "scene", progress=False)
+
+
+def test_first_signal_asks_to_stop_the_second_interrupts_and_handlers_come_back():
+    before = signal.getsignal(signal.SIGTERM)
+    control, said = JobControl(), []
+    with pytest.raises(KeyboardInterrupt):
+        with stop_on_signals(control, said.append) as request:
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert control.stop.is_set() and request.signum == signal.SIGTERM
+            assert request.exit_status == 143 and len(said) == 1 and "SIGTERM" in said[0]
+            os.kill(os.getpid(), signal.SIGINT)   # again: quit now
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_second_writer_is_refused_naming_the_holder(tmp_path, scene):
+    run = tmp_path / "run"
+    with run_folder_lock(run):
+        assert (run / LOCK_INFO_FILE).read_text().strip() == str(os.getpid())
+        with pytest.raises(InputError, match=rf"in use by pid {os.getpid()}"):
+            with run_folder_lock(run):
+                pass
+        status = main(["train", str(scene), "--out", str(run), "--iterations", "2", "--downscale", "4"])
+        assert status == 2
+        assert not (run / "config.json").exists()     # refused before writing anything
+    assert not run.exists()   # made by the lock, left empty: removed again
+    with run_folder_lock(run):   # free once released
+        pass
+
+
+def _wait_for(predicate, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.2)
+    return False
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stopped_train_saves_model_and_checkpoint_and_resumes(tmp_path, scene, signum, status):
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "inceptiongs", "train", str(scene), "--out", str(run), "--iterations", "2000",
+               "--downscale", "4", "--protocol", "unstructured", "--seed", "0"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        # metrics.jsonl holds the initial evaluation, then a line per log_every steps.
+        started = _wait_for(lambda: (run / "metrics.jsonl").is_file()
+                            and len((run / "metrics.jsonl").read_text().splitlines()) >= 2, 240)
+        assert started, "training did not start"
+        process.send_signal(signum)
+        out, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == status, err
+    assert "Traceback" not in err and "Fatal" not in err and "*** " not in err, err
+    assert "stopped at iteration" in err
+    assert (run / "model.ply").is_file()
+    checkpoints = list_checkpoints(run)
+    assert checkpoints and 0 < checkpoints[-1][0] < 2000
+    assert not (run / LOCK_INFO_FILE).exists()
+    if signum == signal.SIGINT:   # --resume continues from the saved step (a minute's budget, stopped at once)
+        resumed = subprocess.run(command[:5] + ["--out", str(run), "--resume", "--minutes", "0.001"],
+                                 capture_output=True, text=True, timeout=300)
+        assert resumed.returncode == 0, resumed.stderr
+        assert f"resumed from step_{checkpoints[-1][0]:07d}" in resumed.stderr
