@@ -1,4 +1,4 @@
-"""Editing you can see (issue 19): the rectangle, brush circle and lasso drawn while the tool is
+"""Editing you can see: the rectangle, brush circle and lasso drawn while the tool is
 used, selections in undo/redo, no flag lines across the window. The real app under Xvfb, events
 injected as GLFW delivers them."""
 

@@ -1,4 +1,4 @@
-"""Help and screenshots (issue 19): the bindings in --help and in the window (H / F1), the
+"""Help and screenshots: the bindings in --help and in the window (H / F1), the
 screenshot in the format its extension names, a run's screenshot at the window's size."""
 
 from __future__ import annotations

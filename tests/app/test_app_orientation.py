@@ -1,4 +1,4 @@
-"""Orientation (issue 19): the up axis from the cameras or the model's dominant plane, a level
+"""Orientation: the up axis from the cameras or the model's dominant plane, a level
 horizon when orbiting, the +-X/Y/Z control, "frame the model" (Home). The real app under Xvfb."""
 
 from __future__ import annotations

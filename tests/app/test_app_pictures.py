@@ -1,4 +1,4 @@
-"""What the real window shows is right (issue 19, "correct pictures"): opacity mode equals
+"""What the real window shows is right ("correct pictures"): opacity mode equals
 `inceptiongs render --mode alpha`; golden images of the window (regenerated only by
 scripts/regen_viewer_golden.py); the panel follows the window and never clips."""
 

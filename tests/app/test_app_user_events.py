@@ -1,4 +1,4 @@
-"""The viewer driven only as a user drives it (issue 19's "each item has an Xvfb test driving the
+"""The viewer driven only as a user drives it ("each item has an Xvfb test driving the
 real app"): keys, mouse drags, panel combos and checkboxes, each an event as GLFW delivers it
 (through the window's callbacks and imgui's GLFW backend), the result read from the app."""
 
