@@ -18,15 +18,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
+import numpy as np
+
 from ..evaluation.run import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
 from ..io.config_json import json_safe
-from ..train.checkpoint import save_checkpoint
+from ..io.atomic import OutputError
+from ..train.checkpoint import list_checkpoints, save_checkpoint
 from ..train.config import TrainConfig
 from ..train.loop import StepLoop, save_model
 from ..train.optim import gaussians_from_params
-from ..train.run_folder import append_metrics
+from ..train.run_folder import append_metrics, truncate_metrics
 from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
                           supported_sh_degree, train_step)
 from .config import BootstrapConfig
@@ -35,11 +38,12 @@ from .generation import GenerationCache, VirtualTarget, obtain_prior, prior_vers
 from .perceptual import perceptual_name
 from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
 from .stage1 import Stage1
-from .targets import Target, round_targets
+from .targets import Target, round_targets, targets_to_json
 from .view_targets import TargetMaker, TargetSetting
 from .virtual_views import DEFAULT_K, VirtualView, nearest_training_views, virtual_views
 
 BOOTSTRAP_DIR = "bootstrap"
+TARGETS_FILE = "targets.json"     # in RUN2/bootstrap: what is repaired, so --resume needs no flags
 
 # How the report names each --virtual-depth.
 DEPTH_WORDS = {"render": "render", "sources": "training views", "both": "render, else the training views",
@@ -77,22 +81,54 @@ def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], c
     return views[:config.max_virtual_views]
 
 
-def prepare_folder(run: Stage1, out_dir: Path, config: BootstrapConfig) -> tuple[Path, int, TrainConfig]:
+def continued_schedule(run: Stage1, config: BootstrapConfig) -> tuple[int, TrainConfig]:
+    """(the iteration stage II starts from, the stage-I config continued for its steps)."""
+    start = int(run.payload["iteration"]) if run.payload is not None else run.config.iterations
+    return start, continuation_config(run.config, start, config.rounds * config.iterations, config.densify)
+
+
+def prepare_folder(run: Stage1, out_dir: Path, config: BootstrapConfig, targets: Sequence[Target] | None,
+                   log: Callable[[str], None]) -> tuple[Path, int, TrainConfig]:
     """RUN2 made ready for this run -> (RUN2/bootstrap, the start iteration, the continued
     stage-I config). Only reached for a fresh folder or with overwrite (the user said so)."""
     check_writable_dir(out_dir)
     remove_stale_temp_files(out_dir, max_age_s=0.0)
     boot_dir = ensure_dir(out_dir / BOOTSTRAP_DIR)
     config.save(boot_dir / "config.json")
+    if targets is not None:
+        atomic_write_text(boot_dir / TARGETS_FILE, json.dumps(targets_to_json(targets), indent=1) + "\n")
     atomic_write_bytes(out_dir / "split.json", (run.run_dir / "split.json").read_bytes())
-    start = int(run.payload["iteration"]) if run.payload is not None else run.config.iterations
-    train_config = continuation_config(run.config, start, config.rounds * config.iterations, config.densify)
+    start, train_config = continued_schedule(run, config)
     train_config.save(out_dir / "config.json")
     (out_dir / "metrics.jsonl").unlink(missing_ok=True)
     (out_dir / "model.ply").unlink(missing_ok=True)  # a stale model must not pass for this run's
-    if (out_dir / "checkpoints").is_dir():
+    kept = list_checkpoints(out_dir)
+    if kept:
+        log(f"{out_dir}: discarding the earlier bootstrap's checkpoints (newest at step {kept[-1][0]}; "
+            f"`bootstrap --resume` would have continued it)")
         shutil.rmtree(out_dir / "checkpoints")
     return boot_dir, start, train_config
+
+
+def resume_folder(run: Stage1, out_dir: Path, config: BootstrapConfig) -> tuple[Path, int, TrainConfig]:
+    """RUN2 of a stopped bootstrap, kept as it is -> the same as :func:`prepare_folder`."""
+    check_writable_dir(out_dir)
+    remove_stale_temp_files(out_dir, max_age_s=0.0)
+    start, train_config = continued_schedule(run, config)
+    return ensure_dir(out_dir / BOOTSTRAP_DIR), start, train_config
+
+
+def input_scores(out_dir: Path) -> dict:
+    """The held-out scores of the input, as the first metrics line of RUN2 holds them."""
+    path = out_dir / "metrics.jsonl"
+    for line in (path.read_text(encoding="utf-8", errors="replace").splitlines() if path.is_file() else []):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(record, dict) and record.get("phase") == "input":
+            return {k: v for k, v in record.items() if k.endswith(("_psnr", "_ssim"))}
+    return {}
 
 
 @dataclass
@@ -133,27 +169,37 @@ class Bootstrap:
     regenerations: list = field(default_factory=list)
     finished: bool = True
     rounds_done: int = 0
+    current_round: int = 0          # 1-based: the round being refined (0: none yet)
 
     # --- prepare ---------------------------------------------------------------------------------
     @classmethod
     def prepare(cls, run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config: BootstrapConfig,
-                loop: StepLoop, render_fn, log) -> "Bootstrap":
-        """RUN2 written ready, the state restored, the input evaluated, the prior obtained."""
+                loop: StepLoop, render_fn, log, resume: dict | None = None) -> "Bootstrap":
+        """RUN2 written ready, the state restored, the input evaluated, the prior obtained.
+        ``resume``: the newest checkpoint of a stopped bootstrap in RUN2, continued from."""
         rounds = round_targets(targets, config.rounds) if targets is not None else [[] for _ in range(config.rounds)]
-        boot_dir, start, train_config = prepare_folder(run, out_dir, config)
+        boot_dir, start, train_config = (prepare_folder(run, out_dir, config, targets, log) if resume is None
+                                         else resume_folder(run, out_dir, config))
         data = prepare_data(run.scene, run.split, train_config, log)
         sh_max = supported_sh_degree(len(data.train), train_config.sh_degree_max)
-        # A copy: the optimiser adopts the payload's moment tensors and updates them in place, and
-        # the same Stage1 may start another run (the demo's baseline).
-        state = (restore_state(copy.deepcopy(run.payload), data, train_config) if run.payload is not None
-                 else state_from_gaussians(run.gaussians, data, train_config))
-        state.iteration = start
+        if resume is not None:
+            state = restore_state(resume, data, train_config)
+            truncate_metrics(out_dir, state.iteration)   # the steps after it run (and are logged) again
+        else:
+            # A copy: the optimiser adopts the payload's moment tensors and updates them in place,
+            # and the same Stage1 may start another run (the demo's baseline).
+            state = (restore_state(copy.deepcopy(run.payload), data, train_config) if run.payload is not None
+                     else state_from_gaussians(run.gaussians, data, train_config))
+            state.iteration = start
         boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, render_fn, log, data, state, sh_max,
                    start)
-        boot.initial_eval = boot.last_eval = boot.evaluate({"phase": "input", "round": 0})
+        boot.initial_eval = boot.last_eval = (boot.evaluate({"phase": "input", "round": 0}) if resume is None
+                                              else input_scores(out_dir))
         boot.summary = {"run": str(run.run_dir.resolve()), "baseline": targets is None, "start_iteration": start,
                         "targets": [{"name": t.name, "origin": t.origin} for r in rounds for t in r],
                         "rounds": [], "initial_eval": boot.initial_eval}
+        if resume is not None:
+            boot.summary["resumed_at"] = state.iteration
         if targets is not None:
             boot.obtain_prior()
         if config.lpips_weights:
@@ -162,6 +208,9 @@ class Bootstrap:
                                       + (f" ({config.lpips_weights})" if boot.lpips is not None else ""))
         boot.cache = GenerationCache(boot_dir / "cache")
         boot.sampler = ViewSampler(config, config.seed)
+        pose = (resume or {}).get("bootstrap", {}).get("pose")
+        if pose is not None:
+            boot.sampler.pose = np.asarray(pose, dtype=np.float64)
         boot.watch_conscience()
         return boot
 
@@ -272,13 +321,15 @@ class Bootstrap:
                  f"{self.regenerations[-1]['seconds']:.1f} s")
 
     # --- refinement --------------------------------------------------------------------------------
-    def refine(self, round_index: int) -> bool:
-        """The round's refinement steps, its evaluation and checkpoint -> False when stopped
-        (by the user or the time budget) before its last step."""
+    def refine(self, round_index: int, steps: int | None = None) -> bool:
+        """The round's refinement steps (``steps``: those left of it, after a resume) and its
+        evaluation -> False when stopped (by the user or the time budget) before its last step."""
         began = time.perf_counter()
         stopped = False
-        round_end = self.state.iteration + self.config.iterations
-        for _ in range(self.config.iterations):
+        steps = self.config.iterations if steps is None else steps
+        self.current_round = round_index + 1
+        round_end = self.state.iteration + steps
+        for _ in range(steps):
             if self.loop.wait_or_stop() or self.loop.out_of_time():
                 stopped = True
                 break
@@ -286,7 +337,6 @@ class Bootstrap:
         round_info = self.summary["rounds"][-1]
         round_info["refine_s"] = time.perf_counter() - began
         self.last_eval = round_info["eval"] = self.evaluate({"phase": "round", "round": round_index + 1})
-        self.checkpoint(round_index + 1)
         return not stopped
 
     def regeneration_due(self, step: int, round_end: int) -> bool:
@@ -305,7 +355,9 @@ class Bootstrap:
         self.loop.mark_first_step()
         if self.regeneration_due(step, round_end):
             self.regenerate_pool()
-        if self.conscience is not None and (step - self.start - 1) % config.conscience_every == 0:
+        # (A resumed run's conscience starts again: its first step takes the baseline.)
+        if self.conscience is not None and ((step - self.start - 1) % config.conscience_every == 0
+                                            or not self.conscience.history):
             loss = photo_loss(self.render_fn, self.model(), list(self.run.scene.cameras), self.data.images,
                               self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))
             self.conscience.update(step, loss)
@@ -367,19 +419,42 @@ class Bootstrap:
 
     # --- finish ------------------------------------------------------------------------------------
     def finish(self) -> BootstrapResult:
-        """model.ply (unless the user stopped the run), the final config.json and summary.json."""
-        state, loop = self.state, self.loop
+        """The final save, in the order that keeps the result: model.ply (a stopped run's too:
+        stop means save), then the final config.json and summary.json, then the checkpoint
+        `--resume` continues from. Each is attempted even when an earlier one fails (a full
+        disk) and each is atomic; the first failure is raised once all were tried."""
+        failures: list[OutputError] = []
+
+        def attempt(write) -> None:
+            try:
+                write()
+            except OutputError as exc:
+                failures.append(exc)
+
         gaussians = self.model()
-        # Like stage I, a run that stopped early leaves its checkpoint; model.ply marks the end of the
-        # run (load_run reads the checkpoint otherwise). A time budget that ran out is an end too.
-        if not loop.stopped_by_user():
-            save_model(self.out_dir, gaussians, state.iteration, self.train_config, self.sh_max,
-                       self.run.scene.normalization)
+        attempt(lambda: save_model(self.out_dir, gaussians, self.state.iteration, self.train_config, self.sh_max,
+                                   self.run.scene.normalization))
+        attempt(self.write_summary)
+        if self.current_round:
+            attempt(lambda: self.checkpoint(self.current_round))
+        for later in failures[1:]:
+            self.log(f"error: {later}")
+        if failures:
+            raise failures[0]
+        return BootstrapResult(self.out_dir, self.start, self.state.iteration, self.finished, self.rounds_done,
+                               len(gaussians), len(self.pool), self.cache.hits, self.cache.misses,
+                               self.loop.wall_s(), self.prior_text, self.initial_eval, self.last_eval,
+                               supervised_views=sum(entry.supervised for entry in self.pool))
+
+    def write_summary(self) -> None:
+        """RUN2/config.json with the steps made, and RUN2/bootstrap/summary.json."""
+        state, loop = self.state, self.loop
         final_config = dataclasses.replace(self.train_config, iterations=max(state.iteration, self.start + 1))
         final_config.save(self.out_dir / "config.json")
         conscience = self.conscience
         self.summary.update(
-            iteration=state.iteration, finished=self.finished, rounds_done=self.rounds_done, wall_s=loop.wall_s(),
+            iteration=state.iteration, finished=self.finished, stopped=loop.stopped_by_user(),
+            rounds_done=self.rounds_done, wall_s=loop.wall_s(),
             cache_hits=self.cache.hits, cache_misses=self.cache.misses, virtual_views=len(self.pool),
             last_eval=self.last_eval, steps=self.step_counts, view_use=self.view_use,
             regenerations=self.regenerations,
@@ -388,7 +463,3 @@ class Bootstrap:
                 "tolerance": conscience.tolerance, "baseline": conscience.baseline,
                 "checks": [list(c) for c in conscience.history]})
         atomic_write_text(self.boot_dir / "summary.json", json.dumps(json_safe(self.summary), indent=1) + "\n")
-        return BootstrapResult(self.out_dir, self.start, state.iteration, self.finished, self.rounds_done,
-                               len(gaussians), len(self.pool), self.cache.hits, self.cache.misses, loop.wall_s(),
-                               self.prior_text, self.initial_eval, self.last_eval,
-                               supervised_views=sum(entry.supervised for entry in self.pool))

@@ -31,9 +31,32 @@ def default_out_dir(run_dir: str | Path) -> Path:
 
 def check_output_folder(out_dir: Path, overwrite: bool) -> None:
     """InputError (one line) when ``out_dir`` holds a result and the user did not ask to replace it."""
-    if holds_result(out_dir) and not overwrite:
-        raise InputError(f"{out_dir}: already holds a result; give --overwrite to replace it, or another "
-                         f"--out (e.g. {next_free_folder(out_dir)})")
+    if not holds_result(out_dir) or overwrite:
+        return
+    stopped = stopped_bootstrap_step(out_dir)
+    if stopped is not None:
+        raise InputError(f"{out_dir}: holds a stopped bootstrap (checkpoint at step {stopped}); give --resume to "
+                         f"continue it, --overwrite to replace it, or another --out")
+    raise InputError(f"{out_dir}: already holds a result; give --overwrite to replace it, or another "
+                     f"--out (e.g. {next_free_folder(out_dir)})")
+
+
+def stopped_bootstrap_step(out_dir: Path) -> int | None:
+    """The newest checkpoint's step when ``out_dir`` holds a bootstrap that was stopped (its
+    summary says so, or it has none: killed), else None."""
+    import json
+
+    from ..train.checkpoint import list_checkpoints
+
+    kept = list_checkpoints(out_dir)
+    if not kept:
+        return None
+    try:
+        summary = json.loads((out_dir / BOOTSTRAP_DIR / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        summary = {}
+    ended = isinstance(summary, dict) and "iteration" in summary and summary.get("stopped") is not True
+    return None if ended else kept[-1][0]
 
 
 # --- inputs ----------------------------------------------------------------------------------------
@@ -68,12 +91,13 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
                   config: BootstrapConfig, control=None,
                   on_snapshot: Callable[[int, Gaussians, dict], None] | None = None, snapshot_every: int = 0,
                   log: Callable[[str], None] | None = None, progress: bool = True,
-                  render_fn=None, overwrite: bool = False) -> BootstrapResult:
+                  render_fn=None, overwrite: bool = False, resume: bool = False) -> BootstrapResult:
     """Bootstrap RUN (a loaded :class:`Stage1`, or its folder) into RUN2 (see the module doc).
     ``targets=None`` with an empty pool is the same-time baseline: the stage-I loop continued on
     the photos alone (``baseline_run``). An ``out_dir`` that already holds a result is refused
     (InputError) unless ``overwrite`` (see ``inceptiongs.train.run_folder.next_free_folder`` for
-    a fresh name instead)."""
+    a fresh name instead). ``resume``: continue the stopped bootstrap in ``out_dir`` from its newest
+    checkpoint, with its saved targets (``targets`` is then ignored)."""
     if render_fn is None:
         from ..rasterizer.rasterize import render as render_fn
     config.validate()
@@ -81,27 +105,79 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
     out_dir = Path(out_dir)
     if out_dir.resolve() == Path(run if not isinstance(run, Stage1) else run.run_dir).resolve():
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
-    check_output_folder(out_dir, overwrite)
+    payload = None
+    if resume:
+        payload, targets = resumable(out_dir)
+    else:
+        check_output_folder(out_dir, overwrite)
     run = as_stage1(run)
     baseline = targets is None
     # A time-budgeted run's bar shows the steps its measured rate fits into the budget.
     loop = StepLoop(control, total=config.rounds * config.iterations, desc="baseline" if baseline else "bootstrap",
                     progress=progress, budget_s=None if config.minutes is None else 60.0 * config.minutes,
-                    on_snapshot=on_snapshot, snapshot_every=snapshot_every)
-    boot = Bootstrap.prepare(run, out_dir, targets, config, loop, render_fn, log or default_log)
+                    on_snapshot=on_snapshot, snapshot_every=snapshot_every,
+                    wall_start_s=float(payload["wall_s"]) if payload else 0.0,
+                    train_start_s=float(payload["train_s"]) if payload else 0.0)
+    boot = Bootstrap.prepare(run, out_dir, targets, config, loop, render_fn, log or default_log, resume=payload)
+    first_round, steps_left = (0, None) if payload is None else resume_point(boot, payload)
     try:
-        for round_index in range(len(boot.rounds)):
+        for earlier in range(first_round if first_round < len(boot.rounds) else 0):
+            boot.make_round_targets(earlier)   # the pool keeps the finished rounds' views
+        for round_index in range(first_round, len(boot.rounds)):
             if loop.wait_or_stop() or loop.out_of_time():
                 boot.finished = False
                 break
+            boot.current_round = round_index + 1
             boot.make_round_targets(round_index)
-            if not boot.refine(round_index):
+            if not boot.refine(round_index, steps_left if round_index == first_round else None):
                 boot.finished = False
                 break
             boot.rounds_done += 1
+            if round_index + 1 < len(boot.rounds):
+                boot.checkpoint(round_index + 1)
     finally:
         loop.close()
     return boot.finish()
+
+
+def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
+    """The newest checkpoint of the stopped bootstrap in ``out_dir`` and its targets (None: the
+    same-time baseline); InputError (one line) when there is nothing to continue."""
+    import json
+
+    from ..train.checkpoint import latest_checkpoint, load_newest_checkpoint
+    from .loop import TARGETS_FILE
+    from .targets import targets_from_json
+
+    if latest_checkpoint(out_dir) is None:
+        raise InputError(f"{out_dir}: no bootstrap checkpoint to resume from (run `inceptiongs bootstrap` "
+                         f"without --resume)")
+    path, payload = load_newest_checkpoint(out_dir)
+    if not isinstance(payload.get("bootstrap"), dict) or "round" not in payload["bootstrap"]:
+        raise InputError(f"{path}: not a bootstrap checkpoint (a stage-I run is continued by `inceptiongs train "
+                         f"--resume`)")
+    targets_path = out_dir / BOOTSTRAP_DIR / TARGETS_FILE
+    if not targets_path.is_file():
+        return payload, None
+    try:
+        data = json.loads(targets_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{targets_path}: cannot read the bootstrap's targets ({exc})") from None
+    return payload, targets_from_json(data, str(targets_path))
+
+
+def resume_point(boot: Bootstrap, payload: dict) -> tuple[int, int | None]:
+    """(the round index to continue, the steps left of it; None: all of it) from a checkpoint
+    taken in (1-based) round ``payload["bootstrap"]["round"]``."""
+    steps = boot.config.iterations
+    round_number = min(max(int(payload["bootstrap"]["round"]), 1), len(boot.rounds))
+    done = boot.state.iteration - boot.start - (round_number - 1) * steps
+    boot.rounds_done = round_number - 1
+    if done >= steps:   # the round had ended: the next one starts
+        boot.rounds_done = round_number
+        return round_number, None
+    boot.log(f"resumed at step {boot.state.iteration} (round {round_number}, {steps - max(done, 0)} steps of it left)")
+    return round_number - 1, steps - max(done, 0)
 
 
 def baseline_run(run: Stage1 | str | Path, out_dir: str | Path, minutes: float | None, iterations: int,

@@ -13,11 +13,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..camera import Camera, pose_distance
+from ..camera import Camera, camera_from_json_dict, pose_distance
 from ..errors import InputError
 from ..io.flags import read_flag_cameras
-
-
 
 @dataclass(frozen=True)
 class Target:
@@ -73,3 +71,21 @@ def round_targets(targets: Sequence[Target], rounds: int) -> list[list[Target]]:
     if len(targets) >= rounds:
         return [list(targets[r::rounds]) for r in range(rounds)]
     return [list(targets) for _ in range(rounds)]
+
+
+def targets_to_json(targets: Sequence[Target]) -> list[dict]:
+    """What a bootstrap repairs, as RUN2/bootstrap/targets.json holds it (so --resume needs no flags)."""
+    return [{"name": t.name, "origin": t.origin, "camera": t.camera.to_json_dict()} for t in targets]
+
+
+def targets_from_json(data, source: str) -> list[Target]:
+    """The inverse of :func:`targets_to_json`; InputError naming ``source`` when malformed."""
+    if not isinstance(data, list) or not data:
+        raise InputError(f"{source}: expected a non-empty list of targets")
+    targets = []
+    for number, item in enumerate(data):
+        if not isinstance(item, dict) or not isinstance(item.get("camera"), dict):
+            raise InputError(f"{source}: target {number} is not an object with a camera")
+        camera = camera_from_json_dict(item["camera"], f"{source} target {number}")
+        targets.append(Target(str(item.get("name", camera.name)), camera, str(item.get("origin", "flag"))))
+    return targets

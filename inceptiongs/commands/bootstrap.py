@@ -9,6 +9,7 @@ see docs/bootstrap.md.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..errors import InputError
@@ -33,8 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     target.add_argument("--target-view", metavar="NAME", default=None, help="repair this scene view's pose")
     parser.add_argument("--out", default=None, help="output run folder (default RUN_bootstrap, or RUN_bootstrap_2, "
                                                     "... when that already holds a result)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace the result already in --out (refused without this flag)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--overwrite", action="store_true",
+                      help="replace the result already in --out (refused without this flag)")
+    mode.add_argument("--resume", action="store_true",
+                      help="continue the stopped bootstrap in --out from its newest checkpoint, with its saved "
+                           "targets and settings (--minutes may give it a new budget)")
     parser.add_argument("--config", metavar="FILE.json", default=None,
                         help="a JSON object of bootstrap settings (docs/bootstrap_options.md lists every key; "
                              "RUN2/bootstrap/config.json of an earlier result is one); flags given here override it")
@@ -47,14 +52,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
 
 
-def config_from_args(args: argparse.Namespace):
+def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
     """The BootstrapConfig of a command line: the --config file's (else the defaults), with the
-    flags given (CONFIG_FLAGS) in its place; validated, errors naming the file or "arguments"."""
+    flags given (CONFIG_FLAGS) in its place; validated, errors naming the file or "arguments".
+    ``resumed``: the folder of a bootstrap being resumed, whose saved settings replace the defaults."""
     import dataclasses
 
     from ..bootstrap.config import BootstrapConfig
 
-    base = BootstrapConfig.load(args.config) if args.config is not None else BootstrapConfig()
+    saved = None if resumed is None else resumed / "bootstrap" / "config.json"
+    if args.config is not None:
+        base = BootstrapConfig.load(args.config)
+    elif saved is not None and saved.is_file():
+        base = BootstrapConfig.load(saved)   # a resumed bootstrap keeps the settings it started with
+    else:
+        base = BootstrapConfig()
     given = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name) is not None}
     config = dataclasses.replace(base, **given).validate("arguments")
     if config.lpips_weights is not None and not Path(config.lpips_weights).is_file():
@@ -64,20 +76,39 @@ def config_from_args(args: argparse.Namespace):
 
 def run(args) -> int:
     from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
-                                    run_bootstrap)
+                                    resumable, run_bootstrap)
+    from ..io.run_lock import run_folder_lock
+    from ..live import JobControl
+    from ..stop_signals import stop_on_signals
     from ..train.run_folder import next_free_folder
 
-    config = config_from_args(args)
     run_dir = Path(args.run)
     if args.out:
         out_dir = Path(args.out)
+    elif args.overwrite or args.resume:
+        out_dir = default_out_dir(run_dir)
     else:  # the default name never lands on an earlier result: the next free one is chosen
-        out_dir = default_out_dir(run_dir) if args.overwrite else next_free_folder(default_out_dir(run_dir))
-    check_output_folder(out_dir, args.overwrite)  # before loading anything
+        out_dir = next_free_folder(default_out_dir(run_dir))
+    config = config_from_args(args, out_dir if args.resume else None)
+    targets = None
+    if args.resume:
+        targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
+    else:
+        check_output_folder(out_dir, args.overwrite)  # before loading anything
     stage1 = load_stage1(run_dir)
-    targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds, run_dir=run_dir)
-    print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
-    result = run_bootstrap(stage1, out_dir, targets, config, overwrite=args.overwrite)
+    if not args.resume:
+        targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,
+                                  run_dir=run_dir)
+    names = ", ".join(f"{t.name} ({t.origin})" for t in targets or [])
+    print(f"bootstrap {run_dir} -> {out_dir}: {'resumed, ' if args.resume else ''}targets {names or 'none'}")
+    control = JobControl()
+    with run_folder_lock(out_dir), stop_on_signals(control) as stopping:
+        result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
+                               resume=args.resume)
+    if stopping.signum is not None:
+        print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
+              f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
+        return stopping.exit_status
     print(f"prior: {result.prior}")
     if result.supervised_views is not None and result.supervised_views < result.virtual_views:
         print(f"{result.virtual_views - result.supervised_views} of {result.virtual_views} virtual views took no step: "

@@ -91,3 +91,35 @@ def test_a_stopped_train_saves_model_and_checkpoint_and_resumes(tmp_path, scene,
                                  capture_output=True, text=True, timeout=300)
         assert resumed.returncode == 0, resumed.stderr
         assert f"resumed from step_{checkpoints[-1][0]:07d}" in resumed.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_bootstrap_saves_and_resume_continues(tmp_path, scene):
+    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.train.trainer import train
+
+    run, out = tmp_path / "run", tmp_path / "boot"
+    train(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=10, log_every=5,
+                      eval_every=10, checkpoint_every=10, multiview_from=1000), run, progress=False)
+    command = [sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out)]
+    process = subprocess.Popen(command + ["--iterations", "5000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        started = _wait_for(lambda: (out / "metrics.jsonl").is_file()
+                            and len((out / "metrics.jsonl").read_text().splitlines()) >= 3, 240)
+        assert started, "the bootstrap did not start"
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, err
+    assert "Traceback" not in err and "stopped at iteration" in err and "--resume" in err
+    assert (out / "model.ply").is_file() and list_checkpoints(out)
+    stopped_at = list_checkpoints(out)[-1][0]
+    again = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert again.returncode == 2 and "--resume" in again.stderr      # refused, pointing at --resume
+    resumed = subprocess.run(command + ["--resume", "--minutes", "0.05"], capture_output=True, text=True,
+                             timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resumed at step {stopped_at}" in resumed.stderr

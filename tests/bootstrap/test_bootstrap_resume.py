@@ -1,0 +1,122 @@
+"""A stopped bootstrap keeps its work: stop saves the model, the summary and a checkpoint, in that
+order; `--resume` continues it; `--overwrite` says what it discards; a full disk still leaves
+the model."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from inceptiongs.bootstrap import loop as bootstrap_loop
+from inceptiongs.bootstrap.config import BootstrapConfig
+from inceptiongs.bootstrap.runner import check_output_folder, resolve_targets, run_bootstrap
+from inceptiongs.bootstrap.stage1 import load_stage1
+from inceptiongs.cli import main
+from inceptiongs.errors import InputError
+from inceptiongs.io.atomic import OutputError
+from inceptiongs.live import JobControl
+from inceptiongs.scene.demo import write_demo_scene
+from inceptiongs.train.checkpoint import list_checkpoints
+from inceptiongs.train.config import TrainConfig
+from inceptiongs.train.trainer import train
+
+STEPS = 12
+
+
+@pytest.fixture(scope="module")
+def stage1(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("resume")
+    scene = write_demo_scene(root / "scene", progress=False)
+    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20,
+                         densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
+                         sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
+                         eval_every=20, checkpoint_every=20)
+    train(config, root / "run", progress=False)
+    return root / "run"
+
+
+def _config(**overrides) -> BootstrapConfig:
+    # The default supervision (no prior), small: every step logged, no checkpoint but the final one.
+    base = BootstrapConfig(seed=2, iterations=STEPS, k=2, l=2, log_every=1, save_views=0, checkpoint_every=1000,
+                           regenerate_every=0)
+    return dataclasses.replace(base, **overrides)
+
+
+def _targets(run: Path):
+    loaded = load_stage1(run)
+    return resolve_targets(loaded.scene, loaded.split, None, None, 1)
+
+
+class _StopAt:
+    def __init__(self, iteration: int):
+        self.iteration, self.control = iteration, JobControl()
+
+    def __call__(self, iteration, gaussians, record) -> None:
+        if iteration >= self.iteration:
+            self.control.stop.set()
+
+
+def _stopped(stage1: Path, out: Path, at: int):
+    stopper = _StopAt(at)
+    result = run_bootstrap(stage1, out, _targets(stage1), _config(), control=stopper.control, progress=False,
+                           on_snapshot=stopper, snapshot_every=1)
+    return result
+
+
+def test_a_stopped_bootstrap_saves_and_resumes_where_it_stopped(stage1, tmp_path):
+    out = tmp_path / "boot"
+    stopped = _stopped(stage1, out, at=stage1_start(stage1) + 5)
+    assert not stopped.finished and stopped.iteration == stopped.start_iteration + 5
+    assert (out / "model.ply").is_file()                                   # stop means save
+    assert list_checkpoints(out)[-1][0] == stopped.iteration
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["stopped"] is True and summary["iteration"] == stopped.iteration
+    with pytest.raises(InputError, match="--resume"):
+        check_output_folder(out, overwrite=False)
+    # Resumed with no targets given: they come from RUN2/bootstrap/targets.json.
+    resumed = run_bootstrap(stage1, out, None, _config(), progress=False, resume=True)
+    assert resumed.finished and resumed.iteration == stopped.start_iteration + STEPS
+    assert resumed.virtual_views > 0
+    steps = [json.loads(line)["iteration"] for line in (out / "metrics.jsonl").read_text().splitlines()
+             if "loss" in json.loads(line)]
+    assert steps == list(range(stopped.start_iteration + 1, stopped.start_iteration + STEPS + 1))  # each once
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["resumed_at"] == stopped.iteration and summary["stopped"] is False
+    check_output_folder(out, overwrite=True)
+    with pytest.raises(InputError, match="already holds a result"):   # a finished one: nothing to resume
+        check_output_folder(out, overwrite=False)
+
+
+def stage1_start(stage1: Path) -> int:
+    return int(json.loads((stage1 / "config.json").read_text())["iterations"])
+
+
+def test_overwrite_says_which_checkpoint_it_discards(stage1, tmp_path):
+    out = tmp_path / "boot"
+    _stopped(stage1, out, at=stage1_start(stage1) + 2)
+    logged: list[str] = []
+    run_bootstrap(stage1, out, _targets(stage1), _config(iterations=2), progress=False, overwrite=True,
+                  log=logged.append)
+    assert any("discarding" in line and "--resume" in line for line in logged), logged
+
+
+def test_a_full_disk_at_the_checkpoint_still_leaves_the_model_and_summary(stage1, tmp_path, monkeypatch):
+    def no_space(*args, **kwargs):
+        raise OutputError(f"{tmp_path}: no space left on device")
+
+    monkeypatch.setattr(bootstrap_loop, "save_checkpoint", no_space)
+    out = tmp_path / "boot"
+    with pytest.raises(OutputError, match="no space"):
+        run_bootstrap(stage1, out, _targets(stage1), _config(iterations=3), progress=False)
+    assert (out / "model.ply").is_file()
+    assert json.loads((out / "bootstrap" / "summary.json").read_text())["iteration"] > 0
+
+
+def test_resume_without_a_checkpoint_is_one_line(stage1, tmp_path, capsys):
+    status = main(["bootstrap", str(stage1), "--out", str(tmp_path / "nothing"), "--resume"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "no bootstrap checkpoint" in err[0]
+    assert not (tmp_path / "nothing").exists()
