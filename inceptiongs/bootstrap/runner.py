@@ -15,6 +15,7 @@ from typing import Callable, Sequence
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..io.flags import FLAGS_FILE_NAME
+from ..io.run_lock import run_folder_lock
 from ..threads import use_torch_threads
 from ..train.loop import StepLoop, default_log, expected_total_steps  # noqa: F401 (expected_total_steps: re-exported)
 from ..train.run_folder import holds_result, next_free_folder
@@ -105,6 +106,13 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
     out_dir = Path(out_dir)
     if out_dir.resolve() == Path(run if not isinstance(run, Stage1) else run.run_dir).resolve():
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
+    with run_folder_lock(out_dir):   # one writer per run folder (a second gets one line naming the first)
+        return _run_bootstrap(run, out_dir, targets, config, control, on_snapshot, snapshot_every, log, progress,
+                              render_fn, overwrite, resume)
+
+
+def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control, on_snapshot, snapshot_every: int,
+                   log, progress: bool, render_fn, overwrite: bool, resume: bool) -> BootstrapResult:
     payload = None
     if resume:
         payload, targets = resumable(out_dir)

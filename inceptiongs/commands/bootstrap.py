@@ -77,7 +77,6 @@ def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
 def run(args) -> int:
     from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
                                     resumable, run_bootstrap)
-    from ..io.run_lock import run_folder_lock
     from ..live import JobControl
     from ..stop_signals import stop_on_signals
     from ..train.run_folder import next_free_folder
@@ -102,7 +101,7 @@ def run(args) -> int:
     names = ", ".join(f"{t.name} ({t.origin})" for t in targets or [])
     print(f"bootstrap {run_dir} -> {out_dir}: {'resumed, ' if args.resume else ''}targets {names or 'none'}")
     control = JobControl()
-    with run_folder_lock(out_dir), stop_on_signals(control) as stopping:
+    with stop_on_signals(control) as stopping:
         result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
                                resume=args.resume)
     if stopping.signum is not None:

@@ -99,7 +99,6 @@ def photos_to_exclude(value: str | None) -> list[str]:
 
 
 def run(args) -> int:
-    from ..io.run_lock import run_folder_lock
     from ..live import JobControl
     from ..stop_signals import stop_on_signals
     from ..train.config import TrainConfig
@@ -122,7 +121,7 @@ def run(args) -> int:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
     joint = joint_prior(args, out, config) if args.prior else None
     control = JobControl()
-    with run_folder_lock(out), stop_on_signals(control) as stopping:
+    with stop_on_signals(control) as stopping:
         result = train(config, out, resume=args.resume, after_step=joint, control=control)
     if joint is not None:
         saved = joint.finish()

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import InputError
+from .atomic import ensure_dir, output_error
 
 LOCK_INFO_FILE = ".lock"
 
@@ -35,11 +36,11 @@ def run_folder_lock(run_dir: str | Path) -> Iterator[Path]:
     when another process writes the folder."""
     run_dir = Path(run_dir)
     created = not run_dir.exists()
+    ensure_dir(run_dir)   # OutputError (one line) for a folder that cannot be made
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
         fd = os.open(run_dir, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
-        raise InputError(f"{run_dir}: cannot use as a run folder ({exc.strerror or exc})") from None
+        raise output_error(run_dir, exc) from None
     info = run_dir / LOCK_INFO_FILE
     try:
         try:

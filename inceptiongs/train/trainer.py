@@ -20,6 +20,7 @@ from typing import Callable
 from ..errors import InputError
 from ..evaluation.protocols import make_split
 from ..scene.loader import load_scene
+from ..io.run_lock import run_folder_lock
 from ..io.atomic import OutputError, atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..threads import use_torch_threads
@@ -60,10 +61,15 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     """
     if render_fn is None:
         from ..rasterizer.rasterize import render as render_fn
-    log = log or default_log
-    use_torch_threads()
-    run_dir = Path(run_dir)
     config.validate()
+    with run_folder_lock(run_dir):   # one writer per run folder (a second gets one line naming the first)
+        return _train(config, Path(run_dir), resume, progress, control, on_snapshot, snapshot_every, render_fn,
+                      log or default_log, after_step)
+
+
+def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, control, on_snapshot,
+           snapshot_every: int, render_fn, log, after_step) -> TrainResult:
+    use_torch_threads()
     checkpoint, payload, scene, split, data = _start(config, run_dir, resume, log)
     config.save(run_dir / "config.json")
     split.save(run_dir / "split.json")
