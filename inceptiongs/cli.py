@@ -12,7 +12,11 @@ import importlib
 import sys
 
 from .errors import InputError
+from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+
+# The arguments that name a run, output or input folder of a command.
+WRITE_ROOT_ARGUMENTS = ("run", "out", "path", "model", "scene")
 
 # name -> module in inceptiongs.commands; order is the order in --help.
 COMMANDS = {
@@ -67,7 +71,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         set_cache_dir(getattr(args, "cache_dir", None))
-        return int(args._run(args) or 0)
+        # Writes below the folders a command is given never follow a symlink planted there.
+        with writing_under(*(getattr(args, name, None) for name in WRITE_ROOT_ARGUMENTS)):
+            return int(args._run(args) or 0)
     except InputError as exc:
         if debug:
             raise

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from ..io.paths import contained_path
 from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics, finite_points
 
@@ -170,7 +171,7 @@ def load_colmap(root: Path) -> RawScene:
         check_finite_pose(pose, source)
         cameras.append(Camera(image.name, int(cam.width), int(cam.height), float(fx), float(fy),
                               float(cx), float(cy), pose))
-        paths.append(image_dir / image.name)
+        paths.append(contained_path(image_dir, image.name, source))
         models.append(model)
         distortion.append(_distortion(model, params))
     if not cameras:

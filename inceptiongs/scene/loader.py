@@ -19,7 +19,9 @@ import numpy as np
 
 from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
+from ..constants import IMAGE_SIDE_MAX
 from ..errors import InputError
+from ..io.paths import link_problem
 from ..gaussians import Gaussians
 from .raw import RawScene
 from .undistort import distortion_key, undistort_image, undistorted_camera
@@ -204,6 +206,9 @@ class Scene:
 
 def _read_image(path: Path) -> np.ndarray:
     """BGR(A) image as stored (uint8 or uint16), or InputError."""
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: image file does not exist")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -232,15 +237,18 @@ def _to_float_rgb(image: np.ndarray, path: Path) -> np.ndarray:
     return np.clip(rgb.astype(np.float32), 0.0, 1.0)
 
 
-def _image_size(path: Path) -> tuple[int, int] | None:
-    """(width, height) from the file header, or None if it cannot be read."""
+def _image_size(path: Path) -> tuple[int, int] | str:
+    """(width, height) from the file header, or what keeps it from being read, in words."""
     from PIL import Image
 
     try:
         with Image.open(path) as image:
             return image.size
+    except Image.DecompressionBombError as exc:
+        return (f"image is too large ({exc}); at most {2 * Image.MAX_IMAGE_PIXELS} pixels "
+                f"(and {IMAGE_SIDE_MAX} a side) are read")
     except Exception:  # PIL raises many types for unreadable files; treat all as "unreadable"
-        return None
+        return "cannot read image header (corrupt or unsupported format)"
 
 
 def detect_format(root: Path) -> str:
@@ -291,12 +299,13 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
         if camera.name in seen:
             problems.append(f"{path}: duplicate image name {camera.name} (more than one camera uses it)")
         seen.add(camera.name)
-        if not path.is_file():
-            problems.append(f"{path}: image file does not exist")
+        problem = link_problem(path)
+        if problem is not None or not path.is_file():
+            problems.append(f"{path}: {problem or 'image file does not exist'}")
             continue
         size = _image_size(path)
-        if size is None:
-            problems.append(f"{path}: cannot read image header (corrupt or unsupported format)")
+        if isinstance(size, str):
+            problems.append(f"{path}: {size}")
         elif size != (camera.width, camera.height):
             problems.append(f"{path}: image is {size[0]}x{size[1]} but its camera expects "
                             f"{camera.width}x{camera.height}")

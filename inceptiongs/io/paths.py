@@ -1,0 +1,59 @@
+"""Paths read from a scene or run file, kept inside the folder they belong to.
+
+A scene or run folder from someone else names files by strings it chose: an image name in
+images.txt, a transforms.json ``file_path``, a ``ply_file_path``. Such a name may be absolute,
+climb out with ``..`` or reach a symlink that leads elsewhere; followed blindly, a shared
+scene would read (and a run later copy into its outputs) any file the user can read.
+:func:`contained_path` resolves the name and refuses it, in one line, unless it stays inside
+its folder. The folder itself is taken as the user gave it (a folder that is a symlink is
+theirs and is followed).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+from ..errors import InputError
+
+
+def resolved(path: str | Path, source: str) -> Path:
+    """``path`` with every symlink resolved (missing tails kept as written); InputError naming
+    ``source`` for a symlink loop."""
+    try:
+        return Path(os.path.realpath(path, strict=False))
+    except (OSError, RuntimeError):
+        raise InputError(f"{source}: symlink loop at {path}") from None
+
+
+def is_inside(path: Path, folder: Path) -> bool:
+    """Whether the resolved ``path`` is ``folder`` or below it (both already resolved)."""
+    return path == folder or folder in path.parents
+
+
+def contained_path(folder: str | Path, name: str, source: str) -> Path:
+    """``folder / name`` when ``name`` is relative and, with symlinks resolved, stays inside
+    ``folder``; InputError '<source>: ...' otherwise. Returns the path as written (unresolved),
+    so messages and names stay the ones the user knows."""
+    folder = Path(folder)
+    if not isinstance(name, str) or not name or "\x00" in name:
+        raise InputError(f"{source}: file name {name!r} is empty or not a valid path")
+    if os.path.isabs(name) or Path(name).drive:
+        raise InputError(f"{source}: file name {name!r} is an absolute path; a scene or run may only name "
+                         f"files inside {folder}")
+    path = folder / name
+    if not is_inside(resolved(path, source), resolved(folder, source)):
+        raise InputError(f"{source}: file {name!r} leads outside {folder} (through '..' or a symlink); refused")
+    return path
+
+
+def link_problem(path: str | Path) -> str | None:
+    """'symlink loop' / 'dangling symlink' when ``path`` is a symlink that leads nowhere, else None."""
+    if not os.path.islink(path):
+        return None
+    try:
+        os.stat(path)
+    except OSError as exc:
+        return "symlink loop" if exc.errno == errno.ELOOP else "dangling symlink (its target does not exist)"
+    return None
