@@ -315,6 +315,10 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
     return problems
 
 
+# The smallest image side the losses and metrics work on (the SSIM window is 11 pixels).
+MIN_IMAGE_SIDE = 11
+
+
 def load_scene(path: str | Path, downscale: int = 1, max_width: int | None = None,
                require_images: bool = True) -> Scene:
     """Load any supported scene. ``downscale`` divides the image size (1, 2, 4, 8, ...);
@@ -336,6 +340,13 @@ def load_scene(path: str | Path, downscale: int = 1, max_width: int | None = Non
     centers = np.array([c.center for c in raw.cameras])
     normalization = compute_normalization(centers, raw.points)
     cameras = [normalization.camera_to_normalized(c.scaled(factor) if factor != 1 else c) for c in pinhole]
+    small = next((c for c in cameras if min(c.width, c.height) < MIN_IMAGE_SIDE), None)
+    if small is not None:
+        problem = (f"{path}: downscale {downscale} leaves image {small.name} at {small.width}x{small.height} "
+                   f"pixels; training and evaluation need at least {MIN_IMAGE_SIDE} a side")
+        if require_images:
+            raise InputError(problem)
+        warnings.append(problem)
     points = normalization.to_normalized(raw.points) if len(raw.points) else np.zeros((0, 3))
     return Scene(root=raw.root, format=raw.format, cameras=cameras, image_paths=list(raw.image_paths),
                  points=points, point_colors=raw.point_colors, normalization=normalization,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import re
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,11 @@ import torch
 from ..io.atomic import atomic_write_bytes
 from ..errors import InputError
 from .checkpoint_schema import checkpoint_problem
+
+class UnsafeCheckpointError(InputError):
+    """A checkpoint that names code to run: the run folder is refused as a whole (no fallback to
+    an older checkpoint beside a planted one)."""
+
 
 _NAME = re.compile(r"^step_(\d{7,})\.pt$")
 
@@ -88,6 +94,8 @@ def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
     for _, path in reversed(found):
         try:
             payload = load_checkpoint(path)
+        except UnsafeCheckpointError:
+            raise
         except InputError as exc:
             first_error = first_error or exc
             warn(f"{exc}; trying the previous checkpoint")
@@ -104,11 +112,15 @@ def load_checkpoint(path: Path) -> dict:
     if path.is_symlink() and not path.exists():
         raise InputError(f"{path}: not a readable checkpoint (a dangling or looping symlink)")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():   # torch warns about pickle protocols of foreign files
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated, foreign or crafted file: name it, one line
-        reason = str(exc).strip().splitlines()
-        detail = next((line.strip() for line in reason if "Unsupported global" in line), None)
-        detail = detail or (reason[0] if reason else type(exc).__name__)
+        if "Weights only load failed" in str(exc):
+            raise UnsafeCheckpointError(f"{path}: refused: it holds Python objects other than tensors and plain "
+                                        f"data (loading it could run code; an InceptionGS checkpoint never "
+                                        f"does)") from None
+        detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {detail[:200]})") from None
     problem = checkpoint_problem(payload)
     if problem is not None:

@@ -162,6 +162,7 @@ class TrainConfig(SavedConfig):
     LEGACY_VALUES: ClassVar[dict] = {"sky_min_scale": 0.0}
 
     def validate(self, source: str = "config") -> "TrainConfig":
+        self.check_types(source)
         if self.strategy not in STRATEGIES:
             raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGIES)}, got {self.strategy!r}")
         if not 0.0 <= self.drop_rate_max < 1.0:
