@@ -71,7 +71,9 @@ def find_model_ply(run_dir: Path) -> Path | None:
     for name in ("model.ply", "point_cloud.ply"):
         if (run_dir / name).is_file():
             return run_dir / name
-    plies = sorted(run_dir.rglob("*.ply"), key=lambda p: p.stat().st_mtime)
+    from ..io.paths import files_below
+
+    plies = sorted(files_below(run_dir, ".ply"), key=lambda p: p.stat().st_mtime)
     return plies[-1] if plies else None
 
 

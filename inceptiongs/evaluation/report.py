@@ -118,6 +118,10 @@ def eval_series(records: list[dict], source: str = "<metrics>") -> dict[str, lis
         if wall is None:
             raise InputError(f"{source}: an evaluation record has no wall_s")
         iteration = record.get("iteration")
+        if iteration is not None and (isinstance(iteration, bool) or not isinstance(iteration, int)):
+            raise InputError(f"{source}: an evaluation record's iteration is not an integer ({iteration!r})")
+        if not (math.isfinite(wall) and wall >= 0):
+            raise InputError(f"{source}: an evaluation record's wall_s is not a finite time ({wall!r})")
         for group, values in scores.items():
             series.setdefault(group, []).append(EvalPoint(wall, None if iteration is None else int(iteration),
                                                           values.get("psnr"), values.get("ssim")))

@@ -57,3 +57,24 @@ def link_problem(path: str | Path) -> str | None:
     except OSError as exc:
         return "symlink loop" if exc.errno == errno.ELOOP else "dangling symlink (its target does not exist)"
     return None
+
+
+def files_below(folder: str | Path, suffix: str) -> list[Path]:
+    """Regular files named ``*suffix`` below ``folder`` (recursive), found without following
+    symlinked folders; a file that is a symlink counts only when it resolves to a regular file
+    inside ``folder`` (a dangling, looping or escaping link is skipped)."""
+    folder = Path(folder)
+    inside = resolved(folder, str(folder))
+    found = []
+    for parent, _, names in os.walk(folder, followlinks=False):
+        for name in names:
+            path = Path(parent) / name
+            if not name.endswith(suffix) or link_problem(path) is not None:
+                continue
+            try:
+                target = Path(os.path.realpath(path))
+                if target.is_file() and is_inside(target, inside):
+                    found.append(path)
+            except (OSError, RuntimeError):
+                continue
+    return found

@@ -18,6 +18,7 @@ import torch
 from .atomic import atomic_open
 from ..constants import SH_MAX_DEGREE, sh_coeff_count
 from ..errors import InputError
+from .limits import check_allocation
 from ..gaussians import Gaussians
 
 # PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
@@ -132,6 +133,8 @@ def read_ply(path: str | Path) -> Gaussians:
     if file_size < needed:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices "
                          f"({needed} bytes) but the file has {file_size} bytes")
+    # The model holds [count, 14 + rest] float32 values, copied about three times on the way.
+    check_allocation(3 * count * (14 + rest_count) * 4, str(path), f"{count} declared vertices")
     k_rest = rest_count // 3
     if all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
         # The usual case, every property a little-endian float32: the vertices are one
@@ -231,6 +234,7 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
         raise InputError(f"{path}: point cloud PLY lacks x, y, z")
     if path.stat().st_size < offset + count * dtype.itemsize:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices")
+    check_allocation(3 * count * (dtype.itemsize + 32), str(path), f"{count} declared points")
     data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
     points = np.stack([data[axis].astype(np.float64) for axis in "xyz"], axis=1)
     if not np.all(np.isfinite(points)):
