@@ -22,6 +22,7 @@ from ..io.limits import check_image_size
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
+from ..io.paths import read_small_text
 
 HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -82,7 +83,7 @@ def _run_scene_path(run_dir: Path) -> str | None:
     if not config.is_file():
         return None
     try:
-        return json.loads(config.read_text()).get("scene") or None
+        return json.loads(read_small_text(config, "run config")).get("scene") or None
     except (OSError, json.JSONDecodeError, AttributeError):
         raise InputError(f"{config}: not a readable run config") from None
 

@@ -20,6 +20,7 @@ from typing import Iterable
 
 from ..io.atomic import atomic_write_bytes
 from ..errors import InputError
+from ..io.paths import read_small_text
 
 REPORT_MINUTES = (1, 2, 5, 10, 20)
 GROUP_ORDER = ("scarce", "covered", "all", "test")
@@ -48,7 +49,7 @@ def read_metrics(path: str | Path) -> list[dict]:
     a malformed line elsewhere is an error naming the file and line."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = read_small_text(path, "metrics log").splitlines()
     except FileNotFoundError:
         raise InputError(f"{path}: metrics log does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:

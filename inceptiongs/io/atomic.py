@@ -88,6 +88,11 @@ def writing_under(*roots: str | Path | None) -> Iterator[None]:
             _write_roots.remove(root)
 
 
+def named_roots() -> list[str]:
+    """The folders given to :func:`writing_under` now (absolute, as named)."""
+    return list(_write_roots)
+
+
 def check_no_symlink_below_root(path: str | Path) -> None:
     """OutputError when a component of ``path`` below a :func:`writing_under` root is a symlink."""
     target = os.path.abspath(path)

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import ClassVar, TypeVar
 
 from .atomic import atomic_write_text
+from .paths import read_small_text
 from ..errors import InputError
 
 Config = TypeVar("Config")
@@ -22,8 +23,8 @@ def read_json_object(path: str | Path, what: str) -> dict:
     not JSON or is not an object (``what`` says what it should have been, e.g. "camera")."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_small_text(path, f"{what} JSON"))
+    except (OSError, json.JSONDecodeError) as exc:
         raise InputError(f"{path}: not a readable {what} JSON ({exc})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: {what} JSON must be an object")

@@ -12,6 +12,7 @@ theirs and is followed).
 from __future__ import annotations
 
 import errno
+import stat
 import os
 from pathlib import Path
 
@@ -78,3 +79,46 @@ def files_below(folder: str | Path, suffix: str) -> list[Path]:
             except (OSError, RuntimeError):
                 continue
     return found
+
+
+# The largest text or JSON file a scene or run holds that is read whole (a metrics log of a long
+# run is a few MB): a larger one, such as a sparse file of a huge declared size, is refused.
+MAX_TEXT_FILE_BYTES = 256 * 2**20
+
+
+def read_small_text(path: str | Path, what: str, max_bytes: int = MAX_TEXT_FILE_BYTES) -> str:
+    """The UTF-8 text of the regular file ``path``; InputError '<path>: <problem>' (``what`` names
+    the kind of file) when it is missing, a symlink loop, not a regular file, larger than
+    ``max_bytes`` or not text. FileNotFoundError passes through for callers with their own word."""
+    path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
+    check_read_inside_named_folder(path)
+    try:
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise InputError(f"{path}: not a regular file (a {what} must be one)")
+        if info.st_size > max_bytes:
+            raise InputError(f"{path}: {info.st_size} bytes is too large for a {what} "
+                             f"(at most {max_bytes // 2**20} MiB)")
+        return path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable {what} ({exc})") from None
+
+
+def check_read_inside_named_folder(path: str | Path) -> None:
+    """InputError when ``path`` lies below a folder the user named (a run, an output folder:
+    :func:`inceptiongs.io.atomic.writing_under`) but resolves outside it, through a symlink
+    planted there. Files the user names directly, and files outside those folders, pass."""
+    from .atomic import named_roots
+
+    target = os.path.abspath(path)
+    for root in named_roots():
+        if target == root or not target.startswith(root.rstrip(os.sep) + os.sep):
+            continue
+        if not is_inside(resolved(target, str(path)), resolved(root, root)):
+            raise InputError(f"{path}: a symlink that leads outside {root}; files of a run or scene folder "
+                             f"are read only from inside it")

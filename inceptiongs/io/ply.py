@@ -19,6 +19,7 @@ from .atomic import atomic_open
 from ..constants import SH_MAX_DEGREE, sh_coeff_count
 from ..errors import InputError
 from .limits import check_allocation
+from .paths import check_read_inside_named_folder, link_problem
 from ..gaussians import Gaussians
 
 # PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
@@ -100,8 +101,12 @@ def _sh_rest_count(names: set[str], path: Path) -> int:
 def read_ply(path: str | Path) -> Gaussians:
     """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
     path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: PLY file does not exist")
+    check_read_inside_named_folder(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(_MAX_HEADER_BYTES)

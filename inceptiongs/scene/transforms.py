@@ -22,6 +22,7 @@ import numpy as np
 from ..camera import Camera, rigid_inverse
 from ..errors import InputError
 from ..io.paths import contained_path
+from ..io.paths import read_small_text
 from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics
 
@@ -80,8 +81,8 @@ def load_transforms(root: Path) -> RawScene:
         raise InputError(f"{root}: no transforms.json found")
     base = json_path.parent
     try:
-        data = json.loads(json_path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_small_text(json_path, "transforms JSON"))
+    except (OSError, json.JSONDecodeError) as exc:
         raise InputError(f"{json_path}: not a readable JSON file ({exc})") from None
     frames = data.get("frames") if isinstance(data, dict) else None
     if not isinstance(frames, list) or not frames:

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from ..io.atomic import atomic_write_bytes
+from ..io.paths import check_read_inside_named_folder
 from ..errors import InputError
 from .checkpoint_schema import checkpoint_problem
 
@@ -111,6 +112,7 @@ def load_checkpoint(path: Path) -> dict:
     path = Path(path)
     if path.is_symlink() and not path.exists():
         raise InputError(f"{path}: not a readable checkpoint (a dangling or looping symlink)")
+    check_read_inside_named_folder(path)
     try:
         with warnings.catch_warnings():   # torch warns about pickle protocols of foreign files
             warnings.simplefilter("ignore")
