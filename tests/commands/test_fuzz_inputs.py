@@ -406,12 +406,29 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, float]]:
     return out
 
 
+def _link_or_copy(source: str, target: str) -> None:
+    if source.endswith((".pt", ".ply")):
+        os.link(source, target)
+    else:
+        shutil.copy2(source, target)
+
+
+def _unshare(path: Path) -> None:
+    """Give a hard-linked file its own copy before it is written in place."""
+    if path.is_file() and not path.is_symlink() and path.stat().st_nlink > 1:
+        data = path.read_bytes()
+        path.unlink()
+        path.write_bytes(data)
+
+
 def _case_copy(shared: dict, workdir: Path) -> tuple[Path, Path]:
     """A fresh copy of the pristine scene and run under ``workdir``; the run's config points at
     the copy of the scene."""
     scene, run = workdir / "scene", workdir / "run"
     shutil.copytree(shared["scene"], scene, symlinks=True)
-    shutil.copytree(shared["run"], run, symlinks=True)
+    # The large binaries are only ever replaced (atomic writes), never written in place: they are
+    # hard links to the pristine copies until a mutation unshares them (_unshare).
+    shutil.copytree(shared["run"], run, symlinks=True, copy_function=_link_or_copy)
     config = run / "config.json"
     config.write_text(config.read_text().replace(str(shared["scene"]), str(scene)))
     return scene, run
@@ -479,6 +496,7 @@ def _mutate_checkpoint(run: Path, shared: dict, rng) -> None:
     from inceptiongs.train.checkpoint import latest_checkpoint
 
     path = latest_checkpoint(run)
+    _unshare(path)
     kind = int(rng.integers(7))
     if kind == 0:  # a payload that would create the marker file, as torch.save (zip) or a bare pickle
         body = {"iteration": 1, "params": _evil_object(shared["marker"])}
@@ -539,6 +557,7 @@ def _mutate_image(scene: Path, shared: dict, rng) -> None:
 
 
 def _mutate_ply(path: Path, shared: dict, rng) -> None:
+    _unshare(path)
     kind = int(rng.integers(3))
     if kind == 0:
         path.write_bytes(mutate_bytes(path.read_bytes(), rng))
@@ -603,7 +622,7 @@ def _commands(kind: str, scene: Path, run: Path, workdir: Path, names: list[str]
     view = names[int(rng.integers(len(names)))]
     options = {
         "info": ["info", str(scene), "--json"],
-        "report": ["report", str(run), "--out", str(workdir / "report.png")],
+        "report": ["report", str(run)],
         "eval": ["eval", str(run), "--json"],
         "render": ["render", str(run), "--view", view, "--backend", "torch", "--out", str(workdir / "view.png")],
         "coverage": ["coverage", str(run), "--out", str(workdir / "coverage.png")],
@@ -692,7 +711,8 @@ def _outputs_hold_sentinel(workdir: Path) -> list[str]:
     for parent, _, names in os.walk(workdir):
         for name in names:
             path = Path(parent) / name
-            if path.is_symlink() or not path.is_file() or path.stat().st_size > 5_000_000:
+            if path.is_symlink() or not path.is_file() or path.stat().st_size > 1_000_000 \
+                    or path.stat().st_nlink > 1:
                 continue
             if SENTINEL_TEXT.encode() in path.read_bytes():
                 found.append(str(path))
