@@ -29,6 +29,7 @@ from inceptiongs.gaussians import Gaussians
 from inceptiongs.io.ply import write_ply
 from inceptiongs.scene.colmap import write_colmap_binary
 from scene_cases import HEIGHT, WIDTH, known_cameras, known_points, project, write_images
+from shared_run_cases import train_one_step, write_text_scene
 
 # 6 formats x 90 = 540 seeded cases (INCEPTIONGS_FUZZ_CASES raises it for a longer search).
 CASES_PER_FORMAT = int(os.environ.get("INCEPTIONGS_FUZZ_CASES", "90"))
@@ -352,33 +353,15 @@ def _evil_object(marker: Path):
 def shared_run(tmp_path_factory):
     """A pristine COLMAP-text scene (its own image copies) and a 1-step run on it with every file a
     run holds, plus a sentinel folder outside both: {"scene", "run", "sentinel", "marker", "big_png"}."""
-    import sys as _sys  # noqa: F401  (the audit hook module needs sys)
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.io.flags import Flag, save_flags
 
     root = tmp_path_factory.mktemp("fuzz_run")
-    cameras = known_cameras(count=4)
     scene = root / "pristine" / "scene"
-    write_images(scene / "images", cameras, [None] * 4)
-    points = known_points()
-    from inceptiongs.camera import rotation_to_quat
-    model = scene / "sparse" / "0"
-    model.mkdir(parents=True)
-    (model / "cameras.txt").write_text("".join(
-        f"{i + 1} PINHOLE {c.width} {c.height} {c.fx} {c.fy} {c.cx} {c.cy}\n" for i, c in enumerate(cameras)))
-    lines = []
-    for i, c in enumerate(cameras):
-        q, t = rotation_to_quat(c.world_to_camera[:3, :3]), c.world_to_camera[:3, 3]
-        pose = " ".join(repr(float(v)) for v in [*q, *t])
-        pixels = project(c, points[:2])
-        lines.append(f"{i + 1} {pose} {i + 1} {c.name}\n"
-                     f"{pixels[0, 0]} {pixels[0, 1]} 1 {pixels[1, 0]} {pixels[1, 1]} 2\n")
-    (model / "images.txt").write_text("".join(lines))
-    (model / "points3D.txt").write_text("".join(
-        f"{k + 1} {p[0]} {p[1]} {p[2]} 10 200 30 0.5 1 {k}\n" for k, p in enumerate(points[:2])))
+    names = write_text_scene(scene)
     run = root / "pristine" / "run"
-    status, stderr = run_cli(["train", str(scene), "--out", str(run), "--iterations", "1", "--no-sky-shell"])
-    assert status == 0, stderr
+    train_one_step(scene, run)
+    cameras = known_cameras(count=4)
     save_flags(run / "flags.json", [Flag("f0", cameras[1], "2026-01-01T00:00:00+00:00")])
     BootstrapConfig().save(run / "bootstrap" / "config.json")
     sentinel = root / "sentinel"
@@ -393,7 +376,7 @@ def shared_run(tmp_path_factory):
     big_png.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 14000, 14000, 8, 2, 0, 0, 0))
                         + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
     return {"scene": scene, "run": run, "sentinel": sentinel, "marker": root / "PAYLOAD_RAN",
-            "big_png": big_png, "names": [c.name for c in cameras]}
+            "big_png": big_png, "names": names}
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[int, float]]:
