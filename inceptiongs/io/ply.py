@@ -222,10 +222,17 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     """A coloured point cloud PLY (x y z [red green blue], binary): ([P, 3] float64,
     [P, 3] uint8 or None). Used for the sparse points of nerfstudio scenes."""
     path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: point cloud file does not exist")
-    with open(path, "rb") as handle:
-        head = handle.read(_MAX_HEADER_BYTES)
+    check_read_inside_named_folder(path)
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(_MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     header_len, byte_order, elements = _parse_header(head, path)
     offset = header_len
     for name, count, props in elements:
