@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io.config_json import check_seed
+from ..io.paths import contained_path, read_small_text
 
 from ..train.config import STRATEGIES, TrainConfig
 
@@ -98,6 +99,9 @@ def photos_to_exclude(value: str | None) -> list[str]:
         if not (path / VIEW_FIT_FILE).is_file():
             raise InputError(f"{value}: no {VIEW_FIT_FILE} (a finished stage-I run writes one) to take the "
                              f"photos to exclude from")
+        # The run's view_fit.json must be its own (not a symlink planted to lead out of it) and of
+        # a report's size, before it is read whole.
+        read_small_text(contained_path(path, VIEW_FIT_FILE, f"--exclude-photos {value}"), "view-fit report")
         names = list(read_poorly_fit(path))
         print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
         return names
