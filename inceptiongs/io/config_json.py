@@ -6,10 +6,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import types
 import typing
 from pathlib import Path
 from typing import ClassVar, TypeVar
+
+import numpy as np
 
 from .atomic import atomic_write_text
 from .paths import read_small_text
@@ -108,10 +111,11 @@ def value_fits(value, kind) -> bool:
         return value is None
     if kind is bool:
         return isinstance(value, bool)
+    # numbers.Integral/Real: numpy scalars computed by the schedule helpers count as well.
     if kind is int:
-        return isinstance(value, int) and not isinstance(value, bool)
+        return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
     if kind is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
     if kind is str:
         return isinstance(value, str)
     return True
