@@ -648,6 +648,10 @@ def _stub_long_work(monkeypatch) -> None:
     def stop(*args, **kwargs):
         raise _WouldTrain()
 
+    import inceptiongs.evaluation.coverage_map as coverage_map
+
+    # The coverage figure is drawn from computed numbers only (seconds of matplotlib per case).
+    monkeypatch.setattr(coverage_map, "plot", lambda result, out, title=None: Path(out).write_bytes(b"png"))
     monkeypatch.setattr(runner, "run_bootstrap", stop)
     monkeypatch.setattr(joint, "training_views", stop)
     monkeypatch.setattr(trainer, "truncate_metrics", stop)   # a resume, after its state restored
