@@ -16,7 +16,6 @@ import shutil
 import signal
 import struct
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -715,9 +714,9 @@ def test_mutated_run_and_scene_files_never_run_code_read_or_write_outside(shared
     watch = _watch()
     watch.forbidden = str(shared_run["sentinel"])
     cache = os.environ.get("INCEPTIONGS_CACHE_DIR", "")
-    watch.allowed = tuple(os.path.realpath(p) for p in (tmp_path, cache, tempfile.gettempdir()) if p) + (
-        os.path.realpath(os.path.expanduser("~/.cache")), os.path.realpath(os.path.expanduser("~/.config")))
-    # tempfile's folder holds the pristine copies and the sentinel: they are checked by snapshot.
+    watch.allowed = tuple(os.path.realpath(p) for p in (tmp_path, cache) if p) + (
+        os.path.realpath(os.path.expanduser("~/.cache")), os.path.realpath(os.path.expanduser("~/.config")),
+        "/dev/")
     outside = {**_snapshot(shared_run["sentinel"]), **_snapshot(shared_run["scene"].parent)}
     rng = np.random.default_rng([RUN_FILE_KINDS.index(kind), 44])
     count = max(1, RUN_CASES // len(RUN_FILE_KINDS))
@@ -743,3 +742,23 @@ def test_mutated_run_and_scene_files_never_run_code_read_or_write_outside(shared
         shutil.rmtree(workdir)
     assert {**_snapshot(shared_run["sentinel"]), **_snapshot(shared_run["scene"].parent)} == outside
     assert outcomes[2] > 0, outcomes
+
+
+def test_the_watch_sees_a_sentinel_read_and_a_write_outside(tmp_path):
+    """The suite's audit hook can fail a case: a read below the sentinel folder and a write
+    outside the allowed folders are both recorded (and nothing while disarmed)."""
+    watch = _watch()
+    sentinel, allowed, outside = tmp_path / "sentinel", tmp_path / "case", tmp_path / "elsewhere.txt"
+    sentinel.mkdir()
+    allowed.mkdir()
+    (sentinel / "secret.txt").write_text(SENTINEL_TEXT)
+    watch.forbidden, watch.allowed, watch.bad = str(sentinel), (str(allowed),), []
+    watch.armed = True
+    try:
+        (allowed / "ok.txt").write_text("fine")
+        (sentinel / "secret.txt").read_text()
+        outside.write_text("not fine")
+    finally:
+        watch.armed = False
+    outside.write_text("disarmed")
+    assert len(watch.bad) == 2 and "sentinel" in watch.bad[0] and "outside" in watch.bad[1], watch.bad
