@@ -666,9 +666,11 @@ def _main_or_load(argv: list[str]) -> int:
         return main(argv)
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.errors import InputError
+    from inceptiongs.io.atomic import writing_under
 
     try:
-        BootstrapConfig.load(argv[1])
+        with writing_under(Path(argv[1]).parent.parent):   # the run, as the viewer names it
+            BootstrapConfig.load(argv[1])
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

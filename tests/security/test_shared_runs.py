@@ -303,3 +303,14 @@ def test_resume_with_more_iterations_says_the_stored_schedule_is_kept(copy):
                                   "--iterations", "60"])
     assert status == 0, stderr
     assert "keeps its schedule of 1 iterations" in stderr and "--iterations 60 is ignored" in stderr
+
+
+def test_report_does_not_read_a_metrics_log_that_leads_out_of_the_run(copy):
+    secret = copy["root"] / "secret.txt"
+    secret.write_text(json.dumps({"iteration": 1, "wall_s": 1.0, "all_psnr": 99.0}) + "\n")
+    metrics = copy["run"] / "metrics.jsonl"
+    metrics.unlink()
+    os.symlink(secret, metrics)
+    status, stdout, stderr = run_main(["report", str(copy["run"])])
+    one_error_line(status, stderr, str(metrics), "outside")
+    assert "99" not in stdout
