@@ -12,7 +12,20 @@ import importlib
 import sys
 
 from .errors import InputError
+from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+
+# The arguments that name a run, output or input folder of a command.
+WRITE_ROOT_ARGUMENTS = ("run", "runs", "out", "path", "model", "scene")
+
+
+def named_folders(args: argparse.Namespace) -> list[str]:
+    """The paths the command line names in WRITE_ROOT_ARGUMENTS (a list argument, one by one)."""
+    found = []
+    for name in WRITE_ROOT_ARGUMENTS:
+        value = getattr(args, name, None)
+        found.extend(value if isinstance(value, list) else [value])
+    return [str(value) for value in found if value]
 
 # name -> module in inceptiongs.commands; order is the order in --help.
 COMMANDS = {
@@ -67,7 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         set_cache_dir(getattr(args, "cache_dir", None))
-        return int(args._run(args) or 0)
+        # Writes below the folders a command is given never follow a symlink planted there.
+        with writing_under(*named_folders(args)):
+            return int(args._run(args) or 0)
     except InputError as exc:
         if debug:
             raise

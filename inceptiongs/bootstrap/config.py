@@ -178,6 +178,7 @@ class BootstrapConfig(SavedConfig):
         return not self.blending or self.fill == "prior"
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
+        self.check_types(source)
         positive = ("rounds", "iterations", "ddim_steps", "virtual_every", "log_every",
                     "checkpoint_every", "max_virtual_views", "conscience_every", "splat_views")
         for name in positive:

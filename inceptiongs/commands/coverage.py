@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import json
 from pathlib import Path
 
@@ -37,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--suggest: must be >= 0, got {args.suggest}")
     if args.downscale < 1:
         raise InputError(f"--downscale: must be >= 1, got {args.downscale}")
+    if args.roi is not None and not all(math.isfinite(value) for value in args.roi):
+        raise InputError(f"--roi: the box corners must be finite numbers, got {' '.join(map(str, args.roi))}")
     if Path(args.out).suffix.lower() != ".png":
         raise InputError(f"{args.out}: the coverage figure must be a .png file")
     log = (lambda message: None) if args.json else (lambda message: print(message, flush=True))

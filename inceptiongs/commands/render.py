@@ -22,6 +22,7 @@ from ..io.limits import check_image_size
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
+from ..io.paths import read_small_text
 
 HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -71,7 +72,9 @@ def find_model_ply(run_dir: Path) -> Path | None:
     for name in ("model.ply", "point_cloud.ply"):
         if (run_dir / name).is_file():
             return run_dir / name
-    plies = sorted(run_dir.rglob("*.ply"), key=lambda p: p.stat().st_mtime)
+    from ..io.paths import files_below
+
+    plies = sorted(files_below(run_dir, ".ply"), key=lambda p: p.stat().st_mtime)
     return plies[-1] if plies else None
 
 
@@ -80,7 +83,7 @@ def _run_scene_path(run_dir: Path) -> str | None:
     if not config.is_file():
         return None
     try:
-        return json.loads(config.read_text()).get("scene") or None
+        return json.loads(read_small_text(config, "run config")).get("scene") or None
     except (OSError, json.JSONDecodeError, AttributeError):
         raise InputError(f"{config}: not a readable run config") from None
 

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.config_json import check_seed
+from ..io.paths import contained_path, read_small_text
 
 from ..train.config import TrainConfig
 from ..train.strategies import STRATEGIES
@@ -58,9 +61,19 @@ def add_arguments(parser) -> None:
     add_backend_arguments(prior, prefix="prior-")
 
 
+def check_arguments(args) -> None:
+    """One line (InputError) for values no run can use, before anything is read or written."""
+    check_seed(args.seed, "--seed")
+    if args.minutes is not None and not 0.0 < args.minutes < math.inf:
+        raise InputError(f"--minutes: must be a finite number of minutes > 0, got {args.minutes}")
+    if args.iterations is not None and args.iterations < 1:
+        raise InputError(f"--iterations: must be >= 1, got {args.iterations}")
+
+
 def build_config(args) -> "TrainConfig":
     from ..train.config import TrainConfig, schedule_length, short_run_schedule
 
+    check_arguments(args)
     iterations, sized = schedule_length(args.iterations, args.minutes)
     config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
                          protocol=args.protocol, seed=args.seed, iterations=iterations,
@@ -87,6 +100,9 @@ def photos_to_exclude(value: str | None) -> list[str]:
         if not (path / VIEW_FIT_FILE).is_file():
             raise InputError(f"{value}: no {VIEW_FIT_FILE} (a finished stage-I run writes one) to take the "
                              f"photos to exclude from")
+        # The run's view_fit.json must be its own (not a symlink planted to lead out of it) and of
+        # a report's size, before it is read whole.
+        read_small_text(contained_path(path, VIEW_FIT_FILE, f"--exclude-photos {value}"), "view-fit report")
         names = list(read_poorly_fit(path))
         print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
         return names
@@ -116,6 +132,10 @@ def run(args) -> int:
         resumed = TrainConfig.load(stored)
         if args.minutes is not None:
             resumed = dataclasses.replace(resumed, minutes=args.minutes)
+        if args.iterations is not None and args.iterations != resumed.iterations:
+            print(f"note: {stored} keeps its schedule of {resumed.iterations} iterations on --resume; "
+                  f"--iterations {args.iterations} is ignored (start a new run with --out to train longer)",
+                  file=sys.stderr)
         config = resumed
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")

@@ -47,6 +47,7 @@ import numpy as np
 from ..io.atomic import atomic_write_text
 from ..camera import Camera, pose_distance
 from ..errors import InputError
+from ..io.paths import read_small_text
 
 PROTOCOLS = ("llff", "unstructured", "none")
 LLFF_HOLDOUT_EVERY = 8
@@ -109,7 +110,7 @@ class Split:
                 view_names=[str(n) for n in data.get("view_names", [])],
                 excluded=[int(i) for i in data.get("excluded", [])],
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise InputError(f"{source}: malformed split ({type(exc).__name__}: {exc})") from None
         problem = split.problem()
         if problem:
@@ -121,7 +122,7 @@ class Split:
         """Read a split file; with ``cameras`` also check it belongs to those views."""
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(read_small_text(path, "split JSON"))
         except FileNotFoundError:
             raise InputError(f"{path}: split file does not exist") from None
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:

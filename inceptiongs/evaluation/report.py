@@ -20,6 +20,7 @@ from typing import Iterable
 
 from ..io.atomic import atomic_write_bytes
 from ..errors import InputError
+from ..io.paths import read_small_text
 
 REPORT_MINUTES = (1, 2, 5, 10, 20)
 GROUP_ORDER = ("scarce", "covered", "all", "test")
@@ -48,7 +49,7 @@ def read_metrics(path: str | Path) -> list[dict]:
     a malformed line elsewhere is an error naming the file and line."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = read_small_text(path, "metrics log").splitlines()
     except FileNotFoundError:
         raise InputError(f"{path}: metrics log does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -118,6 +119,10 @@ def eval_series(records: list[dict], source: str = "<metrics>") -> dict[str, lis
         if wall is None:
             raise InputError(f"{source}: an evaluation record has no wall_s")
         iteration = record.get("iteration")
+        if iteration is not None and (isinstance(iteration, bool) or not isinstance(iteration, int)):
+            raise InputError(f"{source}: an evaluation record's iteration is not an integer ({iteration!r})")
+        if not (math.isfinite(wall) and wall >= 0):
+            raise InputError(f"{source}: an evaluation record's wall_s is not a finite time ({wall!r})")
         for group, values in scores.items():
             series.setdefault(group, []).append(EvalPoint(wall, None if iteration is None else int(iteration),
                                                           values.get("psnr"), values.get("ssim")))

@@ -7,6 +7,10 @@ system, a path under a regular file, no space left, no permission) becomes an
 :class:`OutputError` — an :class:`InputError`, so the CLI prints one line naming the path and
 the problem and exits with status 2 — and what was saved before stays intact.
 
+Writes never go through a symlink planted inside a folder the user named as a run or output
+folder (:func:`writing_under`; the CLI names the folders of every command): a shared run whose
+``eval`` is a symlink to another folder is refused with one line instead of written through.
+
 Files are created with the permissions an ordinary ``open()`` would give (0666 minus the
 umask, so 0644 under umask 022), not ``mkstemp``'s private 0600.
 """
@@ -37,6 +41,7 @@ _PROBLEMS = {
     errno.EPERM: "operation not permitted",
     errno.EISDIR: "is a folder, not a file",
     errno.ENAMETOOLONG: "file name too long",
+    errno.ELOOP: "a symlink, not followed for writing",
 }
 
 
@@ -65,9 +70,49 @@ def _umask() -> int:
     return mask
 
 
+# Folders (absolute, as the user named them) inside which no path component may be a symlink
+# when writing. A plain list, not a context variable: writer threads started by a command see it.
+_write_roots: list[str] = []
+
+
+@contextlib.contextmanager
+def writing_under(*roots: str | Path | None) -> Iterator[None]:
+    """While inside, every write below one of ``roots`` refuses symlinks between the root and the
+    written file (a symlink the user passes as the root itself is followed: it is theirs)."""
+    added = [os.path.abspath(root) for root in roots if root]
+    _write_roots.extend(added)
+    try:
+        yield
+    finally:
+        for root in added:
+            _write_roots.remove(root)
+
+
+def named_roots() -> list[str]:
+    """The folders given to :func:`writing_under` now (absolute, as named)."""
+    return list(_write_roots)
+
+
+def check_no_symlink_below_root(path: str | Path) -> None:
+    """OutputError when a component of ``path`` below a :func:`writing_under` root is a symlink."""
+    target = os.path.abspath(path)
+    for root in list(_write_roots):
+        if target != root and not target.startswith(root.rstrip(os.sep) + os.sep):
+            continue
+        current = root
+        for part in os.path.relpath(target, root).split(os.sep):
+            if part in ("", "."):
+                continue
+            current = os.path.join(current, part)
+            if os.path.islink(current):
+                raise OutputError(f"{current}: cannot write (a symlink inside {root}; InceptionGS never writes "
+                                  f"through a symlink in a run or output folder)")
+
+
 def ensure_dir(path: str | Path) -> Path:
     """mkdir -p ``path`` or OutputError naming the folder and the problem."""
     path = Path(path)
+    check_no_symlink_below_root(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -113,6 +158,7 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
         raise ValueError("atomic_open only supports 'w' and 'wb'")
     path = Path(path)
     ensure_dir(path.parent)
+    check_no_symlink_below_root(path)
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     except OSError as exc:
@@ -147,8 +193,11 @@ def append_line(path: str | Path, line: str) -> None:
     leaves at most one torn last line, which the readers drop."""
     path = Path(path)
     ensure_dir(path.parent)
+    check_no_symlink_below_root(path)
     try:
-        with open(path, "a", encoding="utf-8") as handle:
+        # O_NOFOLLOW: a log that is a symlink is refused (ELOOP), never appended through.
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        with os.fdopen(fd, "a", encoding="utf-8") as handle:
             handle.write(line.rstrip("\n") + "\n")
             handle.flush()
     except OSError as exc:

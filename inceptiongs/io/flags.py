@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ..camera import Camera, camera_from_json_dict
 from ..errors import InputError
+from .paths import read_small_text
 from .atomic import atomic_write_text
 
 FLAGS_FILE_NAME = "flags.json"
@@ -42,7 +43,7 @@ def load_flags(path: str | Path) -> list[Flag]:
     if not path.exists():
         return []
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_small_text(path, "flags JSON"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{path}: not a readable flags file ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("flags"), list):

@@ -48,3 +48,12 @@ def check_image_size(width: int, height: int, source: str,
     if available is not None and needed > available:
         raise InputError(f"{source}: image size {width}x{height} needs about {_gib(needed)} of memory, "
                          f"only {_gib(available)} available")
+
+
+def check_allocation(needed: int, source: str, what: str, available: int | None = None) -> None:
+    """InputError '<source>: <what> needs about N GiB of memory, only M GiB available' when
+    ``needed`` bytes cannot fit: declared sizes (vertex or point counts of a file) are checked
+    before anything of that size is allocated."""
+    available = available_memory_bytes() if available is None else available
+    if available is not None and needed > available:
+        raise InputError(f"{source}: {what} needs about {_gib(needed)} of memory, only {_gib(available)} available")

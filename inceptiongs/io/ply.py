@@ -18,6 +18,8 @@ import torch
 from .atomic import atomic_open
 from ..constants import SH_MAX_DEGREE, sh_coeff_count
 from ..errors import InputError
+from .limits import check_allocation
+from .paths import check_read_inside_named_folder, link_problem
 from ..gaussians import Gaussians
 
 # PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
@@ -99,8 +101,12 @@ def _sh_rest_count(names: set[str], path: Path) -> int:
 def read_ply(path: str | Path) -> Gaussians:
     """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
     path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: PLY file does not exist")
+    check_read_inside_named_folder(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(_MAX_HEADER_BYTES)
@@ -132,6 +138,8 @@ def read_ply(path: str | Path) -> Gaussians:
     if file_size < needed:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices "
                          f"({needed} bytes) but the file has {file_size} bytes")
+    # The model holds [count, 14 + rest] float32 values, copied about three times on the way.
+    check_allocation(3 * count * (14 + rest_count) * 4, str(path), f"{count} declared vertices")
     k_rest = rest_count // 3
     if all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
         # The usual case, every property a little-endian float32: the vertices are one
@@ -214,10 +222,17 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     """A coloured point cloud PLY (x y z [red green blue], binary): ([P, 3] float64,
     [P, 3] uint8 or None). Used for the sparse points of nerfstudio scenes."""
     path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: point cloud file does not exist")
-    with open(path, "rb") as handle:
-        head = handle.read(_MAX_HEADER_BYTES)
+    check_read_inside_named_folder(path)
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(_MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     header_len, byte_order, elements = _parse_header(head, path)
     offset = header_len
     for name, count, props in elements:
@@ -231,6 +246,7 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
         raise InputError(f"{path}: point cloud PLY lacks x, y, z")
     if path.stat().st_size < offset + count * dtype.itemsize:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices")
+    check_allocation(3 * count * (dtype.itemsize + 32), str(path), f"{count} declared points")
     data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
     points = np.stack([data[axis].astype(np.float64) for axis in "xyz"], axis=1)
     if not np.all(np.isfinite(points)):

@@ -15,6 +15,8 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
+from ..io.limits import check_allocation
+from ..io.paths import contained_path
 from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics, finite_points
 
@@ -78,6 +80,23 @@ class _Reader:
                              f"({len(self.data) - self.pos} unexpected bytes after the last record)")
 
 
+# pycolmap's in-memory model takes several times the bytes of its files (ids, tracks, maps).
+MODEL_MEMORY_FACTOR = 8
+
+
+def check_model_file_sizes(folder: Path) -> None:
+    """InputError when the model files (cameras, images, points3D; .bin or .txt) are too large
+    to read into the memory available: a sparse file of a huge declared size is refused before
+    it is read, not with a MemoryError."""
+    total = 0
+    for name in ("cameras", "images", "points3D"):
+        for suffix in (".bin", ".txt"):
+            path = folder / f"{name}{suffix}"
+            if path.is_file():
+                total += path.stat().st_size
+                check_allocation(MODEL_MEMORY_FACTOR * total, str(path), f"the COLMAP model ({total} bytes)")
+
+
 def check_binary_model(folder: Path) -> None:
     """Walk cameras.bin, images.bin and points3D.bin record by record; InputError naming the
     file for truncation, trailing garbage or an unknown camera model."""
@@ -134,6 +153,7 @@ def load_colmap(root: Path) -> RawScene:
     if found is None:
         raise InputError(f"{root}: no COLMAP model (cameras/images .bin or .txt) found")
     folder, fmt = found
+    check_model_file_sizes(folder)
     if fmt == "colmap-binary":
         check_binary_model(folder)
     try:
@@ -170,7 +190,7 @@ def load_colmap(root: Path) -> RawScene:
         check_finite_pose(pose, source)
         cameras.append(Camera(image.name, int(cam.width), int(cam.height), float(fx), float(fy),
                               float(cx), float(cy), pose))
-        paths.append(image_dir / image.name)
+        paths.append(contained_path(image_dir, image.name, source))
         models.append(model)
         distortion.append(_distortion(model, params))
     if not cameras:

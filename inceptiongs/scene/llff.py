@@ -15,6 +15,7 @@ import numpy as np
 
 from ..camera import Camera, rigid_inverse
 from ..errors import InputError
+from ..io.paths import contained_path
 from .raw import RawScene, check_finite_pose, check_intrinsics
 
 _IMAGE_EXTENSIONS = {".png", ".jpg", ".jpeg"}
@@ -58,7 +59,8 @@ def load_llff(root: Path, downscale: float = 1) -> RawScene:
         if chosen > downscale:
             warnings.append(f"no image folder at downscale {downscale:g}; using {folders[chosen].name}/")
     folder = folders[chosen]
-    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXTENSIONS)
+    images = sorted(contained_path(folder, p.name, f"{folder}") for p in folder.iterdir()
+                    if p.suffix.lower() in _IMAGE_EXTENSIONS)
     if len(images) != len(table):
         raise InputError(f"{path}: {len(table)} poses but {len(images)} images in {folder.name}/")
 

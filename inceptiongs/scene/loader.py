@@ -19,7 +19,9 @@ import numpy as np
 
 from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
+from ..constants import IMAGE_SIDE_MAX
 from ..errors import InputError
+from ..io.paths import link_problem
 from ..gaussians import Gaussians
 from .raw import RawScene
 from .undistort import distortion_key, undistort_image, undistorted_camera
@@ -204,6 +206,9 @@ class Scene:
 
 def _read_image(path: Path) -> np.ndarray:
     """BGR(A) image as stored (uint8 or uint16), or InputError."""
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
     if not path.is_file():
         raise InputError(f"{path}: image file does not exist")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -232,15 +237,18 @@ def _to_float_rgb(image: np.ndarray, path: Path) -> np.ndarray:
     return np.clip(rgb.astype(np.float32), 0.0, 1.0)
 
 
-def _image_size(path: Path) -> tuple[int, int] | None:
-    """(width, height) from the file header, or None if it cannot be read."""
+def _image_size(path: Path) -> tuple[int, int] | str:
+    """(width, height) from the file header, or what keeps it from being read, in words."""
     from PIL import Image
 
     try:
         with Image.open(path) as image:
             return image.size
+    except Image.DecompressionBombError as exc:
+        return (f"image is too large ({exc}); at most {2 * Image.MAX_IMAGE_PIXELS} pixels "
+                f"(and {IMAGE_SIDE_MAX} a side) are read")
     except Exception:  # PIL raises many types for unreadable files; treat all as "unreadable"
-        return None
+        return "cannot read image header (corrupt or unsupported format)"
 
 
 def detect_format(root: Path) -> str:
@@ -291,12 +299,13 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
         if camera.name in seen:
             problems.append(f"{path}: duplicate image name {camera.name} (more than one camera uses it)")
         seen.add(camera.name)
-        if not path.is_file():
-            problems.append(f"{path}: image file does not exist")
+        problem = link_problem(path)
+        if problem is not None or not path.is_file():
+            problems.append(f"{path}: {problem or 'image file does not exist'}")
             continue
         size = _image_size(path)
-        if size is None:
-            problems.append(f"{path}: cannot read image header (corrupt or unsupported format)")
+        if isinstance(size, str):
+            problems.append(f"{path}: {size}")
         elif size != (camera.width, camera.height):
             problems.append(f"{path}: image is {size[0]}x{size[1]} but its camera expects "
                             f"{camera.width}x{camera.height}")
@@ -304,6 +313,10 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
         extra = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
         raise InputError(problems[0] + extra)
     return problems
+
+
+# The smallest image side the losses and metrics work on (the SSIM window is 11 pixels).
+MIN_IMAGE_SIDE = 11
 
 
 def load_scene(path: str | Path, downscale: int = 1, max_width: int | None = None,
@@ -327,6 +340,13 @@ def load_scene(path: str | Path, downscale: int = 1, max_width: int | None = Non
     centers = np.array([c.center for c in raw.cameras])
     normalization = compute_normalization(centers, raw.points)
     cameras = [normalization.camera_to_normalized(c.scaled(factor) if factor != 1 else c) for c in pinhole]
+    small = next((c for c in cameras if min(c.width, c.height) < MIN_IMAGE_SIDE), None)
+    if small is not None:
+        problem = (f"{path}: downscale {downscale} leaves image {small.name} at {small.width}x{small.height} "
+                   f"pixels; training and evaluation need at least {MIN_IMAGE_SIDE} a side")
+        if require_images:
+            raise InputError(problem)
+        warnings.append(problem)
     points = normalization.to_normalized(raw.points) if len(raw.points) else np.zeros((0, 3))
     return Scene(root=raw.root, format=raw.format, cameras=cameras, image_paths=list(raw.image_paths),
                  points=points, point_colors=raw.point_colors, normalization=normalization,

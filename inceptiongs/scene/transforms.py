@@ -21,6 +21,8 @@ import numpy as np
 
 from ..camera import Camera, rigid_inverse
 from ..errors import InputError
+from ..io.paths import contained_path
+from ..io.paths import read_small_text
 from .undistort import Fisheye
 from .raw import RawScene, check_finite_pose, check_intrinsics
 
@@ -48,14 +50,14 @@ def _number(frame: dict, shared: dict, key: str, source: str) -> float | None:
         raise InputError(f"{source}: {key} is not a number ({value!r})") from None
 
 
-def _resolve_image(base: Path, file_path: str) -> Path:
+def _resolve_image(base: Path, file_path: str, source: str) -> Path:
     """file_path as written, or with a common image extension when the file has none
-    (the NeRF synthetic scenes write names without '.png')."""
-    path = base / file_path
+    (the NeRF synthetic scenes write names without '.png'); it must stay inside ``base``."""
+    path = contained_path(base, file_path, source)
     if path.suffix == "" and not path.is_file():
         for ext in (".png", ".jpg", ".jpeg", ".JPG", ".PNG"):
             if path.with_suffix(ext).is_file():
-                return path.with_suffix(ext)
+                return contained_path(base, file_path + ext, source)
     return path
 
 
@@ -79,8 +81,8 @@ def load_transforms(root: Path) -> RawScene:
         raise InputError(f"{root}: no transforms.json found")
     base = json_path.parent
     try:
-        data = json.loads(json_path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_small_text(json_path, "transforms JSON"))
+    except (OSError, json.JSONDecodeError) as exc:
         raise InputError(f"{json_path}: not a readable JSON file ({exc})") from None
     frames = data.get("frames") if isinstance(data, dict) else None
     if not isinstance(frames, list) or not frames:
@@ -102,7 +104,7 @@ def load_transforms(root: Path) -> RawScene:
         check_finite_pose(c2w_gl, source)
         world_to_camera = rigid_inverse(c2w_gl @ _GL_TO_CV)
 
-        path = _resolve_image(base, str(frame["file_path"]))
+        path = _resolve_image(base, str(frame["file_path"]), source)
         width, height = _frame_size(path, _number(frame, data, "w", source),
                                     _number(frame, data, "h", source), source)
         fx, fy = _number(frame, data, "fl_x", source), _number(frame, data, "fl_y", source)
@@ -145,6 +147,7 @@ def load_transforms(root: Path) -> RawScene:
     if data.get("ply_file_path"):
         # nerfstudio: sparse points in the same world frame as the transform matrices.
         from ..io.ply import read_point_cloud_ply
-        points, colors = read_point_cloud_ply(base / str(data["ply_file_path"]))
+        points, colors = read_point_cloud_ply(contained_path(base, str(data["ply_file_path"]),
+                                                             f"{json_path} ply_file_path"))
     return RawScene(root if root.is_dir() else base, "transforms", cameras, paths, models, distortion,
                     points, colors, warnings=warnings)

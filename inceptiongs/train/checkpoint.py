@@ -11,12 +11,21 @@ from __future__ import annotations
 import io
 import re
 import sys
+import warnings
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ..io.atomic import atomic_write_bytes
+from ..io.paths import check_read_inside_named_folder
 from ..errors import InputError
+from .checkpoint_schema import checkpoint_problem
+
+class UnsafeCheckpointError(InputError):
+    """A checkpoint that names code to run: the run folder is refused as a whole (no fallback to
+    an older checkpoint beside a planted one)."""
+
 
 _NAME = re.compile(r"^step_(\d{7,})\.pt$")
 
@@ -44,14 +53,32 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
 
 
 def save_checkpoint(run_dir: Path, iteration: int, payload: dict, keep: int) -> Path:
-    """Write ``payload`` (tensors, dicts, numbers) atomically; keep the newest ``keep``."""
+    """Write ``payload`` (tensors, dicts, numbers) atomically as plain data (numpy values become
+    tensors or Python numbers, sets sorted lists) so that it loads with ``weights_only=True``;
+    keep the newest ``keep``."""
     buffer = io.BytesIO()
-    torch.save(payload, buffer)
+    torch.save(plain_data(payload), buffer)
     path = checkpoint_path(run_dir, iteration)
     atomic_write_bytes(path, buffer.getvalue())
     for _, old in list_checkpoints(run_dir)[:-max(keep, 1)]:
         old.unlink(missing_ok=True)
     return path
+
+
+def plain_data(value):
+    """``value`` with numpy arrays as tensors, numpy scalars as Python numbers, tuples and sets
+    as lists: what torch's weights-only loader accepts without any allow-listed class."""
+    if isinstance(value, dict):
+        return {key: plain_data(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain_data(item) for item in value]
+    if isinstance(value, (set, frozenset)):
+        return sorted(plain_data(item) for item in value)
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(value))
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
@@ -68,6 +95,8 @@ def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
     for _, path in reversed(found):
         try:
             payload = load_checkpoint(path)
+        except UnsafeCheckpointError:
+            raise
         except InputError as exc:
             first_error = first_error or exc
             warn(f"{exc}; trying the previous checkpoint")
@@ -76,12 +105,38 @@ def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
     raise first_error
 
 
-def load_checkpoint(path: Path) -> dict:
+def _names_code(path: Path, message: str) -> bool:
+    """Whether the weights-only loader refused ``path`` for naming a class or function (torch's
+    zip naming an unsupported global, or a bare pickle, which InceptionGS never writes) rather
+    than for damaged bytes (those fall back to an older checkpoint)."""
     try:
-        # Our own files hold numpy RNG states (plain dicts/ints) besides tensors.
-        payload = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # a truncated or foreign file: name it, one line
-        raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from None
-    if not isinstance(payload, dict) or "iteration" not in payload or "params" not in payload:
-        raise InputError(f"{path}: not an InceptionGS training checkpoint")
+        with open(path, "rb") as handle:
+            head = handle.read(4)
+    except OSError:
+        return False
+    return head[:1] == b"\x80" or (head == b"PK\x03\x04" and "Unsupported global" in message)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """The checkpoint at ``path``, loaded as data only (``weights_only=True``: a file that names
+    any class or function outside torch's tensor types is refused, never run) and checked to
+    hold what a resume needs. InputError naming the file otherwise."""
+    path = Path(path)
+    if path.is_symlink() and not path.exists():
+        raise InputError(f"{path}: not a readable checkpoint (a dangling or looping symlink)")
+    check_read_inside_named_folder(path)
+    try:
+        with warnings.catch_warnings():   # torch warns about pickle protocols of foreign files
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a truncated, foreign or crafted file: name it, one line
+        if "Weights only load failed" in str(exc) and _names_code(path, str(exc)):
+            raise UnsafeCheckpointError(f"{path}: refused: it holds Python objects other than tensors and plain "
+                                        f"data (loading it could run code; an InceptionGS checkpoint never "
+                                        f"does)") from None
+        detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {detail[:200]})") from None
+    problem = checkpoint_problem(payload)
+    if problem is not None:
+        raise InputError(f"{path}: not an InceptionGS training checkpoint ({problem})")
     return payload

@@ -248,6 +248,7 @@ class TrainConfig(SavedConfig):
         return dataclass_from_dict(cls, data, source, cls.CONFIG_KIND).validate(source)
 
     def validate(self, source: str = "config") -> "TrainConfig":
+        self.check_types(source)
         if self.strategy not in STRATEGY_NAMES:
             raise InputError(f"{source}: strategy must be one of {', '.join(STRATEGY_NAMES)}, "
                              f"got {self.strategy!r}")

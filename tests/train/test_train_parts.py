@@ -58,7 +58,11 @@ def test_checkpoints_are_pruned_and_partial_files_ignored(tmp_path):
         save_checkpoint(tmp_path, step, {"iteration": step, "params": {}}, keep=2)
     (tmp_path / "checkpoints" / ".step_0000020.pt.abc.tmp").write_bytes(b"partial")
     assert [s for s, _ in list_checkpoints(tmp_path)] == [10, 15]
-    assert load_checkpoint(list_checkpoints(tmp_path)[-1][1])["iteration"] == 15
+    newest = list_checkpoints(tmp_path)[-1][1]
+    assert torch.load(newest, weights_only=True)["iteration"] == 15
+    # Data only, but not all a resume needs: refused in one line (a foreign or crafted file).
+    with pytest.raises(InputError, match="step_0000015.pt: not an InceptionGS training checkpoint"):
+        load_checkpoint(newest)
     broken = tmp_path / "checkpoints" / "step_0000099.pt"
     broken.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="step_0000099.pt: not a readable checkpoint"):
