@@ -1,0 +1,102 @@
+"""The gsplat rasterizer: gsplat's fused CUDA kernels behind the project's interface.
+
+One ``gsplat.rasterization`` call composites every requested value channel at once: colour
+from SH (evaluated with the project's ``sh_to_color``, so the +0.5 offset and clamp are ours),
+camera z for depth, the PGSR normal and plane offset, and per-Gaussian features; the outputs are
+then finished exactly as the reference finishes them (background, depth / alpha, plane depth).
+Scales and opacities go in post-activation with the reference's clamps; quaternions are
+w, x, y, z as gsplat expects; the near/far planes and the 2-D dilation come from
+:mod:`inceptiongs.constants`.
+
+Gaussians on the CPU are moved to the GPU for the call and the outputs moved back (autograd
+flows through both moves); ``means2d`` is then a CPU leaf whose ``.grad`` a hook fills from
+gsplat's means2d gradient, so the densifiers read it as they read the reference's.
+
+This module imports gsplat at import time: :mod:`.interface` imports it only when gsplat is
+chosen.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from gsplat import rasterization
+
+from ..camera import Camera
+from ..constants import DILATION_PX, FAR_PLANE, NEAR_PLANE
+from ..gaussians import Gaussians
+from .interface import RenderResult
+from .projection import camera_space_means, opacities_from_logits, scales_from_log
+from .rasterize import _check_render_args, _finish_outputs, _split_channels, _value_channels
+
+
+class GsplatRasterizer:
+    """gsplat on CUDA; same call and result as the reference (see module docstring)."""
+
+    name = "gsplat"
+    device = "cuda"
+
+    def __call__(self, gaussians: Gaussians, camera: Camera, outputs: Sequence[str] = ("rgb",),
+                 background=None, features: torch.Tensor | None = None, sh_degree: int | None = None,
+                 world_to_camera: torch.Tensor | None = None) -> RenderResult:
+        outputs = tuple(outputs)
+        _check_render_args(outputs, features, len(gaussians))
+        home, dtype = gaussians.device, gaussians.dtype
+        cuda = torch.device("cuda") if home.type != "cuda" else home
+        g = _to_device(gaussians, cuda)
+        if world_to_camera is None:
+            world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=cuda)
+        pose = world_to_camera.to(cuda)
+        degree = g.sh_degree if sh_degree is None else max(0, min(sh_degree, g.sh_degree))
+        t = camera_space_means(g.means, pose).to(dtype)
+        every = torch.arange(len(g), device=cuda)
+        channels = _value_channels(g, every, t, outputs, None if features is None else features.to(cuda),
+                                   degree, pose, backend="torch")
+        image, alpha, meta = _composite(g, pose, camera, channels, dtype)
+        out = _finish_outputs(outputs, _split_channels(image, channels), alpha, background, camera, dtype, cuda)
+        result = {name: value.to(home) for name, value in out.items()}
+        return RenderResult(means2d=_means2d_on(meta["means2d"][0], home),
+                            radii=meta["radii"][0].amax(-1).to(torch.int64).to(home), **result)
+
+
+def _to_device(gaussians: Gaussians, device: torch.device) -> Gaussians:
+    if gaussians.device == device:
+        return gaussians
+    return Gaussians(*(t.to(device) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
+                                               gaussians.opacity_logits, gaussians.sh)))
+
+
+def _composite(g: Gaussians, pose: torch.Tensor, camera: Camera, channels: list[tuple[str, torch.Tensor]],
+               dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """gsplat's unpacked rasterization of the value channels [N, C] -> (image [H, W, C],
+    alpha [H, W, 1], gsplat's meta). With no channel, one zero channel is composited for alpha."""
+    values = torch.cat([v for _, v in channels], dim=1) if channels else torch.zeros(
+        len(g), 1, dtype=dtype, device=g.device)
+    ks = torch.tensor(camera.intrinsics, dtype=torch.float32, device=g.device)
+    colors, alphas, meta = rasterization(
+        g.means.float(), g.quats.float(), scales_from_log(g.log_scales).float(),
+        opacities_from_logits(g.opacity_logits).float(), values.float(), pose.float()[None], ks[None],
+        camera.width, camera.height, render_mode="RGB", near_plane=NEAR_PLANE, far_plane=FAR_PLANE,
+        eps2d=DILATION_PX, packed=False)
+    image = colors[0].to(dtype)
+    if not channels:
+        image = image[..., :0]
+    if meta["means2d"].requires_grad:
+        meta["means2d"].retain_grad()
+    return image, alphas[0].to(dtype), meta
+
+
+def _means2d_on(means2d: torch.Tensor, home: torch.device) -> torch.Tensor:
+    """gsplat's means2d [N, 2] as seen from ``home``: itself on CUDA, else a CPU leaf whose
+    ``.grad`` follows the CUDA tensor's gradient (accumulated like a leaf's)."""
+    if means2d.device == home or not means2d.requires_grad:
+        return means2d.to(home)
+    proxy = means2d.detach().to(home).requires_grad_(True)
+
+    def copy_grad(grad: torch.Tensor) -> None:
+        grad = grad.to(home)
+        proxy.grad = grad if proxy.grad is None else proxy.grad + grad
+
+    means2d.register_hook(copy_grad)
+    return proxy
