@@ -257,7 +257,7 @@ class Bootstrap:
     def evaluate(self, extra: dict) -> dict:
         """Held-out scores now, logged as a metrics line with ``extra``."""
         began = time.perf_counter()
-        scores = evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data)
+        scores = evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer)
         self.loop.exclude(time.perf_counter() - began)
         append_metrics(self.out_dir, {"iteration": self.state.iteration, **self.loop.clocks(),
                                       "num_gaussians": int(self.state.params["means"].shape[0]), **extra, **scores})
@@ -369,7 +369,7 @@ class Bootstrap:
             if self.conscience is not None:
                 record.update(conscience_loss=self.conscience.history[-1][1], virtual_scale=self.conscience.scale)
             if config.eval_every and step % config.eval_every == 0:
-                record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data))
+                record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer))
             append_metrics(self.out_dir, record)
         self.loop.snapshot(step, self.state.params, record)
         if (step - self.start) % config.checkpoint_every == 0:

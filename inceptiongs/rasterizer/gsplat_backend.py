@@ -26,9 +26,9 @@ from gsplat import rasterization
 from ..camera import Camera
 from ..constants import DILATION_PX, FAR_PLANE, NEAR_PLANE
 from ..gaussians import Gaussians
-from .interface import RenderResult
+from .result import RenderResult
 from .projection import camera_space_means, opacities_from_logits, scales_from_log
-from .rasterize import _check_render_args, _finish_outputs, _split_channels, _value_channels
+from .rasterize import check_render_args, finish_outputs, split_channels, value_channels
 
 
 class GsplatRasterizer:
@@ -41,7 +41,7 @@ class GsplatRasterizer:
                  background=None, features: torch.Tensor | None = None, sh_degree: int | None = None,
                  world_to_camera: torch.Tensor | None = None) -> RenderResult:
         outputs = tuple(outputs)
-        _check_render_args(outputs, features, len(gaussians))
+        check_render_args(outputs, features, len(gaussians))
         home, dtype = gaussians.device, gaussians.dtype
         cuda = torch.device("cuda") if home.type != "cuda" else home
         g = _to_device(gaussians, cuda)
@@ -51,10 +51,10 @@ class GsplatRasterizer:
         degree = g.sh_degree if sh_degree is None else max(0, min(sh_degree, g.sh_degree))
         t = camera_space_means(g.means, pose).to(dtype)
         every = torch.arange(len(g), device=cuda)
-        channels = _value_channels(g, every, t, outputs, None if features is None else features.to(cuda),
+        channels = value_channels(g, every, t, outputs, None if features is None else features.to(cuda),
                                    degree, pose, backend="torch")
         image, alpha, meta = _composite(g, pose, camera, channels, dtype)
-        out = _finish_outputs(outputs, _split_channels(image, channels), alpha, background, camera, dtype, cuda)
+        out = finish_outputs(outputs, split_channels(image, channels), alpha, background, camera, dtype, cuda)
         result = {name: value.to(home) for name, value in out.items()}
         return RenderResult(means2d=_means2d_on(meta["means2d"][0], home),
                             radii=meta["radii"][0].amax(-1).to(torch.int64).to(home), **result)
@@ -67,18 +67,28 @@ def _to_device(gaussians: Gaussians, device: torch.device) -> Gaussians:
                                                gaussians.opacity_logits, gaussians.sh)))
 
 
+def gsplat_inputs(g: Gaussians, pose: torch.Tensor, camera: Camera) -> dict[str, torch.Tensor]:
+    """gsplat's scene and camera arguments, float32 on the Gaussians' device: means [N, 3], quats
+    [N, 4] (w, x, y, z; gsplat normalises), scales [N, 3] and opacities [N] post-activation with
+    the reference's clamps, viewmats [1, 4, 4] world-to-camera, Ks [1, 3, 3] (pixel centres at
+    i + 0.5 in both)."""
+    return {"means": g.means.float(), "quats": g.quats.float(),
+            "scales": scales_from_log(g.log_scales).float(),
+            "opacities": opacities_from_logits(g.opacity_logits).float(),
+            "viewmats": pose.float()[None],
+            "Ks": torch.tensor(camera.intrinsics, dtype=torch.float32, device=g.device)[None]}
+
+
 def _composite(g: Gaussians, pose: torch.Tensor, camera: Camera, channels: list[tuple[str, torch.Tensor]],
                dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """gsplat's unpacked rasterization of the value channels [N, C] -> (image [H, W, C],
     alpha [H, W, 1], gsplat's meta). With no channel, one zero channel is composited for alpha."""
     values = torch.cat([v for _, v in channels], dim=1) if channels else torch.zeros(
         len(g), 1, dtype=dtype, device=g.device)
-    ks = torch.tensor(camera.intrinsics, dtype=torch.float32, device=g.device)
     colors, alphas, meta = rasterization(
-        g.means.float(), g.quats.float(), scales_from_log(g.log_scales).float(),
-        opacities_from_logits(g.opacity_logits).float(), values.float(), pose.float()[None], ks[None],
-        camera.width, camera.height, render_mode="RGB", near_plane=NEAR_PLANE, far_plane=FAR_PLANE,
-        eps2d=DILATION_PX, packed=False)
+        colors=values.float(), width=camera.width, height=camera.height, render_mode="RGB",
+        near_plane=NEAR_PLANE, far_plane=FAR_PLANE, eps2d=DILATION_PX, packed=False,
+        **gsplat_inputs(g, pose, camera))
     image = colors[0].to(dtype)
     if not channels:
         image = image[..., :0]

@@ -14,7 +14,6 @@ object; nothing outside the torch backend calls ``render`` itself.
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
@@ -26,55 +25,9 @@ from ..constants import DEVICES
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .backend import numba_installed
+from .result import RenderResult
 
 CUDA_EXTRA = "pip install 'inceptiongs[cuda]'"
-
-
-@dataclass
-class RenderResult:
-    """What one render gives; an output nobody asked for is None.
-
-    rgb [H, W, 3] (background blended), alpha [H, W, 1], depth [H, W, 1] (expected camera z, 0
-    where uncovered), plane_depth [H, W, 1] (PGSR), normal [H, W, 3] (camera space), features
-    [H, W, C]; means2d [N, 2] (gradient retained: the densifiers read ``means2d.grad``), radii
-    [N] int64 (0 = culled). Reads like the reference's dict too (``out["rgb"]``, ``"rgb" in
-    out``), so loss code written against either works unchanged.
-    """
-
-    means2d: torch.Tensor
-    radii: torch.Tensor
-    rgb: torch.Tensor | None = None
-    alpha: torch.Tensor | None = None
-    depth: torch.Tensor | None = None
-    plane_depth: torch.Tensor | None = None
-    normal: torch.Tensor | None = None
-    features: torch.Tensor | None = None
-
-    @classmethod
-    def from_dict(cls, out: dict[str, torch.Tensor]) -> "RenderResult":
-        return cls(**out)
-
-    def keys(self) -> list[str]:
-        return [f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None]
-
-    def items(self) -> list[tuple[str, torch.Tensor]]:
-        return [(name, getattr(self, name)) for name in self.keys()]
-
-    def __contains__(self, name: object) -> bool:
-        return isinstance(name, str) and name in self.keys()
-
-    def __getitem__(self, name: str) -> torch.Tensor:
-        if name not in self:
-            raise KeyError(name)
-        return getattr(self, name)
-
-    def __setitem__(self, name: str, value: torch.Tensor) -> None:
-        if name not in {f.name for f in dataclasses.fields(self)}:
-            raise KeyError(name)
-        setattr(self, name, value)
-
-    def get(self, name: str, default=None):
-        return getattr(self, name) if name in self else default
 
 
 class Rasterizer(Protocol):
@@ -143,16 +96,16 @@ def cuda_compiler() -> str | None:
     return None if CUDA_HOME is None else str(CUDA_HOME)
 
 
-def cuda_missing() -> str | None:
-    """What stops gsplat from running here (one sentence with the way to get it), or None."""
+def cuda_missing() -> tuple[str, str] | None:
+    """What stops gsplat from running here and how to get it, or None when nothing does."""
     if not torch.cuda.is_available():
-        return ("no CUDA GPU visible (torch.cuda.is_available() is False: needs an NVIDIA GPU, its "
-                "driver and a CUDA build of torch)")
+        return ("no CUDA GPU visible", "torch.cuda.is_available() is False: needs an NVIDIA GPU, its driver "
+                "and a CUDA build of torch")
     if not gsplat_installed():
-        return f"gsplat is not installed ({CUDA_EXTRA})"
+        return "gsplat is not installed", CUDA_EXTRA
     if cuda_compiler() is None:
-        return ("no CUDA compiler for gsplat's first build (install a CUDA toolkit with nvcc and "
-                "set CUDA_HOME)")
+        return ("no CUDA compiler for gsplat's first build", "install a CUDA toolkit with nvcc and set "
+                "CUDA_HOME")
     return None
 
 
@@ -160,19 +113,19 @@ def select_rasterizer(device: str) -> tuple[str, Rasterizer, str]:
     """(name, rasterizer, why) for ``device`` "auto", "cpu" or "cuda".
 
     "cuda" without a usable GPU, gsplat or a CUDA compiler is an InputError naming what is
-    missing; "auto" takes gsplat when nothing is missing, else the CPU's best.
+    missing and how to get it; "auto" takes gsplat when nothing is missing, else the CPU's best.
     """
     if device not in DEVICES:
         raise InputError(f"--device must be one of {', '.join(DEVICES)}, got {device!r}")
     missing = cuda_missing() if device != "cpu" else None
     if device == "cuda":
         if missing is not None:
-            raise InputError(f"--device cuda: {missing}")
+            raise InputError(f"--device cuda: {missing[0]} ({missing[1]})")
         return "gsplat", get_rasterizer("gsplat"), "--device cuda"
     if device == "auto" and missing is None:
         return "gsplat", get_rasterizer("gsplat"), f"CUDA GPU {torch.cuda.get_device_name()} and gsplat found"
     rasterizer = cpu_rasterizer()
-    why = "--device cpu" if device == "cpu" else missing
+    why = "--device cpu" if device == "cpu" else missing[0]
     if rasterizer.name == "torch":
         why += "; numba is not installed"
     return rasterizer.name, rasterizer, why
@@ -181,3 +134,11 @@ def select_rasterizer(device: str) -> tuple[str, Rasterizer, str]:
 def device_line(name: str, rasterizer: Rasterizer, why: str) -> str:
     """The one line ``--device auto`` prints: which device and rasterizer, and why."""
     return f"device: {rasterizer.device} ({name} rasterizer): {why}"
+
+
+def render_rgb(gaussians: Gaussians, camera: Camera, rasterizer: Rasterizer | None = None) -> torch.Tensor:
+    """The colour render [H, W, 3] float32 in [0, 1] on black, without gradients: what
+    evaluation scores and what the prior's sampler starts from. ``rasterizer``: default the CPU's."""
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
+    with torch.no_grad():
+        return rasterizer(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)

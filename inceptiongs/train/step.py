@@ -246,13 +246,13 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     return terms
 
 
-def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData) -> dict[str, float]:
-    """PSNR / SSIM over the held-out views, flat keys ("all_psnr", "scarce_ssim", ...);
-    {} when the split holds nothing out."""
+def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData, rasterizer=None) -> dict[str, float]:
+    """PSNR / SSIM over the held-out views (rendered with ``rasterizer``, default the CPU's),
+    flat keys ("all_psnr", "scarce_ssim", ...); {} when the split holds nothing out."""
     if not split.test:
         return {}
     from ..evaluation.scoring import evaluate_views, flat_scores
-    return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images)["groups"])
+    return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images, rasterizer=rasterizer)["groups"])
 
 
 def trim_sh(gaussians: Gaussians, degree: int) -> Gaussians:

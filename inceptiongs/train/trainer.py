@@ -76,7 +76,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
     config.save(run_dir / "config.json")
     split.save(run_dir / "split.json")
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
-    state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log)
+    state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log, rasterizer)
     if config.pgsr and not any(data.neighbours.values()):
         log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
 
@@ -121,7 +121,8 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, log):
     return checkpoint, payload, scene, split, data
 
 
-def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene, split, data, sh_max: int, log):
+def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene, split, data, sh_max: int, log,
+                 rasterizer):
     """The resumed state (metrics after it dropped), or a new one with its iteration-0 scores logged."""
     if payload is not None:
         state = restore_state(payload, data, config)
@@ -131,7 +132,7 @@ def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene,
     state = new_state(scene, data, config, sh_max, log)
     (run_dir / "metrics.jsonl").unlink(missing_ok=True)
     # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
-    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data)
+    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data, rasterizer)
     if initial_eval:
         append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
                                  "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
@@ -274,7 +275,7 @@ class StageOne:
         if step % self.config.eval_every == 0 or step == self.config.iterations:
             eval_start = time.perf_counter()
             self.last_eval = evaluate_held_out(gaussians_from_params(self.state.params).detach(), self.scene,
-                                               self.split, self.data)
+                                               self.split, self.data, self.rasterizer)
             self.last_eval_iteration = step
             record.update(self.last_eval)
             self.loop.exclude(time.perf_counter() - eval_start)  # evaluation is not training time
@@ -318,7 +319,7 @@ class StageOne:
                 failures.append(exc)
 
         if self.finished and self.last_eval_iteration != state.iteration:
-            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data)
+            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data, self.rasterizer)
         # A stopped run saves its model too (stop means save: Ctrl+C, SIGTERM, the viewer's stop);
         # `--resume` continues from the checkpoint written after it.
         attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,
