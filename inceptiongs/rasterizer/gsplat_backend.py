@@ -9,8 +9,8 @@ w, x, y, z as gsplat expects; the near/far planes and the 2-D dilation come from
 :mod:`inceptiongs.constants`.
 
 Gaussians on the CPU are moved to the GPU for the call and the outputs moved back (autograd
-flows through both moves); ``means2d`` is then a CPU leaf whose ``.grad`` a hook fills from
-gsplat's means2d gradient, so the densifiers read it as they read the reference's.
+flows through both moves); ``means2d`` is a leaf on the Gaussians' device whose ``.grad`` a hook
+fills from gsplat's means2d gradient, so the densifiers read it as they read the reference's.
 
 This module imports gsplat at import time: :mod:`.interface` imports it only when gsplat is
 chosen.
@@ -18,6 +18,7 @@ chosen.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import torch
@@ -31,11 +32,12 @@ from .projection import camera_space_means, opacities_from_logits, scales_from_l
 from .rasterize import check_render_args, finish_outputs, split_channels, value_channels
 
 
+@dataclass(frozen=True)
 class GsplatRasterizer:
-    """gsplat on CUDA; same call and result as the reference (see module docstring)."""
+    """gsplat on ``device`` (CUDA); same call and result as the reference (module docstring)."""
 
-    name = "gsplat"
-    device = "cuda"
+    name: str = "gsplat"
+    device: str = "cuda"
 
     def __call__(self, gaussians: Gaussians, camera: Camera, outputs: Sequence[str] = ("rgb",),
                  background=None, features: torch.Tensor | None = None, sh_degree: int | None = None,
@@ -43,20 +45,20 @@ class GsplatRasterizer:
         outputs = tuple(outputs)
         check_render_args(outputs, features, len(gaussians))
         home, dtype = gaussians.device, gaussians.dtype
-        cuda = torch.device("cuda") if home.type != "cuda" else home
-        g = _to_device(gaussians, cuda)
+        target = home if home.type == torch.device(self.device).type else torch.device(self.device)
+        g = _to_device(gaussians, target)
         if world_to_camera is None:
-            world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=cuda)
-        pose = world_to_camera.to(cuda)
+            world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=target)
+        pose = world_to_camera.to(target)
         degree = g.sh_degree if sh_degree is None else max(0, min(sh_degree, g.sh_degree))
         t = camera_space_means(g.means, pose).to(dtype)
-        every = torch.arange(len(g), device=cuda)
-        channels = value_channels(g, every, t, outputs, None if features is None else features.to(cuda),
+        every = torch.arange(len(g), device=target)
+        channels = value_channels(g, every, t, outputs, None if features is None else features.to(target),
                                    degree, pose, backend="torch")
         image, alpha, meta = _composite(g, pose, camera, channels, dtype)
-        out = finish_outputs(outputs, split_channels(image, channels), alpha, background, camera, dtype, cuda)
+        out = finish_outputs(outputs, split_channels(image, channels), alpha, background, camera, dtype, target)
         result = {name: value.to(home) for name, value in out.items()}
-        return RenderResult(means2d=_means2d_on(meta["means2d"][0], home),
+        return RenderResult(means2d=_means2d_on(meta["means2d"], home),
                             radii=meta["radii"][0].amax(-1).to(torch.int64).to(home), **result)
 
 
@@ -92,20 +94,20 @@ def _composite(g: Gaussians, pose: torch.Tensor, camera: Camera, channels: list[
     image = colors[0].to(dtype)
     if not channels:
         image = image[..., :0]
-    if meta["means2d"].requires_grad:
-        meta["means2d"].retain_grad()
     return image, alphas[0].to(dtype), meta
 
 
 def _means2d_on(means2d: torch.Tensor, home: torch.device) -> torch.Tensor:
-    """gsplat's means2d [N, 2] as seen from ``home``: itself on CUDA, else a CPU leaf whose
-    ``.grad`` follows the CUDA tensor's gradient (accumulated like a leaf's)."""
-    if means2d.device == home or not means2d.requires_grad:
-        return means2d.to(home)
-    proxy = means2d.detach().to(home).requires_grad_(True)
+    """gsplat's means2d [1, N, 2] as [N, 2] on ``home``: a leaf whose ``.grad`` a hook fills from
+    gsplat's means2d gradient (accumulated like a leaf's), since neither a slice of gsplat's
+    tensor nor a copy on another device lies on the path to the loss."""
+    proxy = means2d.detach()[0].to(home)
+    if not means2d.requires_grad:
+        return proxy
+    proxy.requires_grad_(True)
 
     def copy_grad(grad: torch.Tensor) -> None:
-        grad = grad.to(home)
+        grad = grad[0].to(home)
         proxy.grad = grad if proxy.grad is None else proxy.grad + grad
 
     means2d.register_hook(copy_grad)

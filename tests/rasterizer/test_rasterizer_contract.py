@@ -160,3 +160,55 @@ def test_gsplat_arguments_follow_gsplat_conventions_on_the_cpu():
     np.testing.assert_allclose(conics[0][drawn].double().numpy(), ref.conics[drawn].detach().numpy(),
                                rtol=1e-3, atol=1e-5)
     np.testing.assert_allclose(depths[0].double().numpy(), ref.camera_means[:, 2].detach().numpy(), rtol=1e-5)
+
+
+def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, render_mode,
+                       near_plane, far_plane, eps2d, packed):
+    """gsplat.rasterization's call and return shapes (unpacked, one camera) computed by the torch
+    reference stages: stands in for the CUDA kernels so the backend's glue runs on the CPU."""
+    from inceptiongs.camera import Camera
+    from inceptiongs.rasterizer.composite import composite
+    from inceptiongs.rasterizer.projection import project
+
+    assert render_mode == "RGB" and not packed and eps2d == 0.3 and near_plane > 0 and far_plane > near_plane
+    k = Ks[0].double()
+    camera = Camera("fake", width, height, float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
+                    viewmats[0].double().detach().numpy())
+    proj = project(means, torch.log(scales), quats, torch.logit(opacities), viewmats[0].double(), camera,
+                   backend="torch")
+    means2d = proj.means2d[None]          # the tensor gsplat returns, on the path to the image
+    keep = torch.nonzero(proj.visible).squeeze(-1)
+    image, alpha = composite(means2d[0][keep], proj.conics[keep], proj.opacities[keep], colors[keep],
+                             proj.camera_means[keep, 2].detach(), proj.extents[keep].detach(), width, height,
+                             backend="torch")
+    radii = torch.stack([proj.radii, proj.radii], -1).to(torch.int32)[None]
+    return image[None], alpha[None], {"means2d": means2d, "radii": radii}
+
+
+def test_gsplat_backend_glue_on_the_cpu(monkeypatch):
+    """The gsplat backend around a stand-in for gsplat's kernels: every output, the means2d
+    gradient and the parameter gradients come back as the reference's (the kernels themselves
+    are checked by the contract test on a GPU machine)."""
+    pytest.importorskip("gsplat", reason="gsplat is not installed (pip install 'inceptiongs[cuda]')")
+    from inceptiongs.rasterizer import gsplat_backend
+
+    monkeypatch.setattr(gsplat_backend, "rasterization", fake_rasterization)
+    g32 = Gaussians(**{k: v.to(torch.float32) for k, v in random_gaussians(n=30, degree=2, seed=8).tensors().items()})
+    camera = make_camera(40, 28)
+    gen = torch.Generator().manual_seed(5)
+    features = torch.randn(len(g32), 4, generator=gen)
+    channels = {"rgb": 3, "alpha": 1, "depth": 1, "plane_depth": 1, "normal": 3, "features": 4}
+    weights = {k: torch.randn(28, 40, c, generator=gen) for k, c in channels.items()}
+    background = torch.tensor([0.3, 0.1, 0.7])
+    out, grads, means2d_grad = render_with_gradients(gsplat_backend.GsplatRasterizer(device="cpu"), g32, features,
+                                                     camera, weights, background)
+    ref, ref_grads, ref_means2d_grad = render_with_gradients(get_rasterizer("torch"), g32, features, camera,
+                                                             weights, background)
+    for output in OUTPUTS:
+        np.testing.assert_allclose(out[output].detach().numpy(), ref[output].detach().numpy(), atol=1e-5,
+                                   rtol=1e-5, err_msg=output)
+    assert torch.equal(out["radii"], ref["radii"])
+    ref_grads["means2d"], grads["means2d"] = ref_means2d_grad, means2d_grad
+    for param, expected in ref_grads.items():
+        np.testing.assert_allclose(grads[param].numpy(), expected.numpy(), rtol=0,
+                                   atol=1e-4 * float(expected.abs().max()), err_msg=param)
