@@ -111,6 +111,16 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
                               rasterizer, overwrite, resume)
 
 
+def run_rasterizer(device: str, log: Callable[[str], None]):
+    """The rasterizer the stage-I run's ``device`` selects; "auto" logs which and why."""
+    from ..rasterizer.interface import device_line, select_rasterizer
+
+    name, rasterizer, why = select_rasterizer(device)
+    if device == "auto":
+        log(device_line(name, rasterizer, why))
+    return rasterizer
+
+
 def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control, on_snapshot, snapshot_every: int,
                    log, progress: bool, rasterizer, overwrite: bool, resume: bool) -> BootstrapResult:
     payload = None
@@ -120,8 +130,7 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
         check_output_folder(out_dir, overwrite)
     run = as_stage1(run)
     if rasterizer is None:
-        from ..rasterizer.interface import select_rasterizer
-        rasterizer = select_rasterizer(run.config.device)[1]
+        rasterizer = run_rasterizer(run.config.device, log or default_log)
     baseline = targets is None
     # A time-budgeted run's bar shows the steps its measured rate fits into the budget.
     loop = StepLoop(control, total=config.rounds * config.iterations, desc="baseline" if baseline else "bootstrap",
