@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# What runs on CUDA, checked and timed on a GPU machine in one short pass (about 6 minutes):
+# What runs on CUDA, checked and timed on a GPU machine in one pass (each step has its own time limit):
 # the torch rasterizer against the CPU (tests/rasterizer/test_cuda.py) and its speed next to
 # the CPU's on the same machine, the prior's generation and training step, and the prior's
 # path as a user runs it on the demo courtyard (stage I on the CPU, `inceptiongs prior`,
