@@ -142,3 +142,6 @@ IMAGE_SIDE_MAX = 16384
 # normal, alpha and transmittance planes with the rasterizer's per-pixel temporaries, and the
 # 8-bit copy written out), must fit in the memory the system reports as available.
 RENDER_BYTES_PER_PIXEL = 256
+
+# Where a run renders and trains (--device; inceptiongs.rasterizer.interface.select_rasterizer).
+DEVICES = ("auto", "cpu", "cuda")

@@ -34,11 +34,19 @@ def check_context(ctx: moderngl.Context) -> bool:
 
 
 def create_offscreen_context() -> moderngl.Context:
-    """A headless EGL context (Mesa llvmpipe on machines without a GPU)."""
+    """A headless EGL context (Mesa llvmpipe on machines without a GPU).
+
+    A standalone context is OpenGL 3.3 unless a version is required (NVIDIA's driver gives
+    exactly 3.3), which turns the compute-shader depth sort off; so 4.3 is asked for first, and
+    a driver that refuses it gets today's plain request.
+    """
     try:
-        ctx = moderngl.create_context(standalone=True, backend="egl")
-    except Exception as exc:  # moderngl raises plain Exception for a missing EGL/driver
-        raise RendererError(f"could not create an EGL OpenGL context ({exc})") from None
+        ctx = moderngl.create_context(standalone=True, backend="egl", require=GL_VERSION_COMPUTE)
+    except Exception:  # moderngl raises plain Exception when the driver cannot give 4.3
+        try:
+            ctx = moderngl.create_context(standalone=True, backend="egl")
+        except Exception as exc:  # a missing EGL/driver
+            raise RendererError(f"could not create an EGL OpenGL context ({exc})") from None
     check_context(ctx)
     return ctx
 

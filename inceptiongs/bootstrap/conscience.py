@@ -50,7 +50,7 @@ class Conscience:
         return self.scale
 
 
-def photo_loss(render_fn: Callable, gaussians, cameras: Sequence[Camera], photos: dict[int, torch.Tensor],
+def photo_loss(rasterizer: Callable, gaussians, cameras: Sequence[Camera], photos: dict[int, torch.Tensor],
                views: Sequence[int], sh_degree: int | None = None) -> float:
     """Mean L1 between the renders of ``views`` and their photos [H, W, 3] (no gradient)."""
     if not views:
@@ -58,6 +58,6 @@ def photo_loss(render_fn: Callable, gaussians, cameras: Sequence[Camera], photos
     total = 0.0
     with torch.no_grad():
         for view in views:
-            rgb = render_fn(gaussians, cameras[view], outputs=("rgb",), sh_degree=sh_degree)["rgb"]
+            rgb = rasterizer(gaussians, cameras[view], outputs=("rgb",), sh_degree=sh_degree)["rgb"]
             total += float((rgb.float() - photos[view].float()).abs().mean())
     return total / len(views)

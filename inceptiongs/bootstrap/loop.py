@@ -143,7 +143,7 @@ class Bootstrap:
     train_config: TrainConfig
     rounds: list[list[Target]]
     loop: StepLoop
-    render_fn: Callable
+    rasterizer: Callable
     log: Callable[[str], None]
     data: object
     state: object
@@ -174,7 +174,7 @@ class Bootstrap:
     # --- prepare ---------------------------------------------------------------------------------
     @classmethod
     def prepare(cls, run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config: BootstrapConfig,
-                loop: StepLoop, render_fn, log, resume: dict | None = None) -> "Bootstrap":
+                loop: StepLoop, rasterizer, log, resume: dict | None = None) -> "Bootstrap":
         """RUN2 written ready, the state restored, the input evaluated, the prior obtained.
         ``resume``: the newest checkpoint of a stopped bootstrap in RUN2, continued from."""
         rounds = round_targets(targets, config.rounds) if targets is not None else [[] for _ in range(config.rounds)]
@@ -191,7 +191,7 @@ class Bootstrap:
             state = (restore_state(copy.deepcopy(run.payload), data, train_config) if run.payload is not None
                      else state_from_gaussians(run.gaussians, data, train_config))
             state.iteration = start
-        boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, render_fn, log, data, state, sh_max,
+        boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, rasterizer, log, data, state, sh_max,
                    start)
         boot.initial_eval = boot.last_eval = (boot.evaluate({"phase": "input", "round": 0}) if resume is None
                                               else input_scores(out_dir))
@@ -257,7 +257,7 @@ class Bootstrap:
     def evaluate(self, extra: dict) -> dict:
         """Held-out scores now, logged as a metrics line with ``extra``."""
         began = time.perf_counter()
-        scores = evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data)
+        scores = evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer)
         self.loop.exclude(time.perf_counter() - began)
         append_metrics(self.out_dir, {"iteration": self.state.iteration, **self.loop.clocks(),
                                       "num_gaussians": int(self.state.params["means"].shape[0]), **extra, **scores})
@@ -271,7 +271,7 @@ class Bootstrap:
     def target_maker(self) -> TargetMaker:
         """I* from the Gaussians as they are now."""
         setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.data.images,
-                                self.cache, self.boot_dir / "views", self.render_fn, self.prior, self.prior_hash)
+                                self.cache, self.boot_dir / "views", self.rasterizer, self.prior, self.prior_hash)
         return TargetMaker(setting, self.model(), self.state.sky)
 
     def make_round_targets(self, round_index: int) -> None:
@@ -358,7 +358,7 @@ class Bootstrap:
         # (A resumed run's conscience starts again: its first step takes the baseline.)
         if self.conscience is not None and ((step - self.start - 1) % config.conscience_every == 0
                                             or not self.conscience.history):
-            loss = photo_loss(self.render_fn, self.model(), list(self.run.scene.cameras), self.data.images,
+            loss = photo_loss(self.rasterizer, self.model(), list(self.run.scene.cameras), self.data.images,
                               self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))
             self.conscience.update(step, loss)
         record = self.virtual_or_photo_step(step)
@@ -369,7 +369,7 @@ class Bootstrap:
             if self.conscience is not None:
                 record.update(conscience_loss=self.conscience.history[-1][1], virtual_scale=self.conscience.scale)
             if config.eval_every and step % config.eval_every == 0:
-                record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data))
+                record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer))
             append_metrics(self.out_dir, record)
         self.loop.snapshot(step, self.state.params, record)
         if (step - self.start) % config.checkpoint_every == 0:
@@ -383,28 +383,28 @@ class Bootstrap:
         if pool and virtual_slot and not active:
             self.step_counts["idle"] += 1
         if not (active and virtual_slot):
-            record = train_step(step, self.state, self.data, self.train_config, self.sh_max, self.render_fn, self.log)
+            record = train_step(step, self.state, self.data, self.train_config, self.sh_max, self.rasterizer, self.log)
             record["kind"] = "real"
             self.step_counts["real"] += 1
             return record
         sh_degree = sh_degree_at(step, self.train_config, self.sh_max)
         frozen = self.model()
         choice = self.sampler.choose(active,
-                                     lambda i, w2c: render_l1(self.render_fn, frozen, active[i], sh_degree, w2c))
+                                     lambda i, w2c: render_l1(self.rasterizer, frozen, active[i], sh_degree, w2c))
         scale = self.conscience.scale if self.conscience is not None else 1.0
         view = active[choice.index]
         if config.virtual_mode == "additive":
             from .experimental.additive import additive_step
 
             record = additive_step(step, self.state, self.data, self.train_config, self.sh_max, view, choice, config,
-                                   self.render_fn,
+                                   self.rasterizer,
                                    lambda: train_step(step, self.state, self.data, self.train_config, self.sh_max,
-                                                      self.render_fn, self.log),
+                                                      self.rasterizer, self.log),
                                    self.lpips, scale=scale)
             self.step_counts["additive"] += 1
         else:
             record = virtual_step(step, self.state, self.data, self.train_config, self.sh_max, view, choice, config,
-                                  self.render_fn, self.lpips, scale=scale)
+                                  self.rasterizer, self.lpips, scale=scale)
         self.step_counts[record["virtual_branch"]] += 1
         self.view_use[view.name] = self.view_use.get(view.name, 0) + 1
         return record

@@ -177,7 +177,7 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
 
 
 def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
-                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0
+                 choice: ViewChoice, config: BootstrapConfig, rasterizer, lpips=None, scale: float = 1.0
                  ) -> tuple[torch.Tensor, dict, dict]:
     """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual),
     plus the geometry term (``geometry_weight``, scaled by the conscience too) when it is on
@@ -186,7 +186,7 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
     gaussians = gaussians_from_params(state.params)
     geometry = config.geometry_weight > 0 and len(view.geometry) >= 2
     outputs = ("rgb", "depth", "normal") if geometry else ("rgb",)
-    out = render_fn(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
+    out = rasterizer(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
     if config.virtual_colour:
         loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
                                          pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
@@ -208,11 +208,11 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
 
 
 def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
-                 choice: ViewChoice, config: BootstrapConfig, render_fn, lpips=None, scale: float = 1.0) -> dict:
+                 choice: ViewChoice, config: BootstrapConfig, rasterizer, lpips=None, scale: float = 1.0) -> dict:
     """One optimisation step on a virtual view (weighted by choice.weight and the conscience's
     ``scale``); the log record."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, train_config, data.extent))
-    total, out, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, render_fn, lpips,
+    total, out, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, rasterizer, lpips,
                                       scale)
     if train_config.pgsr:
         total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
@@ -221,9 +221,9 @@ def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int,
     return record
 
 
-def render_l1(render_fn, gaussians, view: VirtualTarget, sh_degree: int,
+def render_l1(rasterizer, gaussians, view: VirtualTarget, sh_degree: int,
               world_to_camera: torch.Tensor) -> torch.Tensor:
     """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose)."""
-    out = render_fn(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
+    out = rasterizer(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
                     world_to_camera=world_to_camera)
     return (out["rgb"] - view.target).abs().mean()

@@ -92,15 +92,15 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
                   config: BootstrapConfig, control=None,
                   on_snapshot: Callable[[int, Gaussians, dict], None] | None = None, snapshot_every: int = 0,
                   log: Callable[[str], None] | None = None, progress: bool = True,
-                  render_fn=None, overwrite: bool = False, resume: bool = False) -> BootstrapResult:
+                  rasterizer=None, overwrite: bool = False, resume: bool = False) -> BootstrapResult:
     """Bootstrap RUN (a loaded :class:`Stage1`, or its folder) into RUN2 (see the module doc).
     ``targets=None`` with an empty pool is the same-time baseline: the stage-I loop continued on
     the photos alone (``baseline_run``). An ``out_dir`` that already holds a result is refused
     (InputError) unless ``overwrite`` (see ``inceptiongs.train.run_folder.next_free_folder`` for
     a fresh name instead). ``resume``: continue the stopped bootstrap in ``out_dir`` from its newest
-    checkpoint, with its saved targets (``targets`` is then ignored)."""
-    if render_fn is None:
-        from ..rasterizer.rasterize import render as render_fn
+    checkpoint, with its saved targets (``targets`` is then ignored). ``rasterizer``
+    (inceptiongs.rasterizer.interface.Rasterizer) defaults to the one the stage-I run's device
+    selects."""
     config.validate()
     use_torch_threads()
     out_dir = Path(out_dir)
@@ -108,17 +108,29 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
         raise InputError(f"{out_dir}: the output folder must differ from the input run")
     with run_folder_lock(out_dir):   # one writer per run folder (a second gets one line naming the first)
         return _run_bootstrap(run, out_dir, targets, config, control, on_snapshot, snapshot_every, log, progress,
-                              render_fn, overwrite, resume)
+                              rasterizer, overwrite, resume)
+
+
+def run_rasterizer(device: str, log: Callable[[str], None]):
+    """The rasterizer the stage-I run's ``device`` selects; "auto" logs which and why."""
+    from ..rasterizer.interface import device_line, select_rasterizer
+
+    name, rasterizer, why = select_rasterizer(device)
+    if device == "auto":
+        log(device_line(name, rasterizer, why))
+    return rasterizer
 
 
 def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control, on_snapshot, snapshot_every: int,
-                   log, progress: bool, render_fn, overwrite: bool, resume: bool) -> BootstrapResult:
+                   log, progress: bool, rasterizer, overwrite: bool, resume: bool) -> BootstrapResult:
     payload = None
     if resume:
         payload, targets = resumable(out_dir)
     else:
         check_output_folder(out_dir, overwrite)
     run = as_stage1(run)
+    if rasterizer is None:
+        rasterizer = run_rasterizer(run.config.device, log or default_log)
     baseline = targets is None
     # A time-budgeted run's bar shows the steps its measured rate fits into the budget.
     loop = StepLoop(control, total=config.rounds * config.iterations, desc="baseline" if baseline else "bootstrap",
@@ -126,7 +138,7 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
                     on_snapshot=on_snapshot, snapshot_every=snapshot_every,
                     wall_start_s=float(payload["wall_s"]) if payload else 0.0,
                     train_start_s=float(payload["train_s"]) if payload else 0.0)
-    boot = Bootstrap.prepare(run, out_dir, targets, config, loop, render_fn, log or default_log, resume=payload)
+    boot = Bootstrap.prepare(run, out_dir, targets, config, loop, rasterizer, log or default_log, resume=payload)
     first_round, steps_left = (0, None) if payload is None else resume_point(boot, payload)
     try:
         for earlier in range(first_round if first_round < len(boot.rounds) else 0):

@@ -40,8 +40,8 @@ def blend_sources(camera: Camera, cameras: Sequence[Camera], train: Sequence[int
 class ModelRenders:
     """One render per (camera, output) of one model: the warps' depths, the fill, the PNGs."""
 
-    def __init__(self, gaussians: Gaussians, render_fn, sky) -> None:
-        self.gaussians, self.render_fn, self.sky = gaussians, render_fn, sky
+    def __init__(self, gaussians: Gaussians, rasterizer, sky) -> None:
+        self.gaussians, self.rasterizer, self.sky = gaussians, rasterizer, sky
         self._cache: dict[tuple[str, str], torch.Tensor] = {}
 
     def _cached(self, camera: Camera, output: str, compute: Callable[[], torch.Tensor]) -> torch.Tensor:
@@ -55,11 +55,11 @@ class ModelRenders:
         """[H, W, 1] the scene's own surface depth: the sky shell blended in pulls a faint
         surface's depth far behind it, and the warps then place the photos wrongly and reject them."""
         return self._cached(camera, "surface_depth",
-                            lambda: render_surface_depth(self.gaussians, camera, self.sky, self.render_fn))
+                            lambda: render_surface_depth(self.gaussians, camera, self.sky, self.rasterizer))
 
     def rgb(self, camera: Camera) -> torch.Tensor:
         """[H, W, 3] float32 in [0, 1]."""
-        render = self._cached(camera, "rgb", lambda: self.render_fn(self.gaussians, camera, outputs=("rgb",))["rgb"])
+        render = self._cached(camera, "rgb", lambda: self.rasterizer(self.gaussians, camera, outputs=("rgb",))["rgb"])
         return render.float().clamp(0.0, 1.0)
 
 
@@ -73,7 +73,7 @@ class TargetSetting:
     photos: dict
     cache: GenerationCache
     views_dir: Path
-    render_fn: Callable
+    rasterizer: Callable
     prior: object = None
     prior_hash: str = ""
 
@@ -85,7 +85,7 @@ class TargetMaker:
     def __init__(self, setting: TargetSetting, current: Gaussians, sky) -> None:
         self.setting = setting
         self.current = current
-        self.renders = ModelRenders(current, setting.render_fn, sky)
+        self.renders = ModelRenders(current, setting.rasterizer, sky)
         self.gaussians_hash = gaussians_version(current)
 
     def fill(self, camera: Camera) -> tuple[np.ndarray, bool]:

@@ -224,14 +224,14 @@ def _target_image(scene, split, run_dirs: list[Path], out_path: Path) -> None:
     import torch
 
     from ..io.images import write_png
-    from ..rasterizer.rasterize import render
+    from ..rasterizer.interface import cpu_rasterizer
     from ..train.run_folder import load_run
 
     camera = scene.cameras[split.target_view]
     panels = []
     with torch.no_grad():
         for run_dir in run_dirs:
-            panels.append(render(load_run(run_dir)[0], camera)["rgb"].clamp(0, 1).numpy())
+            panels.append(cpu_rasterizer()(load_run(run_dir)[0], camera)["rgb"].clamp(0, 1).numpy())
     panels.append(np.asarray(scene.load_image(split.target_view), np.float32))
     write_png(out_path, np.round(np.concatenate(panels, axis=1) * 255.0).astype(np.uint8))
 

@@ -23,6 +23,7 @@ from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
+from .device import add_device_argument, chosen_rasterizer
 
 HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -34,7 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("--camera", help="camera JSON {width, height, fx, fy, cx, cy, world_to_camera}")
     which.add_argument("--view", help="name of a camera (image) of the scene")
     parser.add_argument("--scene", help="scene folder for --view (default: the run's scene)")
-    parser.add_argument("--backend", choices=("torch", "gl"), default="gl")
+    parser.add_argument("--backend", choices=("torch", "gl"), default="gl",
+                        help="gl: the OpenGL splat renderer; torch: the library's rasterizer (see --device)")
+    add_device_argument(parser)
     parser.add_argument("--mode", choices=MODES, default="rgb")
     parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
     parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
@@ -120,13 +123,15 @@ def load_model_and_camera(args):
 BACKEND_ENTRY_POINTS = "inceptiongs.render_backends"
 
 
-def render_torch(gaussians, camera: Camera, mode: str, background) -> np.ndarray:
+def render_torch(gaussians, camera: Camera, mode: str, background, rasterizer=None) -> np.ndarray:
+    """The library's own render (``--backend torch``) with ``rasterizer`` (default: the CPU's)."""
     import torch
 
-    from ..rasterizer.rasterize import render
+    from ..rasterizer.interface import cpu_rasterizer
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
     with torch.no_grad():
-        out = render(gaussians, camera, outputs=(mode,), background=torch.tensor(background))
-    return out[mode].numpy().astype(np.float32)
+        out = rasterizer(gaussians, camera, outputs=(mode,), background=torch.tensor(background))
+    return out[mode].cpu().numpy().astype(np.float32)
 
 
 def render_backend(name: str):
@@ -144,8 +149,11 @@ def render_backend(name: str):
                      "reinstall the package)")
 
 
-def render_image(gaussians, camera: Camera, backend: str, mode: str, background) -> np.ndarray:
-    """[H, W, 3] (rgb, normal) or [H, W, 1] (depth, alpha) float32 from either renderer."""
+def render_image(gaussians, camera: Camera, backend: str, mode: str, background, rasterizer=None) -> np.ndarray:
+    """[H, W, 3] (rgb, normal) or [H, W, 1] (depth, alpha) float32 from either renderer;
+    ``rasterizer``: the library's, for backend "torch"."""
+    if backend == "torch":
+        return render_torch(gaussians, camera, mode, background, rasterizer)
     return render_backend(backend)(gaussians, camera, mode, background)
 
 
@@ -188,12 +196,13 @@ def run(args) -> int:
     check_writable_dir(out.parent)  # a bad --out is one line before any work
     if args.width is not None and args.height is not None:
         check_image_size(args.width, args.height, "--width/--height")
+    rasterizer = chosen_rasterizer(args.device) if args.backend == "torch" else None
     gaussians, camera = load_model_and_camera(args)
     camera = resized_camera(camera, args.width, args.height)
     check_image_size(camera.width, camera.height, "--width/--height" if args.width or args.height else
                      f"{args.camera or args.view}")
     try:
-        image = render_image(gaussians, camera, args.backend, args.mode, background)
+        image = render_image(gaussians, camera, args.backend, args.mode, background, rasterizer)
     except RuntimeError as exc:
         # RendererError (no usable GL) is not the user's input, but it is one line to show.
         if type(exc).__name__ != "RendererError":

@@ -11,6 +11,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.config_json import check_seed
 from ..io.paths import contained_path, read_small_text
+from .device import add_device_argument, chosen_rasterizer
 
 from ..train.config import TrainConfig
 from ..train.strategies import STRATEGIES
@@ -31,6 +32,7 @@ def add_arguments(parser) -> None:
                         help="which views are held out for evaluation (default llff: every 8th view, "
                              "so `eval` works on the run; none: train on all)")
     parser.add_argument("--seed", type=int, default=0)
+    add_device_argument(parser)
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
     parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
@@ -80,7 +82,7 @@ def build_config(args) -> "TrainConfig":
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
                          size_to_minutes=sized, free_space=args.free_space,
                          sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale,
-                         exclude_photos=photos_to_exclude(args.exclude_photos))
+                         exclude_photos=photos_to_exclude(args.exclude_photos), device=args.device)
     return short_run_schedule(config.validate("command line"))
 
 
@@ -139,10 +141,11 @@ def run(args) -> int:
         config = resumed
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
+    rasterizer = chosen_rasterizer(config.device)
     joint = joint_prior(args, out, config) if args.prior else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        result = train(config, out, resume=args.resume, after_step=joint, control=control, rasterizer=rasterizer)
     if joint is not None:
         saved = joint.finish()
         if saved is not None:

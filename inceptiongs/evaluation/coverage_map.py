@@ -112,7 +112,7 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     each view's depth rendered at ``depth_width`` pixels wide."""
     import torch
 
-    from ..rasterizer.rasterize import render
+    from ..rasterizer.interface import cpu_rasterizer
     from ..train.run_folder import load_run
     from .protocols import Split
 
@@ -128,7 +128,7 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     with torch.no_grad():
         for camera in scene.cameras:
             small = camera.scaled(min(1.0, depth_width / camera.width))
-            depths.append(render(gaussians, small, outputs=("depth",))["depth"][..., 0].numpy())
+            depths.append(cpu_rasterizer()(gaussians, small, outputs=("depth",))["depth"][..., 0].numpy())
     sources = np.zeros(len(scene.cameras), bool)
     sources[split.train] = True
     return compute(_subsample(points, max_points, seed), list(scene.cameras), sources, depths,

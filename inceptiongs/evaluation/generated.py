@@ -21,7 +21,7 @@ from ..io.atomic import atomic_write_text
 from ..errors import InputError
 from ..io.images import write_png
 from ..io.config_json import json_safe
-from ..rasterizer.rasterize import render_rgb
+from ..rasterizer.interface import render_rgb
 from .scoring import GROUPS, group_of, mean_or_none, safe_name
 from .metrics import psnr, ssim
 from .protocols import Split

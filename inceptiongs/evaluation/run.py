@@ -22,6 +22,11 @@ from ..train.run_folder import load_run
 from .protocols import Split
 from .scoring import evaluate_views
 
+
+def auto_rasterizer():
+    from ..rasterizer.interface import select_rasterizer
+    return select_rasterizer("auto")[1]
+
 UNAVAILABLE_LPIPS = "unavailable (no --lpips-weights given)"
 UNAVAILABLE_FID = "unavailable (no --fid-weights given)"
 
@@ -40,13 +45,15 @@ def load_torchscript(path: str | Path, what: str) -> Callable:
 
 
 def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
-                 fid_weights: str | Path | None = None, progress: bool = True) -> dict:
+                 fid_weights: str | Path | None = None, progress: bool = True, rasterizer=None) -> dict:
     """Evaluate RUN/model (via inceptiongs.train.run_folder.load_run) on RUN/split.json's held-out views.
 
     Writes RUN/eval/<group>_<index>_<name>.png (render | photo | error) and RUN/eval/eval.json,
     and returns the same dict as eval.json: {"run", "protocol", "seed", "target_view",
     "groups": {"scarce"|"covered"|"all": {"views", "psnr", "ssim"[, "lpips"][, "fid"]}},
     "views": [...], "lpips": "computed ..." | "unavailable ...", "fid": ...}.
+    ``rasterizer``: default the one ``--device auto`` selects (scores do not depend on it beyond
+    float rounding).
     """
 
     run_dir = Path(run_dir)
@@ -62,7 +69,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
     eval_dir = run_dir / "eval"
     # The trainer scores its test views on black (the rasterizer's default); so do we.
     result = evaluate_views(gaussians, scene, split, save_dir=eval_dir, lpips_model=lpips_model,
-                            fid_model=fid_model, progress=progress)
+                            fid_model=fid_model, progress=progress, rasterizer=rasterizer or auto_rasterizer())
     for view in result["views"]:
         view["image"] = f"eval/{view['image']}"
     groups = result["groups"]

@@ -94,8 +94,9 @@ def safe_name(name: str) -> str:
 def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Tensor] | None = None,
                    background=None, save_dir: str | Path | None = None,
                    lpips_model: Callable | None = None, fid_model: Callable | None = None,
-                   progress: bool = False) -> dict:
-    """Render every held-out view of ``split`` and score it against its photo.
+                   progress: bool = False, rasterizer=None) -> dict:
+    """Render every held-out view of ``split`` with ``rasterizer`` (default: the CPU's) and
+    score it against its photo.
 
     gaussians: Gaussians in the scene's normalised frame; scene: a Scene (cameras, load_image);
     photos: optional {view index: [H, W, 3] float tensor in [0, 1]} already in memory (the
@@ -107,7 +108,9 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
     per-view and group "lpips", with fid_model group "fid" (groups of at least 2 views: a
     covariance needs two samples).
     """
-    from ..rasterizer.rasterize import render  # the rasterizer is heavy; evaluation of a run needs it, readers don't
+    from ..rasterizer.interface import cpu_rasterizer  # heavy; evaluation of a run needs it, readers don't
+
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
 
     views: list[ViewScore] = []
     features: list[tuple[str, torch.Tensor, torch.Tensor]] = []  # (group, render, photo) for FID
@@ -130,7 +133,7 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
             raise InputError(f"{camera.name}: photo is {tuple(photo.shape)}, camera expects "
                              f"{(camera.height, camera.width, 3)}")
         with torch.no_grad():
-            rgb = render(gaussians, camera, outputs=("rgb",), background=background_t)["rgb"]
+            rgb = rasterizer(gaussians, camera, outputs=("rgb",), background=background_t)["rgb"]
             rgb = rgb.to(torch.float32).clamp(0.0, 1.0)
             score = ViewScore(index, camera.name, group_of(index, split),
                               float(psnr(rgb, photo)), float(ssim(rgb, photo)))

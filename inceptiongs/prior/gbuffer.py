@@ -27,7 +27,7 @@ from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN
                          NEAR_PLANE)
 from ..gaussians import Gaussians
 from ..bootstrap.warp import unproject
-from ..rasterizer.rasterize import render
+from ..rasterizer.interface import cpu_rasterizer
 from .hashgrid import HashGrid
 
 HASH_AT = ("surface", "centres")
@@ -85,12 +85,13 @@ def gaussian_features(gaussians: Gaussians, hash_grid: HashGrid) -> torch.Tensor
     return hash_grid(means).to(gaussians.dtype)
 
 
-def render_geometry(gaussians: Gaussians, camera: Camera, backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+def render_geometry(gaussians: Gaussians, camera: Camera, rasterizer=None) -> tuple[torch.Tensor, torch.Tensor]:
     """The hash-free part of the G-buffer: (normal and alpha [4, H, W], depth [H, W]: expected
     camera z, 0 where nothing covers the pixel). Only the Gaussians that can touch the image
-    are rendered."""
+    are rendered (by ``rasterizer``, default the CPU's)."""
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
     keep = crop_candidates(gaussians, camera)
-    out = render(gaussians.subset(keep), camera, outputs=("normal", "alpha", "depth"), backend=backend)
+    out = rasterizer(gaussians.subset(keep), camera, outputs=("normal", "alpha", "depth"))
     geometry = torch.cat([out["normal"], out["alpha"]], dim=-1).permute(2, 0, 1).contiguous()
     return geometry, out["depth"][..., 0]
 
@@ -119,7 +120,7 @@ def surface_features(hash_grid: HashGrid, geometry: torch.Tensor, depth: torch.T
 
 def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
                    crop: tuple[int, int, int, int] | None = None, detach_gaussians: bool = True,
-                   features: torch.Tensor | None = None, backend: str = "auto",
+                   features: torch.Tensor | None = None, rasterizer=None,
                    hash_at: str = "surface") -> torch.Tensor:
     """G-buffer [4 + Z, H, W] of ``camera``, or only of the window ``crop`` = (x0, y0, width, height)
     of its image (rendered through Camera.cropped: a shifted principal point, so only the
@@ -140,13 +141,13 @@ def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
     if hash_at == "surface":
         if features is not None:
             raise ValueError("features= are per-Gaussian: only for hash_at='centres'")
-        geometry, depth = render_geometry(gaussians, camera, backend=backend)
+        geometry, depth = render_geometry(gaussians, camera, rasterizer)
         return torch.cat([geometry, surface_features(hash_grid, geometry, depth, camera)], dim=0)
     if features is None:
         features = gaussian_features(gaussians, hash_grid)
     keep = crop_candidates(gaussians, camera)
     gaussians, features = gaussians.subset(keep), features[keep]
-    out = render(gaussians, camera, outputs=("normal", "alpha", "features"), features=features,
-                 backend=backend)
+    out = (rasterizer or cpu_rasterizer())(gaussians, camera, outputs=("normal", "alpha", "features"),
+                                           features=features)
     image = torch.cat([out["normal"], out["alpha"], out["features"]], dim=-1)  # [H, W, 4 + Z]
     return image.permute(2, 0, 1).contiguous()

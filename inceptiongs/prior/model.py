@@ -294,6 +294,6 @@ class Prior(nn.Module):
 def render_init(gaussians: Gaussians, camera: Camera) -> torch.Tensor:
     """The Gaussians' render of camera as a sampler start [1, 3, H, W] in [-1, 1] (black
     background, like the evaluation's renders)."""
-    from ..rasterizer.rasterize import render_rgb
+    from ..rasterizer.interface import render_rgb
 
     return (render_rgb(gaussians, camera) * 2.0 - 1.0).permute(2, 0, 1)[None]

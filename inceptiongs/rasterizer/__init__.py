@@ -1,5 +1,9 @@
-"""The torch reference rasterizer: ``projection`` (EWA projection of 3-D Gaussians), ``sh``
-(colour from spherical harmonics), ``composite`` (tile-binned front-to-back compositing in
-torch) and ``rasterize`` (``render``: the one entry point, with the outputs a caller asks for).
-``projection_numba``, ``sh_numba`` and ``composite_numba`` are the same stages as CPU kernels
-(forward and backward); ``backend`` says which one runs."""
+"""Rasterizers. ``interface`` is the one way in: the ``Rasterizer`` protocol, its typed result
+(``result.RenderResult``), the registry ``RASTERIZERS`` (torch, numba, gsplat) and
+``select_rasterizer`` (``--device auto|cpu|cuda``).
+
+The torch reference: ``projection`` (EWA projection of 3-D Gaussians), ``sh`` (colour from
+spherical harmonics), ``composite`` (tile-binned front-to-back compositing in torch) and
+``rasterize`` (``render``, with the outputs a caller asks for). ``projection_numba``,
+``sh_numba`` and ``composite_numba`` are the same stages as CPU kernels (forward and backward);
+``backend`` says which one runs. ``gsplat_backend``: gsplat's CUDA kernels behind the same call."""

@@ -34,7 +34,7 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     sh_degree caps the SH degree; world_to_camera [4, 4] overrides the camera's pose.
     """
     outputs = tuple(outputs)
-    _check_render_args(outputs, features, len(gaussians))
+    check_render_args(outputs, features, len(gaussians))
     device, dtype = gaussians.device, gaussians.dtype
     if world_to_camera is None:
         world_to_camera = torch.as_tensor(camera.world_to_camera, dtype=torch.float64, device=device)
@@ -48,7 +48,7 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
     keep = torch.nonzero(proj.visible).squeeze(-1)  # [M]
     t = proj.camera_means[keep]
 
-    channels = _value_channels(gaussians, keep, t, outputs, features, degree, world_to_camera, backend)
+    channels = value_channels(gaussians, keep, t, outputs, features, degree, world_to_camera, backend)
     values = torch.cat([v for _, v in channels], dim=1) if channels else torch.zeros(
         keep.numel(), 0, dtype=dtype, device=device)
 
@@ -56,14 +56,14 @@ def render(gaussians: Gaussians, camera: Camera, outputs=("rgb",), background=No
                              t[:, 2].detach(), proj.extents[keep].detach(), camera.width, camera.height,
                              backend=backend)
 
-    result = _finish_outputs(outputs, _split_channels(image, channels), alpha, background, camera,
+    result = finish_outputs(outputs, split_channels(image, channels), alpha, background, camera,
                              dtype, device)
     result["means2d"] = means2d
     result["radii"] = proj.radii
     return result
 
 
-def _check_render_args(outputs: tuple, features: torch.Tensor | None, n: int) -> None:
+def check_render_args(outputs: tuple, features: torch.Tensor | None, n: int) -> None:
     """Raise ValueError for unknown output names or per-Gaussian features that do not fit."""
     unknown = [name for name in outputs if name not in OUTPUTS]
     if unknown:
@@ -74,7 +74,7 @@ def _check_render_args(outputs: tuple, features: torch.Tensor | None, n: int) ->
         raise ValueError(f"render: features has {features.shape[0]} rows for {n} Gaussians")
 
 
-def _value_channels(gaussians: Gaussians, keep: torch.Tensor, t: torch.Tensor, outputs: tuple,
+def value_channels(gaussians: Gaussians, keep: torch.Tensor, t: torch.Tensor, outputs: tuple,
                     features: torch.Tensor | None, degree: int, world_to_camera: torch.Tensor,
                     backend: str) -> list[tuple[str, torch.Tensor]]:
     """The per-Gaussian value channels to composite, in order, as (name, [M, C]) pairs.
@@ -99,7 +99,7 @@ def _value_channels(gaussians: Gaussians, keep: torch.Tensor, t: torch.Tensor, o
     return channels
 
 
-def _split_channels(image: torch.Tensor, channels: list[tuple[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+def split_channels(image: torch.Tensor, channels: list[tuple[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
     """Cut the composited image [H, W, C_total] back into one [H, W, C] slice per named channel."""
     blended: dict[str, torch.Tensor] = {}
     start = 0
@@ -109,7 +109,7 @@ def _split_channels(image: torch.Tensor, channels: list[tuple[str, torch.Tensor]
     return blended
 
 
-def _finish_outputs(outputs: tuple, blended: dict[str, torch.Tensor], alpha: torch.Tensor,
+def finish_outputs(outputs: tuple, blended: dict[str, torch.Tensor], alpha: torch.Tensor,
                     background, camera: Camera, dtype: torch.dtype,
                     device: torch.device) -> dict[str, torch.Tensor]:
     """Turn blended channels and alpha [H, W, 1] into the requested outputs, in request order;

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from ..io.config_json import SavedConfig, dataclass_from_dict, read_json_object
+from ..constants import DEVICES
 from ..errors import InputError
 
 PROTOCOLS = ("llff", "unstructured", "none")
@@ -113,6 +114,10 @@ class TrainConfig(SavedConfig):
     # Scenes without sparse points (LLFF): triangulate some from the training photos with
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
+    # Where training runs (inceptiongs.rasterizer.interface.select_rasterizer): "cpu" (numba),
+    # "cuda" (gsplat) or "auto" (cuda when a GPU, gsplat and a CUDA compiler are all there).
+    # Stage II reads the stage-I run's value.
+    device: str = "auto"
 
     # --- Adam learning rates -------------------------------------------------------------------
     # Step sizes in the stored parameter's units (log scale, quaternion component, opacity logit,
@@ -263,6 +268,8 @@ class TrainConfig(SavedConfig):
                              f"got {self.camera_ball!r}")
         if not 0.0 < self.near_percentile < 100.0 or not 0.0 < self.near_margin <= 1.0:
             raise InputError(f"{source}: near_percentile must be in (0, 100) and near_margin in (0, 1]")
+        if self.device not in DEVICES:
+            raise InputError(f"{source}: device must be one of {', '.join(DEVICES)}, got {self.device!r}")
         if self.protocol not in PROTOCOLS:
             raise InputError(f"{source}: protocol must be one of {', '.join(PROTOCOLS)}, got {self.protocol!r}")
         if self.scarce_views and self.protocol != "unstructured":

@@ -281,7 +281,7 @@ def surface_depth(blended: torch.Tensor) -> torch.Tensor:
     return torch.where(covered, blended[..., 0:1] / weight.clamp_min(ALPHA_EPS), torch.zeros_like(weight))
 
 
-def render_surface_depth(gaussians, camera: Camera, sphere: torch.Tensor | None, render_fn=None) -> torch.Tensor:
+def render_surface_depth(gaussians, camera: Camera, sphere: torch.Tensor | None, rasterizer=None) -> torch.Tensor:
     """[H, W, 1] camera z of the scene's own surface at ``camera``, without gradients: the render's
     depth without a shell (sphere None), else :func:`surface_depth` of the scene's Gaussians
     only (shell rows: :func:`~inceptiongs.train.sky.in_background`). 0 where nothing covers.
@@ -289,15 +289,15 @@ def render_surface_depth(gaussians, camera: Camera, sphere: torch.Tensor | None,
     Stage II warps photos with this depth. With the shell's depth blended in, the courtyard's
     scarce views had 4 % of their pixels within 5 % of the true depth (36 % without it) and
     the warps' occlusion test rejected 95 % of them."""
-    from ..rasterizer.rasterize import render
+    from ..rasterizer.interface import cpu_rasterizer
     from .sky import in_background
 
-    render_fn = render if render_fn is None else render_fn
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
     with torch.no_grad():
         if sphere is None:
-            return render_fn(gaussians, camera, outputs=("depth",))["depth"].float()
+            return rasterizer(gaussians, camera, outputs=("depth",))["depth"].float()
         features = surface_depth_features(gaussians.means, in_background(gaussians.means.detach(), sphere), camera)
-        out = render_fn(gaussians, camera, outputs=("features",), features=features)
+        out = rasterizer(gaussians, camera, outputs=("features",), features=features)
         return surface_depth(out["features"]).float()
 
 

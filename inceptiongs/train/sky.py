@@ -243,11 +243,11 @@ def fill_hidden_shell(params: dict[str, torch.Tensor], hidden: torch.Tensor, don
 
 
 def fill_shell_behind_scene(params: dict[str, torch.Tensor], sphere: torch.Tensor, cameras: list[Camera],
-                            render_fn, hidden_alpha: float = HIDDEN_ALPHA) -> int:
+                            rasterizer, hidden_alpha: float = HIDDEN_ALPHA) -> int:
     """The end-of-training fill: the shell (beyond BACKGROUND_FRACTION of ``sphere`` [4]) hidden
     behind the scene (foreground alpha >= ``hidden_alpha``) in every training camera (``cameras``)
-    takes its sky-seen neighbours' colour. render_fn: the rasterizer
-    (``inceptiongs.rasterizer.rasterize.render``'s signature), which draws the scene's own
+    takes its sky-seen neighbours' colour. rasterizer: the run's
+    rasterizer (inceptiongs.rasterizer.interface.Rasterizer), which draws the scene's own
     Gaussians' alpha at most FILL_RENDER_WIDTH pixels wide. Returns how many were filled."""
     background = in_background(params["means"].detach(), sphere)
     if not bool(background.any()) or bool(background.all()):
@@ -255,7 +255,7 @@ def fill_shell_behind_scene(params: dict[str, torch.Tensor], sphere: torch.Tenso
     small = [camera.scaled(max(1.0, camera.width / FILL_RENDER_WIDTH)) for camera in cameras]
     with torch.no_grad():
         scene_part = gaussians_from_params(params).detach().subset(~background)     # built once for every view
-        alphas = [render_fn(scene_part, camera, outputs=("alpha",))["alpha"][..., 0] for camera in small]
+        alphas = [rasterizer(scene_part, camera, outputs=("alpha",))["alpha"][..., 0] for camera in small]
     exposure = shell_exposure(params["means"][background], small, alphas, hidden_alpha)
     hidden = torch.zeros_like(background)
     donors = torch.zeros_like(background)

@@ -205,7 +205,7 @@ def log_once(state: TrainState, key: str, message: str, log) -> None:
         log(message)
 
 
-def multiview_terms(render_fn, gaussians: Gaussians, out: dict, view: int, data: TrainData,
+def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data: TrainData,
                      config: TrainConfig, state: TrainState, sh_degree: int, log) -> dict[str, torch.Tensor]:
     """Geometric and NCC terms against one random neighbour of ``view`` (may be empty)."""
     neighbours = data.neighbours.get(view, [])
@@ -218,7 +218,7 @@ def multiview_terms(render_fn, gaussians: Gaussians, out: dict, view: int, data:
     small = nb_cam.scaled(1.0 / config.multiview_scale)
     with torch.no_grad():
         # The neighbour's depth is a fixed target: its gradient would double the backward cost.
-        nb_depth = render_fn(gaussians.detach(), small, outputs=("plane_depth",), sh_degree=sh_degree)["plane_depth"]
+        nb_depth = rasterizer(gaussians.detach(), small, outputs=("plane_depth",), sh_degree=sh_degree)["plane_depth"]
     ref_to_nb = torch.tensor(nb_cam.world_to_camera @ ref_cam.camera_to_world, dtype=torch.float32)
     k_ref = data.intrinsics[view]
     k_small = torch.tensor(small.intrinsics, dtype=torch.float32)
@@ -246,13 +246,13 @@ def multiview_terms(render_fn, gaussians: Gaussians, out: dict, view: int, data:
     return terms
 
 
-def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData) -> dict[str, float]:
-    """PSNR / SSIM over the held-out views, flat keys ("all_psnr", "scarce_ssim", ...);
-    {} when the split holds nothing out."""
+def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData, rasterizer=None) -> dict[str, float]:
+    """PSNR / SSIM over the held-out views (rendered with ``rasterizer``, default the CPU's),
+    flat keys ("all_psnr", "scarce_ssim", ...); {} when the split holds nothing out."""
     if not split.test:
         return {}
     from ..evaluation.scoring import evaluate_views, flat_scores
-    return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images)["groups"])
+    return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images, rasterizer=rasterizer)["groups"])
 
 
 def trim_sh(gaussians: Gaussians, degree: int) -> Gaussians:
@@ -263,7 +263,7 @@ def trim_sh(gaussians: Gaussians, degree: int) -> Gaussians:
     return dataclasses.replace(gaussians, sh=gaussians.sh[:, :keep].contiguous())
 
 
-def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfig, sh_max: int, render_fn,
+def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfig, sh_max: int, rasterizer,
                log) -> dict:
     """One optimisation step on one view; returns the log record of its terms."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, config, data.extent))
@@ -290,7 +290,7 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     # way to darken edge pixels).
     background = torch.rand(3, generator=state.generator) if config.random_background else None
     extra = {} if features is None else {"features": features}
-    out = render_fn(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree, **extra)
+    out = rasterizer(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree, **extra)
     if features is not None:
         # What the view statistics read as "depth" (optimizer_step): the scene's, without the shell.
         out["depth"] = surface_depth(out["features"])
@@ -315,7 +315,7 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
             terms["normal"] = normal
             loss = loss + config.lambda_normal * normal
     if want_multiview:
-        mv = multiview_terms(render_fn, gaussians, out, view, data, config, state, sh_degree, log)
+        mv = multiview_terms(rasterizer, gaussians, out, view, data, config, state, sh_degree, log)
         if "geo" in mv:
             terms["geo"] = mv["geo"]
             loss = loss + config.lambda_geo * mv["geo"]

@@ -49,39 +49,41 @@ class TrainResult:
 
 def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progress: bool = True,
           control=None, on_snapshot: Callable[[int, Gaussians, dict], None] | None = None,
-          snapshot_every: int = 0, render_fn=None, log: Callable[[str], None] | None = None,
+          snapshot_every: int = 0, rasterizer=None, log: Callable[[str], None] | None = None,
           after_step: Callable[[int, Gaussians, bool], None] | None = None) -> TrainResult:
     """Train stage I into ``run_dir``; see docs/training.md.
 
     control: object with ``stop`` / ``pause`` threading.Events (JobControl) or None.
     on_snapshot(iteration, detached Gaussians, metrics) every ``snapshot_every`` steps.
-    render_fn defaults to inceptiongs.rasterizer.rasterize.render (backend "auto").
+    rasterizer (inceptiongs.rasterizer.interface.Rasterizer) defaults to the one ``config.device``
+    selects (select_rasterizer).
     after_step(iteration, detached Gaussians, checkpointed) after every step (e.g. one
     diffusion-prior step, `inceptiongs train --prior`); its time counts as training time.
     """
-    if render_fn is None:
-        from ..rasterizer.rasterize import render as render_fn
+    if rasterizer is None:
+        from ..rasterizer.interface import select_rasterizer
+        rasterizer = select_rasterizer(config.device)[1]
     config.validate()
     with run_folder_lock(run_dir):   # one writer per run folder (a second gets one line naming the first)
-        return _train(config, Path(run_dir), resume, progress, control, on_snapshot, snapshot_every, render_fn,
+        return _train(config, Path(run_dir), resume, progress, control, on_snapshot, snapshot_every, rasterizer,
                       log or default_log, after_step)
 
 
 def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, control, on_snapshot,
-           snapshot_every: int, render_fn, log, after_step) -> TrainResult:
+           snapshot_every: int, rasterizer, log, after_step) -> TrainResult:
     use_torch_threads()
     checkpoint, payload, scene, split, data = _start(config, run_dir, resume, log)
     config.save(run_dir / "config.json")
     split.save(run_dir / "split.json")
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
-    state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log)
+    state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log, rasterizer)
     if config.pgsr and not any(data.neighbours.values()):
         log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
 
     loop = StepLoop(control, total=config.iterations, desc="train", progress=progress, initial=state.iteration,
                     wall_start_s=state.wall_s, train_start_s=state.train_s, on_snapshot=on_snapshot,
                     snapshot_every=snapshot_every)
-    run = StageOne(config, run_dir, scene, split, data, state, sh_max, render_fn, log, loop, after_step)
+    run = StageOne(config, run_dir, scene, split, data, state, sh_max, rasterizer, log, loop, after_step)
     try:
         run.steps()
     finally:
@@ -119,7 +121,8 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, log):
     return checkpoint, payload, scene, split, data
 
 
-def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene, split, data, sh_max: int, log):
+def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene, split, data, sh_max: int, log,
+                 rasterizer):
     """The resumed state (metrics after it dropped), or a new one with its iteration-0 scores logged."""
     if payload is not None:
         state = restore_state(payload, data, config)
@@ -129,7 +132,7 @@ def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene,
     state = new_state(scene, data, config, sh_max, log)
     (run_dir / "metrics.jsonl").unlink(missing_ok=True)
     # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
-    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data)
+    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data, rasterizer)
     if initial_eval:
         append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
                                  "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
@@ -213,7 +216,7 @@ class StageOne:
     data: object
     state: object
     sh_max: int
-    render_fn: Callable
+    rasterizer: "Rasterizer"
     log: Callable[[str], None]
     loop: StepLoop
     after_step: Callable[[int, Gaussians, bool], None] | None = None
@@ -247,7 +250,7 @@ class StageOne:
         """One training step with its metrics line, snapshot, checkpoint and ``after_step``."""
         config, state = self.config, self.state
         step = state.iteration + 1
-        record = train_step(step, state, self.data, config, self.sh_max, self.render_fn, self.log)
+        record = train_step(step, state, self.data, config, self.sh_max, self.rasterizer, self.log)
         state.iteration = step
         self.loop.advance()
         if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
@@ -272,7 +275,7 @@ class StageOne:
         if step % self.config.eval_every == 0 or step == self.config.iterations:
             eval_start = time.perf_counter()
             self.last_eval = evaluate_held_out(gaussians_from_params(self.state.params).detach(), self.scene,
-                                               self.split, self.data)
+                                               self.split, self.data, self.rasterizer)
             self.last_eval_iteration = step
             record.update(self.last_eval)
             self.loop.exclude(time.perf_counter() - eval_start)  # evaluation is not training time
@@ -291,7 +294,7 @@ class StageOne:
         if self.state.sky is None:
             return False
         train_cameras = [self.data.cameras[i] for i in self.data.train]
-        filled = fill_shell_behind_scene(self.state.params, self.state.sky, train_cameras, self.render_fn)
+        filled = fill_shell_behind_scene(self.state.params, self.state.sky, train_cameras, self.rasterizer)
         if filled:
             self.log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
                      f"of their seen neighbours")
@@ -316,7 +319,7 @@ class StageOne:
                 failures.append(exc)
 
         if self.finished and self.last_eval_iteration != state.iteration:
-            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data)
+            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data, self.rasterizer)
         # A stopped run saves its model too (stop means save: Ctrl+C, SIGTERM, the viewer's stop);
         # `--resume` continues from the checkpoint written after it.
         attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,

@@ -132,17 +132,18 @@ def test_training_renders_draw_a_random_background_only_when_asked(demo_scene, t
     """With ``random_background`` every training step renders over its own uniform colour in
     [0, 1]^3 (so a partly transparent pixel cannot match the photo by letting a fixed colour
     through); without it the renderer's black default; evaluation always renders over black."""
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
 
     seen: list = []
+    rasterizer = cpu_rasterizer()
 
     def spy(gaussians, camera, outputs=("rgb",), background=None, **kwargs):
         seen.append(background)
-        return render(gaussians, camera, outputs=outputs, background=background, **kwargs)
+        return rasterizer(gaussians, camera, outputs=outputs, background=background, **kwargs)
 
     config = _config(demo_scene, iterations=6, pgsr=False, eval_every=100, checkpoint_every=100,
                      random_background=random_background)
-    train(config, tmp_path / "run", progress=False, render_fn=spy)
+    train(config, tmp_path / "run", progress=False, rasterizer=spy)
     drawn = [b for b in seen if b is not None]
     if not random_background:
         assert not drawn

@@ -15,13 +15,13 @@ from ..refine import ViewChoice, virtual_loss
 
 
 def additive_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
-                  choice: ViewChoice, config: BootstrapConfig, render_fn, photo_step: Callable[[], dict],
+                  choice: ViewChoice, config: BootstrapConfig, rasterizer, photo_step: Callable[[], dict],
                   lpips=None, scale: float = 1.0) -> dict:
     """A photo step whose gradient also holds a virtual view's loss: the virtual loss is
     back-propagated first (gradients accumulate in the parameters' .grad), then ``photo_step``
     (the stage-I trainer's step) adds its own and takes the one Adam step, which zeroes them.
     The photos lose no step; the virtual view costs one render and backward."""
-    total, _, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, render_fn, lpips,
+    total, _, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, rasterizer, lpips,
                                     scale)
     total.backward()
     virtual_record = {f"virtual_{key}" if not key.startswith("virtual_") else key: value

@@ -1,0 +1,144 @@
+"""One rasterizer interface: the ``Rasterizer`` protocol, its typed result, and the registry.
+
+Every rasterizer is a callable with the signature of the torch reference
+(:func:`inceptiongs.rasterizer.rasterize.render`) that returns a :class:`RenderResult`:
+
+- ``torch``: the reference, every stage in torch (any device);
+- ``numba``: the CPU fast path (the numba kernels wherever they cover the case, torch elsewhere);
+- ``gsplat``: gsplat's fused CUDA kernels (optional extra ``pip install inceptiongs[cuda]``),
+  imported only when chosen.
+
+A run chooses one with :func:`select_rasterizer` (``--device auto|cpu|cuda``) and carries the
+object; nothing outside the torch backend calls ``render`` itself.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+from typing import Callable, Protocol, Sequence
+
+import torch
+
+from ..camera import Camera
+from ..constants import DEVICES
+from ..errors import InputError
+from ..gaussians import Gaussians
+from .backend import numba_installed
+from .result import RenderResult
+
+CUDA_EXTRA = "pip install 'inceptiongs[cuda]'"
+
+
+class Rasterizer(Protocol):
+    """Renders Gaussians from a camera. ``name``: its registry name; ``device``: where its
+    tensors live ("cpu" or "cuda")."""
+
+    name: str
+    device: str
+
+    def __call__(self, gaussians: Gaussians, camera: Camera, outputs: Sequence[str] = ("rgb",),
+                 background=None, features: torch.Tensor | None = None, sh_degree: int | None = None,
+                 world_to_camera: torch.Tensor | None = None) -> RenderResult: ...
+
+
+@dataclass(frozen=True)
+class ReferenceRasterizer:
+    """The torch reference ``render`` with one stage backend ("torch": every stage in torch;
+    "auto": the numba kernels for CPU tensors where they cover the case)."""
+
+    name: str
+    backend: str
+    device: str = "cpu"
+
+    def __call__(self, gaussians: Gaussians, camera: Camera, outputs: Sequence[str] = ("rgb",),
+                 background=None, features: torch.Tensor | None = None, sh_degree: int | None = None,
+                 world_to_camera: torch.Tensor | None = None) -> RenderResult:
+        from .rasterize import render
+        return RenderResult.from_dict(render(gaussians, camera, outputs=outputs, background=background,
+                                             features=features, sh_degree=sh_degree,
+                                             world_to_camera=world_to_camera, backend=self.backend))
+
+
+def _gsplat_rasterizer() -> Rasterizer:
+    from .gsplat_backend import GsplatRasterizer   # gsplat is imported only when chosen
+    return GsplatRasterizer()
+
+
+# name -> a factory making that rasterizer. "numba" is the reference with backend "auto": on CPU
+# tensors it takes every numba kernel that covers the case, which is today's training path.
+RASTERIZERS: dict[str, Callable[[], Rasterizer]] = {
+    "torch": lambda: ReferenceRasterizer("torch", "torch"),
+    "numba": lambda: ReferenceRasterizer("numba", "auto"),
+    "gsplat": _gsplat_rasterizer,
+}
+
+
+def get_rasterizer(name: str) -> Rasterizer:
+    """The rasterizer registered as ``name``; ValueError naming the choices otherwise."""
+    if name not in RASTERIZERS:
+        raise ValueError(f"unknown rasterizer {name!r}; choose from {', '.join(RASTERIZERS)}")
+    return RASTERIZERS[name]()
+
+
+def cpu_rasterizer() -> Rasterizer:
+    """The CPU's best: numba when it is installed, else the torch reference."""
+    return get_rasterizer("numba" if numba_installed() else "torch")
+
+
+def gsplat_installed() -> bool:
+    return importlib.util.find_spec("gsplat") is not None
+
+
+def cuda_compiler() -> str | None:
+    """Where nvcc is (gsplat builds its kernels with it on first use), or None."""
+    from torch.utils.cpp_extension import CUDA_HOME   # finds nvcc on PATH, $CUDA_HOME or /usr/local/cuda
+    return None if CUDA_HOME is None else str(CUDA_HOME)
+
+
+def cuda_missing() -> tuple[str, str] | None:
+    """What stops gsplat from running here and how to get it, or None when nothing does."""
+    if not torch.cuda.is_available():
+        return ("no CUDA GPU visible", "torch.cuda.is_available() is False: needs an NVIDIA GPU, its driver "
+                "and a CUDA build of torch")
+    if not gsplat_installed():
+        return "gsplat is not installed", CUDA_EXTRA
+    if cuda_compiler() is None:
+        return ("no CUDA compiler for gsplat's first build", "install a CUDA toolkit with nvcc and set "
+                "CUDA_HOME")
+    return None
+
+
+def select_rasterizer(device: str) -> tuple[str, Rasterizer, str]:
+    """(name, rasterizer, why) for ``device`` "auto", "cpu" or "cuda".
+
+    "cuda" without a usable GPU, gsplat or a CUDA compiler is an InputError naming what is
+    missing and how to get it; "auto" takes gsplat when nothing is missing, else the CPU's best.
+    """
+    if device not in DEVICES:
+        raise InputError(f"--device must be one of {', '.join(DEVICES)}, got {device!r}")
+    missing = cuda_missing() if device != "cpu" else None
+    if device == "cuda":
+        if missing is not None:
+            raise InputError(f"--device cuda: {missing[0]} ({missing[1]})")
+        return "gsplat", get_rasterizer("gsplat"), "--device cuda"
+    if device == "auto" and missing is None:
+        return "gsplat", get_rasterizer("gsplat"), f"CUDA GPU {torch.cuda.get_device_name()} and gsplat found"
+    rasterizer = cpu_rasterizer()
+    why = "--device cpu" if device == "cpu" else missing[0]
+    if rasterizer.name == "torch":
+        why += "; numba is not installed"
+    return rasterizer.name, rasterizer, why
+
+
+def device_line(name: str, rasterizer: Rasterizer, why: str) -> str:
+    """The one line ``--device auto`` prints: which device and rasterizer, and why."""
+    return f"device: {rasterizer.device} ({name} rasterizer): {why}"
+
+
+def render_rgb(gaussians: Gaussians, camera: Camera, rasterizer: Rasterizer | None = None) -> torch.Tensor:
+    """The colour render [H, W, 3] float32 in [0, 1] on black, without gradients: what
+    evaluation scores and what the prior's sampler starts from. ``rasterizer``: default the CPU's."""
+    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
+    with torch.no_grad():
+        return rasterizer(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)
