@@ -332,6 +332,6 @@ def sh_rest_mask(degree: torch.Tensor, rest: int) -> torch.Tensor:
 
 def floater_fraction(depth: torch.Tensor, near: float) -> float:
     """Fraction of a render's pixels drawn closer than the camera's near bound: depth [H, W, 1]
-    (expected depth, 0 where nothing was drawn). The issue's floater measure on training views."""
+    (expected depth, 0 where nothing was drawn): the floater measure on training views."""
     drawn = depth[..., 0] > 0
     return float((drawn & (depth[..., 0] < near)).to(torch.float64).mean())

@@ -27,7 +27,7 @@ from inceptiongs.train.run_folder import load_run
 from inceptiongs.train.trainer import train
 
 # The bootstrap may cost a little on covered views within a handful of steps (one virtual view
-# in two is a generated image); more than this is a regression. The issue's benchmark target
+# in two is a generated image); more than this is a regression. The benchmark's target
 # (-0.2 dB) is for full runs: docs/bootstrap.md.
 COVERED_PSNR_TOLERANCE_DB = 0.5
 
@@ -77,7 +77,7 @@ def boot(stage1, tmp_path_factory):
 
 @pytest.mark.slow
 def test_a_short_default_bootstrap_keeps_the_covered_views_within_0_2_db(tmp_path):
-    """The issue's guard, with every default: on a stage I trained long enough that photo steps
+    """The covered-view guard, with every default: on a stage I trained long enough that photo steps
     no longer gain a dB each (300 steps at 48x36), 24 bootstrap steps keep the covered views
     within 0.2 dB of the input and of the same 24 steps on the photos alone. Measured here:
     -0.08 dB against the baseline (the paper's loop with an untrained prior: -0.14)."""

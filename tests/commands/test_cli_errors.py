@@ -1,4 +1,4 @@
-"""Bad input (issue 2, item 8): every case raises one InputError line naming the file, and the
+"""Bad input: every case raises one InputError line naming the file, and the
 CLI prints that line and exits 2 without a traceback (unless --debug)."""
 
 from __future__ import annotations

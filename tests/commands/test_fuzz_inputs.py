@@ -1,4 +1,4 @@
-"""Fuzz test of every input format the CLI reads (issue 18): seeded mutations of valid PLY,
+"""Fuzz test of every input format the CLI reads: seeded mutations of valid PLY,
 COLMAP binary and text, transforms.json, poses_bounds.npy and camera JSON files (truncated,
 bytes flipped, NaN/inf, wrong shapes and types). For every case, run in-process through
 ``inceptiongs.cli.main`` with stdout/stderr captured: exit 0, or exit 2 with exactly one

@@ -1,6 +1,6 @@
-"""Fault injection (issue 18): the user's data is never lost or touched.
+"""Fault injection: the user's data is never lost or touched.
 
-Each numbered item of the issue: output errors are one line and exit 2 (a path under a file,
+What a user must be able to rely on: output errors are one line and exit 2 (a path under a file,
 a read-only file system, no space left), a full disk keeps the newest complete checkpoint
 resumable, the scene folder is never written (info/train/eval/render/bootstrap/viewer
 screenshot on a read-only scene), size limits, a second bootstrap never destroys the first,

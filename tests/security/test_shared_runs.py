@@ -1,4 +1,4 @@
-"""A run or scene folder from someone else (issue 44, items 1-3, 8, 9): a checkpoint never runs
+"""A run or scene folder from someone else: a checkpoint never runs
 code, names in scene files never leave the scene, writes never follow a planted symlink, and bad
 values are one line (exit 2) instead of a traceback."""
 
