@@ -135,7 +135,7 @@ class TrainConfig(SavedConfig):
     # Weight of the D-SSIM term against L1: loss = (1 - w) L1 + w (1 - SSIM).
     lambda_dssim: float = 0.2
     # Each training step renders over a uniform random colour instead of black, so no pixel can
-    # match its photo by staying transparent (docs/training.md, "A random background").
+    # match its photo by staying transparent (docs/results.md, "A random background").
     random_background: bool = False
 
     # --- densification (every strategy's window: MCMC relocates on the same steps) -----------
@@ -169,7 +169,7 @@ class TrainConfig(SavedConfig):
     # The shell's Gaussians keep every axis at least this fraction of their initial size (half the
     # directions' spacing at the radius) after each step, so that the shell stays closed (0: off;
     # inceptiongs.train.sky.hold_shell_scales). Left free, the photos shrink it to specks with
-    # black between them (docs/training.md, "A closed shell").
+    # black between them (docs/training_reference.md, "The sky shell").
     sky_min_scale: float = 1.0
     # Per-camera near bound: this low percentile (percent) of the sparse points' depths in that
     # camera, times ``near_margin`` (a fraction: real content lies at or beyond it; the margin

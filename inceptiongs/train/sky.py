@@ -37,7 +37,7 @@ SKY_GRID = 16
 # [0, 1] per pixel, measured at SKY_TEXTURE_PIXELS pixels per cell so that it does not depend on
 # the photo's resolution) is below this. Measured on the open cells of five scenes (median /
 # 90th percentile): the objects demo's sky 0.000 / 0.015, the statuette's blurred backdrop 0.006 /
-# 0.033, the courtyard's brick walls and tiles 0.037 / 0.112 (docs/training.md, "Sky or wall").
+# 0.033, the courtyard's brick walls and tiles 0.037 / 0.112 (docs/training_reference.md, "The sky shell").
 # Why a limit: structure from motion finds points wherever a photo has texture, so a textured cell
 # without points is a gap in the reconstruction (a wall), and a far shell painted with a wall's
 # texture lacks the wall's parallax. Off (inf): at 0.02 the courtyard's scarce views gain 0.49 dB
