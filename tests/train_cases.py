@@ -97,3 +97,21 @@ def run_steps(state, data, cfg: TrainConfig, steps: int) -> list[dict]:
         records.append(train_step(step, state, data, cfg, 3, render, lambda message: None))
         state.iteration = step
     return records
+
+
+def tiny_demo_run(root, **overrides):
+    """ROOT/run: a short stage I on the demo scene (written to ROOT/scene) at 48x36 with the
+    unstructured protocol (so j* exists); ``overrides`` replace TrainConfig fields."""
+    from pathlib import Path
+
+    from inceptiongs.scene.demo import write_demo_scene
+    from inceptiongs.train.trainer import train
+
+    root = Path(root)
+    scene = write_demo_scene(root / "scene", progress=False)
+    base = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20,
+                       densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
+                       sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
+                       eval_every=20, checkpoint_every=20)
+    train(dataclasses.replace(base, **overrides), root / "run", progress=False)
+    return root / "run"

@@ -24,10 +24,9 @@ from ..evaluation.run import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
 from ..io.config_json import json_safe
-from ..io.atomic import OutputError
 from ..train.checkpoint import list_checkpoints, save_checkpoint
 from ..train.config import TrainConfig
-from ..train.loop import StepLoop, save_model
+from ..train.loop import SaveAttempts, StepLoop, save_model
 from ..train.optim import gaussians_from_params
 from ..train.run_folder import append_metrics, truncate_metrics
 from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
@@ -423,24 +422,15 @@ class Bootstrap:
         stop means save), then the final config.json and summary.json, then the checkpoint
         `--resume` continues from. Each is attempted even when an earlier one fails (a full
         disk) and each is atomic; the first failure is raised once all were tried."""
-        failures: list[OutputError] = []
-
-        def attempt(write) -> None:
-            try:
-                write()
-            except OutputError as exc:
-                failures.append(exc)
-
+        saves = SaveAttempts()
+        attempt = saves.attempt
         gaussians = self.model()
         attempt(lambda: save_model(self.out_dir, gaussians, self.state.iteration, self.train_config, self.sh_max,
                                    self.run.scene.normalization))
         attempt(self.write_summary)
         if self.current_round:
             attempt(lambda: self.checkpoint(self.current_round))
-        for later in failures[1:]:
-            self.log(f"error: {later}")
-        if failures:
-            raise failures[0]
+        saves.raise_first(self.log)
         return BootstrapResult(self.out_dir, self.start, self.state.iteration, self.finished, self.rounds_done,
                                len(gaussians), len(self.pool), self.cache.hits, self.cache.misses,
                                self.loop.wall_s(), self.prior_text, self.initial_eval, self.last_eval,

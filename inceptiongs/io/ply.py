@@ -98,21 +98,27 @@ def _sh_rest_count(names: set[str], path: Path) -> int:
     return count
 
 
-def read_ply(path: str | Path) -> Gaussians:
-    """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
-    path = Path(path)
+def _read_header(path: Path, what: str):
+    """The header of the PLY at ``path`` (no link out of the named folders, no loop) ->
+    _parse_header's (header length, byte order, elements); InputError naming the file."""
     problem = link_problem(path)
     if problem is not None:
         raise InputError(f"{path}: {problem}")
     if not path.is_file():
-        raise InputError(f"{path}: PLY file does not exist")
+        raise InputError(f"{path}: {what} file does not exist")
     check_read_inside_named_folder(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(_MAX_HEADER_BYTES)
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    header_len, byte_order, elements = _parse_header(head, path)
+    return _parse_header(head, path)
+
+
+def read_ply(path: str | Path) -> Gaussians:
+    """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
+    path = Path(path)
+    header_len, byte_order, elements = _read_header(path, "PLY")
 
     offset = header_len
     vertex = None
@@ -222,18 +228,7 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     """A coloured point cloud PLY (x y z [red green blue], binary): ([P, 3] float64,
     [P, 3] uint8 or None). Used for the sparse points of nerfstudio scenes."""
     path = Path(path)
-    problem = link_problem(path)
-    if problem is not None:
-        raise InputError(f"{path}: {problem}")
-    if not path.is_file():
-        raise InputError(f"{path}: point cloud file does not exist")
-    check_read_inside_named_folder(path)
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(_MAX_HEADER_BYTES)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    header_len, byte_order, elements = _parse_header(head, path)
+    header_len, byte_order, elements = _read_header(path, "point cloud")
     offset = header_len
     for name, count, props in elements:
         dtype = np.dtype([(prop, byte_order + code) for prop, code in props])

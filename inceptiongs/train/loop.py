@@ -18,6 +18,7 @@ from typing import Callable
 from tqdm import tqdm
 
 from ..gaussians import Gaussians
+from ..io.atomic import OutputError
 from ..io.ply import write_ply
 from ..live import wait_while_paused
 from .config import TrainConfig
@@ -139,3 +140,24 @@ def save_model(run_dir: Path, gaussians: Gaussians, iteration: int, config: Trai
     """RUN/model.ply: the model in the user's frame, at the SH degree its schedule reached."""
     degree = sh_degree_at(max(iteration, 1), config, sh_max)
     write_ply(to_original_frame(trim_sh(gaussians, degree), normalization), Path(run_dir) / "model.ply")
+
+
+class SaveAttempts:
+    """The parts of a final save, each attempted even when an earlier one failed (a full disk):
+    ``attempt(write)`` keeps an OutputError for later; ``raise_first(log)`` logs every failure
+    but the first, one line each, and raises the first (the command prints it)."""
+
+    def __init__(self) -> None:
+        self.failures: list[OutputError] = []
+
+    def attempt(self, write: Callable[[], object]) -> None:
+        try:
+            write()
+        except OutputError as exc:
+            self.failures.append(exc)
+
+    def raise_first(self, log: Callable[[str], None]) -> None:
+        for later in self.failures[1:]:
+            log(f"error: {later}")
+        if self.failures:
+            raise self.failures[0]

@@ -91,7 +91,7 @@ class DefaultStrategy:
 
 
 @dataclass(frozen=True)
-class DropGaussianStrategy(DropGaussianOptions):
+class DropGaussianStrategy(DefaultStrategy, DropGaussianOptions):
     """DropGaussian (Park et al. 2025): 3DGS density control, but each training render drops
     Gaussians at random with a rate rising linearly over the run and renders the kept ones with
     their opacity divided by (1 - rate) (:func:`.strategy.drop_gaussians`). Evaluation renders
@@ -101,19 +101,6 @@ class DropGaussianStrategy(DropGaussianOptions):
 
     def prepare_render(self, step: int, gaussians: Gaussians, state, config: TrainConfig) -> Gaussians:
         return drop_gaussians(gaussians, drop_rate(step, config.iterations, self.rate_max), state.generator)
-
-    def add_loss_terms(self, loss: torch.Tensor, terms: dict[str, torch.Tensor], state) -> torch.Tensor:
-        return loss
-
-    def after_optimizer_step(self, step: int, state, data, config: TrainConfig) -> None:
-        return None
-
-    def maintenance(self, step: int, state, data, config: TrainConfig, flags: torch.Tensor,
-                    carried: dict[str, torch.Tensor], centers: torch.Tensor) -> dict:
-        return density_control(step, state, data, config, flags, carried, centers)
-
-    def after_maintenance(self, step: int, state, config: TrainConfig) -> None:
-        reset_opacity_on_schedule(step, state, config)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..evaluation.protocols import make_split
 from ..scene.loader import load_scene
 from ..io.run_lock import run_folder_lock
-from ..io.atomic import OutputError, atomic_write_text, check_writable_dir, remove_stale_temp_files
+from ..io.atomic import atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
@@ -29,7 +29,7 @@ from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COS
                      growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
-from .loop import StepLoop, default_log, save_model
+from .loop import SaveAttempts, StepLoop, default_log, save_model
 from .optim import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
@@ -310,13 +310,8 @@ class StageOne:
         if self.finished and not self.shell_filled and self.fill_shell():
             self.last_eval_iteration = -1
         gaussians = gaussians_from_params(state.params).detach()
-        failures: list[InputError] = []
-
-        def attempt(write) -> None:
-            try:
-                write()
-            except OutputError as exc:
-                failures.append(exc)
+        saves = SaveAttempts()
+        attempt = saves.attempt
 
         if self.finished and self.last_eval_iteration != state.iteration:
             self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data, self.rasterizer)
@@ -337,8 +332,5 @@ class StageOne:
                     "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
                     "num_gaussians": len(gaussians), **self.last_eval}))
         attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
-        if failures:
-            for later in failures[1:]:  # one line each; the first is raised (the CLI prints it)
-                self.log(f"error: {later}")
-            raise failures[0]
+        saves.raise_first(self.log)
         return TrainResult(run_dir, state.iteration, self.finished, len(gaussians), self.last_eval)

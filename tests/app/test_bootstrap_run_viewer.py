@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from train_cases import tiny_demo_run
 from viewer_cases import opened
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow]
@@ -14,17 +15,8 @@ pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
-    from inceptiongs.scene.demo import write_demo_scene
-    from inceptiongs.train.config import TrainConfig
-    from inceptiongs.train.trainer import train
-
-    root = tmp_path_factory.mktemp("viewer_bootstrap")
-    scene = write_demo_scene(root / "scene", progress=False)
-    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=10,
-                         densify_from=1000, normal_from=1000, multiview_from=1000, log_every=5,
-                         eval_every=10, checkpoint_every=10)
-    train(config, root / "run", progress=False)
-    return root / "run"
+    return tiny_demo_run(tmp_path_factory.mktemp("viewer_bootstrap"), iterations=10, densify_from=1000,
+                         normal_from=1000, log_every=5, eval_every=10, checkpoint_every=10)
 
 
 def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):

@@ -18,24 +18,15 @@ from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.io.atomic import OutputError
 from inceptiongs.live import JobControl
-from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.train.checkpoint import list_checkpoints
-from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.trainer import train
+from train_cases import tiny_demo_run
 
 STEPS = 12
 
 
 @pytest.fixture(scope="module")
 def stage1(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("resume")
-    scene = write_demo_scene(root / "scene", progress=False)
-    config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20,
-                         densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
-                         sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
-                         eval_every=20, checkpoint_every=20)
-    train(config, root / "run", progress=False)
-    return root / "run"
+    return tiny_demo_run(tmp_path_factory.mktemp("resume"))
 
 
 def _config(**overrides) -> BootstrapConfig:
