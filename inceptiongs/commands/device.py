@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 from ..constants import DEVICES
 
 
@@ -15,11 +13,10 @@ def add_device_argument(parser, default: str | None = "auto") -> None:
 
 
 def chosen_rasterizer(device: str):
-    """The rasterizer for ``device`` (InputError, exit 2, when cuda is asked for and unusable);
-    "auto" says on stderr, in one line, what it chose and why."""
+    """(the rasterizer for ``device``, the line saying what "auto" chose and why, else None).
+    InputError (exit 2) when cuda is asked for and unusable. The caller prints the line once
+    the work has started, so an error that follows stays the only line."""
     from ..rasterizer.interface import device_line, select_rasterizer
 
     name, rasterizer, why = select_rasterizer(device)
-    if device == "auto":
-        print(device_line(name, rasterizer, why), file=sys.stderr)
-    return rasterizer
+    return rasterizer, (device_line(name, rasterizer, why) if device == "auto" else None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -196,7 +197,7 @@ def run(args) -> int:
     check_writable_dir(out.parent)  # a bad --out is one line before any work
     if args.width is not None and args.height is not None:
         check_image_size(args.width, args.height, "--width/--height")
-    rasterizer = chosen_rasterizer(args.device) if args.backend == "torch" else None
+    rasterizer, device_note = chosen_rasterizer(args.device) if args.backend == "torch" else (None, None)
     gaussians, camera = load_model_and_camera(args)
     camera = resized_camera(camera, args.width, args.height)
     check_image_size(camera.width, camera.height, "--width/--height" if args.width or args.height else
@@ -207,8 +208,10 @@ def run(args) -> int:
         # RendererError (no usable GL) is not the user's input, but it is one line to show.
         if type(exc).__name__ != "RendererError":
             raise
-        print(f"error: {exc}", file=__import__("sys").stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     write_output(image, args.mode, out)
+    if device_note:
+        print(device_note, file=sys.stderr)
     print(f"wrote {out} ({camera.width}x{camera.height}, {args.mode}, {args.backend})")
     return 0

@@ -141,11 +141,11 @@ def run(args) -> int:
         config = resumed
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
-    rasterizer = chosen_rasterizer(config.device)
+    chosen_rasterizer(config.device)   # --device cuda that cannot run: one line before anything starts
     joint = joint_prior(args, out, config) if args.prior else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = train(config, out, resume=args.resume, after_step=joint, control=control, rasterizer=rasterizer)
+        result = train(config, out, resume=args.resume, after_step=joint, control=control)
     if joint is not None:
         saved = joint.finish()
         if saved is not None:

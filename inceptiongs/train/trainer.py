@@ -60,19 +60,23 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     after_step(iteration, detached Gaussians, checkpointed) after every step (e.g. one
     diffusion-prior step, `inceptiongs train --prior`); its time counts as training time.
     """
+    device_note = None
     if rasterizer is None:
-        from ..rasterizer.interface import select_rasterizer
-        rasterizer = select_rasterizer(config.device)[1]
+        from ..rasterizer.interface import device_line, select_rasterizer
+        name, rasterizer, why = select_rasterizer(config.device)
+        device_note = device_line(name, rasterizer, why) if config.device == "auto" else None
     config.validate()
     with run_folder_lock(run_dir):   # one writer per run folder (a second gets one line naming the first)
         return _train(config, Path(run_dir), resume, progress, control, on_snapshot, snapshot_every, rasterizer,
-                      log or default_log, after_step)
+                      log or default_log, after_step, device_note)
 
 
 def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, control, on_snapshot,
-           snapshot_every: int, rasterizer, log, after_step) -> TrainResult:
+           snapshot_every: int, rasterizer, log, after_step, device_note: str | None) -> TrainResult:
     use_torch_threads()
     checkpoint, payload, scene, split, data = _start(config, run_dir, resume, log)
+    if device_note:   # once the start has succeeded: an error before it stays the only line
+        log(device_note)
     config.save(run_dir / "config.json")
     split.save(run_dir / "split.json")
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)

@@ -54,10 +54,12 @@ def test_cpu_and_the_auto_line_on_a_machine_without_a_gpu(monkeypatch, capsys):
     simulate(monkeypatch, False, False, False)
     assert select_rasterizer("cpu")[0] == CPU_NAME
     from inceptiongs.commands.device import chosen_rasterizer
-    assert chosen_rasterizer("auto").name == CPU_NAME
-    err = capsys.readouterr().err
-    assert err == f"device: cpu ({CPU_NAME} rasterizer): no CUDA GPU visible\n"
-    assert chosen_rasterizer("cpu").name == CPU_NAME and capsys.readouterr().err == ""   # only auto says it
+    rasterizer, line = chosen_rasterizer("auto")
+    assert rasterizer.name == CPU_NAME
+    assert line == f"device: cpu ({CPU_NAME} rasterizer): no CUDA GPU visible"
+    rasterizer, line = chosen_rasterizer("cpu")
+    assert rasterizer.name == CPU_NAME and line is None   # only auto says it
+    assert capsys.readouterr().err == ""   # the caller prints it once the work has started
     assert device_line(*select_rasterizer("cpu")).startswith("device: cpu")
 
 
