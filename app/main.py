@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from inceptiongs.errors import InputError
+from inceptiongs.io.atomic import writing_under
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,8 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        from .screenshot import parse_size, take_screenshot  # noqa: PLC0415
-        from .sources import open_source  # noqa: PLC0415
+        from .screenshot import parse_size  # noqa: PLC0415
 
         size = parse_size(args.size) if args.size else None
         if size is not None:
@@ -36,22 +37,11 @@ def main(argv: list[str] | None = None) -> int:
             check_image_size(*size, f"--size {args.size}")
         if args.camera and not args.screenshot:
             raise InputError(f"{args.camera}: --camera is only used with --screenshot")
-        source = open_source(args.source)
-        if args.screenshot:
-            path = take_screenshot(source, args.screenshot, args.camera, size)
-            print(f"wrote {path}", file=sys.stderr)
-            return 0
-        from .viewer import Viewer  # noqa: PLC0415
-        from .window import WindowError  # noqa: PLC0415
-
-        width, height = size or (1280, 720)
-        try:
-            viewer = Viewer(source, width, height)
-        except WindowError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        viewer.run()
-        return 0
+        # Writes below the opened folder (a run's flags, a job's checkpoints) never follow a
+        # symlink planted in it, as the command line's do.
+        opened = Path(args.source)
+        with writing_under(opened if opened.is_dir() else opened.parent):
+            return _open(args, size)
     except InputError as exc:
         if args.debug:
             raise
@@ -59,6 +49,29 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+def _open(args, size) -> int:
+    """The window on ``args.source`` (or one screenshot of it) -> exit status."""
+    from .screenshot import take_screenshot  # noqa: PLC0415
+    from .sources import open_source  # noqa: PLC0415
+
+    source = open_source(args.source)
+    if args.screenshot:
+        path = take_screenshot(source, args.screenshot, args.camera, size)
+        print(f"wrote {path}", file=sys.stderr)
+        return 0
+    from .viewer import Viewer  # noqa: PLC0415
+    from .window import WindowError  # noqa: PLC0415
+
+    width, height = size or (1280, 720)
+    try:
+        viewer = Viewer(source, width, height)
+    except WindowError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    viewer.run()
+    return 0
 
 
 if __name__ == "__main__":

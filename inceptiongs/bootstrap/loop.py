@@ -148,13 +148,13 @@ class Bootstrap:
     state: object
     sh_max: int
     start: int
-    summary: dict = field(default_factory=dict)
-    initial_eval: dict = field(default_factory=dict)
-    last_eval: dict = field(default_factory=dict)
     prior: object = None
     prior_text: str = "none (baseline: no virtual views)"
     prior_hash: str = ""
     lpips: object = None
+    summary: dict = field(default_factory=dict)
+    initial_eval: dict = field(default_factory=dict)    # the input's held-out scores
+    last_eval: dict = field(default_factory=dict)       # the newest held-out scores
     cache: GenerationCache | None = None
     pool: list[VirtualTarget] = field(default_factory=list)
     sampler: ViewSampler | None = None
