@@ -43,7 +43,7 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     ours = settings.train_config(tmp_path)
     args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
                               seed=0, no_pgsr=False, strategy="mcmc", free_space=True, sky_shell=TrainConfig.sky_shell,
-                              sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None)
+                              sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None, device="auto")
     cli = build_config(args)
     # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
     assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
@@ -66,7 +66,8 @@ def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
         return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
                                                downscale=2, protocol="unstructured", seed=0, no_pgsr=False,
                                                strategy="default", free_space=True, sky_shell=TrainConfig.sky_shell,
-                                               sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None))
+                                               sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None,
+                                               device="auto"))
 
     def viewer(**fields):
         config = JobSettings(**fields).train_config(tmp_path)
