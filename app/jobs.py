@@ -150,7 +150,7 @@ class Jobs:
         self.title_state: str | None = None  # the job state the window title names
         # While a job trains, the share of the time the viewer leaves to it: after a frame that
         # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
-        # nerfview's "train util"). 0.9: the viewer draws about a tenth of the time.
+        # nerfview's "train util"). 0.9: the viewer draws about 10 % of the time.
         self.training_utilisation = 0.95
         self.read_view_fit()
 

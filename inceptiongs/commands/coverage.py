@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
           f"{per_point['p90']:g}); {figures['thinly_seen_fraction']:.0%} seen by fewer than "
           f"{figures['thin_threshold_views']}")
     print(f"  hemisphere: peak {hemi['peak_views_per_sr']:.2f} views/sr, mean {hemi['mean_views_per_sr']:.2f}; "
-          f"{hemi['sparse_fraction']:.0%} of it under a tenth of the peak")
+          f"{hemi['sparse_fraction']:.0%} of it under 10 % of the peak")
     if figures["scarcest_views"]:
         print("  scarcest views (flag candidates): " + ", ".join(
             f"{v['name']} ({v['scarcity']:.2f})" for v in figures["scarcest_views"]))
