@@ -1,23 +1,28 @@
 #!/usr/bin/env bash
-# What runs on CUDA, checked and timed on a GPU machine in one pass (each step has its own time limit):
-# the torch rasterizer against the CPU (tests/rasterizer/test_cuda.py) and its speed next to
-# the CPU's on the same machine, the prior's generation and training step, and the prior's
-# path as a user runs it on the demo courtyard (stage I on the CPU, `inceptiongs prior`,
-# `generate`, `eval --generated` on the GPU). Figures: docs/rendering.md and docs/prior.md,
-# "On a GPU". The gsplat rasterizer (--device cuda): its first build, its contract tests against
-# the torch reference, and a one-minute stage I on the demo courtyard with --device cuda next to
-# the same on the CPU (the Gaussians still live on the CPU there: each render goes to the GPU
-# and back).
+# The GPU backend checked and timed on a CUDA machine in one pass of at most ~9 minutes: gsplat's
+# first build, its contract tests against the torch reference, a short stage I and bootstrap on
+# the tiny demo courtyard with --device cuda (every hot-loop path on the device), forward+backward
+# through the rasterizer interface up to 1M Gaussians at 1920x1080, bonsai at full resolution
+# (800x533, unstructured seed 0, 7000 steps, the default strategy with the PGSR terms), stage II's
+# step rate on that run on the GPU and on this machine's CPU, and the README demo on CUDA.
+# Figures: docs/devices.md.
 #
-#     bash benchmarks/gpu_check.sh [OUT]      (default OUT: runs/gpu_check; needs pycolmap)
+#     bash benchmarks/gpu_check.sh [OUT]      (default OUT: runs/gpu_check)
 #
+# Needs pycolmap and gsplat (pip install 'inceptiongs[cuda]'), nvcc for gsplat's build, and the
+# real data (../shared/data or $INCEPTIONGS_DATA; $GPU_CHECK_BONSAI names another copy of bonsai).
 # Each step has its own time limit and a failed step does not stop the next. OUT gets
-# gpu_check.log (every step's whole output), generated.png and generated.json.
+# gpu_check.log (every step's whole output) and the figures as JSON.
 set -u
 out=${1:-runs/gpu_check}
 mkdir -p "$out"
+out=$(cd "$out" && pwd)
+data=${INCEPTIONGS_DATA:-../shared/data}
+bonsai=${GPU_CHECK_BONSAI:-$data/bonsai}
 export PYTHONUNBUFFERED=1 PYTHONPATH="$(pwd)${PYTHONPATH:+:$PYTHONPATH}"  # the checkout, installed or not
+export MAX_JOBS=${MAX_JOBS:-$(nproc)}
 work=$(mktemp -d)
+export INCEPTIONGS_CACHE_DIR=$work/cache
 step() {  # step SECONDS NAME COMMAND...: run; its whole log goes to OUT/gpu_check.log, its tail here
     local limit=$1 name=$2
     shift 2
@@ -25,28 +30,35 @@ step() {  # step SECONDS NAME COMMAND...: run; its whole log goes to OUT/gpu_che
     echo "== $name"
     timeout "$limit" "$@" >"$work/$name.log" 2>&1
     local rc=$?
-    tail -n 25 "$work/$name.log"
+    tail -n 12 "$work/$name.log" | tr '\r' '\n' | tail -n 12
     echo "== $name: exit $rc, $((SECONDS - began)) s"
     { echo "== $name: exit $rc, $((SECONDS - began)) s"; tr '\r' '\n' <"$work/$name.log"; } >>"$out/gpu_check.log"
 }
+inc() { python3 -m inceptiongs "$@"; }
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-python3 -c "import torch, numpy, numba; print('torch', torch.__version__, 'cuda', torch.version.cuda, \
-'numpy', numpy.__version__, 'numba', numba.__version__, 'cpus', __import__('os').cpu_count())"
-step 180 tests python3 -m pytest -q -p no:cacheprovider tests/rasterizer/test_cuda.py tests/rasterizer/test_rasterize.py
-step 240 gsplat_build env MAX_JOBS="${MAX_JOBS:-$(nproc)}" python3 -c \
+python3 -c "import torch, numpy; print('torch', torch.__version__, 'cuda', torch.version.cuda, 'numpy', \
+numpy.__version__, 'cpus', __import__('os').cpu_count())"
+step 240 gsplat_build python3 -c \
     "from gsplat.cuda._backend import _C; assert _C is not None, 'gsplat did not build its CUDA kernels'"
-step 120 gsplat_contract python3 -m pytest -q -p no:cacheprovider tests/rasterizer/test_rasterizer_contract.py
-step 150 raster_cuda python3 benchmarks/bench_torch_rasterizer.py --device cuda --sizes 10000 100000 1000000
-step 90 raster_cpu python3 benchmarks/bench_torch_rasterizer.py --sizes 100000
-step 60 prior_cuda python3 benchmarks/bench_prior.py --device cuda
-step 30 scene python3 -m inceptiongs demo-scene "$work/scene"
-step 120 stage1 python3 -m inceptiongs train "$work/scene" --out "$work/run" --protocol unstructured --minutes 1
-step 120 stage1_gsplat python3 -m inceptiongs train "$work/scene" --out "$work/run_cuda" --protocol unstructured \
-    --minutes 1 --device cuda
-step 100 prior python3 -m inceptiongs prior "$work/run" --minutes 1
-target=$(python3 -c "import json, sys; s = json.load(open(sys.argv[1])); print(s['view_names'][s['target_view']])" \
-    "$work/run/split.json")
-step 60 generate python3 -m inceptiongs generate "$work/run" --view "$target" --out "$out/generated.png"
-step 120 eval_generated python3 -m inceptiongs eval "$work/run" --generated --ddim-steps 20,5
-cp "$work/run/eval/generated.json" "$out/" 2>/dev/null
+step 120 contract python3 -m pytest -q -p no:cacheprovider -x tests/rasterizer/test_rasterizer_contract.py
+step 20 smoke_scene inc demo-scene "$work/tiny" --size tiny
+step 60 smoke_train inc --debug train "$work/tiny" --out "$work/tiny_run" --iterations 120 --protocol unstructured \
+    --device cuda
+step 60 smoke_mcmc inc --debug train "$work/tiny" --out "$work/tiny_mcmc" --iterations 80 --protocol unstructured \
+    --device cuda --strategy mcmc
+step 60 smoke_boot inc --debug bootstrap "$work/tiny_run" --out "$work/tiny_boot" --iterations 40
+step 60 smoke_resume inc --debug train "$work/tiny" --out "$work/tiny_run" --iterations 160 --resume --device cpu
+step 60 raster python3 benchmarks/bench_rasterizers.py --sizes 10000 100000 1000000 --size 1920x1080 \
+    --json "$out/raster.json"
+step 230 bonsai inc train "$bonsai" --out "$work/bonsai" --downscale 1 --iterations 7000 --protocol unstructured \
+    --seed 0 --device cuda
+cp "$work/bonsai/metrics.jsonl" "$out/bonsai_metrics.jsonl" 2>/dev/null
+cp "$work/bonsai/config.json" "$out/bonsai_config.json" 2>/dev/null
+step 100 stage2_gpu python3 benchmarks/bench_stage2_rate.py "$work/bonsai" --which device --steps 300 \
+    --json "$out/stage2_gpu.json"
+step 160 demo inc demo "$work/demo" --device cuda
+cp "$work/demo/report.md" "$out/demo_report.md" 2>/dev/null
+# Last: the CPU's rate on the same bonsai model (its held-out evaluation alone takes minutes there).
+step "${GPU_CHECK_CPU_SECONDS:-150}" stage2_cpu python3 benchmarks/bench_stage2_rate.py "$work/bonsai" --which cpu \
+    --cpu-steps 10 --json "$out/stage2_cpu.json"
 rm -rf "$work"

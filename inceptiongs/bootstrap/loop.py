@@ -29,8 +29,8 @@ from ..train.config import TrainConfig
 from ..train.loop import SaveAttempts, StepLoop, save_model
 from ..train.optim import gaussians_from_params
 from ..train.run_folder import append_metrics, truncate_metrics
-from ..train.step import (evaluate_held_out, prepare_data, restore_state, sh_degree_at, state_from_gaussians,
-                          supported_sh_degree, train_step)
+from ..train.step import (data_on, evaluate_held_out, prepare_data, restore_state, sh_degree_at,
+                          state_from_gaussians, state_on, supported_sh_degree, train_step)
 from .config import BootstrapConfig
 from .conscience import Conscience, photo_loss
 from .generation import GenerationCache, VirtualTarget, obtain_prior, prior_version
@@ -168,6 +168,9 @@ class Bootstrap:
     regenerations: list = field(default_factory=list)
     finished: bool = True
     rounds_done: int = 0
+    # The photos on the CPU, where a round's virtual views are made (warps, blending: once per
+    # round); ``data`` holds them on the rasterizer's device for the refinement steps.
+    cpu_photos: dict = field(default_factory=dict)
     current_round: int = 0          # 1-based: the round being refined (0: none yet)
 
     # --- prepare ---------------------------------------------------------------------------------
@@ -190,8 +193,11 @@ class Bootstrap:
             state = (restore_state(copy.deepcopy(run.payload), data, train_config) if run.payload is not None
                      else state_from_gaussians(run.gaussians, data, train_config))
             state.iteration = start
+        cpu_photos = data.images
+        device = getattr(rasterizer, "device", "cpu")   # a stand-in callable renders on the CPU
+        data, state = data_on(data, device), state_on(state, device, train_config, data.extent)
         boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, rasterizer, log, data, state, sh_max,
-                   start)
+                   start, cpu_photos=cpu_photos)
         boot.initial_eval = boot.last_eval = (boot.evaluate({"phase": "input", "round": 0}) if resume is None
                                               else input_scores(out_dir))
         boot.summary = {"run": str(run.run_dir.resolve()), "baseline": targets is None, "start_iteration": start,
@@ -269,9 +275,15 @@ class Bootstrap:
     # --- a round's virtual views -------------------------------------------------------------------
     def target_maker(self) -> TargetMaker:
         """I* from the Gaussians as they are now."""
-        setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.data.images,
+        setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.cpu_photos,
                                 self.cache, self.boot_dir / "views", self.rasterizer, self.prior, self.prior_hash)
-        return TargetMaker(setting, self.model(), self.state.sky)
+        sky = None if self.state.sky is None else self.state.sky.cpu()
+        return TargetMaker(setting, self.model().to("cpu"), sky)
+
+    def on_device(self, entry: VirtualTarget) -> VirtualTarget:
+        """``entry`` with its I* and mask where the refinement renders (moved once, used many steps)."""
+        device = self.state.params["means"].device
+        return dataclasses.replace(entry, target=entry.target.to(device), mask=entry.mask.to(device))
 
     def make_round_targets(self, round_index: int) -> None:
         """The round's virtual views and their I* (from the round's starting Gaussians) join the pool."""
@@ -289,7 +301,7 @@ class Bootstrap:
             name = f"r{round_index + 1}_t{target_index}_{view.name}"
             entry, sources = make(view.camera.with_pose(view.camera.world_to_camera, name=name), round_index + 1,
                                   save=number < config.save_views)
-            self.pool.append(entry)
+            self.pool.append(self.on_device(entry))
             round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
                                         "cache_hit": entry.cache_hit, "mask_fraction": float(entry.mask.mean()),
                                         "agreement_db": entry.agreement_db, "supervised": entry.supervised,
@@ -312,7 +324,7 @@ class Bootstrap:
         for number, entry in enumerate(self.pool):
             if self.loop.wait_or_stop() or self.loop.out_of_time():
                 break  # the views not reached keep their I*
-            self.pool[number], _ = make(entry.camera, entry.round, save=False)
+            self.pool[number] = self.on_device(make(entry.camera, entry.round, save=False)[0])
         self.regenerations.append({"iteration": self.state.iteration, "views": len(self.pool),
                                    "supervised": sum(entry.supervised for entry in self.pool),
                                    "seconds": time.perf_counter() - began})

@@ -73,6 +73,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--downscale", type=int, default=DEFAULT_DOWNSCALE,
                         help=f"train on images this many times smaller (default {DEFAULT_DOWNSCALE})")
     parser.add_argument("--seed", type=int, default=0, help="scene, split, training and generation seed")
+    from .device import add_device_argument
+    add_device_argument(parser)
     parser.add_argument("--bootstrap-minutes", type=float, default=DEFAULT_BOOTSTRAP_MINUTES,
                         help=f"stage-II wall budget, prior included; the baseline gets the same time "
                              f"(default {DEFAULT_BOOTSTRAP_MINUTES:g})")
@@ -312,7 +314,8 @@ def _stage1(args, out: Path, progress: Progress, timings: dict):
     config = short_run_schedule(TrainConfig(scene=str(scene_dir.resolve()), protocol="unstructured",
                                             scarce_views=list(meta["scarce_cameras"]), seed=args.seed,
                                             downscale=args.downscale, iterations=args.iterations,
-                                            minutes=args.minutes, eval_every=DEMO_EVAL_EVERY))
+                                            minutes=args.minutes, eval_every=DEMO_EVAL_EVERY,
+                                            device=args.device))
     result = train(config, run_dir)
     timings["stage I"] = time.perf_counter() - began
     return result, load_stage1(run_dir)

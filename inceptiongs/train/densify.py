@@ -33,8 +33,11 @@ class DensifyStats:
     max_radii: torch.Tensor
 
     @staticmethod
-    def zeros(n: int) -> "DensifyStats":
-        return DensifyStats(torch.zeros(n), torch.zeros(n), torch.zeros(n))
+    def zeros(n: int, device: torch.device | str = "cpu") -> "DensifyStats":
+        return DensifyStats(*(torch.zeros(n, device=device) for _ in range(3)))
+
+    def to(self, device: torch.device | str) -> "DensifyStats":
+        return DensifyStats(*(t.to(device) for t in (self.grad_sum, self.count, self.max_radii)))
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {"grad_sum": self.grad_sum, "count": self.count, "max_radii": self.max_radii}
@@ -46,7 +49,7 @@ def accumulate(stats: DensifyStats, means2d_grad: torch.Tensor, radii: torch.Ten
     applies at any resolution) for the Gaussians that were visible. means2d_grad: [N, 2]
     pixels; radii: [N]."""
     visible = radii > 0
-    scale = torch.tensor([width * 0.5, height * 0.5], dtype=means2d_grad.dtype)
+    scale = torch.tensor([width * 0.5, height * 0.5], dtype=means2d_grad.dtype, device=means2d_grad.device)
     norms = (means2d_grad.detach() * scale).norm(dim=-1)
     stats.grad_sum += torch.where(visible, norms, torch.zeros_like(norms)).to(stats.grad_sum.dtype)
     stats.count += visible.to(stats.count.dtype)
@@ -84,7 +87,7 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
         # Respect the Gaussian budget: keep the hottest candidates when over it.
         if int(clone.sum()) + _SPLIT_CHILDREN * int(split.sum()) > room:
             order = torch.argsort(mean_grad * (clone | split), descending=True)
-            allowed = torch.zeros(n, dtype=torch.bool)
+            allowed = torch.zeros(n, dtype=torch.bool, device=hot.device)
             allowed[order[: room // _SPLIT_CHILDREN]] = True
             clone &= allowed
             split &= allowed
@@ -94,7 +97,9 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
             rotations = _rotation_matrices(params["quats"][split])
             scales = params["log_scales"][split].exp()
             for _ in range(_SPLIT_CHILDREN):
-                local = torch.randn(scales.shape, generator=generator, dtype=scales.dtype) * scales
+                # Drawn from the (CPU) generator, so a run's draws do not depend on its device.
+                local = torch.randn(scales.shape, generator=generator, dtype=scales.dtype,
+                                    device=generator.device).to(scales.device) * scales
                 offsets = (rotations @ local[..., None])[..., 0]
                 for name, t in params.items():
                     value = t.detach()[split]
@@ -115,8 +120,9 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
             # New rows have not been rendered yet: no screen size (as in 3DGS). Past the growth
             # window only the world-size rule: what the screen rule removes (a large background
             # Gaussian, say) no split could cover again.
-            radii = torch.cat([stats.max_radii[~split], torch.zeros(len(source) - int((~split).sum()))])
-            exempt = (torch.zeros(len(source), dtype=torch.bool) if background is None
+            radii = torch.cat([stats.max_radii[~split], torch.zeros(len(source) - int((~split).sum()),
+                                                                   device=source.device)])
+            exempt = (torch.zeros(len(source), dtype=torch.bool, device=source.device) if background is None
                       else background[source])
             prune |= oversized(params, radii if grow else None, config, extent, camera_centers) & ~exempt
         # Never remove every Gaussian: an empty model cannot recover.

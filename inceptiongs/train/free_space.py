@@ -65,15 +65,16 @@ def near_bounds(cameras: list[Camera], points: np.ndarray, percentile: float, ma
     return out
 
 
-def _poses(cameras: list[Camera], dtype) -> tuple[torch.Tensor, torch.Tensor]:
-    rotations = torch.tensor(np.stack([c.rotation for c in cameras]), dtype=dtype)          # [C, 3, 3]
-    translations = torch.tensor(np.stack([c.world_to_camera[:3, 3] for c in cameras]), dtype=dtype)
+def _poses(cameras: list[Camera], dtype, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    rotations = torch.tensor(np.stack([c.rotation for c in cameras]), dtype=dtype, device=device)   # [C, 3, 3]
+    translations = torch.tensor(np.stack([c.world_to_camera[:3, 3] for c in cameras]), dtype=dtype, device=device)
     return rotations, translations
 
 
-def _intrinsics_table(cameras: list[Camera]) -> torch.Tensor:
+def _intrinsics_table(cameras: list[Camera], device=None) -> torch.Tensor:
     """[C, 6] float64: fx, fy, cx, cy, width, height."""
-    return torch.tensor([[c.fx, c.fy, c.cx, c.cy, c.width, c.height] for c in cameras], dtype=torch.float64)
+    return torch.tensor([[c.fx, c.fy, c.cx, c.cy, c.width, c.height] for c in cameras], dtype=torch.float64,
+                        device=device)
 
 
 def before_near_bound(means: torch.Tensor, cameras: list[Camera], near: torch.Tensor,
@@ -81,13 +82,13 @@ def before_near_bound(means: torch.Tensor, cameras: list[Camera], near: torch.Te
     """means [N, 3], near [C] -> [N] bool: the centre lies in front of some camera (0 < z) and
     closer than its near bound, and projects inside its image. ``backend``: as the rasterizer's
     (:mod:`inceptiongs.rasterizer.backend`); "auto" takes the numba loop for CPU tensors."""
-    out = torch.zeros(means.shape[0], dtype=torch.bool)
+    out = torch.zeros(means.shape[0], dtype=torch.bool, device=means.device)
     if means.shape[0] == 0 or not cameras:
         return out
     means = means.detach().to(torch.float64)
-    near = near.to(torch.float64)
-    rotations, translations = _poses(cameras, torch.float64)                               # [C, 3, 3], [C, 3]
-    intrinsics = _intrinsics_table(cameras)
+    near = near.to(means.device, torch.float64)
+    rotations, translations = _poses(cameras, torch.float64, means.device)                 # [C, 3, 3], [C, 3]
+    intrinsics = _intrinsics_table(cameras, means.device)
     if use_numba(backend, "free space", means):
         return torch.from_numpy(before_near_bound_numba(
             *(np.ascontiguousarray(t.cpu().numpy()) for t in (means, rotations, translations, near, intrinsics))))
@@ -116,12 +117,12 @@ def near_a_camera(means: torch.Tensor, centers: torch.Tensor, radii: torch.Tenso
     camera and its operator stand there: it is free in every direction.
     """
     n = means.shape[0]
-    out = torch.zeros(n, dtype=torch.bool)
+    out = torch.zeros(n, dtype=torch.bool, device=means.device)
     if n == 0 or centers.shape[0] == 0:
         return out
     means = means.detach().to(torch.float64)
-    centers = centers.to(torch.float64)
-    radii = radii.to(torch.float64)
+    centers = centers.to(means.device, torch.float64)
+    radii = radii.to(means.device, torch.float64)
     step = _camera_block(n)
     for start in range(0, centers.shape[0], step):
         distances = torch.cdist(means, centers[start:start + step])                           # [N, B]
@@ -132,10 +133,10 @@ def near_a_camera(means: torch.Tensor, centers: torch.Tensor, radii: torch.Tenso
 def nearest_camera_distance(means: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
     """Distance of each of means [N, 3] to the nearest of centers [C >= 1, 3]: [N] (cameras in
     blocks of _PAIR_BUDGET pairs, as the other [N, C] tests)."""
-    nearest = torch.full((means.shape[0],), float("inf"), dtype=means.dtype)
+    nearest = torch.full((means.shape[0],), float("inf"), dtype=means.dtype, device=means.device)
     step = _camera_block(means.shape[0])
     for start in range(0, centers.shape[0], step):
-        block = torch.cdist(means, centers[start:start + step].to(means.dtype))                # [N, B]
+        block = torch.cdist(means, centers[start:start + step].to(means.device, means.dtype))                # [N, B]
         nearest = torch.minimum(nearest, block.amin(1))
     return nearest
 
@@ -150,11 +151,11 @@ def contains_camera(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.
     centres within ``sigmas`` x that scale can qualify: the torch path finds those pairs with
     one squared-distance matrix per block of cameras and tests only them exactly."""
     n = means.shape[0]
-    out = torch.zeros(n, dtype=torch.bool)
+    out = torch.zeros(n, dtype=torch.bool, device=means.device)
     if n == 0 or centers.shape[0] == 0:
         return out
     means = means.detach().to(torch.float64)
-    centers = centers.to(torch.float64)
+    centers = centers.to(means.device, torch.float64)
     if use_numba(backend, "free space", means):
         return torch.from_numpy(contains_camera_numba(
             *(np.ascontiguousarray(t.detach().cpu().to(torch.float64).numpy())
@@ -205,9 +206,13 @@ class ViewStats:
     sh_degree: torch.Tensor
 
     @staticmethod
-    def zeros(n: int) -> "ViewStats":
-        return ViewStats(torch.zeros(n), torch.zeros(n), torch.zeros(n, 3), torch.zeros(n),
-                         torch.zeros(n, dtype=torch.int64))
+    def zeros(n: int, device: torch.device | str = "cpu") -> "ViewStats":
+        return ViewStats(torch.zeros(n, device=device), torch.zeros(n, device=device),
+                         torch.zeros(n, 3, device=device), torch.zeros(n, device=device),
+                         torch.zeros(n, dtype=torch.int64, device=device))
+
+    def to(self, device: torch.device | str) -> "ViewStats":
+        return ViewStats(**{name: t.to(device) for name, t in self.tensors().items()})
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {"seen": self.seen, "through": self.through, "dir_sum": self.dir_sum,
@@ -230,8 +235,8 @@ def accumulate_views(stats: ViewStats, means: torch.Tensor, camera: Camera, dept
     (relative): then it is seen, and seen through when in front of it by ``tolerance``."""
     with torch.no_grad():
         means = means.detach().to(torch.float64)
-        rotation = torch.as_tensor(camera.rotation, dtype=torch.float64)
-        translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=torch.float64)
+        rotation = torch.as_tensor(camera.rotation, dtype=torch.float64, device=means.device)
+        translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=torch.float64, device=means.device)
         local = means @ rotation.T + translation
         z = local[:, 2]
         front = z > NEAR_PLANE
@@ -247,7 +252,7 @@ def accumulate_views(stats: ViewStats, means: torch.Tensor, camera: Camera, dept
         through = seen & (z < surface * (1.0 - tolerance))
         stats.seen += seen.to(stats.seen.dtype)
         stats.through += through.to(stats.through.dtype)
-        center = torch.as_tensor(camera.center, dtype=torch.float64)
+        center = torch.as_tensor(camera.center, dtype=torch.float64, device=means.device)
         directions = torch.nn.functional.normalize(means - center, dim=-1)  # a centre on the camera: 0 vector
         stats.dir_sum += torch.where(seen[:, None], directions, torch.zeros_like(directions)).to(stats.dir_sum.dtype)
         stats.dir_count += seen.to(stats.dir_count.dtype)
@@ -264,8 +269,8 @@ def surface_depth_features(means: torch.Tensor, background: torch.Tensor, camera
     the north facade's Gaussians (288 -> 31 in the facade's middle by step 180) and the close
     views of it rendered the shell's blurred copy of the facade instead."""
     with torch.no_grad():
-        rotation = torch.as_tensor(camera.rotation, dtype=means.dtype)
-        translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=means.dtype)
+        rotation = torch.as_tensor(camera.rotation, dtype=means.dtype, device=means.device)
+        translation = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=means.dtype, device=means.device)
         z = means.detach() @ rotation[2] + translation[2]                  # camera z, [N]
         scene = (~background).to(means.dtype)
         return torch.stack([z * scene, scene], 1)
@@ -325,7 +330,8 @@ def allowed_sh_degree(stats: ViewStats, deg_per_degree: float, min_views: int) -
 def sh_rest_mask(degree: torch.Tensor, rest: int) -> torch.Tensor:
     """degree [N] int -> [N, rest, 1] float: 1 where coefficient k + 1 (band floor(sqrt(k + 1)))
     is within the Gaussian's degree."""
-    bands = torch.floor(torch.sqrt(torch.arange(1, rest + 1, dtype=torch.float64))).long()  # [rest]
+    bands = torch.floor(torch.sqrt(torch.arange(1, rest + 1, dtype=torch.float64,
+                                                device=degree.device))).long()               # [rest]
     return (bands[None, :] <= degree[:, None]).to(torch.float32)[..., None]
 
 

@@ -129,7 +129,7 @@ class StepLoop:
     def snapshot(self, step: int, params: dict, record: dict) -> None:
         """The viewer's copy of the model every ``snapshot_every`` steps."""
         if self.on_snapshot is not None and self.snapshot_every > 0 and step % self.snapshot_every == 0:
-            self.on_snapshot(step, gaussians_from_params(params).detach(), record)
+            self.on_snapshot(step, gaussians_from_params(params).detach().to("cpu"), record)
 
     def close(self) -> None:
         self.bar.close()
@@ -139,7 +139,7 @@ def save_model(run_dir: Path, gaussians: Gaussians, iteration: int, config: Trai
                normalization) -> None:
     """RUN/model.ply: the model in the user's frame, at the SH degree its schedule reached."""
     degree = sh_degree_at(max(iteration, 1), config, sh_max)
-    write_ply(to_original_frame(trim_sh(gaussians, degree), normalization), Path(run_dir) / "model.ply")
+    write_ply(to_original_frame(trim_sh(gaussians.to("cpu"), degree), normalization), Path(run_dir) / "model.ply")
 
 
 class SaveAttempts:

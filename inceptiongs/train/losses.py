@@ -44,10 +44,10 @@ def flatten_loss(log_scales: torch.Tensor) -> torch.Tensor:
 
 # --- geometry helpers ---------------------------------------------------------------------
 
-def pixel_grid(height: int, width: int, dtype=torch.float32) -> torch.Tensor:
+def pixel_grid(height: int, width: int, dtype=torch.float32, device=None) -> torch.Tensor:
     """Pixel centres (x, y): [H, W, 2]."""
-    ys = torch.arange(height, dtype=dtype) + 0.5
-    xs = torch.arange(width, dtype=dtype) + 0.5
+    ys = torch.arange(height, dtype=dtype, device=device) + 0.5
+    xs = torch.arange(width, dtype=dtype, device=device) + 0.5
     grid_y, grid_x = torch.meshgrid(ys, xs, indexing="ij")
     return torch.stack([grid_x, grid_y], -1)
 
@@ -111,7 +111,7 @@ def normals_from_depth(depth: torch.Tensor, intrinsics: torch.Tensor) -> tuple[t
     border pixels and pixels next to a missing depth are invalid (normal 0).
     """
     height, width = depth.shape[:2]
-    points = unproject(pixel_grid(height, width, depth.dtype), depth[..., 0], intrinsics)
+    points = unproject(pixel_grid(height, width, depth.dtype, depth.device), depth[..., 0], intrinsics)
     dx = torch.zeros_like(points)
     dy = torch.zeros_like(points)
     dx[:, 1:-1] = points[:, 2:] - points[:, :-2]
@@ -176,7 +176,7 @@ def reprojection_error(ref_depth: torch.Tensor, ref_intrinsics: torch.Tensor,
     intrinsics) -> (pixel distance [H, W], valid [H, W] bool).
     """
     height, width = ref_depth.shape[:2]
-    pixels = pixel_grid(height, width, ref_depth.dtype)
+    pixels = pixel_grid(height, width, ref_depth.dtype, ref_depth.device)
     depth = ref_depth[..., 0]
     in_nb, front_1 = project(transform(ref_to_nb, unproject(pixels, depth, ref_intrinsics)), nb_intrinsics)
     depth_nb, inside = sample_image(nb_depth, in_nb)
@@ -199,9 +199,9 @@ def geometric_consistency_loss(error: torch.Tensor, valid: torch.Tensor,
     return (weight * error)[mask].mean()
 
 
-def patch_offsets(radius: int, dtype=torch.float32) -> torch.Tensor:
+def patch_offsets(radius: int, dtype=torch.float32, device=None) -> torch.Tensor:
     """Integer offsets of a (2r+1)^2 patch: [P, 2] (x, y)."""
-    steps = torch.arange(-radius, radius + 1, dtype=dtype)
+    steps = torch.arange(-radius, radius + 1, dtype=dtype, device=device)
     oy, ox = torch.meshgrid(steps, steps, indexing="ij")
     return torch.stack([ox.reshape(-1), oy.reshape(-1)], -1)
 
@@ -247,7 +247,7 @@ def ncc_loss(ref_grey: torch.Tensor, nb_grey: torch.Tensor, pixels: torch.Tensor
     reference render; weights [S] optional. Gradients flow into depth and normals through
     the homographies. Returns the weighted mean of (1 - NCC) over valid patches, or None.
     """
-    offsets = patch_offsets(radius, pixels.dtype)
+    offsets = patch_offsets(radius, pixels.dtype, pixels.device)
     ref_points = pixels[:, None, :] + offsets[None]                         # [S, P, 2]
     ref_patches, ref_inside = sample_image(ref_grey, ref_points)
     homographies, plane_ok = plane_homographies(pixels, depth, normals, ref_intrinsics,

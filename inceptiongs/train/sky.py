@@ -166,8 +166,8 @@ def in_background(means: torch.Tensor, sphere: torch.Tensor | None) -> torch.Ten
     """[N] bool: Gaussians farther from the shell's centre than BACKGROUND_FRACTION of its radius
     (all False without a shell). means: [N, 3]; sphere: [4] (centre, radius) or None."""
     if sphere is None:
-        return torch.zeros(means.shape[0], dtype=torch.bool)
-    sphere = sphere.to(means.dtype)
+        return torch.zeros(means.shape[0], dtype=torch.bool, device=means.device)
+    sphere = sphere.to(means.device, means.dtype)
     return (means - sphere[:3]).norm(dim=1) > BACKGROUND_FRACTION * sphere[3]
 
 
@@ -200,7 +200,7 @@ def shell_exposure(means: torch.Tensor, cameras: list[Camera], alphas: list[torc
     as sky there), 0 where every camera that frames it sees the scene in front with alpha at least
     ``hidden_alpha`` (hidden), 2 where it is framed, never sky, but not hidden (behind a
     translucent foreground; none with the default ``hidden_alpha``), -1 where no camera frames it."""
-    points = means.detach().double().numpy()
+    points = means.detach().double().cpu().numpy()
     framed = np.zeros(len(points), dtype=bool)
     sky = np.zeros(len(points), dtype=bool)
     shows = np.zeros(len(points), dtype=bool)   # behind less than hidden_alpha in some view
@@ -210,11 +210,11 @@ def shell_exposure(means: torch.Tensor, cameras: list[Camera], alphas: list[torc
         u = np.minimum(pixels[rows, 0].astype(np.int64), camera.width - 1)
         v = np.minimum(pixels[rows, 1].astype(np.int64), camera.height - 1)
         framed[rows] = True
-        cover = alpha.detach().numpy()[v, u]
+        cover = alpha.detach().cpu().numpy()[v, u]
         sky[rows[cover < FOREGROUND_ALPHA]] = True
         shows[rows[cover < hidden_alpha]] = True
     code = np.where(sky, 1, np.where(shows, 2, np.where(framed, 0, -1)))
-    return torch.as_tensor(code, dtype=torch.int8)
+    return torch.as_tensor(code, dtype=torch.int8, device=means.device)
 
 
 def fill_hidden_shell(params: dict[str, torch.Tensor], hidden: torch.Tensor, donors: torch.Tensor,

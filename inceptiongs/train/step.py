@@ -119,7 +119,8 @@ class TrainState:
             extra["near"] = self.near.clone()
         if self.sky is not None:
             extra["sky"] = self.sky.clone()
-        return {**extra,
+        # On the CPU whatever the device trained on: a checkpoint resumes on either.
+        return on_cpu({**extra,
             "iteration": self.iteration, "wall_s": self.wall_s, "train_s": self.train_s,
             "params": {k: v.detach().clone() for k, v in self.params.items()},
             "optimizer": self.optimizer.state_dict(),
@@ -129,7 +130,41 @@ class TrainState:
             "order": list(self.order), "order_pos": self.order_pos,
             "logged": sorted(self.logged), "config": config.to_json_dict(),
             "view_mse": dict(self.view_mse),
-        }
+        })
+
+
+def on_cpu(value):
+    """``value`` (nested dicts, lists and tuples) with every tensor copied to the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: on_cpu(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(on_cpu(v) for v in value)
+    return value
+
+
+def data_on(data: TrainData, device: torch.device | str) -> TrainData:
+    """``data`` with its photos and per-view tensors on ``device``: uploaded once, not per step."""
+    move = lambda tensors: {k: v.to(device) for k, v in tensors.items()}   # noqa: E731
+    return dataclasses.replace(data, images=move(data.images), grey=move(data.grey),
+                               edge_weights=move(data.edge_weights), intrinsics=move(data.intrinsics))
+
+
+def state_on(state: TrainState, device: torch.device | str, config: TrainConfig, extent: float) -> TrainState:
+    """``state`` with its parameters, Adam moments and statistics on ``device`` (a new optimiser
+    holding the same moments and learning rates). The random generator stays on the CPU, so a
+    run draws the same numbers on any device and resumes across devices."""
+    device = torch.device(device)
+    if state.params["means"].device == device:
+        return state
+    params = {k: v.detach().to(device).requires_grad_(True) for k, v in state.params.items()}
+    optimizer = make_optimizer(params, config, extent)
+    optimizer.load_state_dict(state.optimizer.state_dict())   # moments follow their parameters' device
+    move = lambda t: None if t is None else t.to(device)      # noqa: E731
+    view_stats = None if state.view_stats is None else state.view_stats.to(device)
+    return dataclasses.replace(state, params=params, optimizer=optimizer, stats=state.stats.to(device),
+                               view_stats=view_stats, near=move(state.near), sky=move(state.sky))
 
 
 def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) -> TrainState:
@@ -219,9 +254,10 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     with torch.no_grad():
         # The neighbour's depth is a fixed target: its gradient would double the backward cost.
         nb_depth = rasterizer(gaussians.detach(), small, outputs=("plane_depth",), sh_degree=sh_degree)["plane_depth"]
-    ref_to_nb = torch.tensor(nb_cam.world_to_camera @ ref_cam.camera_to_world, dtype=torch.float32)
+    device = nb_depth.device
+    ref_to_nb = torch.tensor(nb_cam.world_to_camera @ ref_cam.camera_to_world, dtype=torch.float32, device=device)
     k_ref = data.intrinsics[view]
-    k_small = torch.tensor(small.intrinsics, dtype=torch.float32)
+    k_small = torch.tensor(small.intrinsics, dtype=torch.float32, device=device)
     error, valid = losses.reprojection_error(out["plane_depth"], k_ref, nb_depth, k_small, ref_to_nb)
     terms = {}
     geo = losses.geometric_consistency_loss(error, valid, config.multiview_pixel_noise_max)
@@ -233,7 +269,7 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     mask = (valid & (error < config.multiview_pixel_noise_max)).reshape(-1)
     candidates = torch.nonzero(mask)[:, 0]
     pick = candidates[torch.randint(len(candidates), (min(config.ncc_samples, len(candidates)),),
-                                    generator=state.generator)]
+                                    generator=state.generator).to(device)]
     width = ref_cam.width
     pixels = torch.stack([(pick % width).float() + 0.5, (pick // width).float() + 0.5], -1)
     depth = out["plane_depth"].reshape(-1)[pick]
@@ -391,7 +427,7 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     record: dict = {}
     if maintenance_due(step, config):
         record.update(maintain(step, state, data, config))
-        state.stats = DensifyStats.zeros(state.params["means"].shape[0])
+        state.stats = DensifyStats.zeros(state.params["means"].shape[0], state.params["means"].device)
         if state.view_stats is not None:
             state.view_stats.reset_window()
             if limit_sh:
@@ -424,7 +460,8 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
     schedule), the strategy removes or relocates them and densifies; returns the counts."""
     in_schedule = step <= config.iterations    # stage-II continuations: no new pruning rules
     carried = state.view_stats.tensors() if state.view_stats is not None else {}
-    centers = torch.tensor(np.stack([data.cameras[i].center for i in data.train]))    # [C, 3]
+    centers = torch.tensor(np.stack([data.cameras[i].center for i in data.train]),
+                           device=state.params["means"].device)                                 # [C, 3]
     flags = free_space_flags(state, data, config, centers) if in_schedule else torch.zeros(
         state.params["means"].shape[0], dtype=torch.bool, device=state.params["means"].device)
     counts: dict = {"free_space": int(flags.sum())}

@@ -34,8 +34,8 @@ from .optim import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
 from .run_folder import append_metrics, logged_iterations, truncate_metrics
-from .step import (add_maintenance_counts, evaluate_held_out, log_once, new_state, prepare_data, restore_state,
-                   supported_sh_degree, train_step)
+from .step import (add_maintenance_counts, data_on, evaluate_held_out, log_once, new_state, prepare_data,
+                   restore_state, state_on, supported_sh_degree, train_step)
 
 
 @dataclass
@@ -81,6 +81,9 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
     split.save(run_dir / "split.json")
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
     state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log, rasterizer)
+    # The photos, parameters and statistics live where the rasterizer runs: no per-step copies.
+    device = getattr(rasterizer, "device", "cpu")   # a stand-in callable renders on the CPU
+    data, state = data_on(data, device), state_on(state, device, config, data.extent)
     if config.pgsr and not any(data.neighbours.values()):
         log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)
 
