@@ -43,7 +43,8 @@ class ReferenceResult:
 
 
 class ReferenceWorker:
-    """Renders requests with ``inceptiongs.rasterizer.rasterize.render`` on one background thread. Only the
+    """Renders requests with the CPU's reference rasterizer (``inceptiongs.rasterizer.interface.
+    cpu_rasterizer``: the torch reference with its numba kernels) on one background thread. Only the
     newest request is kept: while torch works, newer camera moves replace the pending one."""
 
     def __init__(self) -> None:
@@ -85,7 +86,9 @@ class ReferenceWorker:
         import torch
 
         from inceptiongs.gaussians import Gaussians
-        from inceptiongs.rasterizer.rasterize import render
+        from inceptiongs.rasterizer.interface import cpu_rasterizer
+
+        render = cpu_rasterizer()
 
         while True:
             with self._lock:
