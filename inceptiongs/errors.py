@@ -8,3 +8,8 @@ with status 2, without a traceback unless ``--debug`` is given.
 
 class InputError(Exception):
     """Bad input: message is '<path>: <problem>' on one line."""
+
+
+class DeviceMemoryError(InputError):
+    """The GPU ran out of memory during a run: one line saying where, what was kept and what to
+    change (a larger downscale, a Gaussian budget); exit status 2 like any error the user can act on."""

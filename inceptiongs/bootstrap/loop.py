@@ -26,7 +26,7 @@ from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_di
 from ..io.config_json import json_safe
 from ..train.checkpoint import list_checkpoints, save_checkpoint
 from ..train.config import TrainConfig
-from ..train.loop import SaveAttempts, StepLoop, save_model
+from ..train.loop import SaveAttempts, StepLoop, out_of_memory_stops, save_model
 from ..train.optim import gaussians_from_params
 from ..train.run_folder import append_metrics, truncate_metrics
 from ..train.step import (data_on, evaluate_held_out, prepare_data, restore_state, sh_degree_at,
@@ -340,11 +340,13 @@ class Bootstrap:
         steps = self.config.iterations if steps is None else steps
         self.current_round = round_index + 1
         round_end = self.state.iteration + steps
-        for _ in range(steps):
-            if self.loop.wait_or_stop() or self.loop.out_of_time():
-                stopped = True
-                break
-            self.refine_step(self.state.iteration + 1, round_index, round_end)
+        with out_of_memory_stops(self.out_dir, lambda: (self.state.iteration + 1,
+                                                        self.state.params["means"].shape[0]), "--resume"):
+            for _ in range(steps):
+                if self.loop.wait_or_stop() or self.loop.out_of_time():
+                    stopped = True
+                    break
+                self.refine_step(self.state.iteration + 1, round_index, round_end)
         round_info = self.summary["rounds"][-1]
         round_info["refine_s"] = time.perf_counter() - began
         self.last_eval = round_info["eval"] = self.evaluate({"phase": "round", "round": round_index + 1})

@@ -9,14 +9,17 @@ step, then :meth:`StepLoop.advance` (the bar), :meth:`StepLoop.clocks` (a metric
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import torch
 from tqdm import tqdm
 
+from ..errors import DeviceMemoryError
 from ..gaussians import Gaussians
 from ..io.atomic import OutputError
 from ..io.ply import write_ply
@@ -25,6 +28,28 @@ from .config import TrainConfig
 from .optim import gaussians_from_params
 from .run_folder import to_original_frame
 from .step import sh_degree_at, trim_sh
+
+
+@contextlib.contextmanager
+def out_of_memory_stops(run_dir: Path, where: Callable[[], tuple[int, int]], resume: str):
+    """Steps inside raise :class:`DeviceMemoryError` (one line) instead of torch's out-of-memory
+    traceback. ``where()`` -> (the step being made, the Gaussians it had); ``resume``: the command
+    that continues the run. Nothing is saved after it: a step cut short may have changed part of
+    the model, so the newest checkpoint is what the run keeps."""
+    try:
+        yield
+    except torch.OutOfMemoryError:
+        if torch.cuda.is_available():
+            torch.cuda.empty_cache()   # the memory goes back before anything else is tried
+        from .checkpoint import latest_checkpoint
+
+        step, count = where()
+        kept = latest_checkpoint(Path(run_dir))
+        raise DeviceMemoryError(
+            f"{run_dir}: the GPU ran out of memory at step {step} with {count} Gaussians; "
+            + (f"kept: {kept.name} ({resume} continues from it)" if kept is not None else "no checkpoint yet")
+            + "; train at a larger --downscale (fewer pixels per step) or with --strategy mcmc "
+              "(a fixed Gaussian budget), or free the GPU's memory") from None
 
 
 def default_log(message: str) -> None:

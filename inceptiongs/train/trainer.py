@@ -29,7 +29,7 @@ from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COS
                      growing_budget_iterations)
 from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
 from .config import TrainConfig, sized_schedule
-from .loop import SaveAttempts, StepLoop, default_log, save_model
+from .loop import SaveAttempts, StepLoop, default_log, out_of_memory_stops, save_model
 from .optim import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
@@ -92,7 +92,9 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
                     snapshot_every=snapshot_every)
     run = StageOne(config, run_dir, scene, split, data, state, sh_max, rasterizer, log, loop, after_step)
     try:
-        run.steps()
+        with out_of_memory_stops(run_dir, lambda: (run.state.iteration + 1, run.state.params["means"].shape[0]),
+                                 "--resume"):
+            run.steps()
     finally:
         loop.close()
     return run.finish()
