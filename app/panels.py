@@ -13,6 +13,7 @@ from .jobs import SIZED_TO_BUDGET
 from .notifications import draw_notification
 from .plots import draw_plots
 from .textfit import middle_ellipsis
+from .verdict import draw_verdict
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
@@ -391,6 +392,7 @@ def _training(ui, jobs) -> None:
         if _button(ui, "stop"):
             run.control.stop.set()
     if run is None:
+        draw_verdict(ui, jobs.verdict)  # an opened bootstrap result
         return
     _fit("job's share of the CPU")
     _, jobs.training_utilisation = imgui.slider_float("job's share of the CPU", jobs.training_utilisation,
@@ -399,6 +401,7 @@ def _training(ui, jobs) -> None:
     if jobs.out_dir is not None:
         _path_line(ui, "job writes", "job writes: ", jobs.out_dir)
     _progress(jobs, run)
+    draw_verdict(ui, jobs.verdict)
     draw_plots(ui, run.progress)
 
 

@@ -128,6 +128,21 @@ class Viewer:
         self.status = f"screenshot saved to {path}"
         return path
 
+    def render_verdict(self) -> None:
+        """The ended bootstrap's flagged views, from the model it started from and the result,
+        as small images in the panel's verdict (verdict.py)."""
+        from .verdict import render_flag_images, upload_textures  # noqa: PLC0415
+
+        jobs = self.jobs
+        jobs.verdict_images_due = False
+        if jobs.verdict is None or jobs.bootstrap_base is None or not jobs.bootstrap_views:
+            return
+        images = render_flag_images(self.renderer, jobs.bootstrap_base, self.view.edit.visible_arrays(),
+                                    jobs.bootstrap_views, self.view.settings)
+        upload_textures(self.ctx, images)
+        jobs.verdict.images = images
+        self.drawing.uploaded_version = None  # the shown model goes back to the renderer next draw
+
     def capture_window(self) -> np.ndarray:
         """Draw one frame and return the window as shown, panels included: [H, W, 3] float."""
         self.capture_requested = True
@@ -144,6 +159,8 @@ class Viewer:
         self.input.update_fly(seconds)
         self.take_points()
         self.jobs.take_snapshot()
+        if self.jobs.verdict_images_due:
+            self.render_verdict()
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
         width, height = self.view.framebuffer_size
@@ -231,6 +248,7 @@ class Viewer:
         if self.jobs.training is not None:
             self.jobs.training.stop(timeout=60.0)
         self.drawing.close()
+        self.jobs.set_verdict(None)  # its GL textures
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
             destroy_imgui(self.imgui_impl)
