@@ -113,14 +113,14 @@ class FlagBook:
     def delete(self, index: int) -> None:
         """Delete flag ``index``; the selection stays on the flag it was on (none if deleted). The
         status says so: a message naming the deleted flag would be stale."""
-        name = self.items.pop(index).name
+        del self.items[index]
         if self.selected == index:
             self.selected = -1
         elif self.selected > index:
             self.selected -= 1  # the selected flag moved up one row
         self.save()
         left = len(self.items)
-        self.status.text = f"deleted flag {name!r}; {left} flag{'s' if left != 1 else ''} left"
+        self.status.text = f"flag deleted; {left} flag{'s' if left != 1 else ''} left"
 
     def jump_to(self, index: int) -> None:
         self.view.look_from(self.items[index].camera)

@@ -43,14 +43,21 @@ def draw_notification(ui, status, panel_shown: bool) -> None:
         return
     panel = ui.layout.get("rect") if panel_shown else None
     x, y, width, at_bottom = area_position(tuple(imgui.get_io().display_size), panel)
+    # Sized from the text here, not auto-resized: imgui hides an auto-resizing window on the
+    # frame it reappears, and the answer to a click must show on the very next frame.
+    padding = imgui.get_style().window_padding
+    wrap = width - 2 * padding.x
+    text_size = imgui.calc_text_size(text, False, wrap)
+    size = imgui.ImVec2(min(text_size.x, wrap) + 2 * padding.x + 1,
+                        min(text_size.y + 2 * padding.y, imgui.get_io().display_size.y / 3))
     imgui.set_next_window_pos(imgui.ImVec2(x, y), imgui.Cond_.always, imgui.ImVec2(0.0, 1.0 if at_bottom else 0.0))
-    imgui.set_next_window_size_constraints(imgui.ImVec2(0, 0), imgui.ImVec2(width, imgui.get_io().display_size.y / 3))
+    imgui.set_next_window_size(size, imgui.Cond_.always)
     fresh = time.perf_counter() - status.changed_at < FRESH_SECONDS
     imgui.push_style_color(imgui.Col_.window_bg, imgui.ImVec4(*(FRESH_BACKGROUND if fresh else BACKGROUND)))
-    flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_inputs
-             | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav | imgui.WindowFlags_.no_saved_settings)
+    flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.no_inputs | imgui.WindowFlags_.no_focus_on_appearing
+             | imgui.WindowFlags_.no_nav | imgui.WindowFlags_.no_saved_settings)
     imgui.begin("##notification", None, flags)
-    imgui.push_text_wrap_pos(imgui.get_cursor_pos_x() + width - 2 * imgui.get_style().window_padding.x)
+    imgui.push_text_wrap_pos(imgui.get_cursor_pos_x() + wrap)
     imgui.text_unformatted(text)
     imgui.pop_text_wrap_pos()
     pos, size = imgui.get_window_pos(), imgui.get_window_size()

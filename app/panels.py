@@ -57,13 +57,6 @@ def draw_tool_feedback(view, controls) -> None:
 
 def draw_panels(viewer) -> None:
     width, height = imgui.get_io().display_size
-    # The panel follows the window: full height, a width the user may drag, never past the
-    # window; long lines wrap instead of clipping.
-    imgui.set_next_window_pos(imgui.ImVec2(PANEL_MARGIN, PANEL_MARGIN), imgui.Cond_.always)
-    imgui.set_next_window_size_constraints(
-        imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
-        imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
-    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     view, ui = viewer.view, viewer.ui
     draw_tool_feedback(view, viewer.input)
     if not view.settings.show_panel:  # Tab hid it: the scene, the tools' outlines, the notification
@@ -71,6 +64,14 @@ def draw_panels(viewer) -> None:
         if ui.show_help:
             _help(ui)
         return
+    # The panel follows the window: full height, a width the user may drag, never past the
+    # window; long lines wrap instead of clipping. (Set just before its begin: set before the
+    # help's, they moved the help onto the hidden panel's place.)
+    imgui.set_next_window_pos(imgui.ImVec2(PANEL_MARGIN, PANEL_MARGIN), imgui.Cond_.always)
+    imgui.set_next_window_size_constraints(
+        imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
+        imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
+    imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     imgui.begin("InceptionGS")
     _stats(ui, viewer.stats, view.edit, viewer.last_gl_error)
     if imgui.small_button("keys and mouse (H)"):
@@ -116,18 +117,25 @@ def _help(ui) -> None:
     width, height = imgui.get_io().display_size
     imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
     imgui.set_next_window_bg_alpha(1.0)
+    # Never wider or taller than the window: the actions wrap in their column instead.
+    imgui.set_next_window_size_constraints(imgui.ImVec2(0, 0), imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1),
+                                                                           max(height - 2 * PANEL_MARGIN, 1)))
     opened, ui.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
     pos, size = imgui.get_window_pos(), imgui.get_window_size()
     ui.rects["help"] = (pos.x, pos.y, pos.x + size.x, pos.y + size.y)
-    if opened:
-        if imgui.begin_table("bindings", 2):
-            for keys, action in KEY_BINDINGS:
-                imgui.table_next_row()
-                imgui.table_next_column()
-                imgui.text(keys)
-                imgui.table_next_column()
-                imgui.text(action)
-            imgui.end_table()
+    if opened and imgui.begin_table("bindings", 2):
+        keys_width = max(imgui.calc_text_size(keys).x for keys, _ in KEY_BINDINGS)
+        actions_width = max(imgui.calc_text_size(action).x for _, action in KEY_BINDINGS)
+        room = width - 2 * PANEL_MARGIN - keys_width - 4 * imgui.get_style().window_padding.x
+        imgui.table_setup_column("keys", imgui.TableColumnFlags_.width_fixed, keys_width)
+        imgui.table_setup_column("action", imgui.TableColumnFlags_.width_fixed, max(min(actions_width, room), 60.0))
+        for keys, action in KEY_BINDINGS:
+            imgui.table_next_row()
+            imgui.table_next_column()
+            imgui.text(keys)
+            imgui.table_next_column()
+            imgui.text_wrapped(action)
+        imgui.end_table()
     imgui.end()
 
 

@@ -29,6 +29,11 @@ MARGIN_FRACTION = 0.08         # of the data's span, on each side
 INTEGER_UNITS = ("count",)
 # Drawn first (under the others): the all-views curve is close to the covered one, which it hid.
 DRAWN_FIRST = ("all",)
+# Curves drawn with a marker at every point, so one lying on "all" still shows.
+MARKED = ("scarce", "covered")
+# Frame heights, pixels: title, the legend row above the plot, the axes' labels and the area.
+PSNR_PLOT_HEIGHT = 200
+PLOT_HEIGHT = 160
 PLOT_FLAGS = (implot.Flags_.no_inputs | implot.Flags_.no_menus | implot.Flags_.no_box_select
               | implot.Flags_.no_mouse_text)
 AXIS_FLAGS = implot.AxisFlags_.no_highlight | implot.AxisFlags_.no_menus
@@ -67,10 +72,10 @@ def drawing_order(series: list) -> list:
 
 def draw_plots(ui, progress) -> None:
     """One plot per unit (dB, loss, count) of a job's progress (live_training.TrainingProgress)."""
-    draw_plot(ui, progress, "held-out PSNR", "dB", list(progress.psnr.items()), 150)
+    draw_plot(ui, progress, "held-out PSNR", "dB", list(progress.psnr.items()), PSNR_PLOT_HEIGHT)
     for title, unit, names in PLOTS:
         series = [(name, progress.history[name]) for name in names if name in progress.history]
-        draw_plot(ui, progress, title, unit, series, 120)
+        draw_plot(ui, progress, title, unit, series, PLOT_HEIGHT)
 
 
 def draw_plot(ui, progress, title: str, unit: str, series: list, height: float) -> None:
@@ -93,9 +98,8 @@ def draw_plot(ui, progress, title: str, unit: str, series: list, height: float) 
     implot.setup_legend(implot.Location_.north, implot.LegendFlags_.outside | implot.LegendFlags_.horizontal)
     for name, (xs, ys) in drawing_order(series):
         spec = implot.Spec()
-        if len(xs) < SHORT_SERIES_POINTS or name not in DRAWN_FIRST:
-            # The groups over "all" carry markers: where the curves coincide both still show.
-            spec.marker, spec.marker_size = implot.Marker_.circle, 3.0 if name not in DRAWN_FIRST else 2.0
+        if len(xs) < SHORT_SERIES_POINTS or name in MARKED:
+            spec.marker, spec.marker_size = implot.Marker_.circle, 3.0
         if name in DRAWN_FIRST:
             spec.line_weight = 1.0
         implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64), spec)
