@@ -273,3 +273,49 @@ def test_a_quick_click_on_the_crop_box_keeps_the_lasso_selection(xvfb, tmp_path)
         _frames(viewer)
         assert viewer.view.settings.crop_enabled
         np.testing.assert_array_equal(viewer.view.edit.selected, selected)
+
+
+def _viewer_command(*args: str, env_drop: tuple = ()) -> "subprocess.CompletedProcess":
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in env_drop}
+    return subprocess.run([sys.executable, "-m", "inceptiongs.app.main", *args], capture_output=True, text=True,
+                          timeout=300, env=env)
+
+
+def test_without_a_display_the_error_is_the_only_line(tmp_path):
+    """pyGLFW printed its GLFWError warning (two lines) before the viewer's one-line error."""
+    result = _viewer_command(str(write_grid_model(tmp_path / "model.ply")), env_drop=("DISPLAY", "WAYLAND_DISPLAY"))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: could not initialise GLFW"), result.stderr
+    assert "DISPLAY" in lines[0]
+
+
+def test_an_empty_folder_is_named_once_in_a_flat_message(tmp_path):
+    """"PATH: neither a scene folder (PATH: no recognisable scene (expected ...)) nor ..." named
+    the folder twice, one message nested in another."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = _viewer_command(str(empty))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert line.count(str(empty)) == 1 and "((" not in line and ")) " not in line, line
+    assert "no recognisable scene" in line and ".ply" in line
+
+
+@pytest.mark.slow
+def test_a_screenshot_of_an_llff_scene_without_points_waits_for_them(tmp_path):
+    """`inceptiongs-viewer fern/ --screenshot x.png` wrote an all-black image, taken before the
+    points the viewer triangulates on a thread existed."""
+    from conftest import require_data
+    from inceptiongs.io.images import read_png
+
+    fern = require_data("fern")
+    out = tmp_path / "fern.png"
+    result = _viewer_command(str(fern), "--screenshot", str(out), "--size", "320x240")
+    assert result.returncode == 0, result.stderr
+    image = read_png(out)
+    assert (image.max(axis=2) > 0.05).mean() > 0.05  # the points cover part of the view
