@@ -158,7 +158,7 @@ class Jobs:
         self.verdict = read_verdict(self.run_dir)
         self.bootstrap_base: dict | None = None  # the Gaussians shown when it started (stage I)
         self.bootstrap_views: list = []           # [(flag name, Camera)] it repairs
-        self.verdict_images_due = False           # the viewer renders them on its next frame
+        self.verdict_images_due = self.verdict is not None  # the viewer renders them on its next frame
         self.read_view_fit()
 
     @property
@@ -271,7 +271,7 @@ class Jobs:
         if self.out_dir is not None and self.out_dir == self.run_dir:
             self.read_view_fit()  # a finished run has just written its report
             self.set_verdict(read_verdict(self.out_dir))
-            self.verdict_images_due = self.verdict is not None and self.bootstrap_base is not None
+            self.verdict_images_due = self.verdict is not None
             if self.verdict is not None:
                 self.status.text += f"; {verdict_line(self.verdict)}"
 
@@ -299,6 +299,8 @@ class Jobs:
         self.view.show_source(opened)
         self.run_dir = run_dir_of(opened)
         self.set_verdict(read_verdict(self.run_dir))
+        self.bootstrap_base, self.bootstrap_views = None, []  # a result opened: its own run's model
+        self.verdict_images_due = self.verdict is not None
         self.status.text = f"opened run {run_dir}"
         self.read_view_fit()
         self.retitle()

@@ -192,6 +192,34 @@ def _flag_images(shown: FlagImages) -> None:
     imgui.image(imgui.ImTextureRef(after.glo), size)
 
 
+def target_views(out_dir: Path) -> list:
+    """[(name, Camera)] the bootstrap in ``out_dir`` repaired (RUN2/bootstrap/targets.json, in the
+    scene's normalised frame as the viewer shows it); [] when absent or unreadable."""
+    from inceptiongs.bootstrap.targets import targets_from_json  # noqa: PLC0415
+    from inceptiongs.errors import InputError  # noqa: PLC0415
+
+    path = Path(out_dir) / "bootstrap" / "targets.json"
+    try:
+        targets = targets_from_json(json.loads(path.read_text(encoding="utf-8")), str(path))
+    except (OSError, UnicodeDecodeError, ValueError, InputError):
+        return []
+    return [(target.name, target.camera) for target in targets]
+
+
+def stage1_model(run_dir: Path | None) -> dict | None:
+    """The stage-I run's Gaussians (arrays, the normalised frame the viewer shows a run in);
+    None when the run cannot be read (moved, deleted)."""
+    from inceptiongs.errors import InputError  # noqa: PLC0415
+    from inceptiongs.train.run_folder import load_run  # noqa: PLC0415
+
+    if run_dir is None:
+        return None
+    try:
+        return load_run(Path(run_dir))[0].numpy()
+    except (InputError, OSError, ValueError):
+        return None
+
+
 def thumbnail_camera(camera, width: int = THUMBNAIL_WIDTH):
     """``camera`` at ``width`` pixels wide, its aspect and view kept."""
     from .screenshot import resized  # noqa: PLC0415

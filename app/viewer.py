@@ -131,14 +131,20 @@ class Viewer:
     def render_verdict(self) -> None:
         """The ended bootstrap's flagged views, from the model it started from and the result,
         as small images in the panel's verdict (verdict.py)."""
-        from .verdict import render_flag_images, upload_textures  # noqa: PLC0415
+        from .verdict import render_flag_images, stage1_model, target_views, upload_textures  # noqa: PLC0415
 
         jobs = self.jobs
         jobs.verdict_images_due = False
-        if jobs.verdict is None or jobs.bootstrap_base is None or not jobs.bootstrap_views:
+        verdict = jobs.verdict
+        if verdict is None:
             return
-        images = render_flag_images(self.renderer, jobs.bootstrap_base, self.view.edit.visible_arrays(),
-                                    jobs.bootstrap_views, self.view.settings)
+        # A live bootstrap started from the model shown then; an opened result from its run's.
+        before = jobs.bootstrap_base if jobs.bootstrap_base is not None else stage1_model(verdict.stage1_run)
+        views = target_views(verdict.out_dir) or jobs.bootstrap_views
+        if before is None or not views:
+            return
+        images = render_flag_images(self.renderer, before, self.view.edit.visible_arrays(), views,
+                                    self.view.settings)
         upload_textures(self.ctx, images)
         jobs.verdict.images = images
         self.drawing.uploaded_version = None  # the shown model goes back to the renderer next draw

@@ -319,3 +319,33 @@ def test_a_screenshot_of_an_llff_scene_without_points_waits_for_them(tmp_path):
     assert result.returncode == 0, result.stderr
     image = read_png(out)
     assert (image.max(axis=2) > 0.05).mean() > 0.05  # the points cover part of the view
+
+
+@pytest.mark.slow
+def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_after(xvfb, tmp_path):
+    """A result of `inceptiongs bootstrap` (not the viewer's job) opened later: the scores of
+    stage I, the result and the same-time baseline beside it, and j* rendered from both models."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.runner import baseline_run, resolve_targets, run_bootstrap
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.train.run_folder import load_run
+    from train_cases import tiny_demo_run
+
+    run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,
+                        eval_every=10, checkpoint_every=10)
+    _, scene, _ = load_run(run)
+    targets = resolve_targets(scene, Split.load(run / "split.json", scene.cameras), None, None, 1)
+    config = BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained", log_every=1, save_views=0)
+    run_bootstrap(run, tmp_path / "run_bootstrap", targets, config, progress=False)
+    baseline_run(run, tmp_path / "run_baseline", None, 6, seed=0, progress=False)
+    with opened(Viewer, open_source(tmp_path / "run_bootstrap"), 900, 1000) as viewer:
+        _frames(viewer)
+        verdict = viewer.jobs.verdict
+        assert verdict is not None and verdict.stage1_run.resolve() == run.resolve()
+        assert verdict.baseline_dir == tmp_path / "run_baseline" and verdict.baseline
+        (shown,) = verdict.images
+        assert shown.name == targets[0].name and shown.before.max() > 0.1
+        assert np.abs(shown.before - shown.after).mean() > 1e-3  # the refined model renders differently
+        assert _inside_window(viewer, viewer.ui.rects["verdict"])
