@@ -107,7 +107,8 @@ class InputController:
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.scroll_callback(window, x_offset, y_offset)
-        if ui_wants_mouse(viewer.imgui_impl):
+        if ui_wants_mouse(viewer.imgui_impl) or (self.last_cursor is not None
+                                                 and ui_under_cursor(viewer.imgui_impl, *self.last_cursor)):
             return
         view = viewer.view
         if view.settings.orbit:
