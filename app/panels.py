@@ -391,14 +391,20 @@ def _training(ui, jobs) -> None:
             _hint(f"no resume here: {blocked}")
             _remember(ui, "why no resume")
     else:
+        # Each button says what it did in the notification area: "training into ..." stayed
+        # there through a pause.
+        kind = run.plan.kind
         if run.control.pause.is_set():
             if _button(ui, "continue"):
                 run.resume()
+                jobs.status.text = f"{kind} continued"
         elif _button(ui, "pause"):
             run.pause()
+            jobs.status.text = f"{kind} paused at iteration {run.progress.iteration} (continue to go on)"
         _same_line_if_fits("stop")
         if _button(ui, "stop"):
             run.control.stop.set()
+            jobs.status.text = f"{kind} stopping: it saves its model and checkpoint"
     if run is None:
         draw_verdict(ui, jobs.verdict)  # an opened bootstrap result
         return

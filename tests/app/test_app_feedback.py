@@ -185,7 +185,8 @@ def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb,
         x0, y0, x1, y1 = viewer.ui.rects["plot area/training loss"]
         frame = viewer.ui.rects["plot/training loss"]
         assert _inside_window(viewer, frame)
-        viewer.jobs.training.pause()
+        click_widget(viewer, "pause")
+        assert viewer.jobs.training.control.pause.is_set() and "paused at iteration" in viewer.status
         _frames(viewer, 4)
         viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), min(frame[3], y1 + 30) - 4)
         _frames(viewer, 2)
