@@ -262,10 +262,16 @@ class Editor:
             self.status.text = f"deleted; {self.view.edit.count} Gaussians left"
 
     def undo(self) -> None:
-        self.view.edit.undo()
+        """Undo the last edit; the status then says what is shown (a "deleted; N left" kept
+        after the undo would name a state that is gone)."""
+        self.status.text = self._edit_state("undone") if self.view.edit.undo() else "nothing to undo"
 
     def redo(self) -> None:
-        self.view.edit.redo()
+        self.status.text = self._edit_state("redone") if self.view.edit.redo() else "nothing to redo"
+
+    def _edit_state(self, verb: str) -> str:
+        edit = self.view.edit
+        return f"{verb}; {edit.count} Gaussians shown, {int(edit.selected.sum())} selected"
 
     # --- the crop box --------------------------------------------------------------------------
     def fit_crop_box(self) -> None:

@@ -108,15 +108,20 @@ class FlagBook:
         flag = self.items[index]
         self.items[index] = Flag(name, flag.camera.with_pose(flag.camera.world_to_camera, name), flag.created)
         self.save()
+        self.status.text = f"renamed flag {flag.name!r} to {name!r}"
 
     def delete(self, index: int) -> None:
-        """Delete flag ``index``; the selection stays on the flag it was on (none if deleted)."""
+        """Delete flag ``index``; the selection stays on the flag it was on (none if deleted). The
+        status says so: a message naming the deleted flag would be stale."""
         del self.items[index]
         if self.selected == index:
             self.selected = -1
         elif self.selected > index:
             self.selected -= 1  # the selected flag moved up one row
         self.save()
+        left = len(self.items)
+        self.status.text = f"flag deleted; {left} flag{'s' if left != 1 else ''} left"
 
     def jump_to(self, index: int) -> None:
         self.view.look_from(self.items[index].camera)
+        self.status.text = f"looking from flag {self.items[index].name!r}"

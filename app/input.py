@@ -14,7 +14,7 @@ import glfw
 import numpy as np
 
 from .settings import RENDER_MODES
-from .window import ui_wants_keyboard, ui_wants_mouse
+from .window import ui_under_cursor, ui_wants_keyboard, ui_wants_mouse
 
 # Two left presses within this time and this many pixels form a double-click.
 DOUBLE_CLICK_SECONDS = 0.35
@@ -64,7 +64,11 @@ class InputController:
         """What a key press does (KEY_BINDINGS), once the panel has not taken it."""
         viewer = self.viewer
         view, settings, editor = viewer.view, viewer.view.settings, viewer.editor
-        if key == glfw.KEY_F and not ctrl:
+        if key == glfw.KEY_ESCAPE:
+            viewer.ui.show_help = False  # Esc closes the help; it never quits (too easy to hit)
+        elif key == glfw.KEY_Q and ctrl:
+            glfw.set_window_should_close(viewer.window, True)  # as the window's close button
+        elif key == glfw.KEY_F and not ctrl:
             viewer.flags.flag_current_view()
         elif key == glfw.KEY_Z and ctrl:
             editor.undo()
@@ -103,7 +107,8 @@ class InputController:
         viewer = self.viewer
         if viewer.imgui_impl is not None:
             viewer.imgui_impl.scroll_callback(window, x_offset, y_offset)
-        if ui_wants_mouse(viewer.imgui_impl):
+        if ui_wants_mouse(viewer.imgui_impl) or (self.last_cursor is not None
+                                                 and ui_under_cursor(viewer.imgui_impl, *self.last_cursor)):
             return
         view = viewer.view
         if view.settings.orbit:
@@ -162,7 +167,7 @@ class InputController:
             self.crop_handle = None
             self.dragging_button = None
             return
-        if ui_wants_mouse(viewer.imgui_impl):
+        if ui_wants_mouse(viewer.imgui_impl) or ui_under_cursor(viewer.imgui_impl, x, y):
             return
         self.last_cursor = (x, y)
         if button == glfw.MOUSE_BUTTON_RIGHT:

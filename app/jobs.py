@@ -19,6 +19,7 @@ from .live_training import LiveTraining
 from .progress import closing_line, final_scores, format_duration, plan_of
 from .runs import describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of
 from .sources import open_scene_run
+from .verdict import read_verdict, verdict_line
 
 # The dialog's "schedule iterations" when the schedule is sized to the time budget, as
 # `inceptiongs train --minutes M` without --iterations (a typed length is a fixed schedule).
@@ -152,6 +153,12 @@ class Jobs:
         # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
         # nerfview's "train util"). 0.9: the viewer draws about 10 % of the time.
         self.training_utilisation = 0.95
+        # The bootstrap's verdict (verdict.Verdict: scores before / after / same-time baseline,
+        # the flagged views' images); what the live bootstrap started from, for its images.
+        self.verdict = read_verdict(self.run_dir)
+        self.bootstrap_base: dict | None = None  # the Gaussians shown when it started (stage I)
+        self.bootstrap_views: list = []           # [(flag name, Camera)] it repairs
+        self.verdict_images_due = self.verdict is not None  # the viewer renders them on its next frame
         self.read_view_fit()
 
     @property
@@ -208,6 +215,8 @@ class Jobs:
         except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
             self.status.text = f"bootstrap could not start: {exc}"
             return
+        self.bootstrap_base = self.view.edit.visible_arrays()
+        self.bootstrap_views = [(flag.name, flag.camera) for flag in self.flags.items]
         self.start_job(job, job.out_dir, f"bootstrapping {len(self.flags.items)} flagged view(s) of {job.run_dir}")
 
     def start_job(self, job, out_dir: Path | None, message: str) -> None:
@@ -261,6 +270,17 @@ class Jobs:
                                         final_scores(run.progress.psnr), self.out_dir)
         if self.out_dir is not None and self.out_dir == self.run_dir:
             self.read_view_fit()  # a finished run has just written its report
+            self.set_verdict(read_verdict(self.out_dir))
+            self.verdict_images_due = self.verdict is not None
+            if self.verdict is not None:
+                self.status.text += f"; {verdict_line(self.verdict)}"
+
+    def set_verdict(self, verdict) -> None:
+        """The verdict the panel shows (None: none); the previous one's images are let go."""
+        from .verdict import release_textures  # noqa: PLC0415
+
+        release_textures(self.verdict)
+        self.verdict = verdict
 
     # --- the scene's runs --------------------------------------------------------------------------
     def open_run(self, run_dir: Path) -> None:
@@ -278,6 +298,9 @@ class Jobs:
         self.training, self.out_dir = None, None
         self.view.show_source(opened)
         self.run_dir = run_dir_of(opened)
+        self.set_verdict(read_verdict(self.run_dir))
+        self.bootstrap_base, self.bootstrap_views = None, []  # a result opened: its own run's model
+        self.verdict_images_due = self.verdict is not None
         self.status.text = f"opened run {run_dir}"
         self.read_view_fit()
         self.retitle()

@@ -6,10 +6,14 @@ rectangles, the help overlay) is the viewer's settings.PanelState, passed as ``u
 from __future__ import annotations
 
 import numpy as np
-from imgui_bundle import imgui, implot
+from imgui_bundle import imgui
 
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET
+from .notifications import draw_notification
+from .plots import draw_plots
+from .textfit import middle_ellipsis
+from .verdict import draw_verdict
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .runs import can_resume, resume_blocked_reason
@@ -25,12 +29,6 @@ PANEL_MIN_WIDTH = 300
 # A widget beside a long label keeps at least this width (its label may then wrap the panel).
 MIN_ITEM_WIDTH = 60
 
-# Series with fewer points than this are drawn with a marker at each point (a bootstrap's curve
-# starts with its single first evaluation, which a line alone does not show).
-SHORT_SERIES_POINTS = 4
-# The job's logged terms worth a curve, grouped by unit: (plot title, y label, metric names).
-PLOTS = (("training loss", "loss", ("loss", "l1")),
-         ("Gaussians", "count", ("num_gaussians",)))
 
 
 def draw_tool_feedback(view, controls) -> None:
@@ -59,21 +57,23 @@ def draw_tool_feedback(view, controls) -> None:
 
 def draw_panels(viewer) -> None:
     width, height = imgui.get_io().display_size
+    view, ui = viewer.view, viewer.ui
+    draw_tool_feedback(view, viewer.input)
+    if not view.settings.show_panel:  # Tab hid it: the scene, the tools' outlines, the notification
+        draw_notification(ui, viewer.status_line, panel_shown=False)
+        if ui.show_help:
+            _help(ui)
+        return
     # The panel follows the window: full height, a width the user may drag, never past the
-    # window; long lines wrap instead of clipping.
+    # window; long lines wrap instead of clipping. (Set just before its begin: set before the
+    # help's, they moved the help onto the hidden panel's place.)
     imgui.set_next_window_pos(imgui.ImVec2(PANEL_MARGIN, PANEL_MARGIN), imgui.Cond_.always)
     imgui.set_next_window_size_constraints(
         imgui.ImVec2(min(PANEL_MIN_WIDTH, width - 2 * PANEL_MARGIN), height - 2 * PANEL_MARGIN),
         imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1), height - 2 * PANEL_MARGIN))
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
-    view, ui = viewer.view, viewer.ui
-    draw_tool_feedback(view, viewer.input)
-    if not view.settings.show_panel:  # Tab hid it: the scene and the tools' outlines only
-        if ui.show_help:
-            _help(ui)
-        return
     imgui.begin("InceptionGS")
-    _stats(viewer.stats, view.edit, viewer.last_gl_error)
+    _stats(ui, viewer.stats, view.edit, viewer.last_gl_error)
     if imgui.small_button("keys and mouse (H)"):
         ui.show_help = not ui.show_help
     if _header(ui, "View", imgui.TreeNodeFlags_.default_open) and _view(ui, view):
@@ -86,11 +86,9 @@ def draw_panels(viewer) -> None:
         _training(ui, viewer.jobs)
     if _header(ui, "Edit"):
         _edit(ui, viewer.editor)
-    if viewer.status_line.text:
-        imgui.separator()
-        imgui.text_wrapped(viewer.status_line.text)
     ui.layout = _layout()
     imgui.end()
+    draw_notification(ui, viewer.status_line, panel_shown=True)
     if ui.show_help:
         _help(ui)
 
@@ -114,20 +112,30 @@ def _layout() -> dict:
 
 
 def _help(ui) -> None:
-    """The key bindings, over the middle of the window (H / F1 or its close button hides it)."""
+    """The key bindings, over the middle of the window (H / F1, Esc or its close button hides
+    it); opaque: the panel's text showing through made both unreadable."""
     width, height = imgui.get_io().display_size
     imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
-    imgui.set_next_window_bg_alpha(0.92)
+    imgui.set_next_window_bg_alpha(1.0)
+    # Never wider or taller than the window: the actions wrap in their column instead.
+    imgui.set_next_window_size_constraints(imgui.ImVec2(0, 0), imgui.ImVec2(max(width - 2 * PANEL_MARGIN, 1),
+                                                                           max(height - 2 * PANEL_MARGIN, 1)))
     opened, ui.show_help = imgui.begin("keys and mouse (H / F1)", True, imgui.WindowFlags_.always_auto_resize)
-    if opened:
-        if imgui.begin_table("bindings", 2):
-            for keys, action in KEY_BINDINGS:
-                imgui.table_next_row()
-                imgui.table_next_column()
-                imgui.text(keys)
-                imgui.table_next_column()
-                imgui.text(action)
-            imgui.end_table()
+    pos, size = imgui.get_window_pos(), imgui.get_window_size()
+    ui.rects["help"] = (pos.x, pos.y, pos.x + size.x, pos.y + size.y)
+    if opened and imgui.begin_table("bindings", 2):
+        keys_width = max(imgui.calc_text_size(keys).x for keys, _ in KEY_BINDINGS)
+        actions_width = max(imgui.calc_text_size(action).x for _, action in KEY_BINDINGS)
+        room = width - 2 * PANEL_MARGIN - keys_width - 4 * imgui.get_style().window_padding.x
+        imgui.table_setup_column("keys", imgui.TableColumnFlags_.width_fixed, keys_width)
+        imgui.table_setup_column("action", imgui.TableColumnFlags_.width_fixed, max(min(actions_width, room), 60.0))
+        for keys, action in KEY_BINDINGS:
+            imgui.table_next_row()
+            imgui.table_next_column()
+            imgui.text(keys)
+            imgui.table_next_column()
+            imgui.text_wrapped(action)
+        imgui.end_table()
     imgui.end()
 
 
@@ -147,11 +155,12 @@ def _fit(label: str) -> None:
     imgui.set_next_item_width(max(imgui.get_content_region_avail().x - label_width, MIN_ITEM_WIDTH))
 
 
-def _same_line_if_fits(label: str) -> None:
-    """Put the button ``label`` on the line of the last widget when it fits before the panel's
-    edge, else start a new line (a fixed row of buttons ran past a narrow panel)."""
+def _same_line_if_fits(label: str, frame: bool = True) -> None:
+    """Put the button ``label`` (frame=False: the text) on the line of the last widget when it
+    fits before the panel's edge, else start a new line (a fixed row of buttons ran past a
+    narrow panel)."""
     style = imgui.get_style()
-    width = imgui.calc_text_size(label).x + 2 * style.frame_padding.x
+    width = imgui.calc_text_size(label).x + (2 * style.frame_padding.x if frame else 0.0)
     right = imgui.get_item_rect_max().x + style.item_spacing.x + width
     if right <= imgui.internal.get_current_window().work_rect.max.x:
         imgui.same_line()
@@ -191,11 +200,35 @@ def _hint(text: str) -> None:
     imgui.pop_text_wrap_pos()
 
 
-def _stats(s, edit, gl_error: str | None) -> None:
+def _flow(ui, key: str, parts: list[str]) -> None:
+    """Texts side by side, each starting a new line only when it does not fit before the panel's
+    edge: a figure stays with its unit ("12.3 ms" never breaks before "ms"). Each part's
+    rectangle is kept under "key/N" (N from 0)."""
+    for number, part in enumerate(parts):
+        if number:
+            _same_line_if_fits(part, frame=False)
+        imgui.text(part)
+        _remember(ui, f"{key}/{number}")
+
+
+def _path_line(ui, key: str, prefix: str, path, disabled: bool = False) -> None:
+    """``prefix`` and ``path`` on one line, the path shortened in its middle to fit the panel
+    (a wrapped path broke mid-word); hovering it shows the whole path. Kept under ``key``."""
+    full = str(path)
+    room = imgui.get_content_region_avail().x - imgui.calc_text_size(prefix).x
+    shown = prefix + middle_ellipsis(full, room, lambda text: imgui.calc_text_size(text).x)
+    (imgui.text_disabled if disabled else imgui.text)(shown)
+    _remember(ui, key)
+    if shown != prefix + full and imgui.is_item_hovered():
+        imgui.set_tooltip(full)
+        ui.tooltip = full
+
+
+def _stats(ui, s, edit, gl_error: str | None) -> None:
     """The frame statistics (settings.FrameStats), the model's size, a GL error if one came."""
-    imgui.text_wrapped(f"{s.fps:5.1f} FPS  frame {s.frame_ms:5.1f} ms  sort {s.sort_ms:5.1f} ms  "
-                       f"draw {s.draw_ms:5.1f} ms")
-    imgui.text_wrapped(f"{edit.count} Gaussians  render scale {s.rendered_scale:.2f}")
+    _flow(ui, "stats", [f"{s.fps:.1f} FPS", f"frame {s.frame_ms:.1f} ms", f"sort {s.sort_ms:.1f} ms",
+                        f"draw {s.draw_ms:.1f} ms"])
+    _flow(ui, "model", [f"{edit.count} Gaussians", f"render scale {s.rendered_scale:.2f}"])
     if gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {gl_error}")
 
@@ -302,7 +335,7 @@ def _flags(ui, flags) -> None:
     if _button(ui, "flag this view (F)"):
         flags.flag_current_view()
     _hint("right-click: flag a view aimed at the point")
-    _hint(str(flags.file))
+    _path_line(ui, "flags file", "saved in ", flags.file, disabled=True)
     # Each row's widgets are kept under "flag N/name", "flag N/go", "flag N/delete" (N from 1).
     for index, flag in enumerate(list(flags.items)):
         imgui.push_id(f"flag{index}")
@@ -335,7 +368,7 @@ def _flags(ui, flags) -> None:
 def _training(ui, jobs) -> None:
     """The open run, the scene's runs, the job dialog and buttons, the live job (jobs.Jobs)."""
     run = jobs.training
-    imgui.text_wrapped(f"open run: {jobs.run_dir or '(none: train first)'}")
+    _path_line(ui, "open run", "open run: ", jobs.run_dir or "(none: train first)")
     _runs(ui, jobs)
     _poorly_fit(ui, jobs)
     if run is None or not run.alive:
@@ -358,24 +391,32 @@ def _training(ui, jobs) -> None:
             _hint(f"no resume here: {blocked}")
             _remember(ui, "why no resume")
     else:
+        # Each button says what it did in the notification area: "training into ..." stayed
+        # there through a pause.
+        kind = run.plan.kind
         if run.control.pause.is_set():
             if _button(ui, "continue"):
                 run.resume()
+                jobs.status.text = f"{kind} continued"
         elif _button(ui, "pause"):
             run.pause()
+            jobs.status.text = f"{kind} paused at iteration {run.progress.iteration} (continue to go on)"
         _same_line_if_fits("stop")
         if _button(ui, "stop"):
             run.control.stop.set()
+            jobs.status.text = f"{kind} stopping: it saves its model and checkpoint"
     if run is None:
+        draw_verdict(ui, jobs.verdict)  # an opened bootstrap result
         return
     _fit("job's share of the CPU")
     _, jobs.training_utilisation = imgui.slider_float("job's share of the CPU", jobs.training_utilisation,
                                                       0.5, MAX_TRAINING_UTILISATION, "%.2f")
     _remember(ui, "job's share of the CPU")
     if jobs.out_dir is not None:
-        imgui.text_wrapped(f"job writes: {jobs.out_dir}")
+        _path_line(ui, "job writes", "job writes: ", jobs.out_dir)
     _progress(jobs, run)
-    _plots(run.progress)
+    draw_verdict(ui, jobs.verdict)
+    draw_plots(ui, run.progress)
 
 
 def _poorly_fit(ui, jobs) -> None:
@@ -527,31 +568,6 @@ def _progress(jobs, run) -> None:
             imgui.text_wrapped(progress.message)
     if run.error:
         imgui.text_colored(imgui.ImVec4(1, 0.3, 0.3, 1), f"job failed: {run.error}")
-
-
-def _plots(progress) -> None:
-    """One plot per unit (dB, loss, count), axes refitted to the data every frame."""
-    _plot(progress, "held-out PSNR", "dB", list(progress.psnr.items()), 150)
-    for title, unit, names in PLOTS:
-        _plot(progress, title, unit, [(name, progress.history[name]) for name in names if name in progress.history],
-              120)
-
-
-def _plot(progress, title: str, unit: str, series: list, height: float) -> None:
-    """series: [(name, ([x], [y]))]. The limits drawn are kept in progress.plot_limits[title]
-    ((x min, x max), (y min, y max)), so a test can check that the axes follow the data."""
-    if not series or not implot.begin_plot(title, imgui.ImVec2(-1, height)):
-        return
-    fit = implot.AxisFlags_.auto_fit
-    implot.setup_axes("iteration", unit, fit, fit)
-    for name, (xs, ys) in series:
-        spec = implot.Spec()
-        if len(xs) < SHORT_SERIES_POINTS:  # a line needs two points: the first ones show as dots
-            spec.marker, spec.marker_size = implot.Marker_.circle, 3.0
-        implot.plot_line(name, np.asarray(xs, np.float64), np.asarray(ys, np.float64), spec)
-    limits = implot.get_plot_limits()
-    progress.plot_limits[title] = ((limits.x.min, limits.x.max), (limits.y.min, limits.y.max))
-    implot.end_plot()
 
 
 def _edit(ui, editor) -> None:

@@ -79,16 +79,31 @@ def _context():
     return ctx, ctx.release
 
 
+def shown_model(source: ViewerSource) -> dict:
+    """What the screenshot shows: the source's model; for a scene without a model or sparse
+    points (an LLFF capture), the points the window triangulates on a thread, made here first
+    (a picture taken before them is black). InputError when none come out."""
+    if not source.points_pending:
+        return source.gaussians
+    from .sources import triangulated_splats  # noqa: PLC0415
+
+    splats, message = triangulated_splats(source.scene.root)
+    if splats is None:
+        raise InputError(f"{source.path}: nothing to take a screenshot of: {message}")
+    return splats
+
+
 def take_screenshot(source: ViewerSource, out_path: str | Path, camera_path: str | None = None,
                     size: tuple[int, int] | None = None, mode: str = "rgb") -> Path:
     from inceptiongs.renderer.splats import SplatRenderer  # noqa: PLC0415
 
     image_encoding(out_path)  # a bad extension fails before any rendering
+    gaussians = shown_model(source)
     camera = screenshot_camera(source, camera_path, size)
     ctx, cleanup = _context()
     try:
         renderer = SplatRenderer(ctx)
-        renderer.set_gaussians(source.gaussians)
+        renderer.set_gaussians(gaussians)
         image = renderer.render(camera, mode=mode)
         renderer.release()
     finally:

@@ -4,6 +4,7 @@ Plain data: every other part of the viewer reads these."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 RENDER_MODES = ("rgb", "depth", "normal", "opacity", "reference", "coverage")
@@ -37,7 +38,8 @@ KEY_BINDINGS = (
     ("Ctrl+Z / Ctrl+Y", "undo / redo (selections, deletions, crops)"),
     ("F12", "screenshot of the scene at window size"),
     ("Tab", "hide / show the panel"),
-    ("H / F1", "this help"),
+    ("H / F1", "this help (Esc closes it)"),
+    ("Ctrl+Q", "quit (as the window's close button)"),
 )
 
 
@@ -96,12 +98,27 @@ class FrameStats:
         self.fps = 1.0 / mean if mean > 0 else 0.0
 
 
-@dataclass
 class StatusLine:
-    """The one line under the panel that answers the last action; every part that acts on the
-    user's behalf (view, flags, editor, jobs) writes it."""
+    """The message that answers the last action, shown in the notification area
+    (notifications.py) that stays in view; every part that acts on the user's behalf (view,
+    flags, editor, jobs) replaces it when the state it names changes. ``serial`` counts the
+    replacements and ``changed_at`` (perf_counter) dates the last, so the area can mark a new one."""
 
-    text: str = ""
+    def __init__(self, text: str = "") -> None:
+        self._text = ""
+        self.serial = 0
+        self.changed_at = time.perf_counter()
+        self.text = text
+
+    @property
+    def text(self) -> str:
+        return self._text
+
+    @text.setter
+    def text(self, value: str) -> None:
+        self._text = str(value)
+        self.serial += 1
+        self.changed_at = time.perf_counter()
 
 
 @dataclass
@@ -112,4 +129,5 @@ class PanelState:
 
     show_help: bool = False
     rects: dict = field(default_factory=dict)
+    tooltip: str | None = None  # the last tooltip a shortened path showed (its whole text)
     layout: dict = field(default_factory=dict)

@@ -153,6 +153,16 @@ def open_scene_run(scene_path: Path, work_dir: Path, runs: list[Path], run_dir: 
     return source
 
 
+def not_a_source_message(path: Path, scene_error: InputError) -> str:
+    """The one line for a folder that is neither a scene nor a run: the scene loader's reason,
+    its "PATH: " prefix dropped when it names the folder itself (said once, not nested)."""
+    reason = str(scene_error)
+    prefix = f"{path}: "
+    if reason.startswith(prefix):
+        return f"{path}: {reason[len(prefix):]}, and no .ply model or run inside"
+    return f"{path}: not a scene ({reason}), and no .ply model or run inside"
+
+
 def open_source(path: str | Path) -> ViewerSource:
     path = Path(path)
     if not path.exists():
@@ -172,8 +182,7 @@ def open_source(path: str | Path) -> ViewerSource:
     except InputError as scene_error:
         model = newest_ply(path)
         if model is None:
-            raise InputError(f"{path}: neither a scene folder ({scene_error}) nor a run folder "
-                             f"(no .ply inside)") from None
+            raise InputError(not_a_source_message(path, scene_error)) from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
     runs = scene_runs(scene)

@@ -128,6 +128,27 @@ class Viewer:
         self.status = f"screenshot saved to {path}"
         return path
 
+    def render_verdict(self) -> None:
+        """The ended bootstrap's flagged views, from the model it started from and the result,
+        as small images in the panel's verdict (verdict.py)."""
+        from .verdict import render_flag_images, stage1_model, target_views, upload_textures  # noqa: PLC0415
+
+        jobs = self.jobs
+        jobs.verdict_images_due = False
+        verdict = jobs.verdict
+        if verdict is None:
+            return
+        # A live bootstrap started from the model shown then; an opened result from its run's.
+        before = jobs.bootstrap_base if jobs.bootstrap_base is not None else stage1_model(verdict.stage1_run)
+        views = target_views(verdict.out_dir) or jobs.bootstrap_views
+        if before is None or not views:
+            return
+        images = render_flag_images(self.renderer, before, self.view.edit.visible_arrays(), views,
+                                    self.view.settings)
+        upload_textures(self.ctx, images)
+        jobs.verdict.images = images
+        self.drawing.uploaded_version = None  # the shown model goes back to the renderer next draw
+
     def capture_window(self) -> np.ndarray:
         """Draw one frame and return the window as shown, panels included: [H, W, 3] float."""
         self.capture_requested = True
@@ -144,6 +165,8 @@ class Viewer:
         self.input.update_fly(seconds)
         self.take_points()
         self.jobs.take_snapshot()
+        if self.jobs.verdict_images_due:
+            self.render_verdict()
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
         width, height = self.view.framebuffer_size
@@ -231,6 +254,7 @@ class Viewer:
         if self.jobs.training is not None:
             self.jobs.training.stop(timeout=60.0)
         self.drawing.close()
+        self.jobs.set_verdict(None)  # its GL textures
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
             destroy_imgui(self.imgui_impl)

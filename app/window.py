@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import warnings
+from contextlib import contextmanager
+
 import glfw
 import moderngl
 
@@ -18,8 +21,12 @@ def create_window(width: int, height: int, title: str, visible: bool = True):
     """A GLFW window with a GL 4.3 core context made current. Raises WindowError naming the GL
     version that could be had when 4.3 core cannot."""
     unbind_current_egl()  # an EGL context left current blocks GLX on this thread
-    if not glfw.init():
-        raise WindowError("could not initialise GLFW (no display? set DISPLAY or run under Xvfb)")
+    with glfw_warnings() as reported:
+        initialised = glfw.init()
+    if not initialised:
+        # pyGLFW would print its own warning line first; its reason joins the one error line.
+        reason = f" ({reported[-1]})" if reported else ""
+        raise WindowError(f"could not initialise GLFW{reason}: no display? set DISPLAY or run under Xvfb")
     glfw.window_hint(glfw.VISIBLE, glfw.TRUE if visible else glfw.FALSE)
     glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, GL_REQUIRED[0])
     glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, GL_REQUIRED[1])
@@ -31,6 +38,24 @@ def create_window(width: int, height: int, title: str, visible: bool = True):
         return window
     raise WindowError(f"no OpenGL {GL_REQUIRED[0]}.{GL_REQUIRED[1]} core context could be created; "
                       f"found: {probe_gl_version()}")
+
+
+@contextmanager
+def glfw_warnings():
+    """Collect GLFW's error reports as text (yielded list) instead of letting pyGLFW print them
+    as Python warnings before the one-line error that explains them."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", glfw.GLFWError)
+        reported: list[str] = []
+        yield reported
+        reported.extend(_glfw_reason(w.message) for w in caught if issubclass(w.category, glfw.GLFWError))
+
+
+def _glfw_reason(error) -> str:
+    """pyGLFW's "(65550) b'X11: The DISPLAY environment variable is missing'" -> the text."""
+    text = str(error)
+    start, end = text.find("b'"), text.rfind("'")
+    return text[start + 2:end] if 0 <= start < end else text
 
 
 def probe_gl_version() -> str:
@@ -94,3 +119,20 @@ def ui_wants_keyboard(imgui_impl) -> bool:
         return False
     from imgui_bundle import imgui  # noqa: PLC0415
     return imgui.get_io().want_capture_keyboard
+
+
+def ui_under_cursor(imgui_impl, x: float, y: float) -> bool:
+    """Whether a window imgui drew last frame (the panel, the help, an open list) covers window
+    position (x, y). A move and a press that arrive in one poll (a quick click, xdotool's
+    "mousemove click") come before imgui's next frame, so its want_capture_mouse still
+    describes where the cursor was: the press would reach the scene under the panel too."""
+    if imgui_impl is None:
+        return False
+    from imgui_bundle import imgui  # noqa: PLC0415
+
+    for window in imgui.get_current_context().windows:
+        if not window.active or window.hidden or window.flags & imgui.WindowFlags_.no_inputs:
+            continue
+        if window.pos.x <= x < window.pos.x + window.size.x and window.pos.y <= y < window.pos.y + window.size.y:
+            return True
+    return False

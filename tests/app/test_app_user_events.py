@@ -310,7 +310,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         # Save PLY: typed file name, a valid PLY with what is shown; the model's folder untouched.
         out = tmp_path / "out" / "cropped.ply"
         out.parent.mkdir()
-        _scroll_panel(viewer, "file")                        # the panel's end, below a 480-pixel window
+        _scroll_panel(viewer, "save PLY")                    # the panel's end, below a 480-pixel window
         type_into(viewer, "file", str(out))
         click_widget(viewer, "save PLY")
         rects = viewer.ui.rects

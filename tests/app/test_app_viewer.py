@@ -141,7 +141,10 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         # The F key, as GLFW delivers it.
         viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.PRESS, 0)
         viewer.input.on_key(viewer.window, glfw.KEY_F, 0, glfw.RELEASE, 0)
-        # A right-click on a covered pixel away from the panel (the panel starts at the top left).
+        # A right-click on a covered pixel, the panel hidden (Tab): a press over the panel is the
+        # panel's, and in this 640-pixel window the grid lies mostly under it.
+        viewer.view.settings.show_panel = False
+        viewer.step()
         viewer.view.settings.mode = "opacity"
         coverage = viewer.render_image()[..., 0]
         viewer.view.settings.mode = "rgb"

@@ -1,0 +1,352 @@
+"""Feedback a user sees in the real window, driven with events as GLFW delivers them: the
+notification area that stays in view and is never stale, the bootstrap's verdict in the
+Training panel, plots that do not magnify noise, and the small things (Esc, Ctrl+Q, an opaque
+help, figures that keep their units, paths shortened in the middle, a press over the panel
+that never reaches the scene)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import glfw
+import numpy as np
+import pytest
+
+from viewer_cases import (click_at, click_widget, open_grid_viewer, opened, press_key, synthetic_gaussians,
+                          write_grid_model)
+
+pytestmark = pytest.mark.gl
+
+
+def _frames(viewer, count: int = 3) -> None:
+    for _ in range(count):
+        viewer.step()
+
+
+def _press(viewer, x: float, y: float, button=glfw.MOUSE_BUTTON_LEFT) -> None:
+    """A move, a press and a release at (x, y) with no frame between, as one poll delivers a
+    quick click (xdotool's "mousemove click")."""
+    viewer.input.on_cursor(viewer.window, x, y)
+    viewer.input.on_mouse_button(viewer.window, button, glfw.PRESS, 0)
+    viewer.input.on_mouse_button(viewer.window, button, glfw.RELEASE, 0)
+
+
+def _region(image: np.ndarray, rect) -> np.ndarray:
+    x0, y0, x1, y1 = (int(round(v)) for v in rect)
+    return image[max(y0, 0):y1, max(x0, 0):x1]
+
+
+def _inside_window(viewer, rect) -> bool:
+    width, height = glfw.get_window_size(viewer.window)
+    x0, y0, x1, y1 = rect
+    return 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height
+
+
+# --- the notification area ------------------------------------------------------------------------
+
+def test_a_right_click_flag_is_answered_in_view_and_no_message_goes_stale(xvfb, tmp_path):
+    """The status sat at the bottom of the scrolling panel (below a 480-pixel window: no visible
+    change after a right-click), kept naming a deleted flag, and said "deleted; N Gaussians
+    left" after Ctrl+Z had brought them back."""
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 1000, 480) as viewer:
+        viewer.status = ""
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 520, 240)       # the mouse over the scene, right of the panel
+        _frames(viewer)
+        before = viewer.capture_window()
+        _press(viewer, 520, 240, glfw.MOUSE_BUTTON_RIGHT)
+        after = viewer.capture_window()                       # the very next frame
+        assert [f.name for f in viewer.flags.items] == ["flag 1"], viewer.status
+        rect = viewer.ui.rects["notification"]
+        assert rect is not None and _inside_window(viewer, rect), rect
+        assert "'flag 1'" in viewer.status
+        assert np.abs(_region(after, rect) - _region(before, rect)).mean() > 0.05  # drawn at once
+        click_widget(viewer, "View")
+        click_widget(viewer, "Inspect")
+        click_widget(viewer, "flag 1/delete")
+        assert viewer.flags.items == [] and "flag 1" not in viewer.status
+        # Select a quarter of the grid, delete it, undo: the message follows each state.
+        viewer.view.settings.edit_tool = "rectangle"
+        total = viewer.view.edit.count
+        viewer.input.on_cursor(viewer.window, 520, 20)
+        viewer.step()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        viewer.input.on_cursor(viewer.window, 995, 475)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+        viewer.step()
+        assert 0 < int(viewer.view.edit.selected.sum()) < total
+        press_key(viewer, glfw.KEY_DELETE)
+        assert viewer.status.startswith("deleted;") and viewer.view.edit.count < total
+        press_key(viewer, glfw.KEY_Z, glfw.MOD_CONTROL)
+        assert viewer.view.edit.count == total
+        assert not viewer.status.startswith("deleted") and f"{total} Gaussians" in viewer.status, viewer.status
+        viewer.step()
+        assert viewer.ui.rects["notification"] is not None and _inside_window(viewer, viewer.ui.rects["notification"])
+
+
+# --- the bootstrap's verdict ----------------------------------------------------------------------
+
+def _write_summary(folder: Path, run: Path, baseline: bool, initial: dict, last: dict) -> None:
+    (folder / "bootstrap").mkdir(parents=True, exist_ok=True)
+    data = {"run": str(run), "baseline": baseline, "initial_eval": initial, "last_eval": last}
+    (folder / "bootstrap" / "summary.json").write_text(json.dumps(data), encoding="utf-8")
+
+
+def _scores(scarce: float, covered: float) -> dict:
+    return {"scarce_psnr": scarce, "covered_psnr": covered, "all_psnr": 0.5 * (scarce + covered)}
+
+
+class FakeBootstrap:
+    """Stands in for the bootstrap job: publishes the grid moved, then writes the summary the
+    real one writes (RUN2/bootstrap/summary.json) into out_dir."""
+
+    def __init__(self, run_dir: Path, out_dir: Path) -> None:
+        self.run_dir, self.out_dir = run_dir, out_dir
+
+    def run(self, box, control):
+        box.publish(1, synthetic_gaussians(shift=0.4), {"loss": 0.5})
+        time.sleep(0.1)
+        _write_summary(self.out_dir, self.run_dir, False, _scores(20.20, 22.30), _scores(20.90, 22.35))
+
+
+def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_baseline(xvfb, tmp_path, monkeypatch):
+    """It ended with "held-out PSNR covered 22.30 dB": no value before, none for the flagged
+    view, none for the same time spent on the photos alone."""
+    import inceptiongs.app.jobs as jobs_module
+
+    run, out = tmp_path / "run", tmp_path / "run_bootstrap"
+    run.mkdir()
+    _write_summary(tmp_path / "run_baseline", run, True, _scores(20.20, 22.30), _scores(20.40, 22.33))
+    monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)                          # the flagged view
+        click_widget(viewer, "Bootstrap flagged views")
+        deadline = time.time() + 60
+        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+            viewer.step()
+        _frames(viewer)
+        verdict = viewer.jobs.verdict
+        assert verdict is not None and verdict.baseline_dir == tmp_path / "run_baseline"
+        assert "scarce views: better by 0.50 dB than the same-time baseline" in viewer.status, viewer.status
+        # The flagged view from stage I (the grid where it was) and from the result (moved).
+        (shown,) = verdict.images
+        assert shown.name == "flag 1" and shown.before.shape == shown.after.shape
+        assert np.abs(shown.before - shown.after).mean() > 0.02
+        assert shown.before.max() > 0.2 and shown.after.max() > 0.2
+        # In the panel: the table and both images, inside the window.
+        rect = viewer.ui.rects["verdict"]
+        assert _inside_window(viewer, rect) and rect[3] - rect[1] > shown.before.shape[0]
+        window = viewer.capture_window()
+        assert _region(window, rect).std() > 0.05
+
+
+def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb, tmp_path):
+    """A PSNR axis spanning 22.22-22.30 made 0.08 dB of noise look like large swings, the
+    Gaussians axis read "94683.4 / 94683.2", and hovering the loss plot's x axis painted a
+    solid block."""
+    from inceptiongs.app.progress import JobPlan
+
+    metrics = tmp_path / "metrics.jsonl"
+    lines = [{"iteration": i, "wall_s": float(i), "all_psnr": 22.22 + 0.01 * (i % 9),
+              "covered_psnr": 22.22 + 0.01 * (i % 9), "scarce_psnr": 20.0 + 0.01 * (i % 5)} for i in range(0, 100, 10)]
+    metrics.write_text("\n".join(json.dumps(line) for line in lines) + "\n", encoding="utf-8")
+
+    class SteadyJob:
+        def run(self, box, control):
+            step = 0
+            while not control.stop.is_set():
+                if control.pause.is_set():
+                    time.sleep(0.01)
+                    continue
+                step += 1
+                box.publish(step, None, {"loss": 0.30 + 0.001 * (step % 3), "num_gaussians": 94683})
+                time.sleep(0.02)
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+        viewer.jobs.factory = lambda source: SteadyJob()
+        _frames(viewer)
+        for header in ("View", "Inspect", "Flags"):
+            click_widget(viewer, header)
+        click_widget(viewer, "train (new run)")
+        viewer.jobs.training.plan = JobPlan(metrics=metrics)
+        viewer.jobs.training.refresh_scores(force=True)
+        time.sleep(0.3)
+        _frames(viewer, 6)
+        limits = viewer.jobs.training.progress.plot_limits
+        (_, _), (low, high) = limits["held-out PSNR"]
+        assert high - low >= 1.0 and low <= 20.0 and high >= 22.30
+        (_, _), (low, high) = limits["Gaussians"]
+        assert high - low >= 10 and low < 94683 < high
+        x0, y0, x1, y1 = viewer.ui.rects["plot area/training loss"]
+        frame = viewer.ui.rects["plot/training loss"]
+        assert _inside_window(viewer, frame)
+        click_widget(viewer, "pause")
+        assert viewer.jobs.training.control.pause.is_set() and "paused at iteration" in viewer.status
+        _frames(viewer, 4)
+        viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), min(frame[3], y1 + 30) - 4)
+        _frames(viewer, 2)
+        away = viewer.capture_window()
+        viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), y1 + 6)   # over the x axis's tick labels
+        _frames(viewer, 2)
+        hovered = viewer.capture_window()
+        axis = (x0, y1, x1, min(frame[3], y1 + 20))
+        assert np.abs(_region(hovered, axis) - _region(away, axis)).max() < 0.02
+
+
+def test_plot_ranges_have_a_minimum_span_and_all_is_drawn_under_the_groups():
+    from inceptiongs.app.plots import axis_range, drawing_order, min_span
+
+    low, high = axis_range([22.22, 22.30], min_span("dB", np.array([22.22, 22.30])))
+    assert high - low == pytest.approx(1.0) and low < 22.22 and high > 22.30
+    low, high = axis_range([10.0, 30.0], 1.0)                # wide data: its span plus a margin
+    assert low < 10.0 and high > 30.0 and high - low < 25.0
+    assert min_span("count", np.array([94683.0])) >= 10 * 189
+    names = [name for name, _ in drawing_order([("scarce", 0), ("covered", 0), ("all", 0)])]
+    assert names == ["all", "scarce", "covered"]
+
+
+# --- the small things -----------------------------------------------------------------------------
+
+def test_esc_closes_the_help_ctrl_q_quits_and_the_help_is_opaque(xvfb, tmp_path):
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        viewer.status = ""
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_H)
+        _frames(viewer)
+        assert viewer.ui.show_help
+        rect = viewer.ui.rects["help"]
+        assert rect[0] < viewer.ui.layout["rect"][2]            # it lies over the panel
+        with_panel = viewer.capture_window()
+        press_key(viewer, glfw.KEY_TAB)                          # the panel away: the scene under the help
+        _frames(viewer)
+        without_panel = viewer.capture_window()
+        inner = (rect[0] + 2, rect[1] + 24, rect[2] - 2, rect[3] - 2)
+        assert np.abs(_region(with_panel, inner) - _region(without_panel, inner)).max() < 1.5 / 255
+        press_key(viewer, glfw.KEY_ESCAPE)
+        assert not viewer.ui.show_help and not viewer.should_close()
+        press_key(viewer, glfw.KEY_Q, glfw.MOD_CONTROL)
+        assert viewer.should_close()
+
+
+def test_figures_keep_their_units_and_a_long_path_is_shortened_with_a_tooltip(xvfb, tmp_path):
+    deep = tmp_path.joinpath(*[f"a_rather_long_folder_name_{i}" for i in range(4)])
+    deep.mkdir(parents=True)
+    with opened(open_grid_viewer, write_grid_model(deep / "model.ply"), 640, 480) as viewer:
+        _frames(viewer)
+        line = viewer.ui.rects["stats/0"][3] - viewer.ui.rects["stats/0"][1]
+        for number in range(4):                                  # FPS, frame ms, sort ms, draw ms
+            x0, y0, x1, y1 = viewer.ui.rects[f"stats/{number}"]
+            assert y1 - y0 == pytest.approx(line) and x1 <= viewer.ui.layout["visible_right"] + 1
+        assert len(str(viewer.flags.file)) > 80
+        x0, y0, x1, y1 = viewer.ui.rects["flags file"]
+        assert y1 - y0 == pytest.approx(line) and x1 <= viewer.ui.layout["visible_right"] + 1
+        viewer.input.on_cursor(viewer.window, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+        _frames(viewer, 4)
+        assert viewer.ui.tooltip == str(viewer.flags.file)
+
+
+def test_a_quick_click_on_the_crop_box_keeps_the_lasso_selection(xvfb, tmp_path):
+    """The press of a click on the panel arrived in the poll that moved the cursor there, before
+    imgui's next frame: the scene took it too, and the lasso's empty selection replaced the
+    user's."""
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+        _frames(viewer)
+        click_widget(viewer, "Edit")
+        viewer.view.settings.edit_tool = "lasso"
+        path = [(450, 100), (880, 100), (880, 900), (450, 900)]
+        viewer.input.on_cursor(viewer.window, *path[0])
+        viewer.step()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.PRESS, 0)
+        for point in path[1:]:
+            viewer.input.on_cursor(viewer.window, *point)
+            viewer.step()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_LEFT, glfw.RELEASE, 0)
+        _frames(viewer)
+        selected = viewer.view.edit.selected.copy()
+        assert 0 < selected.sum() < viewer.view.edit.count
+        x0, y0, x1, y1 = viewer.ui.rects["crop box (drag its handles)"]
+        _press(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
+        _frames(viewer)
+        assert viewer.view.settings.crop_enabled
+        np.testing.assert_array_equal(viewer.view.edit.selected, selected)
+
+
+def _viewer_command(*args: str, env_drop: tuple = ()) -> "subprocess.CompletedProcess":
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in env_drop}
+    return subprocess.run([sys.executable, "-m", "inceptiongs.app.main", *args], capture_output=True, text=True,
+                          timeout=300, env=env)
+
+
+def test_without_a_display_the_error_is_the_only_line(tmp_path):
+    """pyGLFW printed its GLFWError warning (two lines) before the viewer's one-line error."""
+    result = _viewer_command(str(write_grid_model(tmp_path / "model.ply")), env_drop=("DISPLAY", "WAYLAND_DISPLAY"))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: could not initialise GLFW"), result.stderr
+    assert "DISPLAY" in lines[0]
+
+
+def test_an_empty_folder_is_named_once_in_a_flat_message(tmp_path):
+    """"PATH: neither a scene folder (PATH: no recognisable scene (expected ...)) nor ..." named
+    the folder twice, one message nested in another."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = _viewer_command(str(empty))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert line.count(str(empty)) == 1 and "((" not in line and ")) " not in line, line
+    assert "no recognisable scene" in line and ".ply" in line
+
+
+@pytest.mark.slow
+def test_a_screenshot_of_an_llff_scene_without_points_waits_for_them(tmp_path):
+    """`inceptiongs-viewer fern/ --screenshot x.png` wrote an all-black image, taken before the
+    points the viewer triangulates on a thread existed."""
+    from conftest import require_data
+    from inceptiongs.io.images import read_png
+
+    fern = require_data("fern")
+    out = tmp_path / "fern.png"
+    result = _viewer_command(str(fern), "--screenshot", str(out), "--size", "320x240")
+    assert result.returncode == 0, result.stderr
+    image = read_png(out)
+    assert (image.max(axis=2) > 0.05).mean() > 0.05  # the points cover part of the view
+
+
+@pytest.mark.slow
+def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_after(xvfb, tmp_path):
+    """A result of `inceptiongs bootstrap` (not the viewer's job) opened later: the scores of
+    stage I, the result and the same-time baseline beside it, and j* rendered from both models."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.runner import baseline_run, resolve_targets, run_bootstrap
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.train.run_folder import load_run
+    from train_cases import tiny_demo_run
+
+    run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,
+                        eval_every=10, checkpoint_every=10)
+    _, scene, _ = load_run(run)
+    targets = resolve_targets(scene, Split.load(run / "split.json", scene.cameras), None, None, 1)
+    config = BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained", log_every=1, save_views=0)
+    run_bootstrap(run, tmp_path / "run_bootstrap", targets, config, progress=False)
+    baseline_run(run, tmp_path / "run_baseline", None, 6, seed=0, progress=False)
+    with opened(Viewer, open_source(tmp_path / "run_bootstrap"), 900, 1000) as viewer:
+        _frames(viewer)
+        verdict = viewer.jobs.verdict
+        assert verdict is not None and verdict.stage1_run.resolve() == run.resolve()
+        assert verdict.baseline_dir == tmp_path / "run_baseline" and verdict.baseline
+        (shown,) = verdict.images
+        assert shown.name == targets[0].name and shown.before.max() > 0.1
+        assert np.abs(shown.before - shown.after).mean() > 1e-3  # the refined model renders differently
+        assert _inside_window(viewer, viewer.ui.rects["verdict"])
