@@ -34,6 +34,7 @@ from ..train.step import (data_on, evaluate_held_out, prepare_data, restore_stat
 from .config import BootstrapConfig
 from .conscience import Conscience, photo_loss
 from .generation import GenerationCache, VirtualTarget, obtain_prior, prior_version
+from .outlook import run_outlook
 from .perceptual import perceptual_name
 from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
 from .stage1 import Stage1
@@ -206,6 +207,9 @@ class Bootstrap:
         if resume is not None:
             boot.summary["resumed_at"] = state.iteration
         if targets is not None:
+            outlook = run_outlook(run.run_dir)   # what stage I's curve says before any work is spent
+            log(outlook.line)
+            boot.summary["outlook"] = outlook.to_json()
             boot.obtain_prior()
         if config.lpips_weights:
             boot.lpips = load_torchscript(config.lpips_weights, "LPIPS")

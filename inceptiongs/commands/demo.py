@@ -153,6 +153,24 @@ def metrics_table(stage1: dict, baseline: dict, boot: dict) -> list[str]:
     return rows
 
 
+def flagged_view_rows(index: int, stage1: dict, baseline: dict, boot: dict) -> list[str]:
+    """Markdown rows: the flagged view's own PSNR / SSIM after stage I, the baseline and the
+    bootstrap (its photo is held out, so it scores the repair where the user asked for it)."""
+    def score(result: dict):
+        return next((v for v in result.get("views", []) if v.get("index") == index), None)
+
+    found = [score(r) for r in (stage1, baseline, boot)]
+    if any(f is None for f in found):
+        return [f"(view {index} is not a held-out view: no photo to score it against)"]
+    cells = [f"{_cell(f['psnr'], 2)} / {_cell(f['ssim'], 4)}" for f in found]
+    gains = [_difference(found[1]["psnr"], found[2]["psnr"]), _difference(found[0]["psnr"], found[2]["psnr"])]
+    return ["| flagged view | stage I PSNR / SSIM | baseline PSNR / SSIM | bootstrap PSNR / SSIM "
+            "| bootstrap - baseline | bootstrap - stage I |",
+            "| --- | ---: | ---: | ---: | ---: | ---: |",
+            f"| `{found[0]['name']}` | " + " | ".join(cells) + " | "
+            + " | ".join("-" if g is None else f"{g:+.2f}" for g in gains) + " |"]
+
+
 def verdict(stage1: dict, baseline: dict, boot: dict) -> str:
     """One plain sentence: did the bootstrap beat the same-time baseline on the scarce views?"""
     scarce = _difference(baseline["groups"]["scarce"]["psnr"], boot["groups"]["scarce"]["psnr"])
@@ -238,6 +256,12 @@ def _target_image(scene, split, run_dirs: list[Path], out_path: Path) -> None:
     write_png(out_path, np.round(np.concatenate(panels, axis=1) * 255.0).astype(np.uint8))
 
 
+def outlook_text(boot_summary: dict) -> str:
+    """The repair outlook the bootstrap printed before it started (bootstrap/outlook.py)."""
+    outlook = boot_summary.get("outlook")
+    return f"*{outlook['line']}*." if isinstance(outlook, dict) and "line" in outlook else "*no outlook recorded*."
+
+
 def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_result, boot_summary: dict,
                     coverage: dict, timings: dict) -> str:
     """OUT/report.md text; paths relative to OUT. evals: {run label: evaluate_run result}."""
@@ -252,6 +276,8 @@ def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_
         "# InceptionGS demo",
         "",
         f"**{verdict(stage1, baseline, boot)}** {gap_sentence(stage1)}",
+        "",
+        f"Before the bootstrap ran, stage I's curve said: {outlook_text(boot_summary)}",
         "",
         f"- scene: `scene/`, a procedural courtyard ({len(scene.cameras)} views at "
         f"{scene.cameras[0].width}x{scene.cameras[0].height}); the views in front of its north facade, which "
@@ -272,6 +298,10 @@ def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_
         "## Held-out views: stage I, the same-time baseline, the bootstrap",
         "",
         *metrics_table(stage1, baseline, boot),
+        "",
+        "The flagged view j* itself (`target.png` shows it after each run, beside its photo):",
+        "",
+        *flagged_view_rows(target, stage1, baseline, boot),
         "",
         f"LPIPS: {stage1['lpips']}. FID: {stage1['fid']}.",
         "",

@@ -54,10 +54,17 @@ def run(args) -> int:
         device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
         generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device, start=args.start,
                                            init=args.init)
+    from ..bootstrap.outlook import recorded_outlook
+
+    outlook = recorded_outlook(args.run)
     if args.json:
-        print(json.dumps(json_safe({**summary, **({"generated": generated} if generated else {})}), indent=1))
+        extra = {"outlook": {"when": outlook[0], **outlook[1].to_json()}} if outlook else {}
+        print(json.dumps(json_safe({**summary, **extra, **({"generated": generated} if generated else {})}),
+                         indent=1))
     else:
         print(format_table(summary))
+        if outlook is not None:
+            print(f"repair outlook {outlook[0]}: {outlook[1].line}")
         if generated:
             print(format_generated_table(generated))
         print(f"images and eval.json{' / generated.json' if generated else ''} in {args.run.rstrip('/')}/eval/")

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from inceptiongs.cli import main
-from inceptiongs.commands.demo import metrics_table, time_curves, verdict
+from inceptiongs.commands.demo import flagged_view_rows, metrics_table, time_curves, verdict
 from inceptiongs.evaluation.protocols import Split
 
 
@@ -41,6 +41,10 @@ def test_demo_runs_stage_one_coverage_bootstrap_baseline_and_report(tmp_path, ca
         assert (f"| {group} | {a['views']} | {a['psnr']:.2f} / {a['ssim']:.4f} | {b['psnr']:.2f} / {b['ssim']:.4f} | "
                 f"{c['psnr']:.2f} / {c['ssim']:.4f} | {c['psnr'] - b['psnr']:+.2f} | {c['psnr'] - a['psnr']:+.2f} |") in report
     assert verdict(*evals) in report and "same-time baseline" in report
+    # j*'s own scores after each run, and what stage I's curve said before the bootstrap started.
+    assert "\n".join(flagged_view_rows(split.target_view, *evals)) in report
+    outlook = json.loads((out / "run_bootstrap" / "bootstrap" / "summary.json").read_text())["outlook"]
+    assert f"Before the bootstrap ran, stage I's curve said: *{outlook['line']}*." in report
     assert "target.png" in report and "coverage.png" in report and "unavailable" in report
     # The baseline ran for (about) the bootstrap's time, starting from stage I's iteration.
     boot_records = [json.loads(line) for line in (out / "run_bootstrap" / "metrics.jsonl").read_text().splitlines()]
@@ -65,6 +69,17 @@ def test_the_verdict_and_table_compare_the_bootstrap_with_the_baseline():
     assert "did NOT beat" in lost and "-0.50 dB" in lost
     rows = metrics_table(stage1, baseline, _eval(14.5, 21.0))
     assert rows[2] == "| scarce | 2 | 14.00 / 0.5000 | 15.00 / 0.5000 | 14.50 / 0.5000 | -0.50 | +0.50 |"
+
+
+def test_the_flagged_view_row_scores_j_star_after_each_run():
+    def with_view(result: dict, psnr: float) -> dict:
+        return {**result, "views": [{"index": 3, "name": "003.png", "psnr": psnr, "ssim": 0.25},
+                                    {"index": 4, "name": "004.png", "psnr": 99.0, "ssim": 0.9}]}
+
+    runs = with_view(_eval(14.0, 20.0), 12.0), with_view(_eval(15.0, 21.0), 12.5), with_view(_eval(15.5, 20.8), 13.25)
+    rows = flagged_view_rows(3, *runs)
+    assert rows[2] == "| `003.png` | 12.00 / 0.2500 | 12.50 / 0.2500 | 13.25 / 0.2500 | +0.75 | +1.25 |"
+    assert "not a held-out view" in flagged_view_rows(7, *runs)[0]
 
 
 def test_time_curves_start_the_later_runs_where_stage_one_ended():

@@ -1,0 +1,139 @@
+"""Before a bootstrap runs: is there anything to repair, and is stage I done with the photos?
+
+Two readings of the stage-I run's own held-out curve (RUN/metrics.jsonl), both cheap and both
+about the scene rather than about the method:
+
+- **thinness**: how far the scarce held-out views render below the covered ones. A region the
+  photos see well renders as well as the rest (statuette: -0.1 dB); a thin one renders far
+  below (the courtyard 7.6 dB, bonsai 5.9 dB, a phone capture 5.9 dB).
+- **convergence**: how fast the scarce views still gain from photo steps (dB per minute of
+  training, over the last part of the curve). While photo steps still lift the scarce views,
+  the same minutes spent on the photos are worth more than on virtual views (a phone capture
+  after a 2-minute stage I still rising fast: the bootstrap ended 0.41 dB below the same-time
+  baseline).
+
+The outlook says one line ("nothing to repair here: ...", "train longer first: ...", or why a
+repair may help); the bootstrap still runs when asked to. Without a held-out split (protocol
+"none") or with too short a curve it says what it could not tell.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+# The scarce views render within this of the covered ones: the region is not thin (statuette's
+# gap is -0.1 dB and every bootstrap there ends level or below its baseline).
+NOTHING_TO_REPAIR_DB = 1.0
+# Photo steps still lift the scarce views by at least this much a minute of stage-I training:
+# spend the time on the photos first.
+STILL_RISING_DB_PER_MIN = 0.5
+# The slope is read over this last fraction of the training time (at least two evaluations).
+CURVE_TAIL_FRACTION = 1.0 / 3.0
+
+
+@dataclass(frozen=True)
+class Outlook:
+    verdict: str                        # "repair", "nothing to repair", "train longer", "unknown"
+    line: str
+    gap_db: float | None = None         # covered - scarce held-out PSNR at the end of stage I
+    scarce_db_per_min: float | None = None
+    covered_db_per_min: float | None = None
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def last_group_scores(lines: list[dict]) -> tuple[float, float] | None:
+    """(scarce, covered) PSNR of the newest line that has both, or None."""
+    for record in reversed(lines):
+        scarce, covered = record.get("scarce_psnr"), record.get("covered_psnr")
+        if isinstance(scarce, (int, float)) and isinstance(covered, (int, float)):
+            return float(scarce), float(covered)
+    return None
+
+
+def gain_per_minute(lines: list[dict], key: str, tail_fraction: float = CURVE_TAIL_FRACTION) -> float | None:
+    """dB per minute of training time of ``key`` (a PSNR) over the last ``tail_fraction`` of the
+    curve: the least-squares slope through its evaluations there (at least two, at distinct
+    times), else None."""
+    points = [(float(r["train_s"]), float(r[key])) for r in lines
+              if isinstance(r.get(key), (int, float)) and isinstance(r.get("train_s"), (int, float))]
+    if len(points) < 2:
+        return None
+    end = points[-1][0]
+    tail = [p for p in points if p[0] >= (1.0 - tail_fraction) * end]
+    if len(tail) < 2:
+        tail = points[-2:]
+    mean_t = sum(t for t, _ in tail) / len(tail)
+    mean_v = sum(v for _, v in tail) / len(tail)
+    spread = sum((t - mean_t) ** 2 for t, _ in tail)
+    if spread <= 0.0:       # every evaluation at one time: no slope to read
+        return None
+    return 60.0 * sum((t - mean_t) * (v - mean_v) for t, v in tail) / spread
+
+
+def outlook_from_curve(lines: list[dict]) -> Outlook:
+    """The outlook of a stage-I run from its metrics lines (see the module doc)."""
+    scores = last_group_scores(lines)
+    if scores is None:
+        return Outlook("unknown", "repair outlook: unknown (the run holds out no scarce and covered views: "
+                                  "train with --protocol unstructured to measure how thin the region is)")
+    scarce, covered = scores
+    gap = covered - scarce
+    scarce_rate, covered_rate = gain_per_minute(lines, "scarce_psnr"), gain_per_minute(lines, "covered_psnr")
+    figures = dict(gap_db=round(gap, 2),
+                   scarce_db_per_min=None if scarce_rate is None else round(scarce_rate, 3),
+                   covered_db_per_min=None if covered_rate is None else round(covered_rate, 3))
+    where = f"scarce {scarce:.2f} / covered {covered:.2f} dB"
+    if gap < NOTHING_TO_REPAIR_DB:
+        return Outlook("nothing to repair", f"nothing to repair here: the scarce views render within "
+                                            f"{NOTHING_TO_REPAIR_DB:g} dB of the covered ones ({where})", **figures)
+    if scarce_rate is not None and scarce_rate >= STILL_RISING_DB_PER_MIN:
+        return Outlook("train longer", f"train longer first: stage I still gains {scarce_rate:.2f} dB a minute on "
+                                       f"the scarce views ({where}); a bootstrap now competes with photo steps that "
+                                       f"still help", **figures)
+    rising = "" if scarce_rate is None else f", gaining {scarce_rate:.2f} dB a minute from photo steps"
+    return Outlook("repair", f"worth a repair: the scarce views render {gap:.1f} dB below the covered ones "
+                             f"({where}{rising}); the expected gain is not estimated", **figures)
+
+
+def run_outlook(run_dir: str | Path) -> Outlook:
+    """The outlook of the stage-I run in ``run_dir`` (its metrics.jsonl); "unknown" without one."""
+    from ..errors import InputError
+    from ..evaluation.report import read_metrics
+
+    try:
+        lines = read_metrics(Path(run_dir) / "metrics.jsonl")
+    except InputError as exc:
+        return Outlook("unknown", f"repair outlook: unknown ({exc})")
+    return outlook_from_curve(lines)
+
+
+def recorded_outlook(run_dir: str | Path) -> tuple[str, Outlook] | None:
+    """What ``inceptiongs eval`` shows beside a run's scores: for a bootstrap result the outlook it
+    printed before it started ("before the bootstrap"), for a stage-I run the outlook of a
+    bootstrap of it ("for a bootstrap"); None for a baseline or a folder without either."""
+    import json
+
+    from ..errors import InputError
+    from ..io.paths import contained_path, read_small_text
+
+    run_dir = Path(run_dir)
+    summary_path = run_dir / "bootstrap" / "summary.json"
+    if summary_path.exists():
+        try:
+            summary = json.loads(read_small_text(contained_path(run_dir, "bootstrap/summary.json",
+                                                                f"{run_dir}"), "bootstrap summary"))
+        except (InputError, json.JSONDecodeError):
+            return None
+        recorded = summary.get("outlook") if isinstance(summary, dict) else None
+        if not isinstance(recorded, dict) or not isinstance(recorded.get("line"), str):
+            return None
+        fields = {name: recorded.get(name) for name in Outlook.__dataclass_fields__}
+        if not isinstance(fields["verdict"], str):
+            return None
+        return "before the bootstrap", Outlook(**fields)
+    if (run_dir / "metrics.jsonl").exists():
+        return "for a bootstrap", run_outlook(run_dir)
+    return None

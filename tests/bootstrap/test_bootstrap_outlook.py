@@ -1,0 +1,76 @@
+"""The repair outlook read from a stage-I run's held-out curve before a bootstrap starts: nothing
+to repair where the scarce views render as well as the covered ones, train longer while photo
+steps still lift the scarce views, worth a repair otherwise; and where it is shown (the bootstrap's
+log and summary, `inceptiongs eval`)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from inceptiongs.bootstrap.outlook import (NOTHING_TO_REPAIR_DB, STILL_RISING_DB_PER_MIN, gain_per_minute,
+                                           outlook_from_curve, recorded_outlook)
+
+
+def _curve(scarce: list[float], covered: list[float], minutes_apart: float = 1.0) -> list[dict]:
+    lines = []
+    for index, (s, c) in enumerate(zip(scarce, covered)):
+        lines.append({"iteration": 100 * index, "train_s": 60.0 * minutes_apart * index, "loss": 0.1})
+        lines.append({"iteration": 100 * index, "train_s": 60.0 * minutes_apart * index,
+                      "scarce_psnr": s, "covered_psnr": c, "all_psnr": (s + c) / 2})
+    return lines
+
+
+def test_the_slope_is_read_over_the_end_of_the_curve_in_db_per_minute():
+    lines = _curve([10, 14, 15, 15.3], [20, 22, 23, 23.3], minutes_apart=2.0)
+    assert gain_per_minute(lines, "scarce_psnr") == pytest.approx(0.3 / 2.0)    # the last third: 4 to 6 min
+    assert gain_per_minute(lines[:2], "scarce_psnr") is None                      # one evaluation: no slope
+    assert gain_per_minute(lines, "absent") is None
+
+
+def test_scarce_views_as_good_as_covered_ones_are_nothing_to_repair():
+    # statuette's case: the "scarce" group renders as well as the covered one, whatever the curve does
+    outlook = outlook_from_curve(_curve([20.0, 23.0, 24.5], [20.5, 23.2, 24.6]))
+    assert outlook.verdict == "nothing to repair"
+    assert outlook.line.startswith("nothing to repair here: ") and "scarce 24.50 / covered 24.60 dB" in outlook.line
+    assert outlook.gap_db == pytest.approx(0.1)
+
+
+def test_a_thin_region_still_rising_from_photo_steps_says_train_longer():
+    outlook = outlook_from_curve(_curve([12.0, 15.0, 17.0, 19.0], [22.0, 25.0, 26.0, 27.0]))
+    assert outlook.verdict == "train longer" and outlook.scarce_db_per_min == pytest.approx(2.0)
+    assert "stage I still gains 2.00 dB a minute on the scarce views" in outlook.line
+
+
+def test_a_thin_converged_region_is_worth_a_repair():
+    outlook = outlook_from_curve(_curve([15.0, 17.0, 17.1, 17.15], [22.0, 24.0, 24.3, 24.5]))
+    assert outlook.verdict == "repair" and outlook.gap_db == pytest.approx(7.35)
+    assert outlook.scarce_db_per_min < STILL_RISING_DB_PER_MIN
+    assert "7.3 dB below the covered ones" in outlook.line or "7.4 dB below the covered ones" in outlook.line
+
+
+def test_without_scarce_and_covered_groups_the_outlook_is_unknown():
+    lines = [{"iteration": 0, "train_s": 0.0, "all_psnr": 20.0}, {"iteration": 9, "train_s": 60.0, "all_psnr": 22.0}]
+    outlook = outlook_from_curve(lines)
+    assert outlook.verdict == "unknown" and "--protocol unstructured" in outlook.line
+
+
+def test_the_threshold_separates_the_two_cases_at_the_stated_gap():
+    at = outlook_from_curve(_curve([20.0, 20.0], [20.0 + NOTHING_TO_REPAIR_DB, 20.0 + NOTHING_TO_REPAIR_DB]))
+    below = outlook_from_curve(_curve([20.0, 20.0], [20.0 + 0.99 * NOTHING_TO_REPAIR_DB] * 2))
+    assert at.verdict == "repair" and below.verdict == "nothing to repair"
+
+
+def test_eval_shows_the_outlook_a_bootstrap_recorded_and_a_stage_i_runs_own(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in _curve([15, 17, 17.1], [22, 24, 24.2])))
+    when, outlook = recorded_outlook(run)
+    assert when == "for a bootstrap" and outlook.verdict == "repair"
+    boot = tmp_path / "boot"
+    (boot / "bootstrap").mkdir(parents=True)
+    (boot / "bootstrap" / "summary.json").write_text(json.dumps({"outlook": outlook.to_json()}))
+    assert recorded_outlook(boot) == ("before the bootstrap", outlook)
+    (boot / "bootstrap" / "summary.json").write_text(json.dumps({"baseline": True}))    # a baseline records none
+    assert recorded_outlook(boot) is None
