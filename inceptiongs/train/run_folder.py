@@ -13,6 +13,7 @@ from pathlib import Path
 import torch
 
 from ..io.atomic import append_line, atomic_write_text
+from ..io.paths import contained_path, read_small_text
 from ..errors import InputError
 from ..gaussians import Gaussians
 from .checkpoint import latest_checkpoint, load_newest_checkpoint
@@ -59,7 +60,8 @@ def truncate_metrics(run_dir: Path, last_iteration: int) -> None:
     if not path.exists():
         return
     kept = []
-    for line in path.read_text(encoding="utf-8").splitlines():
+    # Through the read guard: a run may come from someone else (no symlink out, a log's size).
+    for line in read_small_text(contained_path(run_dir, "metrics.jsonl", str(run_dir)), "metrics log").splitlines():
         try:
             record = json.loads(line)
         except json.JSONDecodeError:
@@ -75,7 +77,7 @@ def logged_iterations(run_dir: Path) -> set[int]:
     if not path.is_file():
         return set()
     found = set()
-    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+    for line in read_small_text(contained_path(run_dir, "metrics.jsonl", str(run_dir)), "metrics log").splitlines():
         try:
             record = json.loads(line)
         except json.JSONDecodeError:
@@ -127,8 +129,9 @@ def is_run_of(run_dir: str | Path, scene_root: str | Path) -> bool:
     if not ((run_dir / "model.ply").is_file() or (run_dir / "checkpoints").is_dir()):
         return False
     try:
-        scene = json.loads((run_dir / "config.json").read_text()).get("scene")
-    except (OSError, ValueError, AttributeError):
+        scene = json.loads(read_small_text(contained_path(run_dir, "config.json", str(run_dir)),
+                                           "run config")).get("scene")
+    except (OSError, ValueError, AttributeError, InputError):
         return False
     return isinstance(scene, str) and Path(scene).resolve() == Path(scene_root).resolve()
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..evaluation.metrics import psnr_from_mse
+from ..io.paths import contained_path, read_small_text
 
 # The run folder's per-view figures (written at the end of a finished run).
 VIEW_FIT_FILE = "view_fit.json"
@@ -89,7 +90,8 @@ def read_poorly_fit(run_dir: str | Path) -> dict[str, float]:
     if not path.is_file():
         return {}
     try:
-        views = json.loads(path.read_text())["views"]
+        views = json.loads(read_small_text(contained_path(run_dir, VIEW_FIT_FILE, str(run_dir)),
+                                           "view-fit report"))["views"]
         bad = {str(v["name"]): float(v["psnr"]) for v in views if v["poorly_fit"]}
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a view-fit report ({type(exc).__name__}: {exc})") from exc
