@@ -202,9 +202,10 @@ def resume_point(boot: Bootstrap, payload: dict) -> tuple[int, int | None]:
 
 def baseline_run(run: Stage1 | str | Path, out_dir: str | Path, minutes: float | None, iterations: int,
                  seed: int = 0, progress: bool = True, log=None, eval_every: int = 0,
-                 overwrite: bool = False) -> BootstrapResult:
+                 overwrite: bool = False, rasterizer=None) -> BootstrapResult:
     """Stage I continued on the photos alone, with the same continuation schedule the bootstrap
     uses, for ``minutes`` (the bootstrap's total time) or ``iterations``: the comparison baseline."""
     config = BootstrapConfig(seed=seed, iterations=iterations, minutes=minutes, rounds=1, log_every=1,
                              eval_every=eval_every)
-    return run_bootstrap(run, out_dir, None, config, progress=progress, log=log, overwrite=overwrite)
+    return run_bootstrap(run, out_dir, None, config, progress=progress, log=log, overwrite=overwrite,
+                         rasterizer=rasterizer)

@@ -380,9 +380,12 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
                    f"refinement; at most {args.bootstrap_minutes:g} min)")
     began = time.perf_counter()
     boot_dir = out / "run_bootstrap"
+    # Stage I said which device it chose; the bootstrap and the baseline use the same one quietly.
+    from ..rasterizer.interface import select_rasterizer
+    rasterizer = select_rasterizer(stage1.config.device)[1]
     # The demo's own output folder: a rerun of the demo replaces its previous demo result.
     boot_result = run_bootstrap(stage1, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
-                                log=lambda message: print(f"      {message}", flush=True))
+                                log=lambda message: print(f"      {message}", flush=True), rasterizer=rasterizer)
     timings["bootstrap"] = time.perf_counter() - began
 
     # The baseline gets what the bootstrap took by its own clock (prior, generation, refinement).
@@ -391,7 +394,7 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
     progress.stage(f"baseline: stage I continued on the photos alone for the bootstrap's {base_s:.0f} s")
     began = time.perf_counter()
     base_result = baseline_run(stage1, out / "run_baseline", base_s / 60.0, BASELINE_ITERATION_CAP, seed=args.seed,
-                               eval_every=DEMO_EVAL_EVERY)
+                               eval_every=DEMO_EVAL_EVERY, rasterizer=rasterizer)
     timings["baseline"] = time.perf_counter() - began
     return boot_result, base_result
 
