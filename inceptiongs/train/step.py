@@ -110,6 +110,9 @@ class TrainState:
     # view -> MSE of its latest training render (inceptiongs.train.view_fit: photos the model
     # cannot fit are reported at the end of the run).
     view_mse: dict[int, float] = dataclasses.field(default_factory=dict)
+    # The sky shell's log-scale floor (sky.shell_log_scale_floor): fixed for a run, so computed
+    # once rather than read back from the device every step; not checkpointed (derived).
+    shell_floor: float | None = None
 
     def payload(self, config: TrainConfig) -> dict:
         extra = {}
@@ -333,9 +336,7 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
 
     loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
     with torch.no_grad():
-        mse = float((out["rgb"] - data.images[view]).square().mean())
-    if math.isfinite(mse):  # a non-finite render says nothing about the photo
-        state.view_mse[view] = mse
+        mse = (out["rgb"] - data.images[view]).square().mean()
     terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
     loss = strategy.add_loss_terms(loss, terms, state)
     if config.pgsr:
@@ -360,7 +361,11 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
             loss = loss + config.lambda_ncc * mv["ncc"]
     terms["loss"] = loss
 
-    record = {name: float(value.detach()) for name, value in terms.items()}
+    # Every logged number in one read from the device (each read makes the host wait for the GPU).
+    values = torch.stack([value.detach().double() for value in [*terms.values(), mse]]).tolist()
+    record = dict(zip(terms, values[:-1]))
+    if math.isfinite(values[-1]):  # a non-finite render says nothing about the photo
+        state.view_mse[view] = values[-1]
     record["sh_degree"] = sh_degree
     record.update(optimizer_step(step, loss, out, camera, state, data, config))
     return record
@@ -418,9 +423,11 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
     if state.sky is not None and config.sky_min_scale > 0:
+        if state.shell_floor is None:
+            state.shell_floor = shell_log_scale_floor(state.sky, [data.cameras[i] for i in data.train],
+                                                      config.sky_min_scale)
         hold_shell_scales(state.params["log_scales"], in_background(state.params["means"].detach(), state.sky),
-                          shell_log_scale_floor(state.sky, [data.cameras[i] for i in data.train],
-                                                config.sky_min_scale))
+                          state.shell_floor)
     strategy = strategy_for(config)
     strategy.after_optimizer_step(step, state, data, config)
 

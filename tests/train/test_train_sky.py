@@ -220,12 +220,15 @@ def test_hold_shell_scales_raises_only_the_shells_short_axes():
     log_scales = torch.tensor([[-5.0, -1.0, 0.5], [-0.5, -0.25, -3.0], [-9.0, -9.0, -9.0]])
     before = log_scales.clone()
     background = torch.tensor([True, True, False])
-    assert hold_shell_scales(log_scales, background, -1.0) == 2
+    hold_shell_scales(log_scales, background, -1.0)
     assert log_scales[0].tolist() == [-1.0, -1.0, 0.5]
     assert log_scales[1].tolist() == [-0.5, -0.25, -1.0]
     assert torch.equal(log_scales[2], before[2])
-    assert hold_shell_scales(log_scales, background, -1.0) == 0              # idempotent
-    assert hold_shell_scales(log_scales, torch.zeros(3, dtype=torch.bool), 5.0) == 0
+    held = log_scales.clone()
+    hold_shell_scales(log_scales, background, -1.0)                          # idempotent
+    assert torch.equal(log_scales, held)
+    hold_shell_scales(log_scales, torch.zeros(3, dtype=torch.bool), 5.0)     # no shell: nothing moves
+    assert torch.equal(log_scales, held)
 
 
 def test_the_scale_floor_at_fraction_one_is_the_shells_initial_scale():
