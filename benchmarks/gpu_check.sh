@@ -4,7 +4,8 @@
 # the tiny demo courtyard with --device cuda (every hot-loop path on the device), forward+backward
 # through the rasterizer interface up to 1M Gaussians at 1920x1080, bonsai at full resolution
 # (800x533, unstructured seed 0, 7000 steps, the default strategy with the PGSR terms), stage II's
-# step rate on that run on the GPU and on this machine's CPU, and the README demo on CUDA.
+# step rate on that run on the GPU and on this machine's CPU, and the README demo on CUDA; a
+# profile of 20 steps at ~1.7M Gaussians (benchmarks/profile_step.py) says where a step's time goes.
 # Figures: docs/devices.md.
 #
 #     bash benchmarks/gpu_check.sh [OUT]      (default OUT: runs/gpu_check)
@@ -50,6 +51,9 @@ step 60 smoke_boot $inc --debug bootstrap "$work/tiny_run" --out "$work/tiny_boo
 step 60 smoke_resume $inc --debug train "$work/tiny" --out "$work/tiny_run" --iterations 160 --resume --device cpu
 step 60 raster python3 benchmarks/bench_rasterizers.py --sizes 10000 100000 1000000 --size 1920x1080 \
     --json "$out/raster.json"
+# Where a step's time goes at ~1.7M Gaussians with the PGSR terms on (they start at 1633 of 7000).
+step 150 profile python3 benchmarks/profile_step.py "$bonsai" --device cuda --iterations 7000 --warm 1700 \
+    --steps 20 --top 30
 step 230 bonsai $inc train "$bonsai" --out "$work/bonsai" --downscale 1 --iterations 7000 --protocol unstructured \
     --seed 0 --device cuda
 cp "$work/bonsai/metrics.jsonl" "$out/bonsai_metrics.jsonl" 2>/dev/null
