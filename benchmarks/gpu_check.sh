@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The GPU backend checked and timed on a CUDA machine in one pass of at most ~9 minutes: gsplat's
+# The GPU backend checked and timed on a CUDA machine in one pass (about 13 minutes at the step rate
+# of 2026-11-27; each step has its own time limit): gsplat's
 # first build, its contract tests against the torch reference, a short stage I and bootstrap on
 # the tiny demo courtyard with --device cuda (every hot-loop path on the device), forward+backward
 # through the rasterizer interface up to 1M Gaussians at 1920x1080, bonsai at full resolution
