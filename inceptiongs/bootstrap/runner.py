@@ -52,9 +52,12 @@ def stopped_bootstrap_step(out_dir: Path) -> int | None:
     kept = list_checkpoints(out_dir)
     if not kept:
         return None
+    from ..io.paths import contained_path, read_small_text
+
     try:
-        summary = json.loads((out_dir / BOOTSTRAP_DIR / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+        summary = json.loads(read_small_text(contained_path(out_dir, f"{BOOTSTRAP_DIR}/summary.json", str(out_dir)),
+                                             "bootstrap summary"))
+    except (OSError, InputError, ValueError):
         summary = {}
     ended = isinstance(summary, dict) and "iteration" in summary and summary.get("stopped") is not True
     return None if ended else kept[-1][0]
