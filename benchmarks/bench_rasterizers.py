@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import inceptiongs  # noqa: F401  (before torch: OMP_WAIT_POLICY, docs/training.md "Speed")
@@ -26,6 +24,7 @@ import torch
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.rasterizer.interface import get_rasterizer
+from timing import median_ms   # benchmarks/timing.py (this script's folder is on sys.path)
 
 OUTPUTS = ("rgb", "alpha", "normal", "plane_depth")
 
@@ -64,21 +63,11 @@ def time_one(name: str, n: int, width: int, height: int, repeats: int) -> dict:
         for p in params.values():
             p.grad = None
 
-    def timed(fn) -> float:
-        fn()   # warm-up: allocator, kernel caches
-        times = []
-        for _ in range(repeats):
-            sync()
-            start = time.perf_counter()
-            fn()
-            sync()
-            times.append(1000.0 * (time.perf_counter() - start))
-        return statistics.median(times)
-
     with torch.no_grad():
-        forward_ms = timed(forward)
+        forward_ms = median_ms(forward, repeats, sync)
     return {"rasterizer": name, "device": device, "n": n, "size": f"{width}x{height}",
-            "forward_ms": round(forward_ms, 2), "forward_backward_ms": round(timed(forward_backward), 2)}
+            "forward_ms": round(forward_ms, 2),
+            "forward_backward_ms": round(median_ms(forward_backward, repeats, sync), 2)}
 
 
 def main() -> int:

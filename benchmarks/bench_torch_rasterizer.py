@@ -22,9 +22,12 @@ import json
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 WORKER = textwrap.dedent("""
-    import json, resource, statistics, sys, time
+    import json, resource, sys
+    sys.path.insert(0, sys.argv[6])   # benchmarks/: the shared timing rule
+    from timing import median_ms
     import inceptiongs  # before torch: sets OMP_WAIT_POLICY=PASSIVE (docs/training.md, "Speed")
     import numpy as np, torch
     torch.set_num_threads(2)
@@ -71,20 +74,9 @@ WORKER = textwrap.dedent("""
             p.grad = None
         return out
 
-    def timed(fn):
-        fn()  # warm-up (JIT compilation, allocator)
-        times = []
-        for _ in range(repeats):
-            sync()
-            start = time.perf_counter()
-            fn()
-            sync()
-            times.append(1000 * (time.perf_counter() - start))
-        return statistics.median(times)
-
     with torch.no_grad():
-        fwd_ms = timed(forward)
-    fwd_bwd_ms = timed(forward_backward)
+        fwd_ms = median_ms(forward, repeats, sync)
+    fwd_bwd_ms = median_ms(forward_backward, repeats, sync)
     out = forward()
     rss_after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_mb = ((torch.cuda.max_memory_allocated() - allocated_before) / 2**20 if cuda
@@ -124,7 +116,7 @@ def main() -> None:
     for n in args.sizes:
         for backend in backends:
             result = subprocess.run([sys.executable, "-c", WORKER, str(n), backend, str(args.repeats), str(args.image),
-                                     args.device],
+                                     args.device, str(Path(__file__).resolve().parent)],
                                     capture_output=True, text=True)
             if result.returncode != 0:
                 reason = (result.stderr.strip().splitlines() or ["failed"])[-1]

@@ -25,17 +25,7 @@ export PYTHONUNBUFFERED=1 PYTHONPATH="$(pwd)${PYTHONPATH:+:$PYTHONPATH}"  # the 
 export MAX_JOBS=${MAX_JOBS:-$(nproc)}
 work=$(mktemp -d)
 export INCEPTIONGS_CACHE_DIR=$work/cache
-step() {  # step SECONDS NAME COMMAND...: run; its whole log goes to OUT/gpu_check.log, its tail here
-    local limit=$1 name=$2
-    shift 2
-    local began=$SECONDS
-    echo "== $name"
-    timeout "$limit" "$@" >"$work/$name.log" 2>&1
-    local rc=$?
-    tail -n 12 "$work/$name.log" | tr '\r' '\n' | tail -n 12
-    echo "== $name: exit $rc, $((SECONDS - began)) s"
-    { echo "== $name: exit $rc, $((SECONDS - began)) s"; tr '\r' '\n' <"$work/$name.log"; } >>"$out/gpu_check.log"
-}
+. "$(dirname "$0")/check_step.sh"   # step SECONDS NAME COMMAND...
 inc="python3 -m inceptiongs"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 python3 -c "import torch, numpy; print('torch', torch.__version__, 'cuda', torch.version.cuda, 'numpy', \

@@ -16,17 +16,7 @@ out=${1:-runs/gpu_check_prior}
 mkdir -p "$out"
 export PYTHONUNBUFFERED=1 PYTHONPATH="$(pwd)${PYTHONPATH:+:$PYTHONPATH}"  # the checkout, installed or not
 work=$(mktemp -d)
-step() {  # step SECONDS NAME COMMAND...: run; its whole log goes to OUT/gpu_check.log, its tail here
-    local limit=$1 name=$2
-    shift 2
-    local began=$SECONDS
-    echo "== $name"
-    timeout "$limit" "$@" >"$work/$name.log" 2>&1
-    local rc=$?
-    tail -n 25 "$work/$name.log"
-    echo "== $name: exit $rc, $((SECONDS - began)) s"
-    { echo "== $name: exit $rc, $((SECONDS - began)) s"; tr '\r' '\n' <"$work/$name.log"; } >>"$out/gpu_check.log"
-}
+. "$(dirname "$0")/check_step.sh"   # step SECONDS NAME COMMAND...
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 python3 -c "import torch, numpy, numba; print('torch', torch.__version__, 'cuda', torch.version.cuda, \
 'numpy', numpy.__version__, 'numba', numba.__version__, 'cpus', __import__('os').cpu_count())"
