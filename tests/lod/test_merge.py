@@ -136,3 +136,9 @@ def test_root_is_the_moment_match_of_all_leaves_and_spheres_nest():
             break
         reach = np.linalg.norm(h.means[leaf] - h.means[node], axis=1) + h.radii[leaf]
         assert np.all(reach <= h.radii[node] * (1 + 1e-5) + 1e-6)
+
+
+def test_progress_rises_to_one():
+    seen = []
+    build_hierarchy(random_gaussians(100, seed=7), branching=2, progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 7   # ceil(log2(100)) levels
