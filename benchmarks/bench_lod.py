@@ -1,5 +1,6 @@
-"""LOD hierarchy speed: build seconds per million Gaussians, one cut, one budget cut, cache
-save/load, on a random model. Prints figures and writes them as JSON; asserts nothing.
+"""LOD hierarchy speed: build seconds per million Gaussians, one cut, the exact and the greedy
+budget cuts, cache save/load, on a random model. Prints figures, writes them as JSON; asserts
+nothing.
 
     python benchmarks/bench_lod.py [--count 1000000] [--sh-degree 0] [--json lod.json]
 """
@@ -23,7 +24,7 @@ from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io.atomic import atomic_write_text
 from inceptiongs.lod.cache import load_hierarchy, save_hierarchy
-from inceptiongs.lod.cut import budget_cut_nodes, cut_nodes
+from inceptiongs.lod.cut import budget_cut_nodes, cut_nodes, greedy_budget_cut_nodes
 from inceptiongs.lod.hierarchy import build_hierarchy
 
 
@@ -48,6 +49,7 @@ def measure(args) -> dict:
     camera = Camera("bench", 1280, 720, 1000.0, 1000.0, 640.0, 360.0, look_at(np.array([0.0, -8.0, -25.0]), np.zeros(3)))
     cut, cut_s = timed(lambda: cut_nodes(tree, camera, args.granularity))
     (budget_nodes, budget_g), budget_s = timed(lambda: budget_cut_nodes(tree, camera, args.budget))
+    greedy_nodes, greedy_s = timed(lambda: greedy_budget_cut_nodes(tree, camera, args.budget))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "tree.npz"
         _, save_s = timed(lambda: save_hierarchy(tree, path))
@@ -60,7 +62,8 @@ def measure(args) -> dict:
         "build_s": build_s, "build_s_per_million": build_s / (args.count / 1e6),
         "cut_granularity_px": args.granularity, "cut_nodes": int(len(cut)), "cut_ms": cut_s * 1e3,
         "budget": args.budget, "budget_nodes": int(len(budget_nodes)), "budget_granularity_px": budget_g,
-        "budget_cut_ms": budget_s * 1e3, "cache_mb": cache_mb, "save_s": save_s, "load_s": load_s,
+        "budget_cut_ms": budget_s * 1e3, "greedy_nodes": int(len(greedy_nodes)), "greedy_cut_ms": greedy_s * 1e3,
+        "cache_mb": cache_mb, "save_s": save_s, "load_s": load_s,
     }
 
 
@@ -78,7 +81,7 @@ def main() -> None:
           f"({result['build_s_per_million']:.2f} s per million, {result['nodes']:,} nodes, {result['levels']} levels)")
     print(f"cut at {args.granularity:g} px: {result['cut_nodes']:,} nodes in {result['cut_ms']:.0f} ms; "
           f"budget {args.budget:,}: {result['budget_nodes']:,} nodes (g = {result['budget_granularity_px']:.2f} px) "
-          f"in {result['budget_cut_ms']:.0f} ms")
+          f"in {result['budget_cut_ms']:.0f} ms; greedy: {result['greedy_nodes']:,} nodes in {result['greedy_cut_ms']:.0f} ms")
     print(f"cache {result['cache_mb']:.0f} MB: save {result['save_s']:.2f} s, load {result['load_s']:.2f} s")
     if args.json:
         atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")

@@ -132,3 +132,57 @@ def lod_gaussians(hierarchy: LodHierarchy, camera: Camera, granularity_px: float
     else:
         nodes = cut_nodes(hierarchy, camera, granularity_px)
     return hierarchy.gaussians(nodes, device=device)
+
+
+def _largest_first(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray, budget: int) -> np.ndarray:
+    """The ``budget`` nodes of ``nodes`` with the largest projected sizes, ascending by index."""
+    sizes, _ = node_sizes(hierarchy, camera, nodes)
+    return np.sort(nodes[np.argsort(-sizes, kind="stable")[:budget]])
+
+
+def _expansion_gains(hierarchy: LodHierarchy, camera: Camera, parents: np.ndarray):
+    """-> (kept children [C], their sizes [C], each parent's change of the count [P]: its kept
+    children minus itself)."""
+    children = children_of(hierarchy, parents)
+    sizes, culled = node_sizes(hierarchy, camera, children)
+    owner = np.repeat(np.arange(len(parents)), hierarchy.child_count[parents])
+    kept_per_parent = np.bincount(owner[~culled], minlength=len(parents))
+    return children[~culled], sizes[~culled], owner[~culled], kept_per_parent - 1
+
+
+def greedy_budget_cut_nodes(hierarchy: LodHierarchy, camera: Camera, budget: int) -> np.ndarray:
+    """A cut of at most ``budget`` nodes grown from the root by expanding the largest projected
+    nodes first, in batches -> [S] int64 ascending. Its work grows with the budget, not with
+    the tree (:func:`budget_cut_nodes` visits every node): the per-frame choice for large models.
+
+    Each round takes the frontier's expandable nodes by decreasing size, evaluates the children
+    of as many as could fit, and expands the longest prefix whose added count fits; it stops
+    when the largest remaining node does not fit. Within a round, a child larger than the next
+    frontier node waits for the next round, so the order is by size only batch by batch.
+    """
+    if budget < 0:
+        raise ValueError(f"budget must be >= 0 splats, got {budget}")
+    roots = hierarchy.roots.astype(np.int64)
+    sizes, culled = node_sizes(hierarchy, camera, roots)
+    frontier, sizes = roots[~culled], sizes[~culled]
+    if len(frontier) > budget:
+        return _largest_first(hierarchy, camera, frontier, budget)
+    step = max(hierarchy.branching - 1, 1)
+    while True:
+        openable = np.flatnonzero(hierarchy.child_count[frontier] > 0)
+        room = budget - len(frontier)
+        if openable.size == 0:
+            break
+        openable = openable[np.argsort(-sizes[openable], kind="stable")][:room // step + 1]
+        children, child_sizes, owner, gains = _expansion_gains(hierarchy, camera, frontier[openable])
+        # The longest prefix whose running count never passes the budget (gains may be -1).
+        fits = np.maximum.accumulate(np.cumsum(gains)) <= room
+        taken = int(np.argmin(fits)) if not fits.all() else len(fits)
+        if taken == 0:
+            break
+        keep = np.ones(len(frontier), bool)
+        keep[openable[:taken]] = False
+        joined = owner < taken
+        frontier = np.concatenate([frontier[keep], children[joined]])
+        sizes = np.concatenate([sizes[keep], child_sizes[joined]])
+    return np.sort(frontier)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import Camera, look_at
-from inceptiongs.lod.cut import budget_cut_nodes, cut_intervals, cut_nodes, lod_gaussians, node_sizes
+from inceptiongs.lod.cut import budget_cut_nodes, children_of, cut_intervals, cut_nodes, lod_gaussians, node_sizes
 from inceptiongs.lod.hierarchy import build_hierarchy
 
 from .test_merge import random_gaussians
@@ -106,3 +106,35 @@ def test_empty_model_gives_empty_cuts():
     camera = camera_at((0.0, 0.0, -5.0))
     assert len(h) == 0 and cut_nodes(h, camera, 0.0).size == 0
     assert budget_cut_nodes(h, camera, 10)[0].size == 0
+
+
+@pytest.mark.parametrize("budget", [0, 1, 3, 40, 300, 699, 5000])
+def test_greedy_budget_cut_fills_the_budget_without_passing_it(tree, budget):
+    from inceptiongs.lod.cut import greedy_budget_cut_nodes
+
+    camera = camera_at((0.0, 0.0, -60.0), focal=200.0)   # every leaf visible: no culling
+    nodes = greedy_budget_cut_nodes(tree, camera, budget)
+    assert len(nodes) <= budget
+    assert_is_cut(tree, nodes)
+    # It covers the model: every leaf has exactly one drawn ancestor-or-self (when any is drawn).
+    covered = np.zeros(tree.leaf_count, int)
+    for node in nodes:
+        below = np.array([node])
+        while tree.child_count[below].any():
+            below = children_of(tree, below)   # one level at a time: all of ``below`` share it
+        covered[below] += 1
+    assert np.all(covered == (1 if budget >= 1 else 0))
+    # It stops only when the next expansion would not fit (at most branching - 1 more nodes).
+    assert len(nodes) >= min(tree.leaf_count, budget - (tree.branching - 2))
+
+
+def test_greedy_budget_cut_is_close_to_the_exact_one(tree):
+    from inceptiongs.lod.cut import greedy_budget_cut_nodes
+
+    camera = camera_at((0.5, -1.0, -9.0))
+    for budget in (50, 200, 500):
+        greedy = greedy_budget_cut_nodes(tree, camera, budget)
+        exact, _ = budget_cut_nodes(tree, camera, budget)
+        # Both stay within the budget; greedy stops only when the next expansion (at most
+        # branching - 1 more nodes) does not fit, so it is never much coarser than the exact cut.
+        assert len(exact) - (tree.branching - 2) <= len(greedy) <= budget
