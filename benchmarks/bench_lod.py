@@ -46,7 +46,8 @@ def timed(fn):
 def measure(args) -> dict:
     model = random_model(args.count, args.sh_degree)
     tree, build_s = timed(lambda: build_hierarchy(model))
-    camera = Camera("bench", 1280, 720, 1000.0, 1000.0, 640.0, 360.0, look_at(np.array([0.0, -8.0, -25.0]), np.zeros(3)))
+    pose = look_at(np.array([0.0, -8.0, -25.0]), np.zeros(3))   # the whole cube in view
+    camera = Camera("bench", 1280, 720, 1000.0, 1000.0, 640.0, 360.0, pose)
     cut, cut_s = timed(lambda: cut_nodes(tree, camera, args.granularity))
     (budget_nodes, budget_g), budget_s = timed(lambda: budget_cut_nodes(tree, camera, args.budget))
     greedy_nodes, greedy_s = timed(lambda: greedy_budget_cut_nodes(tree, camera, args.budget))
@@ -81,7 +82,8 @@ def main() -> None:
           f"({result['build_s_per_million']:.2f} s per million, {result['nodes']:,} nodes, {result['levels']} levels)")
     print(f"cut at {args.granularity:g} px: {result['cut_nodes']:,} nodes in {result['cut_ms']:.0f} ms; "
           f"budget {args.budget:,}: {result['budget_nodes']:,} nodes (g = {result['budget_granularity_px']:.2f} px) "
-          f"in {result['budget_cut_ms']:.0f} ms; greedy: {result['greedy_nodes']:,} nodes in {result['greedy_cut_ms']:.0f} ms")
+          f"in {result['budget_cut_ms']:.0f} ms; greedy: {result['greedy_nodes']:,} nodes "
+          f"in {result['greedy_cut_ms']:.0f} ms")
     print(f"cache {result['cache_mb']:.0f} MB: save {result['save_s']:.2f} s, load {result['load_s']:.2f} s")
     if args.json:
         atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
