@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from ..gaussians import Gaussians
-from ..io.atomic import atomic_open
+from ..io.atomic import OutputError, atomic_open
 from ..io.cache import cache_root
 from .hierarchy import DEFAULT_BRANCHING, GAUSSIAN_FIELDS, LodHierarchy, build_hierarchy
 
@@ -88,12 +88,17 @@ def load_hierarchy(path: str | Path) -> LodHierarchy | None:
 def load_or_build(gaussians: Gaussians, key: str | None = None, branching: int = DEFAULT_BRANCHING,
                   progress: Callable[[float], None] | None = None) -> tuple[LodHierarchy, bool]:
     """-> (the hierarchy of ``gaussians``, whether it came from the cache). ``key``: the
-    model's content key when the caller has it (:func:`ply_key`), else the tensors' hash."""
+    content key of exactly these tensors when the caller has one (:func:`ply_key` of the file
+    they were read from, unchanged: not after moving them into another frame), else the
+    tensors' hash. A cache that cannot be written costs the next load a rebuild, nothing more."""
     key = model_key(gaussians, branching) if key is None else key
     path = hierarchy_cache_path(key)
     cached = load_hierarchy(path) if path.is_file() else None
     if cached is not None and cached.leaf_count == len(gaussians):
         return cached, True
     hierarchy = build_hierarchy(gaussians, branching, progress)
-    save_hierarchy(hierarchy, path)
+    try:
+        save_hierarchy(hierarchy, path)
+    except OutputError:
+        pass   # the hierarchy in hand is complete; only the next load is slower
     return hierarchy, False

@@ -73,3 +73,13 @@ def test_a_cache_file_with_broken_links_is_refused(tmp_path):
     tree.child_start[-1] = len(tree)   # the root's children would run past the arrays
     save_hierarchy(tree, tmp_path / "broken.npz")
     assert load_hierarchy(tmp_path / "broken.npz") is None
+
+
+def test_an_unwritable_cache_still_gives_the_hierarchy(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("INCEPTIONGS_CACHE_DIR", str(blocker / "cache"))   # below a file: ENOTDIR
+    g = random_gaussians(30, seed=36)
+    tree, cached = load_or_build(g)
+    assert not cached and tree.leaf_count == 30
+    assert load_or_build(g)[1] is False

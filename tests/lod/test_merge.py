@@ -142,3 +142,11 @@ def test_progress_rises_to_one():
     seen = []
     build_hierarchy(random_gaussians(100, seed=7), branching=2, progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 7   # ceil(log2(100)) levels
+
+
+def test_any_sh_degree_passes_through_the_tree():
+    g = random_gaussians(50, seed=8, degree=3)
+    h = build_hierarchy(g)
+    assert h.sh.shape == (len(h), 16, 3)
+    subset = h.gaussians(h.roots)
+    assert subset.sh_degree == 3 and len(subset) == 1
