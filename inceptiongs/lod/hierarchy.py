@@ -104,7 +104,8 @@ def _leaf_level(gaussians: Gaussians) -> tuple[dict[str, np.ndarray], dict[str, 
     """-> (the leaves' stored arrays in Morton order, their working state for merging)."""
     arrays = gaussians.numpy()
     order = np.argsort(morton_codes(arrays["means"]), kind="stable")
-    leaves = {name: np.take(arrays[name], order, axis=0) for name in GAUSSIAN_FIELDS}  # take: ~3x faster than []
+    # np.take: ~3x faster than fancy indexing for a million rows.
+    leaves = {name: np.take(arrays[name], order, axis=0) for name in GAUSSIAN_FIELDS}
     leaves["radii"] = bounding_radii(leaves["log_scales"])
     state = {"means": leaves["means"].astype(np.float64),
              "covs": covariances_of(leaves["log_scales"], leaves["quats"]),
@@ -159,6 +160,8 @@ def _assemble(stored: list[dict[str, np.ndarray]], sizes: list[int], branching: 
         child_count[offsets[level]:offsets[level + 1]] = np.diff(np.append(starts, sizes[level - 1]))
     columns = {name: np.concatenate([level[name] for level in stored]).astype(np.float32)
                for name in GAUSSIAN_FIELDS + ("radii",)}
+    # Rounded up to float32, so a stored sphere never shrinks below the bound it was built as.
+    columns["radii"] = np.nextafter(columns["radii"], np.float32(np.inf))
     if total == 0:   # an empty model: keep the SH width of the input
         columns["sh"] = stored[0]["sh"]
     return LodHierarchy(**columns, parent=parent, child_start=child_start, child_count=child_count,

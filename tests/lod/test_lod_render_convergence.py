@@ -13,7 +13,7 @@ from inceptiongs.lod.cut import cut_nodes
 from inceptiongs.lod.hierarchy import build_hierarchy
 from inceptiongs.rasterizer.interface import cpu_rasterizer, render_rgb
 
-from .test_merge import random_gaussians
+from lod_cases import random_gaussians
 
 GRANULARITIES = (64.0, 16.0, 4.0, 1.0, 0.0)
 

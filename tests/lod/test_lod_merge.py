@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
+from lod_cases import random_gaussians
 
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.lod.hierarchy import build_hierarchy, morton_codes
@@ -16,15 +16,6 @@ from inceptiongs.lod.moments import (
     merge_groups,
     surface_weights,
 )
-
-
-def random_gaussians(n: int, seed: int = 0, logit: float | None = None, degree: int = 1) -> Gaussians:
-    rng = np.random.default_rng(seed)
-    logits = rng.normal(size=n) if logit is None else np.full(n, logit)
-    return Gaussians.from_numpy({
-        "means": rng.normal(size=(n, 3)), "log_scales": rng.normal(-3.0, 0.5, size=(n, 3)),
-        "quats": rng.normal(size=(n, 4)), "opacity_logits": logits,
-        "sh": rng.normal(size=(n, (degree + 1) ** 2, 3))})
 
 
 def merge_all(g: Gaussians) -> dict[str, np.ndarray]:

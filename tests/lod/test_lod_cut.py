@@ -9,7 +9,7 @@ from inceptiongs.camera import Camera, look_at
 from inceptiongs.lod.cut import budget_cut_nodes, children_of, cut_intervals, cut_nodes, lod_gaussians, node_sizes
 from inceptiongs.lod.hierarchy import build_hierarchy
 
-from .test_merge import random_gaussians
+from lod_cases import random_gaussians
 
 
 def camera_at(eye, target=(0.0, 0.0, 0.0), size=(96, 72), focal=80.0) -> Camera:

@@ -10,7 +10,7 @@ from inceptiongs.io.cache import cache_root
 from inceptiongs.io.ply import write_ply
 from inceptiongs.lod.cache import hierarchy_cache_path, load_hierarchy, load_or_build, model_key, ply_key
 
-from .test_merge import random_gaussians
+from lod_cases import random_gaussians
 
 
 def assert_same_tree(a, b):

@@ -10,7 +10,7 @@ from inceptiongs.cli import main
 from inceptiongs.io.cache import cache_root
 from inceptiongs.io.ply import write_ply
 
-from .test_merge import random_gaussians
+from lod_cases import random_gaussians
 
 
 @pytest.fixture
