@@ -97,6 +97,12 @@ def cut_intervals(hierarchy: LodHierarchy, camera: Camera) -> tuple[np.ndarray, 
     return lower, upper, kept
 
 
+def _largest_first(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray, budget: int) -> np.ndarray:
+    """The ``budget`` nodes of ``nodes`` with the largest projected sizes, ascending by index."""
+    sizes, _ = node_sizes(hierarchy, camera, nodes)
+    return np.sort(nodes[np.argsort(-sizes, kind="stable")[:budget]])
+
+
 def budget_cut_nodes(hierarchy: LodHierarchy, camera: Camera, budget: int) -> tuple[np.ndarray, float]:
     """The finest cut with at most ``budget`` nodes -> (nodes [S] int64 ascending, its granularity).
 
@@ -115,10 +121,7 @@ def budget_cut_nodes(hierarchy: LodHierarchy, camera: Camera, budget: int) -> tu
     fits = np.flatnonzero(counts <= budget)
     granularity = float(candidates[fits[0]]) if fits.size else math.inf
     nodes = np.flatnonzero(kept)[(lower < granularity) & (granularity <= upper)]
-    if nodes.size > budget:
-        sizes, _ = node_sizes(hierarchy, camera, nodes)
-        nodes = np.sort(nodes[np.argsort(-sizes, kind="stable")[:budget]])
-    return nodes, granularity
+    return (_largest_first(hierarchy, camera, nodes, budget) if nodes.size > budget else nodes), granularity
 
 
 def lod_gaussians(hierarchy: LodHierarchy, camera: Camera, granularity_px: float | None = None,
@@ -132,12 +135,6 @@ def lod_gaussians(hierarchy: LodHierarchy, camera: Camera, granularity_px: float
     else:
         nodes = cut_nodes(hierarchy, camera, granularity_px)
     return hierarchy.gaussians(nodes, device=device)
-
-
-def _largest_first(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray, budget: int) -> np.ndarray:
-    """The ``budget`` nodes of ``nodes`` with the largest projected sizes, ascending by index."""
-    sizes, _ = node_sizes(hierarchy, camera, nodes)
-    return np.sort(nodes[np.argsort(-sizes, kind="stable")[:budget]])
 
 
 def _expansion_gains(hierarchy: LodHierarchy, camera: Camera, parents: np.ndarray):
