@@ -70,12 +70,16 @@ class LodHierarchy:
     def arrays(self) -> dict[str, np.ndarray]:
         return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
 
+    def node_arrays(self, nodes: np.ndarray) -> dict[str, np.ndarray]:
+        """The float32 arrays of ``nodes`` ([S] int indices) by Gaussians field name, as
+        ``Gaussians.numpy()`` gives them (e.g. for the GL renderer's upload, without torch)."""
+        return {name: np.take(getattr(self, name), nodes, axis=0) for name in GAUSSIAN_FIELDS}
+
     def gaussians(self, nodes: np.ndarray | None = None, device=None) -> Gaussians:
         """The Gaussians of ``nodes`` ([S] int indices; None: every leaf), as torch float32."""
         if nodes is None:
             nodes = np.arange(self.leaf_count)
-        return Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(getattr(self, name)[nodes])).to(device)
-                            for name in GAUSSIAN_FIELDS})
+        return Gaussians(**{name: torch.from_numpy(array).to(device) for name, array in self.node_arrays(nodes).items()})
 
 
 def morton_codes(means: np.ndarray) -> np.ndarray:

@@ -138,3 +138,11 @@ def test_greedy_budget_cut_is_close_to_the_exact_one(tree):
         # Both stay within the budget; greedy stops only when the next expansion (at most
         # branching - 1 more nodes) does not fit, so it is never much coarser than the exact cut.
         assert len(exact) - (tree.branching - 2) <= len(greedy) <= budget
+
+
+def test_node_arrays_are_the_gaussians_arrays(tree):
+    nodes = np.array([0, 5, len(tree) - 1])
+    arrays = tree.node_arrays(nodes)
+    for name, tensor in tree.gaussians(nodes).tensors().items():
+        np.testing.assert_array_equal(arrays[name], tensor.numpy())
+        np.testing.assert_array_equal(arrays[name], getattr(tree, name)[nodes])
