@@ -110,11 +110,18 @@ def _leaf_level(gaussians: Gaussians) -> tuple[dict[str, np.ndarray], dict[str, 
     order = np.argsort(morton_codes(arrays["means"]), kind="stable")
     # np.take: ~3x faster than fancy indexing for a million rows.
     leaves = {name: np.take(arrays[name], order, axis=0) for name in GAUSSIAN_FIELDS}
-    leaves["radii"] = bounding_radii(leaves["log_scales"])
-    state = {"means": leaves["means"].astype(np.float64),
-             "covs": covariances_of(leaves["log_scales"], leaves["quats"]),
-             "weights": surface_weights(leaves["log_scales"], leaves["opacity_logits"]),
-             "sh": leaves["sh"], "radii": leaves["radii"]}
+    # A Gaussian with a non-finite parameter (the rasterizer culls it) stays a leaf as it is but
+    # enters its parents with weight 0 at the origin: one NaN must not poison every ancestor.
+    valid = np.ones(len(order), bool)
+    for name in GAUSSIAN_FIELDS:
+        valid &= np.isfinite(leaves[name]).all(axis=tuple(range(1, leaves[name].ndim)))
+    finite = {name: np.where(valid.reshape((-1,) + (1,) * (leaves[name].ndim - 1)), leaves[name], 0.0)
+              .astype(np.float32) for name in GAUSSIAN_FIELDS}
+    leaves["radii"] = np.where(valid, bounding_radii(finite["log_scales"]), 0.0)
+    state = {"means": finite["means"].astype(np.float64),
+             "covs": covariances_of(finite["log_scales"], finite["quats"]),
+             "weights": np.where(valid, surface_weights(finite["log_scales"], finite["opacity_logits"]), 0.0),
+             "sh": finite["sh"], "radii": leaves["radii"]}
     return leaves, state
 
 
@@ -124,12 +131,12 @@ def build_hierarchy(gaussians: Gaussians, branching: int = DEFAULT_BRANCHING,
     if branching < 2:
         raise ValueError(f"branching must be at least 2, got {branching}")
     leaves, state = _leaf_level(gaussians)
-    stored = [leaves]
+    stored, finite_leaves = [leaves], state
     sizes = [len(state["means"])]
     while sizes[-1] > 1:
         starts = np.arange(0, sizes[-1], branching)
         state = merge_groups(state["means"], state["covs"], state["weights"], state["sh"], state["radii"], starts)
-        state["radii"] = np.minimum(state["radii"], _leaf_reach(leaves, state, branching ** len(sizes)))
+        state["radii"] = np.minimum(state["radii"], _leaf_reach(finite_leaves, state, branching ** len(sizes)))
         stored.append({name: state[name] for name in GAUSSIAN_FIELDS + ("radii",)})
         sizes.append(len(starts))
         if progress is not None:
@@ -138,7 +145,7 @@ def build_hierarchy(gaussians: Gaussians, branching: int = DEFAULT_BRANCHING,
 
 
 def _leaf_reach(leaves: dict[str, np.ndarray], parents: dict[str, np.ndarray], span: int) -> np.ndarray:
-    """[m] radius around each parent's mean holding the spheres of the leaves below it (the
+    """``leaves``: the leaf level's finite working state (means, radii). [m] radius around each parent's mean holding the spheres of the leaves below it (the
     leaves ``[j span, (j + 1) span)``, as runs of consecutive nodes are merged at every level)
     and the parent's own footprint. Tighter than nesting the children's spheres, whose slack
     would add up level after level."""

@@ -141,3 +141,14 @@ def test_any_sh_degree_passes_through_the_tree():
     assert h.sh.shape == (len(h), 16, 3)
     subset = h.gaussians(h.roots)
     assert subset.sh_degree == 3 and len(subset) == 1
+
+
+def test_a_non_finite_gaussian_does_not_poison_its_ancestors():
+    g = random_gaussians(100, seed=9)
+    g.means[3, 0], g.means[4, 1] = float("nan"), float("inf")
+    g.log_scales[5, 2], g.quats[6, 0], g.sh[7, 0, 1] = float("nan"), float("nan"), float("inf")
+    with np.errstate(invalid="raise", divide="raise", over="raise"):   # no NaN made on the way
+        h = build_hierarchy(g)
+    for name in ("means", "log_scales", "quats", "opacity_logits", "sh", "radii"):
+        assert np.all(np.isfinite(getattr(h, name)[h.leaf_count:])), name   # every parent is finite
+    assert np.isnan(h.means[:h.leaf_count]).any()              # the leaves stay as they were
