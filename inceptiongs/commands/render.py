@@ -5,6 +5,10 @@ in it; a run without a PLY falls back to its newest checkpoint). Frames: --camer
 in the model file's own (original) frame; with --view the camera comes from the scene (the
 run's config names it, or --scene), in the scene's normalised frame, and the model is moved
 into that frame with the scene's normalisation.
+
+``--lod GRANULARITY_PX`` / ``--lod-budget SPLATS`` draw a level-of-detail cut of the model
+(:mod:`inceptiongs.lod`, the hierarchy cached by the model's content); without them the model
+is drawn exactly as it is.
 """
 
 from __future__ import annotations
@@ -44,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
     parser.add_argument("--height", type=int, help="output height (intrinsics rescaled)")
     parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
+    lod = parser.add_mutually_exclusive_group()
+    lod.add_argument("--lod", type=float, metavar="GRANULARITY_PX",
+                     help="draw a level-of-detail cut: nodes of the model's LOD hierarchy down to this projected "
+                          "size in pixels (0: every leaf; default: the exact model, no hierarchy)")
+    lod.add_argument("--lod-budget", type=int, metavar="SPLATS",
+                     help="draw the finest level-of-detail cut of at most this many splats")
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
@@ -150,6 +160,28 @@ def render_backend(name: str):
                      "reinstall the package)")
 
 
+def level_of_detail(gaussians, camera: Camera, granularity_px: float | None, budget: int | None):
+    """-> (the Gaussians to draw, a note for stderr or None). Without --lod/--lod-budget the
+    model is drawn as it is; with one, the cut of its hierarchy (cached by content)."""
+    if granularity_px is None and budget is None:
+        return gaussians, None
+    if granularity_px is not None and not granularity_px >= 0.0:
+        raise InputError(f"--lod: the granularity must be >= 0 pixels, got {granularity_px}")
+    if budget is not None and budget < 0:
+        raise InputError(f"--lod-budget: the budget must be >= 0 splats, got {budget}")
+    from ..lod.cache import load_or_build
+    from ..lod.cut import budget_cut_nodes, cut_nodes
+
+    tree, cached = load_or_build(gaussians)
+    if budget is not None:
+        nodes, granularity_px = budget_cut_nodes(tree, camera, budget)
+    else:
+        nodes = cut_nodes(tree, camera, granularity_px)
+    note = (f"lod: {len(nodes):,} of {len(gaussians):,} splats at {granularity_px:g} px "
+            f"(hierarchy {'from the cache' if cached else 'built'})")
+    return tree.gaussians(nodes, device=gaussians.device), note
+
+
 def render_image(gaussians, camera: Camera, backend: str, mode: str, background, rasterizer=None) -> np.ndarray:
     """[H, W, 3] (rgb, normal) or [H, W, 1] (depth, alpha) float32 from either renderer;
     ``rasterizer``: the library's, for backend "torch"."""
@@ -202,6 +234,7 @@ def run(args) -> int:
     camera = resized_camera(camera, args.width, args.height)
     check_image_size(camera.width, camera.height, "--width/--height" if args.width or args.height else
                      f"{args.camera or args.view}")
+    gaussians, lod_note = level_of_detail(gaussians, camera, args.lod, args.lod_budget)
     try:
         image = render_image(gaussians, camera, args.backend, args.mode, background, rasterizer)
     except RuntimeError as exc:
@@ -211,7 +244,8 @@ def run(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     write_output(image, args.mode, out)
-    if device_note:
-        print(device_note, file=sys.stderr)
+    for note in (device_note, lod_note):
+        if note:
+            print(note, file=sys.stderr)
     print(f"wrote {out} ({camera.width}x{camera.height}, {args.mode}, {args.backend})")
     return 0
