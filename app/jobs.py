@@ -15,7 +15,7 @@ from pathlib import Path
 from inceptiongs.errors import InputError
 from inceptiongs.train.view_fit import read_poorly_fit
 
-from .capabilities import one_line
+from .capabilities import one_line, training_unavailable
 from .live_training import LiveTraining
 from .progress import closing_line, final_scores, format_duration, plan_of, replan_line, resume_line, run_scores
 from .runs import (describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of,
@@ -176,6 +176,10 @@ class Jobs:
         return f"InceptionGS — {shown}"
 
     # --- starting --------------------------------------------------------------------------------
+    def training_unavailable(self) -> str | None:
+        """Why "train (new run)" is greyed out, or None (a job factory decides for itself)."""
+        return None if self.factory is not None else training_unavailable(self.view.source)
+
     def start_training(self) -> None:
         """A new stage-I run (the job dialog's settings) in a fresh run folder."""
         if self.alive:

@@ -14,7 +14,7 @@ from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
-from .capabilities import NO_CAMERAS, mode_unavailable, training_unavailable
+from .capabilities import NO_CAMERAS, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
 from inceptiongs.train.config import STRATEGY_NAMES, TrainConfig, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
@@ -349,7 +349,7 @@ def _training(ui, jobs) -> None:
     _poorly_fit(ui, jobs)
     if run is None or not run.alive:
         _job_settings(ui, jobs)
-        no_training = training_unavailable(jobs.view.source)
+        no_training = jobs.training_unavailable()
         imgui.begin_disabled(no_training is not None)
         if _button(ui, "train (new run)"):
             jobs.start_training()
