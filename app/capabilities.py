@@ -29,6 +29,14 @@ def training_unavailable(source) -> str | None:
     return None
 
 
+def bootstrap_unavailable(source, run_dir) -> str | None:
+    """Why "Bootstrap flagged views" is off, or None: it repairs a trained run of a scene, which
+    a bare PLY has not (a scene without a run yet answers when pressed: train first)."""
+    if run_dir is None and source.scene is None:
+        return f"bootstrapping is off: it repairs a trained run of a scene, and {source.path} is a bare model"
+    return None
+
+
 def one_line(exc: BaseException) -> str:
     """The message the command line prints for ``exc`` (without its "error: "): an InputError's own
     sentence; any other exception's message, its class named only when the message is empty."""

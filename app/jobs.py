@@ -295,8 +295,8 @@ class Jobs:
         self.view.moved()
 
     def run_label(self, run: Path) -> str:
-        """A run in the Training panel's list: its folder in full, when it was last written and
-        its last held-out scores (re-read only when its metrics log changes)."""
+        """A run in the Training panel's list: when it was last written, its last held-out scores
+        and its folder in full (re-read only when its metrics log changes)."""
         metrics = Path(run) / "metrics.jsonl"
         try:
             stamp = metrics.stat().st_mtime_ns if metrics.is_file() else Path(run).stat().st_mtime_ns
@@ -305,7 +305,8 @@ class Jobs:
         key = (Path(run), stamp)
         if key not in self.run_labels:
             when = time.strftime("%Y-%m-%d %H:%M", time.localtime(stamp / 1e9))
-            self.run_labels[key] = f"{run}  {when}  {run_scores(run)}"
+            # Time and scores first: the list's closed preview shows the start of a line.
+            self.run_labels[key] = f"{when}  {run_scores(run)}  {run}"
         return self.run_labels[key]
 
     def choose_runs_folder(self, folder: Path) -> None:

@@ -14,7 +14,7 @@ from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
-from .capabilities import NO_CAMERAS, mode_unavailable
+from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
 from inceptiongs.train.config import STRATEGY_NAMES, TrainConfig, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
@@ -364,14 +364,18 @@ def _training(ui, jobs) -> None:
             if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
                 imgui.set_tooltip(blocked)
         _same_line_if_fits("Bootstrap flagged views")
+        no_bootstrap = bootstrap_unavailable(jobs.view.source, jobs.run_dir)
+        imgui.begin_disabled(no_bootstrap is not None)
         if _button(ui, "Bootstrap flagged views"):
             jobs.start_bootstrap()
+        imgui.end_disabled()
         if blocked is not None:
             _hint(f"no resume here: {blocked}")
             _remember(ui, "why no resume")
-        if no_training is not None:
-            _hint(no_training)
-            _remember(ui, "why no training")
+        for reason, label in ((no_training, "why no training"), (no_bootstrap, "why no bootstrap")):
+            if reason is not None:
+                _hint(reason)
+                _remember(ui, label)
     else:
         if run.control.pause.is_set():
             if _button(ui, "continue"):

@@ -110,7 +110,7 @@ def test_scene_lists_its_runs_from_every_place_newest_first_with_scores(xvfb, de
         assert viewer.jobs.run_dir == newer  # the newest opens
         viewer.step()
         labels = [viewer.jobs.run_label(run) for run in reversed(viewer.view.source.runs)]
-        assert labels[0].startswith(str(newer)) and " dB" in labels[0]  # newest first, in full, scored
+        assert labels[0].endswith(str(newer)) and " dB" in labels[0]  # newest first, in full, scored
         choose(viewer, "runs of this scene", viewer.jobs.run_label(older))
         assert viewer.jobs.run_dir == older, viewer.status
     assert main([str(demo_scene), "--runs", str(older / "model.ply")]) == 2  # a file is no runs folder
@@ -241,11 +241,14 @@ def test_bare_ply_greys_out_what_needs_cameras_and_errors_are_one_line(xvfb, tmp
         choose(viewer, "mode (1-6)", "coverage")  # greyed in the list: the click does nothing
         assert viewer.view.settings.mode == "rgb"
         viewer.step()
-        assert "why modes are off" in viewer.ui.rects and "why no training" in viewer.ui.rects
+        assert {"why modes are off", "why no training", "why no bootstrap"} <= set(viewer.ui.rects)
         click_widget(viewer, "train (new run)")
         assert viewer.jobs.training is None
         viewer.jobs.start_training()  # the action itself answers with the command line's line
         assert "InputError" not in viewer.status and "no scene to train" in viewer.status
+        viewer.flags.flag_current_view()
+        click_widget(viewer, "Bootstrap flagged views")
+        assert viewer.jobs.training is None
     with opened(_viewer, model, 900, 1000, job_factory=lambda source: _FailingJob()) as viewer:
         viewer.jobs.start_training()
         _wait(viewer, lambda: not viewer.jobs.training.alive)
