@@ -312,13 +312,12 @@ class Jobs:
     def choose_runs_folder(self, folder: Path) -> None:
         """Where the next runs go (the Training panel's field, as --runs): its runs of the scene
         join the list."""
-        from .sources import scene_runs  # noqa: PLC0415
+        from .sources import oldest_first, scene_runs  # noqa: PLC0415
 
         source = self.view.source
         source.runs_dir = runs_folder(folder)
         if source.scene is not None and source.kind == "scene":
-            source.runs = sorted(set(source.runs) | set(scene_runs(source.scene, source.runs_dir)),
-                                 key=lambda run: run.stat().st_mtime if run.exists() else 0.0)
+            source.runs = oldest_first([*source.runs, *scene_runs(source.scene, source.runs_dir)])
         self.status.text = f"new runs go to {source.runs_dir}"
 
     def read_view_fit(self) -> None:

@@ -92,7 +92,7 @@ def _read_ply_arrays(path: Path) -> dict:
 
 
 def _newest_time(run: Path) -> float:
-    return max(p.stat().st_mtime for p in run.iterdir())
+    return max((p.stat().st_mtime for p in run.iterdir()), default=run.stat().st_mtime)
 
 
 def work_dir_runs(work_dir: Path) -> list[Path]:
@@ -127,7 +127,12 @@ def scene_runs(scene, runs_dir: Path | None = None) -> list[Path]:
     runs = set(work_dir_runs(scene.work_dir)) | set(cli_run_dirs(scene.root))
     if runs_dir is not None:
         runs |= set(folder_runs(runs_folder(runs_dir), scene.root))
-    return sorted(runs, key=_newest_time)
+    return oldest_first(runs)
+
+
+def oldest_first(runs) -> list[Path]:
+    """Run folders by the time of their newest file, oldest first (one gone since: first)."""
+    return sorted(set(runs), key=lambda run: _newest_time(run) if Path(run).is_dir() else 0.0)
 
 
 def newest_model(work_dir: Path, runs: list[Path] | None = None, saved: Path | None = None) -> Path | None:

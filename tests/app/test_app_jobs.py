@@ -419,6 +419,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         typed = {"time budget min": "1.5", "schedule iterations": "700", "downscale": "3"}
         assert (defaults.minutes, defaults.iterations, defaults.downscale) != (1.5, 700, 3)
         viewer.step()
+        click_widget(viewer, "View")  # closed: the Training panel's dialog and buttons fit the window
         click_widget(viewer, "job settings")  # open the dialog (a tree node, closed at first)
         for label, text in typed.items():
             type_into(viewer, label, text)
