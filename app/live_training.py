@@ -175,7 +175,9 @@ class LiveTraining:
     def _record(self, snapshot: Snapshot) -> None:
         progress = self.progress
         now = time.perf_counter()
-        if self._rate_anchor is None:
+        # A log line before the first step carries iteration 0: a resumed job's rate is measured
+        # from its first step past the checkpoint, not from 0 (it read 92 it/s instead of 4).
+        if self._rate_anchor is None or self._rate_anchor[1] < self.plan.start_iteration:
             self._rate_anchor = (now, snapshot.iteration)
         else:
             then, iteration = self._rate_anchor

@@ -215,7 +215,8 @@ def test_resume_keeps_the_runs_own_budget_and_the_bar_agrees(xvfb, demo_scene, t
         assert f"at iteration {stopped_at} of 40 with its saved plan" in viewer.status
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration > stopped_at)
         viewer.step()
-        assert viewer.jobs.training.progress.bar_text == f"iteration {viewer.jobs.training.progress.iteration} / 40"
+        progress = viewer.jobs.training.progress
+        assert progress.bar_text == f"iteration {progress.iteration} / 40"
         viewer.jobs.training.stop()
 
 
