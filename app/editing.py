@@ -17,6 +17,8 @@ from inceptiongs.camera import Camera
 from inceptiongs.errors import InputError
 from inceptiongs.constants import NEAR_PLANE, OPACITY_LOGIT_ABS_MAX, LOG_SCALE_MAX, LOG_SCALE_MIN
 
+from .runs import fresh_file, saved_dir
+
 # A crop-box handle is grabbed within this many pixels of the cursor.
 CROP_HANDLE_PIXELS = 12.0
 
@@ -226,7 +228,8 @@ class Editor:
 
     def __init__(self, view, status) -> None:
         self.view, self.status = view, status
-        self.save_path = str(view.source.work_dir / "edited.ply")  # the Edit panel's "file" field
+        # The Edit panel's "file" field: a new file in the visible NAME_saved folder beside the runs.
+        self.save_path = str(fresh_file(saved_dir(view.source, getattr(view.source, "runs_dir", None)) / "edited.ply"))
 
     def projected_means(self):
         return project_means(self.view.edit.base["means"], self.view.current_camera())
@@ -335,10 +338,11 @@ class Editor:
         path = Path(path).expanduser()
         if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
             raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
-                             f"save elsewhere (the default is the work folder {source.work_dir})")
+                             f"save elsewhere (the default is {saved_dir(source, getattr(source, 'runs_dir', None))})")
         gaussians = Gaussians.from_numpy(self.view.edit.visible_arrays())
         if scene is not None:  # everything shown for a scene or run is in its normalised frame
             gaussians = scene.normalization.gaussians_to_original(gaussians)
+        path.parent.mkdir(parents=True, exist_ok=True)
         write_ply(gaussians, path)
         self.status.text = f"saved {len(gaussians)} Gaussians to {path}"
         return Path(path)

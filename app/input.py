@@ -13,6 +13,7 @@ import time
 import glfw
 import numpy as np
 
+from .capabilities import mode_unavailable
 from .settings import RENDER_MODES
 from .window import ui_under_cursor, ui_wants_keyboard, ui_wants_mouse
 
@@ -95,7 +96,12 @@ class InputController:
         elif key == glfw.KEY_F12:
             viewer.save_screenshot()
         elif glfw.KEY_1 <= key <= glfw.KEY_1 + len(RENDER_MODES) - 1:
-            settings.mode = RENDER_MODES[key - glfw.KEY_1]
+            mode = RENDER_MODES[key - glfw.KEY_1]
+            refused = mode_unavailable(mode, view.source)
+            if refused is None:
+                settings.mode = mode
+            else:
+                viewer.status = refused
 
     def on_char(self, window, codepoint) -> None:
         self.last_event = time.perf_counter()

@@ -15,9 +15,11 @@ from pathlib import Path
 from inceptiongs.errors import InputError
 from inceptiongs.train.view_fit import read_poorly_fit
 
+from .capabilities import one_line, training_unavailable
 from .live_training import LiveTraining
-from .progress import closing_line, final_scores, format_duration, plan_of
-from .runs import describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of
+from .progress import closing_line, final_scores, format_duration, plan_of, replan_line, resume_line, run_scores
+from .runs import (describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of,
+                   runs_folder)
 from .sources import open_scene_run
 from .verdict import read_verdict, verdict_line
 
@@ -83,20 +85,22 @@ class JobSettings:
 
 
 def train_job_for(source, settings: JobSettings | None = None):
-    """A new stage-I run of the source's scene in a fresh <scene work dir>/runs/train[_N]."""
+    """A new stage-I run of the source's scene in a fresh run folder where `inceptiongs train`
+    writes (./runs/NAME[_N], or NAME[_N] in the runs folder the user chose: runs.new_train_dir)."""
     from inceptiongs.train.job import TrainJob
 
     if source.scene is None:
         raise InputError(f"{source.path}: no scene to train (open a scene folder)")
     config = (settings or JobSettings()).train_config(source.scene.root)
-    return TrainJob(config=config, run_dir=new_train_dir(source.work_dir))
+    return TrainJob(config=config, run_dir=new_train_dir(source.scene.root, getattr(source, "runs_dir", None)))
 
 
 def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
-    """Continue ``run_dir`` from its newest checkpoint with its stored config (only the time
-    budget may change, as with `inceptiongs train --resume`)."""
+    """Continue ``run_dir`` from its newest checkpoint with its stored config, its schedule and
+    its own time budget, as `inceptiongs train --resume` without --minutes does (the same
+    function builds it). ``settings`` is not read: the dialog's budget is for new runs."""
+    from inceptiongs.commands.train import resumed_config
     from inceptiongs.train.checkpoint import latest_checkpoint
-    from inceptiongs.train.config import TrainConfig
     from inceptiongs.train.job import TrainJob
 
     if run_dir is None or latest_checkpoint(Path(run_dir)) is None:
@@ -104,9 +108,7 @@ def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
     blocked = resume_blocked_reason(run_dir)
     if blocked is not None:
         raise InputError(f"{run_dir}: a bootstrap result; {blocked}")
-    config = TrainConfig.load(Path(run_dir) / "config.json")
-    config = dataclasses.replace(config, minutes=(settings or JobSettings()).minutes)
-    return TrainJob(config=config, run_dir=Path(run_dir), resume=True)
+    return TrainJob(config=resumed_config(Path(run_dir)), run_dir=Path(run_dir), resume=True)
 
 
 def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
@@ -149,6 +151,7 @@ class Jobs:
         self.fold_settings = False  # panels.py closes the job dialog once a job has started
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self.title_state: str | None = None  # the job state the window title names
+        self.run_labels: dict = {}  # (run, its log's mtime) -> the panel's line for it (run_label)
         # While a job trains, the share of the time the viewer leaves to it: after a frame that
         # took t seconds the viewer waits t * u / (1 - u) for input before drawing the next (as
         # nerfview's "train util"). 0.9: the viewer draws about 10 % of the time.
@@ -180,6 +183,10 @@ class Jobs:
         return f"InceptionGS — {shown}"
 
     # --- starting --------------------------------------------------------------------------------
+    def training_unavailable(self) -> str | None:
+        """Why "train (new run)" is greyed out, or None (a job factory decides for itself)."""
+        return None if self.factory is not None else training_unavailable(self.view.source)
+
     def start_training(self) -> None:
         """A new stage-I run (the job dialog's settings) in a fresh run folder."""
         if self.alive:
@@ -188,7 +195,7 @@ class Jobs:
             job = (self.factory(self.view.source) if self.factory is not None
                    else train_job_for(self.view.source, self.settings))
         except Exception as exc:  # noqa: BLE001 - a job that cannot be built is shown, not fatal
-            self.status.text = f"training could not start: {type(exc).__name__}: {exc}"
+            self.status.text = f"training could not start: {one_line(exc)}"
             return
         out_dir = getattr(job, "run_dir", None)
         self.start_job(job, out_dir, f"training into {out_dir}" if out_dir else "training")
@@ -203,6 +210,7 @@ class Jobs:
             self.status.text = f"resume could not start: {exc}"
             return
         self.start_job(job, job.run_dir, f"resuming {job.run_dir}")
+        self.status.text = resume_line(job.run_dir, self.training.plan, job.config.minutes)
 
     def start_bootstrap(self, config=None) -> None:
         """Stage II on the flagged views of the open run as the live job (config: default the job
@@ -244,7 +252,10 @@ class Jobs:
         if run.state != self.title_state:
             self.retitle()  # running -> paused -> finished shows in the title
         run.refresh_scores()
+        before = run.plan.end_iteration
         run.refresh_plan()  # the end of a schedule the trainer re-sized to its budget
+        if run.plan.end_iteration != before and run.alive:
+            self.status.text = replan_line(run.plan, before)  # a changed plan is said, not only drawn
         now = time.perf_counter()
         # Throttled while the job runs; once it has ended its last snapshot is taken at once.
         if now - self.last_snapshot_time < TRAINING_REFRESH_SECONDS and run.alive:
@@ -291,7 +302,7 @@ class Jobs:
             return
         source = self.view.source
         try:
-            opened = open_scene_run(source.path, source.work_dir, source.runs, Path(run_dir))
+            opened = open_scene_run(source.path, source.work_dir, source.runs, Path(run_dir), source.runs_dir)
         except (InputError, OSError) as exc:
             self.status.text = f"run not opened: {exc}"
             return
@@ -305,6 +316,32 @@ class Jobs:
         self.read_view_fit()
         self.retitle()
         self.view.moved()
+
+    def run_label(self, run: Path) -> str:
+        """A run in the Training panel's list: when it was last written, its last held-out scores
+        and its folder in full (re-read only when its metrics log changes)."""
+        metrics = Path(run) / "metrics.jsonl"
+        try:
+            stamp = metrics.stat().st_mtime_ns if metrics.is_file() else Path(run).stat().st_mtime_ns
+        except OSError:
+            return f"{run} (gone)"
+        key = (Path(run), stamp)
+        if key not in self.run_labels:
+            when = time.strftime("%Y-%m-%d %H:%M", time.localtime(stamp / 1e9))
+            # Time and scores first: the list's closed preview shows the start of a line.
+            self.run_labels[key] = f"{when}  {run_scores(run)}  {run}"
+        return self.run_labels[key]
+
+    def choose_runs_folder(self, folder: Path) -> None:
+        """Where the next runs go (the Training panel's field, as --runs): its runs of the scene
+        join the list."""
+        from .sources import oldest_first, scene_runs  # noqa: PLC0415
+
+        source = self.view.source
+        source.runs_dir = runs_folder(folder)
+        if source.scene is not None and source.kind == "scene":
+            source.runs = oldest_first([*source.runs, *scene_runs(source.scene, source.runs_dir)])
+        self.status.text = f"new runs go to {source.runs_dir}"
 
     def read_view_fit(self) -> None:
         """The open run's poorly fit training photos (RUN/view_fit.json; none without one)."""

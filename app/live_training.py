@@ -16,6 +16,7 @@ from pathlib import Path
 
 from inceptiongs.live import JobControl, Snapshot, SnapshotBox
 
+from .capabilities import one_line
 from .progress import JobPlan, followed_plan, planned_iterations, psnr_series
 
 # The job's metrics log is re-read at most this often (a few hundred short JSON lines).
@@ -33,6 +34,7 @@ class TrainingProgress:
     history: dict = field(default_factory=dict)
     psnr: dict = field(default_factory=dict)  # held-out group -> ([iterations], [dB]), from the log
     plot_limits: dict = field(default_factory=dict)  # plot title -> the axes' ranges last drawn
+    bar_text: str = ""  # what the progress bar reads (panels.py), as the status counts: iterations
 
 
 class LiveTraining:
@@ -68,7 +70,7 @@ class LiveTraining:
         try:
             self.job.run(self.box, self.control)
         except BaseException as exc:  # noqa: BLE001 - anything the job raises is shown, not fatal
-            self.error = f"{type(exc).__name__}: {exc}"
+            self.error = one_line(exc)
             self.traceback = traceback.format_exc()
         finally:
             self._ended = time.perf_counter()
@@ -121,6 +123,11 @@ class LiveTraining:
         self._thread.join(timeout)
         return not self._thread.is_alive()
 
+    def join(self, timeout: float | None = None) -> None:
+        """Wait up to ``timeout`` seconds for the job's thread to end."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+
     # --- data ------------------------------------------------------------------------------
     def poll(self) -> Snapshot | None:
         """The newest unseen snapshot (its metrics folded into :attr:`progress`), or None."""
@@ -168,7 +175,9 @@ class LiveTraining:
     def _record(self, snapshot: Snapshot) -> None:
         progress = self.progress
         now = time.perf_counter()
-        if self._rate_anchor is None:
+        # A log line before the first step carries iteration 0: a resumed job's rate is measured
+        # from its first step past the checkpoint, not from 0 (it read 92 it/s instead of 4).
+        if self._rate_anchor is None or self._rate_anchor[1] < self.plan.start_iteration:
             self._rate_anchor = (now, snapshot.iteration)
         else:
             then, iteration = self._rate_anchor

@@ -1,4 +1,4 @@
-"""``inceptiongs-viewer SCENE_DIR | MODEL.ply | RUN_DIR [--screenshot PATH [--camera cam.json] [--size WxH]]``"""
+"""``inceptiongs-viewer SCENE_DIR | MODEL.ply | RUN_DIR [--runs DIR] [--screenshot PATH [--camera cam.json] [--size WxH]]``"""
 
 from __future__ import annotations
 
@@ -22,6 +22,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (format from its extension: .png, .jpg, ...) and exit")
     parser.add_argument("--camera", metavar="JSON", help="camera for --screenshot (default: first training camera)")
     parser.add_argument("--size", metavar="WxH", help="image size for --screenshot / window size")
+    parser.add_argument("--runs", metavar="DIR",
+                        help="runs folder: new runs go to DIR/NAME (default ./runs/NAME in the current folder, as "
+                             "`inceptiongs train`), and the scene's runs in DIR are listed with the others")
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     return parser
 
@@ -56,7 +59,12 @@ def _open(args, size) -> int:
     from .screenshot import take_screenshot  # noqa: PLC0415
     from .sources import open_source  # noqa: PLC0415
 
-    source = open_source(args.source)
+    runs_dir = None
+    if args.runs:
+        runs_dir = Path(args.runs)
+        if runs_dir.exists() and not runs_dir.is_dir():
+            raise InputError(f"{runs_dir}: --runs must be a folder (it is created when a run starts)")
+    source = open_source(args.source, runs_dir)
     if args.screenshot:
         path = take_screenshot(source, args.screenshot, args.camera, size)
         print(f"wrote {path}", file=sys.stderr)
@@ -70,8 +78,7 @@ def _open(args, size) -> int:
     except WindowError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    viewer.run()
-    return 0
+    return viewer.run()
 
 
 if __name__ == "__main__":

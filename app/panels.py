@@ -5,6 +5,8 @@ rectangles, the help overlay) is the viewer's settings.PanelState, passed as ``u
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from imgui_bundle import imgui
 
@@ -16,7 +18,8 @@ from .textfit import middle_ellipsis
 from .verdict import draw_verdict
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
-from .runs import can_resume, resume_blocked_reason
+from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
+from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
 from inceptiongs.train.config import STRATEGY_NAMES, TrainConfig, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
 
@@ -166,10 +169,10 @@ def _same_line_if_fits(label: str, frame: bool = True) -> None:
         imgui.same_line()
 
 
-def _combo(ui, label: str, current: int, items: list) -> tuple[bool, int]:
+def _combo(ui, label: str, current: int, items: list, disabled: set | frozenset = frozenset()) -> tuple[bool, int]:
     """imgui.combo sized by _fit, its frame kept under ``label`` and, while open, each choice under
     "label/choice" (_remember): a test opens it and picks a choice with mouse clicks as a user
-    does. -> (changed, chosen index)."""
+    does. ``disabled``: indices shown greyed, not choosable. -> (changed, chosen index)."""
     _fit(label)
     items = [str(item) for item in items]
     opened = imgui.begin_combo(label, items[current] if 0 <= current < len(items) else "")
@@ -178,7 +181,8 @@ def _combo(ui, label: str, current: int, items: list) -> tuple[bool, int]:
     if opened:
         for index, item in enumerate(items):
             imgui.push_id(index)
-            if imgui.selectable(item, index == current)[0]:
+            flags = imgui.SelectableFlags_.disabled if index in disabled else 0
+            if imgui.selectable(item, index == current, flags)[0]:
                 changed, chosen = index != current, index
             _remember(ui, f"{label}/{item}")
             imgui.pop_id()
@@ -278,10 +282,15 @@ def _inspect(ui, view, drawing) -> bool:
     and splat scale; True when the coverage mode's "suggest flags" was pressed."""
     settings = view.settings
     suggest = False
+    off = {i: mode_unavailable(mode, view.source) for i, mode in enumerate(RENDER_MODES)}
+    off = {i: reason for i, reason in off.items() if reason}
     changed, index = _combo(ui, f"mode (1-{len(RENDER_MODES)})", RENDER_MODES.index(settings.mode),
-                            list(RENDER_MODES))
+                            list(RENDER_MODES), set(off))
     if changed:
         settings.mode = RENDER_MODES[index]
+    if off:  # greyed in the list above; one line says why
+        _hint(f"{', '.join(RENDER_MODES[i] for i in off)}: off, {NO_CAMERAS}")
+        _remember(ui, "why modes are off")
     if settings.mode == "coverage":
         suggest = _coverage(ui, drawing.coverage)
     if settings.mode == "reference":
@@ -373,8 +382,11 @@ def _training(ui, jobs) -> None:
     _poorly_fit(ui, jobs)
     if run is None or not run.alive:
         _job_settings(ui, jobs)
+        no_training = jobs.training_unavailable()
+        imgui.begin_disabled(no_training is not None)
         if _button(ui, "train (new run)"):
             jobs.start_training()
+        imgui.end_disabled()
         blocked = resume_blocked_reason(jobs.run_dir)
         if can_resume(jobs.run_dir) or blocked is not None:
             _same_line_if_fits("resume")
@@ -385,11 +397,18 @@ def _training(ui, jobs) -> None:
             if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
                 imgui.set_tooltip(blocked)
         _same_line_if_fits("Bootstrap flagged views")
+        no_bootstrap = bootstrap_unavailable(jobs.view.source, jobs.run_dir)
+        imgui.begin_disabled(no_bootstrap is not None)
         if _button(ui, "Bootstrap flagged views"):
             jobs.start_bootstrap()
+        imgui.end_disabled()
         if blocked is not None:
             _hint(f"no resume here: {blocked}")
             _remember(ui, "why no resume")
+        for reason, label in ((no_training, "why no training"), (no_bootstrap, "why no bootstrap")):
+            if reason is not None:
+                _hint(reason)
+                _remember(ui, label)
     else:
         # Each button says what it did in the notification area: "training into ..." stayed
         # there through a pause.
@@ -443,12 +462,23 @@ def _poorly_fit(ui, jobs) -> None:
 
 
 def _runs(ui, jobs) -> None:
-    """The scene's runs (its jobs' and the command line's ./runs/NAME), newest last; choosing one
-    shows it and makes it the open run."""
-    runs = jobs.view.source.runs
+    """Where new runs go (shown in full, the folder editable, as --runs), then the scene's runs
+    from every place runs are written, newest first, with their scores; choosing one shows it
+    and makes it the open run."""
+    source = jobs.view.source
+    if source.scene is not None and source.kind == "scene":
+        _fit("runs folder")
+        changed, text = imgui.input_text("runs folder", str(runs_folder(source.runs_dir)),
+                                         imgui.InputTextFlags_.enter_returns_true)
+        _remember(ui, "runs folder")
+        if changed and text.strip():
+            jobs.choose_runs_folder(Path(text.strip()))
+        _hint(f"a new run goes to {new_train_dir(source.scene.root, source.runs_dir)}")
+        _remember(ui, "new run goes to")
+    runs = list(reversed(source.runs))  # newest first
     if not runs:
         return
-    names = [f"{run.name}  ({run.parent})" for run in runs]
+    names = [jobs.run_label(run) for run in runs]
     current = runs.index(jobs.run_dir) if jobs.run_dir in runs else -1
     changed, index = _combo(ui, "runs of this scene", current, names)
     if changed and 0 <= index < len(runs) and runs[index] != jobs.run_dir:
@@ -552,13 +582,18 @@ def _progress(jobs, run) -> None:
     else:
         done = progress.iteration - plan.start_iteration
         total = plan.steps
-        label = f"{run.state}: iteration {progress.iteration}"
+        # The bar counts iterations as the status and the trainer do ("iteration 410 / 1499"),
+        # a resume's starting point named beside it.
+        resumed = plan.kind == "training" and plan.start_iteration > 0  # a bootstrap starts at its run's end
+        label = run.state + (f", resumed at iteration {plan.start_iteration}" if resumed else "")
+        progress.bar_text = f"iteration {progress.iteration}" + (f" / {plan.end_iteration}" if total else "")
         if total:
-            label += f" / {plan.end_iteration}"
             if plan.config is not None:
-                label += " (sized to the budget)"
-            imgui.progress_bar(min(max(done / total, 0.0), 1.0), imgui.ImVec2(-1, 0), f"{done} / {total} steps")
-        imgui.text(label)
+                label += ", schedule sized to the budget"
+            imgui.progress_bar(min(max(done / total, 0.0), 1.0), imgui.ImVec2(-1, 0), progress.bar_text)
+        else:
+            label += f": {progress.bar_text}"
+        imgui.text_wrapped(label)
         eta = eta_seconds(progress.iteration, plan, progress.iterations_per_second, run.elapsed_s)
         budget = "" if plan.budget_s is None else f" of {format_duration(plan.budget_s)}"
         imgui.text_wrapped(f"elapsed {format_duration(run.elapsed_s)}{budget}  ETA {format_duration(eta)}  "

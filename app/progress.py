@@ -52,12 +52,14 @@ def plan_of(job) -> JobPlan:
     """The plan of the viewer's job kinds; an unknown job (a test's stand-in) gets an empty plan."""
     if isinstance(job, TrainJob):
         config = job.config
-        start = 0
+        start, trained_s = 0, 0.0
         if job.resume:
             found = list_checkpoints(Path(job.run_dir))
             start = found[-1][0] if found else 0
-        return JobPlan(start, config.iterations, None if config.minutes is None else 60.0 * config.minutes,
-                       Path(job.run_dir) / "metrics.jsonl", "training",
+            trained_s = trained_seconds(Path(job.run_dir) / "metrics.jsonl", start)
+        # A resumed run's budget counts the training it had: what is left of it is this job's.
+        budget_s = None if config.minutes is None else max(60.0 * config.minutes - trained_s, 0.0)
+        return JobPlan(start, config.iterations, budget_s, Path(job.run_dir) / "metrics.jsonl", "training",
                        Path(job.run_dir) / "config.json" if config.size_to_minutes else None)
     if isinstance(job, BootstrapJob):
         config = job.config
@@ -67,6 +69,41 @@ def plan_of(job) -> JobPlan:
                        None if config.minutes is None else 60.0 * config.minutes,
                        None if out is None else Path(out) / "metrics.jsonl", "bootstrap")
     return JobPlan()
+
+
+def trained_seconds(metrics: Path, iteration: int) -> float:
+    """The training time a run's log records at ``iteration`` (its last line at or before it;
+    0 when the log is absent, unreadable or has none): what a resume's budget has spent."""
+    try:
+        records = read_metrics(metrics) if Path(metrics).is_file() else []
+    except InputError:
+        return 0.0
+    times = [r["train_s"] for r in records if isinstance(r.get("iteration"), int) and r["iteration"] <= iteration
+             and isinstance(r.get("train_s"), (int, float))]
+    return float(times[-1]) if times else 0.0
+
+
+def resume_line(run_dir: Path, plan: JobPlan, minutes: float | None) -> str:
+    """The status of a resume: where it continues and the run's own saved plan, so a plan the
+    trainer later re-sizes is seen to change ("resuming RUN at iteration 305 of 1499 with its
+    saved plan: a 1 min 00 s budget, 40 s of it left, the schedule sized to it")."""
+    line = f"resuming {run_dir} at iteration {plan.start_iteration} of {plan.end_iteration} with its saved plan"
+    if minutes is None:
+        return line + ": no time budget, the whole schedule"
+    line += f": a {format_duration(60.0 * minutes)} budget, {format_duration(plan.budget_s)} of it left"
+    return line + (", the schedule sized to it" if plan.config is not None else "")
+
+
+def replan_line(plan: JobPlan, before: int | None) -> str:
+    """The status when the trainer re-sized the schedule to the budget (the plan's end moved)."""
+    return (f"the schedule was re-sized to the time budget: iteration {plan.end_iteration} is the end "
+            f"(was {before})")
+
+
+def run_scores(run_dir: Path) -> str:
+    """A run's last held-out scores from its metrics log ("all 22.30 dB, covered 23.10 dB"), or
+    "no scores yet" (the run's list in the Training panel)."""
+    return final_scores(psnr_series(Path(run_dir) / "metrics.jsonl")) or "no scores yet"
 
 
 def planned_iterations(config_file: Path) -> int | None:

@@ -11,6 +11,8 @@ import numpy as np
 
 from inceptiongs.camera import Camera
 
+from .capabilities import one_line
+
 # The heat-map's colour scale saturates at this absolute error (per pixel, mean over RGB):
 # GL and torch should agree to ~1e-2, so 0.1 already means a visible bug.
 HEATMAP_ERROR_MAX = 0.1
@@ -112,6 +114,6 @@ class ReferenceWorker:
                     self.error = None
             except Exception as exc:  # noqa: BLE001 - shown in the panel; the viewer keeps going
                 with self._lock:
-                    self.error = f"{type(exc).__name__}: {exc}"
+                    self.error = one_line(exc)
             finally:
                 self.busy = False

@@ -1,18 +1,26 @@
-"""Where the viewer's jobs write: every job gets a folder of its own, never one that exists.
+"""Where the viewer writes what a user keeps: where the command line does, never the cache.
 
-A stage-I job started from the viewer writes ``<scene work dir>/runs/train`` (then ``train_2``,
-``train_3`` ...); a bootstrap of ``RUN`` writes ``RUN_bootstrap`` (then ``RUN_bootstrap_2`` ...).
-Only "Resume" writes into an existing folder: the open run, which the user chose."""
+A stage-I job started from the viewer writes the run folder `inceptiongs train SCENE` writes
+without --out, ``./runs/NAME`` in the current folder (then ``NAME_2``, ``NAME_3`` ...), or
+``DIR/NAME`` in a runs folder the user picks (``inceptiongs-viewer --runs DIR``, or the Training
+panel's field); a bootstrap of ``RUN`` writes ``RUN_bootstrap`` (then ``RUN_bootstrap_2`` ...).
+Saved PLYs and screenshots go to ``NAME_saved`` in the same runs folder. Every job gets a folder
+of its own, never one that exists; only "Resume" writes into an existing folder: the open run,
+which the user chose. The cache (a scene's work folder) keeps only what can be rebuilt."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from inceptiongs.train.checkpoint import latest_checkpoint
+from inceptiongs.train.run_folder import CLI_RUNS_FOLDER, default_run_dir
 
-# The viewer's stage-I runs sit where `inceptiongs train` puts its default run.
+# Runs the viewer made in the scene's work folder (the cache) before it wrote where the
+# command line does: still listed and opened.
 TRAIN_RUN_NAME = "train"
 BOOTSTRAP_SUFFIX = "_bootstrap"
+SAVED_SUFFIX = "_saved"  # saved PLYs and screenshots: ./runs/NAME_saved
 
 
 def fresh_folder(base: Path) -> Path:
@@ -26,9 +34,43 @@ def fresh_folder(base: Path) -> Path:
     return base.with_name(f"{base.name}_{number}")
 
 
-def new_train_dir(work_dir: Path) -> Path:
-    """A fresh stage-I run folder in the scene's work folder."""
-    return fresh_folder(Path(work_dir) / "runs" / TRAIN_RUN_NAME)
+def fresh_file(path: Path) -> Path:
+    """``path`` when nothing exists there, else the first free STEM_2.EXT, STEM_3.EXT ..."""
+    path = Path(path)
+    candidate, number = path, 2
+    while candidate.exists():
+        candidate = path.with_name(f"{path.stem}_{number}{path.suffix}")
+        number += 1
+    return candidate
+
+
+def runs_folder(chosen: Path | None = None) -> Path:
+    """The folder runs go to, absolute: ``chosen``, else ./runs in the current folder (as the
+    command line's default run folders: train.run_folder.default_run_dir)."""
+    folder = Path(chosen).expanduser() if chosen is not None else Path.cwd() / CLI_RUNS_FOLDER
+    return Path(os.path.abspath(folder))
+
+
+def run_name(source) -> str:
+    """NAME of a source's run folders: its scene folder's (as the command line names them), else
+    the opened file's or folder's."""
+    scene = getattr(source, "scene", None)
+    if scene is not None:
+        return default_run_dir(scene.root).name
+    path = Path(source.path)
+    return path.stem if path.is_file() else path.name
+
+
+def new_train_dir(scene_root: Path, chosen: Path | None = None) -> Path:
+    """A fresh stage-I run folder: the command line's default ./runs/NAME, or NAME in the runs
+    folder the user chose."""
+    default = default_run_dir(scene_root)
+    return fresh_folder(default if chosen is None else runs_folder(chosen) / default.name)
+
+
+def saved_dir(source, chosen: Path | None = None) -> Path:
+    """Where saved PLYs and screenshots go by default: NAME_saved in the runs folder."""
+    return runs_folder(chosen) / f"{run_name(source)}{SAVED_SUFFIX}"
 
 
 def new_bootstrap_dir(run_dir: Path) -> Path:

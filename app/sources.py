@@ -8,6 +8,7 @@ import math
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -15,6 +16,9 @@ from inceptiongs.camera import Camera, camera_from_json_dict
 from inceptiongs.constants import SH_C0, SH_OFFSET
 from inceptiongs.errors import InputError
 from inceptiongs.io.cache import scene_cache_dir
+
+from .capabilities import one_line
+from .runs import runs_folder, saved_dir
 
 # Sparse points shown as splats get this radius relative to the points' robust extent:
 # small enough to read as points, big enough to be visible at typical viewing distances.
@@ -43,6 +47,7 @@ class ViewerSource:
     scene: object = None
     notes: list[str] = field(default_factory=list)
     runs: list[Path] = field(default_factory=list)  # a scene's runs (sources.scene_runs), oldest first
+    runs_dir: Path | None = None  # the runs folder the user chose (--runs); None: ./runs (runs.runs_folder)
 
 
 def points_as_splats(points: np.ndarray, colors: np.ndarray | None) -> dict:
@@ -87,7 +92,7 @@ def _read_ply_arrays(path: Path) -> dict:
 
 
 def _newest_time(run: Path) -> float:
-    return max(p.stat().st_mtime for p in run.iterdir())
+    return max((p.stat().st_mtime for p in run.iterdir()), default=run.stat().st_mtime)
 
 
 def work_dir_runs(work_dir: Path) -> list[Path]:
@@ -100,26 +105,47 @@ def work_dir_runs(work_dir: Path) -> list[Path]:
                   if (c.parent / "model.ply").is_file() or (c.parent / "checkpoints").is_dir())
 
 
-def scene_runs(scene) -> list[Path]:
-    """Every run of a scene the viewer knows of, oldest first: its jobs' in the work folder and
-    the command line's under ./runs/NAME (`inceptiongs train` without --out, the bootstrap's
-    NAME_bootstrap beside it; only runs whose config names this scene)."""
+def folder_runs(folder: Path, scene_root: Path) -> list[Path]:
+    """The runs of the scene at ``scene_root`` in a runs folder the user named (whatever their
+    folder names: `inceptiongs train --out DIR/anything`), ``folder`` itself included."""
+    from inceptiongs.train.run_folder import is_run_of  # noqa: PLC0415
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    candidates = [folder, *(child for child in folder.iterdir() if child.is_dir())]
+    return [run for run in candidates if is_run_of(run, scene_root)]
+
+
+def scene_runs(scene, runs_dir: Path | None = None) -> list[Path]:
+    """Every run of a scene the viewer knows of, oldest first: the command line's under
+    ./runs/NAME (`inceptiongs train` without --out, the bootstrap's NAME_bootstrap beside it, the
+    viewer's jobs); those in the runs folder ``runs_dir`` the user named (--runs); and those the
+    viewer once kept in the scene's work folder (only runs whose config names this scene)."""
     from inceptiongs.train.run_folder import cli_run_dirs  # noqa: PLC0415
 
     runs = set(work_dir_runs(scene.work_dir)) | set(cli_run_dirs(scene.root))
-    return sorted(runs, key=_newest_time)
+    if runs_dir is not None:
+        runs |= set(folder_runs(runs_folder(runs_dir), scene.root))
+    return oldest_first(runs)
 
 
-def newest_model(work_dir: Path, runs: list[Path] | None = None) -> Path | None:
+def oldest_first(runs) -> list[Path]:
+    """Run folders by the time of their newest file, oldest first (one gone since: first)."""
+    return sorted(set(runs), key=lambda run: _newest_time(run) if Path(run).is_dir() else 0.0)
+
+
+def newest_model(work_dir: Path, runs: list[Path] | None = None, saved: Path | None = None) -> Path | None:
     """The newest model of a scene: a run's ``config.json`` (``runs``, default those in the work
-    folder; a run's time is its newest file's) or a PLY in the work folder outside any run (e.g.
-    one the viewer saved), whichever was written last; None when there is neither."""
+    folder; a run's time is its newest file's) or a PLY the viewer saved (in the folder ``saved``,
+    or in the work folder outside any run), whichever was written last; None when there is neither."""
     work_dir = Path(work_dir)
     runs = work_dir_runs(work_dir) if runs is None else list(runs)
     candidates = [(_newest_time(run), run / "config.json") for run in runs]
-    if work_dir.is_dir():
-        candidates += [(p.stat().st_mtime, p) for p in work_dir.rglob("*.ply")
-                       if p.is_file() and not (set(p.parents) & set(runs))]
+    for folder in (work_dir, saved):
+        if folder is not None and Path(folder).is_dir():
+            candidates += [(p.stat().st_mtime, p) for p in Path(folder).rglob("*.ply")
+                           if p.is_file() and not (set(p.parents) & set(runs))]
     return max(candidates, key=lambda item: item[0])[1] if candidates else None
 
 
@@ -146,10 +172,12 @@ def _open_run(run_dir: Path) -> ViewerSource:
                         model_path=model if model.is_file() else None, run_dir=run_dir, scene=scene)
 
 
-def open_scene_run(scene_path: Path, work_dir: Path, runs: list[Path], run_dir: Path) -> ViewerSource:
+def open_scene_run(scene_path: Path, work_dir: Path, runs: list[Path], run_dir: Path,
+                   runs_dir: Path | None = None) -> ViewerSource:
     """A scene folder shown at one of its runs (``runs``: all of them, for the panel's list)."""
     source = _open_run(Path(run_dir))
     source.kind, source.path, source.work_dir, source.runs = "scene", Path(scene_path), Path(work_dir), list(runs)
+    source.runs_dir = runs_dir
     return source
 
 
@@ -163,8 +191,15 @@ def not_a_source_message(path: Path, scene_error: InputError) -> str:
     return f"{path}: not a scene ({reason}), and no .ply model or run inside"
 
 
-def open_source(path: str | Path) -> ViewerSource:
-    path = Path(path)
+def open_source(path: str | Path, runs_dir: Path | None = None) -> ViewerSource:
+    """The viewer's source for ``path``; ``runs_dir``: the runs folder the user named (--runs),
+    where new runs go and whose runs of the scene are listed (None: ./runs)."""
+    source = _open_source(Path(path), runs_dir)
+    source.runs_dir = runs_dir
+    return source
+
+
+def _open_source(path: Path, runs_dir: Path | None) -> ViewerSource:
     if not path.exists():
         raise InputError(f"{path}: does not exist")
     if path.is_file():
@@ -185,10 +220,10 @@ def open_source(path: str | Path) -> ViewerSource:
             raise InputError(not_a_source_message(path, scene_error)) from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
-    runs = scene_runs(scene)
-    newest = newest_model(scene.work_dir, runs)
+    runs = scene_runs(scene, runs_dir)
+    newest = newest_model(scene.work_dir, runs, saved_dir(SimpleNamespace(scene=scene, path=path), runs_dir))
     if newest is not None and newest.name == "config.json":
-        source = open_scene_run(path, scene.work_dir, runs, newest.parent)
+        source = open_scene_run(path, scene.work_dir, runs, newest.parent, runs_dir)
         source.notes.append(f"opened the newest of {len(runs)} run(s) of this scene: {newest.parent}")
         return source
     if newest is not None:  # a PLY saved in the work folder (the viewer's "save PLY"): original frame
@@ -237,7 +272,7 @@ class PointsWorker:
         try:
             self.result = triangulated_splats(scene_root)
         except Exception as exc:  # noqa: BLE001 - shown in the status line, the viewer keeps going
-            self.result = (None, f"no sparse points, and triangulating some failed: {type(exc).__name__}: {exc}")
+            self.result = (None, f"no sparse points, and triangulating some failed: {one_line(exc)}")
 
     @property
     def done(self) -> bool:

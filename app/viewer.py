@@ -10,6 +10,7 @@ arrives through :class:`input.InputController`, whose handlers are the window's 
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -21,12 +22,15 @@ from inceptiongs.camera import Camera
 from inceptiongs.io import flags as flag_io
 from inceptiongs.io.images import write_image
 
+from . import closing as closing_question
+from .closing import Closing
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
 from .editing import Editor
 from .flags import FlagBook
 from .images import visualize
 from .input import InputController
 from .jobs import Jobs
+from .runs import saved_dir
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
 from .view import View
@@ -72,6 +76,7 @@ class Viewer:
         # job_factory: source -> job; None: the job dialog's stage-I training.
         self.jobs = Jobs(self.view, self.flags, self.status_line, self.update_title, job_factory)
         self.ui = PanelState()
+        self.closing = Closing()  # the close button / a stop signal with a job alive (closing.py)
         self.last_gl_error: str | None = None
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
@@ -121,7 +126,8 @@ class Viewer:
     def save_screenshot(self, path: str | Path | None = None) -> Path:
         if path is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
-            path = self.view.source.work_dir / "screenshots" / f"view-{stamp}.png"
+            source = self.view.source
+            path = saved_dir(source, source.runs_dir) / f"view-{stamp}.png"  # beside the runs, not in the cache
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_image(path, self.render_image())  # at window size, in the extension's format
@@ -197,6 +203,7 @@ class Viewer:
         self.imgui_impl.process_inputs()
         imgui.new_frame()
         draw_panels(self)
+        closing_question.draw_question(self)
         imgui.render()
         self.imgui_impl.render(imgui.get_draw_data())
 
@@ -241,18 +248,42 @@ class Viewer:
         elif self.points_worker is not None and still:
             glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
 
-    def run(self) -> None:
-        try:
-            while not self.should_close():
-                self.wait_for_next_frame()
-                self.step()
-        finally:
-            self.close()
+    def run_frame(self) -> bool:
+        """One turn of the frame loop: the close button and stop signals are looked at
+        (closing.py), then a frame is drawn. -> whether the loop goes on."""
+        if not closing_question.keep_open(self):
+            return False
+        self.wait_for_next_frame()
+        self.step()
+        return True
 
-    def close(self) -> None:
-        """Stop the job (it keeps its checkpoint), the reference worker, and the window."""
+    def run(self) -> int:
+        """The frame loop until the window closes (and a job kept in the background ends).
+        -> the exit status: 0, or 128 + the number of the signal that stopped it (130, 143)."""
+        from inceptiongs.stop_signals import stop_on_signals  # noqa: PLC0415
+
+        def say(line: str) -> None:
+            if self.jobs.alive:  # the signal's line is about the job; without one it just closes
+                print(line, file=sys.stderr, flush=True)
+
+        wait_for_job = True
+        with stop_on_signals(self.closing.signals, say) as request:
+            try:
+                while self.run_frame():
+                    pass
+                if self.closing.state == "background":
+                    closing_question.wait_in_background(self)
+            except KeyboardInterrupt:  # a second signal: quit without waiting for the save
+                wait_for_job = False
+                raise
+            finally:
+                self.close(wait_for_job)
+        return request.exit_status
+
+    def close(self, wait_for_job: bool = True) -> None:
+        """Stop the job (it saves its model and checkpoint), the reference worker, and the window."""
         if self.jobs.training is not None:
-            self.jobs.training.stop(timeout=60.0)
+            self.jobs.training.stop(timeout=60.0 if wait_for_job else 0)
         self.drawing.close()
         self.jobs.set_verdict(None)  # its GL textures
         if self.imgui_impl is not None:

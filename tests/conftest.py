@@ -129,3 +129,16 @@ def xvfb():
         os.environ["DISPLAY"] = previous
     process.terminate()
     process.wait(10)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _viewer_runs_in_a_temporary_folder(request, tmp_path_factory):
+    """The viewer's tests (tests/app) run from a folder of their own, one per module (a module's
+    tests see each other's runs): their jobs, saved PLYs and screenshots go to ./runs in the
+    current folder, as the command line's do, never into the project's checkout."""
+    if Path(str(request.path)).parent.name != "app":
+        yield
+        return
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(tmp_path_factory.mktemp("cwd"))
+        yield

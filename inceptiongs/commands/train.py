@@ -86,6 +86,21 @@ def build_config(args) -> "TrainConfig":
     return short_run_schedule(config.validate("command line"))
 
 
+def resumed_config(run_dir: Path, minutes: float | None = None, iterations: int | None = None,
+                   say=lambda line: print(line, file=sys.stderr)) -> "TrainConfig":
+    """The config a resume of ``run_dir`` trains with: the stored one, the run's contract (its
+    schedule and its own time budget); only ``minutes`` (a new budget) may change it. A different
+    ``iterations`` is ignored, with a note through ``say``."""
+    stored = Path(run_dir) / "config.json"
+    resumed = TrainConfig.load(stored)
+    if minutes is not None:
+        resumed = dataclasses.replace(resumed, minutes=minutes)
+    if iterations is not None and iterations != resumed.iterations:
+        say(f"note: {stored} keeps its schedule of {resumed.iterations} iterations on --resume; "
+            f"--iterations {iterations} is ignored (start a new run with --out to train longer)")
+    return resumed
+
+
 def photos_to_exclude(value: str | None) -> list[str]:
     """--exclude-photos: a finished run folder (the photos its view_fit.json reports as poorly
     fit), a text file of image names (one per line or comma-separated), or comma-separated names."""
@@ -119,7 +134,6 @@ def photos_to_exclude(value: str | None) -> list[str]:
 def run(args) -> int:
     from ..live import JobControl
     from ..stop_signals import stop_on_signals
-    from ..train.config import TrainConfig
     from ..train.run_folder import default_run_dir
     from ..train.trainer import train
 
@@ -130,15 +144,7 @@ def run(args) -> int:
     config = build_config(args)
     stored = out / "config.json"
     if args.resume and stored.is_file():
-        # The stored config is the run's contract: resume with it, only the time budget may change.
-        resumed = TrainConfig.load(stored)
-        if args.minutes is not None:
-            resumed = dataclasses.replace(resumed, minutes=args.minutes)
-        if args.iterations is not None and args.iterations != resumed.iterations:
-            print(f"note: {stored} keeps its schedule of {resumed.iterations} iterations on --resume; "
-                  f"--iterations {args.iterations} is ignored (start a new run with --out to train longer)",
-                  file=sys.stderr)
-        config = resumed
+        config = resumed_config(out, args.minutes, args.iterations)
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
     chosen_rasterizer(config.device)   # --device cuda that cannot run: one line before anything starts

@@ -29,7 +29,8 @@ def test_fresh_folder_never_returns_an_existing_one(tmp_path):
     (tmp_path / "runs" / "train_2").mkdir()
     (tmp_path / "runs" / "train_3").write_text("a file counts too")
     assert fresh_folder(base) == tmp_path / "runs" / "train_4"
-    assert new_train_dir(tmp_path) == tmp_path / "runs" / "train_4"
+    (tmp_path / "runs" / "scene").mkdir()  # a run of the scene at tmp_path/scene in the chosen runs folder
+    assert new_train_dir(tmp_path / "scene", tmp_path / "runs") == tmp_path / "runs" / "scene_2"
     run = tmp_path / "runs" / "train"
     assert new_bootstrap_dir(run) == tmp_path / "runs" / "train_bootstrap"
     (tmp_path / "runs" / "train_bootstrap").mkdir()
@@ -129,9 +130,10 @@ def test_jobs_write_fresh_folders(tmp_path):
     run.mkdir(parents=True)
     (run / "config.json").write_text("{}")
     source = SimpleNamespace(kind="scene", path=tmp_path, scene=SimpleNamespace(root=tmp_path), work_dir=tmp_path,
-                             run_dir=run)
+                             run_dir=run, runs_dir=tmp_path / "runs")
+    (tmp_path / "runs" / tmp_path.name).mkdir()
     job = train_job_for(source, JobSettings(iterations=100))
-    assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / "train_2" and not job.resume
+    assert isinstance(job, TrainJob) and job.run_dir == tmp_path / "runs" / f"{tmp_path.name}_2" and not job.resume
     flags_file = tmp_path / "flags.json"
     status = StatusLine()
     jobs = Jobs(SimpleNamespace(source=source), SimpleNamespace(file=flags_file, items=[]), status, lambda: None)
@@ -178,34 +180,34 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
     from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
 
     with opened(Viewer, open_source(demo_scene), 900, 1000) as viewer:
-        # The scene's work folder is in the cache directory: nothing is written into the scene.
-        runs = viewer.view.source.work_dir / "runs"
+        # Where `inceptiongs train SCENE` writes: ./runs/NAME in the current folder, not the scene.
+        runs, name = Path.cwd() / "runs", demo_scene.name
         assert demo_scene not in runs.parents
         assert "sparse points" in viewer.title
         # A long schedule, stopped early: what a user does who trains "until it looks good".
         viewer.jobs.settings = JobSettings(minutes=None, iterations=2000, downscale=4, protocol="unstructured")
         viewer.jobs.start_training()
-        assert viewer.jobs.out_dir == runs / "train" and str(runs / "train") in viewer.title
+        assert viewer.jobs.out_dir == runs / name and str(runs / name) in viewer.title
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 10)
         viewer.jobs.training.stop()
         _wait(viewer, lambda: not viewer.jobs.training.alive)
-        first = latest_checkpoint(runs / "train")
+        first = latest_checkpoint(runs / name)
         assert first is not None
         first_bytes = first.read_bytes()
         # A second "train" (its button, clicked) starts a new run beside the first, leaving it as it was.
         click_widget(viewer, "train (new run)")
-        assert viewer.jobs.out_dir == runs / "train_2"
-        assert "train_2" in glfw.get_window_title(viewer.window)  # the real window's title
+        assert viewer.jobs.out_dir == runs / f"{name}_2"
+        assert f"{name}_2" in glfw.get_window_title(viewer.window)  # the real window's title
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 10)
         viewer.jobs.training.stop()
         _wait(viewer, lambda: not viewer.jobs.training.alive)
         assert first.read_bytes() == first_bytes
-        stopped_at = list_checkpoints(runs / "train_2")[-1][0]
+        stopped_at = list_checkpoints(runs / f"{name}_2")[-1][0]
         # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
-        assert viewer.jobs.run_dir == runs / "train_2"
+        assert viewer.jobs.run_dir == runs / f"{name}_2"
         click_widget(viewer, "resume")
         job = viewer.jobs.training.job
-        assert job.resume and job.run_dir == runs / "train_2"
+        assert job.resume and job.run_dir == runs / f"{name}_2"
         seen = []
         _wait(viewer, lambda: (seen.append(viewer.jobs.training.progress.iteration) or True)
               and viewer.jobs.training.progress.iteration > stopped_at)
@@ -214,7 +216,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         assert viewer.jobs.training.error is None, viewer.jobs.training.error
         # A fresh run would show iteration 10 first; the resumed one starts past its checkpoint.
         assert min(i for i in seen if i > 0) > stopped_at
-        assert sorted(p.name for p in runs.iterdir()) == ["train", "train_2"]
+        assert sorted(p.name for p in runs.iterdir()) == [name, f"{name}_2"]
         viewer.step()
         assert "stopped" in viewer.title
 
@@ -317,8 +319,8 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
         np.testing.assert_allclose(reopened.view.edit.base["means"], shown, atol=1e-5)  # back in the shown frame
     time.sleep(0.05)
     # A run written to after the PLY is the newest again.
-    (source.work_dir / "runs" / "train_2" / "notes.txt").write_text("newer than edited.ply")
-    assert open_source(demo_scene).run_dir == source.work_dir / "runs" / "train_2"
+    (Path.cwd() / "runs" / f"{demo_scene.name}_2" / "notes.txt").write_text("newer than edited.ply")
+    assert open_source(demo_scene).run_dir == Path.cwd() / "runs" / f"{demo_scene.name}_2"
 
 
 @pytest.mark.gl
@@ -333,13 +335,13 @@ def test_scene_folder_finds_the_command_lines_runs(xvfb, demo_scene, tmp_path, m
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
 
-    from inceptiongs.app.runs import new_train_dir
+    from inceptiongs.app.runs import fresh_folder
     from inceptiongs.train.trainer import train
 
-    # A run of the viewer's own (in the scene's work folder), then the command line's, newer.
+    # A run the viewer once kept in the scene's work folder (the cache), then the command line's, newer.
     work_dir = open_source(demo_scene).work_dir
-    train(JobSettings(minutes=None, iterations=5, downscale=4).train_config(demo_scene), new_train_dir(work_dir),
-          progress=False)
+    train(JobSettings(minutes=None, iterations=5, downscale=4).train_config(demo_scene),
+          fresh_folder(work_dir / "runs" / "train"), progress=False)
     monkeypatch.chdir(tmp_path)
     result = subprocess.run([sys.executable, "-m", "inceptiongs", "train", str(demo_scene), "--iterations", "10",
                              "--downscale", "4", "--protocol", "unstructured"], cwd=tmp_path, capture_output=True,
@@ -417,6 +419,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         typed = {"time budget min": "1.5", "schedule iterations": "700", "downscale": "3"}
         assert (defaults.minutes, defaults.iterations, defaults.downscale) != (1.5, 700, 3)
         viewer.step()
+        click_widget(viewer, "View")  # closed: the Training panel's dialog and buttons fit the window
         click_widget(viewer, "job settings")  # open the dialog (a tree node, closed at first)
         for label, text in typed.items():
             type_into(viewer, label, text)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import time
 
 import glfw
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -41,7 +43,7 @@ def test_mode_keys_mode_combo_and_f12(xvfb, tmp_path):
         assert viewer.view.settings.mode == "normal"
         press_key(viewer, glfw.KEY_1)
         press_key(viewer, glfw.KEY_F12)
-        shots = list((viewer.view.source.work_dir / "screenshots").glob("view-*.png"))
+        shots = list((Path.cwd() / "runs" / "model_saved").glob("view-*.png"))  # beside the runs, not the cache
         assert len(shots) == 1, viewer.status
         assert read_png(shots[0]).shape == (700, 900, 3)  # the window's size, the scene alone
 
@@ -331,7 +333,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         np.testing.assert_allclose(viewer.view.nav.pivot, np.median(kept, axis=0), atol=1e-6)
 
 
-def test_save_ply_of_a_scene_goes_to_its_work_folder_never_the_scene_folder(xvfb, demo_scene):
+def test_save_ply_of_a_scene_goes_beside_its_runs_never_the_scene_folder(xvfb, demo_scene):
     from inceptiongs.io.ply import read_ply
 
     before = sorted(p.relative_to(demo_scene) for p in demo_scene.rglob("*"))
@@ -339,8 +341,8 @@ def test_save_ply_of_a_scene_goes_to_its_work_folder_never_the_scene_folder(xvfb
         viewer.step()
         _collapse(viewer, "View", "Inspect", "Flags", "Training")
         click_widget(viewer, "Edit")
-        click_widget(viewer, "save PLY")                     # the default file: in the work folder
-        default = viewer.view.source.work_dir / "edited.ply"
+        click_widget(viewer, "save PLY")                     # the default file: ./runs/NAME_saved
+        default = Path.cwd() / "runs" / f"{demo_scene.name}_saved" / "edited.ply"
         assert len(read_ply(default)) == viewer.view.edit.count, viewer.status
         assert demo_scene not in default.parents
         inside = demo_scene / "edited.ply"
