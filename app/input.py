@@ -43,6 +43,22 @@ class InputController:
         glfw.set_mouse_button_callback(window, self.on_mouse_button)
         glfw.set_cursor_pos_callback(window, self.on_cursor)
         glfw.set_scroll_callback(window, self.on_scroll)
+        # Not input, but each needs a frame: an expose (the window's pixels lost), a resize, the
+        # focus or the cursor entering or leaving (hover highlights).
+        glfw.set_window_refresh_callback(window, lambda _window: self.note_event())
+        glfw.set_framebuffer_size_callback(window, lambda _window, _w, _h: self.note_event())
+        glfw.set_window_focus_callback(window, lambda _window, _focused: self.note_event())
+        glfw.set_cursor_enter_callback(window, self.on_cursor_enter)
+
+    def note_event(self) -> None:
+        """Something the next frame must show arrived (Viewer.wait_for_next_frame draws it)."""
+        self.last_event = time.perf_counter()
+
+    def on_cursor_enter(self, window, entered) -> None:
+        self.note_event()
+        if not entered and self.viewer.imgui_impl is not None:
+            # imgui's own backend would report the mouse gone: no panel stays hovered.
+            self.viewer.imgui_impl.io.add_mouse_pos_event(-3.4e38, -3.4e38)
 
     def on_key(self, window, key, scancode, action, mods) -> None:
         self.last_event = time.perf_counter()
