@@ -12,30 +12,38 @@ import time
 import moderngl
 import numpy as np
 
-from inceptiongs.constants import sh_degree_from_count
+from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
 from .editing import box_handles
-from .frustums import away_from, segments_for_cameras
+from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .settings import GL_MODE_NAMES
 
-# Resolution factors while the camera moves, largest first; the full frame follows once it
-# has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
-# Each moving render picks the next factor from the last one's splat time: a smaller factor
-# when it overran MOVING_BUDGET_MS, a larger one when it took under half of it. A few fixed
-# sizes rather than a continuous factor, so the scene texture is not reallocated every frame.
-MOVING_RENDER_SCALES = (0.5, 0.375, 0.25)
-MOVING_RENDER_SCALE = MOVING_RENDER_SCALES[0]
+# While the camera moves the splats are drawn at a reduced resolution; the full frame follows
+# once it has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate
+# target). The size is chosen to hold MOVING_BUDGET_MS per render: a render's preprocess and
+# sort cost the same at any size, its draw scales with the pixels, so from the last render's
+# split the scale whose draw fills what the fixed part leaves of the budget is the next one.
+# It moves in steps of MOVING_SCALE_STEP (the scene texture is not reallocated for every small
+# change) between MOVING_SCALE_MIN and 1; a sort-bound render (the fixed part over budget) is
+# not made blocky for nothing: its draw may add MOVING_SORT_BOUND_SHARE of the fixed part.
+MOVING_SCALE_MIN = 0.25
+MOVING_SCALE_MAX = 1.0
+MOVING_SCALE_STEP = 0.125
+MOVING_RENDER_SCALE = 0.5  # the first moving render's, before any timing is known
 MOVING_BUDGET_MS = 40.0
+MOVING_SORT_BOUND_SHARE = 0.5
 STILL_SECONDS = 0.15
 # A model that changed less than MODEL_STILL_SECONDS ago is drawn at the moving size too (a
 # training view updates at reduced resolution) and refined once the job pauses, stops or goes
 # quiet.
 MODEL_STILL_SECONDS = 1.0
+# Sparse points are drawn this many window pixels wide (squares), whatever their distance.
+SPARSE_POINT_PIXELS = 2.0
 # The torch reference renders at most this many pixels wide (it runs on the CPU).
 REFERENCE_MAX_WIDTH = 320
 TRAINING_COLOR = (0.2, 0.6, 1.0)
@@ -50,14 +58,20 @@ FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
-def next_moving_level(level: int, splat_ms: float) -> int:
-    """The MOVING_RENDER_SCALES index for the next moving frame, from the last one's splat
-    time (preprocess + sort + draw ms): down a size over budget, up one under half of it."""
-    if splat_ms > MOVING_BUDGET_MS:
-        return min(level + 1, len(MOVING_RENDER_SCALES) - 1)
-    if splat_ms < 0.5 * MOVING_BUDGET_MS:
-        return max(level - 1, 0)
-    return level
+def next_moving_scale(scale: float, timings: dict) -> float:
+    """The render scale for the next moving frame, from the last render at ``scale`` and its
+    ``timings`` (preprocess_ms, sort_ms, draw_ms): draw time taken as proportional to the
+    pixels (scale squared), the rest as fixed. Quantised to MOVING_SCALE_STEP, kept within
+    [MOVING_SCALE_MIN, MOVING_SCALE_MAX]."""
+    draw_ms = max(float(timings.get("draw_ms", 0.0)), 1e-3)
+    fixed_ms = sum(float(v) for v in timings.values()) - draw_ms
+    full_draw_ms = draw_ms / max(scale, 1e-3) ** 2
+    allowed_ms = MOVING_BUDGET_MS - fixed_ms
+    if allowed_ms < MOVING_SORT_BOUND_SHARE * fixed_ms:
+        allowed_ms = MOVING_SORT_BOUND_SHARE * fixed_ms  # sort-bound: a smaller image would not help
+    target = (max(allowed_ms, 0.0) / full_draw_ms) ** 0.5
+    quantised = MOVING_SCALE_STEP * max(int(target / MOVING_SCALE_STEP), 1)  # rounded down: within budget
+    return float(min(max(quantised, MOVING_SCALE_MIN), MOVING_SCALE_MAX))
 
 
 def frustum_colors(cameras: list, poorly_fit) -> np.ndarray:
@@ -90,7 +104,9 @@ class FrameDrawer:
         self.reference_request = None
         self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
-        self.moving_level = 0  # index into MOVING_RENDER_SCALES
+        self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
+        self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
+        self._frustums: tuple[list[int], float] = ([], 1.0)
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
 
     def upload_model(self, view) -> None:
@@ -118,7 +134,7 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
-        scale = MOVING_RENDER_SCALES[self.moving_level] if moving else 1.0
+        scale = self.moving_scale if moving else 1.0
         self.upload_model(view)
         settings = view.settings
         mode = settings.mode
@@ -132,7 +148,9 @@ class FrameDrawer:
             self.draw_reference(view)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
-            if photo is not None:
+            if view.shows_points and mode == "rgb" and photo is None:
+                self.draw_points(view, camera, scale)
+            elif photo is not None:
                 # The render with the nearest training photo: composed on the CPU, then uploaded.
                 image = self.renderer.render(camera, "rgb", background=settings.background,
                                              sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
@@ -153,12 +171,28 @@ class FrameDrawer:
                 self.scene_texture.upload(visualize(image, mode))
             stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
             stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
-            if moving:
-                self.moving_level = next_moving_level(self.moving_level, sum(self.renderer.timings.values()))
+            if mode in ("rgb", "coverage"):  # the modes drawn as they move (the others read back)
+                self.moving_scale = next_moving_scale(scale, self.renderer.timings)
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
         self.scene_texture.blit(screen)
+
+    def draw_points(self, view, camera, scale: float) -> None:
+        """Sparse points as small screen-space points (SPARSE_POINT_PIXELS of the window, at
+        any distance) in their colours, far ones first, into the scene texture. The splats stay
+        uploaded: picking a depth under the cursor still reads them."""
+        arrays = view.edit.visible_arrays()
+        means = arrays["means"]
+        colors = np.clip(arrays["sh"][:, 0, :] * SH_C0 + SH_OFFSET, 0.0, 1.0)
+        depth = (means @ camera.rotation[2].astype(np.float32)) + np.float32(camera.world_to_camera[2, 3])
+        order = np.argsort(-depth, kind="stable")  # painter's order: no depth buffer needed
+        target = self.scene_texture.ensure(camera.width, camera.height)
+        target.use()
+        target.clear(*view.settings.background, 1.0)
+        self.overlay.draw_points(camera, means[order], colors[order], size=max(SPARSE_POINT_PIXELS * scale, 1.0))
+        self.scene_texture.flip_y = False
+        self.renderer.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
 
     def draw_reference(self, view) -> None:
         """GL and torch at the same reduced camera; the torch image comes from the worker. The
@@ -204,8 +238,9 @@ class FrameDrawer:
         settings, edit, flags = view.settings, view.edit, flag_book.items
         camera = view.current_camera()
         screen.use()
-        depth = max(view.nav.speed * 0.1, 1e-3)
-        training = away_from(view.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
+        drawn, depth = self.training_frustums(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
+        training = [drawn[i] for i in away_from([view.cameras[i] for i in drawn], camera.center,
+                                                FLAG_HIDE_DISTANCE * depth)]
         if settings.show_training_cameras and training:
             shown_cameras = [view.cameras[i] for i in training]
             segments = segments_for_cameras(shown_cameras, depth)
@@ -227,6 +262,16 @@ class FrameDrawer:
                                      size=CROP_HANDLE_SIZE)
         if edit.selected.any():
             self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
+
+    def training_frustums(self, cameras: list, poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
+        """frustums.drawn_training_frustums for ``cameras``, the poorly fit photos kept; computed
+        once per camera list and poorly-fit set."""
+        key = (id(cameras), len(cameras), tuple(sorted(poorly_fit)), fallback_depth if len(cameras) < 2 else None)
+        if self._frustums_key != key:
+            keep = {i for i, c in enumerate(cameras) if c.name in poorly_fit}
+            self._frustums = drawn_training_frustums(cameras, fallback_depth, keep)
+            self._frustums_key = key
+        return self._frustums
 
     def close(self) -> None:
         """Stop the reference worker (no GL calls: safe without a current context)."""

@@ -36,6 +36,7 @@ class InputController:
         self.dragging_button = None
         self.lasso: list[tuple[float, float]] = []  # the lasso being drawn (window positions)
         self.crop_handle: int | None = None  # the crop-box face being dragged
+        self.pan_depth = 1.0  # camera depth of the point a middle-drag grabbed
 
     def install(self, window) -> None:
         glfw.set_key_callback(window, self.on_key)
@@ -157,8 +158,7 @@ class InputController:
                 view.nav.look(dx, dy)
                 view.moved()
         elif self.dragging_button == glfw.MOUSE_BUTTON_MIDDLE:
-            view.nav.fly(np.array([-dx, -dy, 0.0]), seconds=0.01)
-            view.moved()
+            view.pan(dx, dy, self.pan_depth)
 
     def on_mouse_button(self, window, button, action, mods) -> None:
         self.last_event = time.perf_counter()
@@ -186,6 +186,8 @@ class InputController:
             return
         self.dragging_button = button
         self.drag_start = (x, y)
+        if button == glfw.MOUSE_BUTTON_MIDDLE:
+            self.pan_depth = view.grab_depth(x, y)  # the grabbed point stays under the cursor
         if button == glfw.MOUSE_BUTTON_LEFT:
             self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:

@@ -193,6 +193,18 @@ class NavigationState:
         self.center = self.center + step
         self.pivot = self.pivot + step
 
+    def pan(self, dx: float, dy: float, depth: float, focal: float) -> None:
+        """Slide the camera sideways so a point at camera depth ``depth`` follows the cursor: a
+        drag of (dx, dy) pixels moves it by (dx, dy) on the screen (``focal``: pixels per unit of
+        depth-normalised image plane). The pivot slides with the camera."""
+        step = self.rotation.T @ np.array([-dx, -dy, 0.0]) * (max(depth, _ORBIT_MIN_DISTANCE) / max(focal, 1e-6))
+        self.center = self.center + step
+        self.pivot = self.pivot + step
+
+    def pivot_depth(self) -> float:
+        """The pivot's camera depth (its distance along the viewing direction)."""
+        return float(self.rotation[2] @ (self.pivot - self.center))
+
     def look(self, dx: float, dy: float, radians_per_pixel: float = 0.004) -> None:
         """Mouse look: dx > 0 turns right (yaw about world up), dy < 0 looks up (pitch)."""
         self.rotation = self._turned(self.rotation, dx * radians_per_pixel, -dy * radians_per_pixel)

@@ -106,7 +106,7 @@ class Viewer:
         self.points_worker = None
         splats, self.status = worker.result
         if splats is not None and self.jobs.training is None:
-            self.view.show_model(splats)
+            self.view.show_model(splats, points=True)
             self.view.moved()
 
     # --- pictures --------------------------------------------------------------------------------

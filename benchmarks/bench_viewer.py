@@ -4,8 +4,8 @@ Logs per-frame totals and the renderer's sort/draw times for these situations:
   idle      the camera is still; each frame re-renders the splats at full resolution
             (the app itself would skip the re-render when nothing changed, and run() even
             waits for events: that frame rate is printed too as "idle, cached")
-  moving    the camera turns every frame; the app renders at one of MOVING_RENDER_SCALES,
-            picked from the last moving render's time (MOVING_BUDGET_MS)
+  moving    the camera turns every frame; the app renders at the scale that holds
+            MOVING_BUDGET_MS, chosen from the last render's split of its time (next_moving_scale)
   training  a job thread publishes new Gaussians ~5 times a second with CPU work in between
             (competing for the 2 cores); the app does what it does live: a new snapshot at
             most every TRAINING_REFRESH_SECONDS costs a re-render at the moving size (the model

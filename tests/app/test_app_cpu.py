@@ -122,3 +122,20 @@ def test_an_event_while_idle_draws_a_frame(xvfb, tmp_path):
 def _rss_bytes() -> int:
     with open("/proc/self/statm") as statm:
         return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def test_the_benchmark_reports_idle_and_paused_cpu_and_memory(xvfb):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_viewer.py"
+    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "1", "--size", "640x480",
+                             "--ply", "/nonexistent.ply"], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    rows = [line for line in result.stdout.splitlines() if " CPU " in line]
+    names = {(line.split("mouse")[0].strip(), line.split("mouse")[1].split()[0]) for line in rows}
+    assert names == {(name, where) for name in ("idle, no job", "job paused", "job stopped")
+                     for where in ("inside", "outside")}, result.stdout
+    for line in rows:
+        assert "frames in 1 s" in line and "memory" in line, line

@@ -388,18 +388,26 @@ def test_heatmap_and_side_by_side():
     assert both[:, :3].max() == 0 and both[:, 4:].min() == 1
 
 
-def test_moving_render_scale_adapts_to_the_budget_and_stays_in_range():
-    viewer = pytest.importorskip("inceptiongs.app.drawing")
-    scales, budget = viewer.MOVING_RENDER_SCALES, viewer.MOVING_BUDGET_MS
-    assert list(scales) == sorted(scales, reverse=True) and scales[0] < 1.0
-    level = 0
-    for _ in range(len(scales) + 2):  # keeps overrunning: down to the smallest size, no further
-        level = viewer.next_moving_level(level, 2.0 * budget)
-    assert level == len(scales) - 1
-    assert viewer.next_moving_level(level, 0.75 * budget) == level  # within budget: kept
-    for _ in range(len(scales) + 2):  # far under budget: back up to the largest, no further
-        level = viewer.next_moving_level(level, 0.1 * budget)
-    assert level == 0
+def test_moving_render_scale_holds_the_budget_from_the_last_renders_split():
+    drawing = pytest.importorskip("inceptiongs.app.drawing")
+    budget, step = drawing.MOVING_BUDGET_MS, drawing.MOVING_SCALE_STEP
+    # Draw-bound: 10 ms fixed, 120 ms to draw the full frame -> the draw may take 30 ms: scale
+    # sqrt(30 / 120) = 0.5 (from a still full-size render or a moving one at 0.25 alike).
+    full = {"preprocess_ms": 4.0, "sort_ms": 6.0, "draw_ms": 120.0}
+    assert drawing.next_moving_scale(1.0, full) == 0.5
+    assert drawing.next_moving_scale(0.25, {**full, "draw_ms": 120.0 / 16}) == 0.5
+    # Cheap to draw: the full size holds the budget.
+    assert drawing.next_moving_scale(0.5, {"preprocess_ms": 1.0, "sort_ms": 2.0, "draw_ms": 5.0}) == 1.0
+    # Sort-bound (fixed part over budget): not shrunk to the floor for nothing.
+    sort_bound = {"preprocess_ms": 20.0, "sort_ms": 60.0, "draw_ms": 40.0}
+    scale = drawing.next_moving_scale(1.0, sort_bound)
+    assert scale > drawing.MOVING_SCALE_MIN and 40.0 * scale ** 2 <= 0.5 * 80.0 + 1e-9
+    # Hopelessly slow: the floor; always a multiple of the step within the range.
+    assert drawing.next_moving_scale(1.0, {"preprocess_ms": 1.0, "sort_ms": 1.0, "draw_ms": 5000.0}) == 0.25
+    for draw in (3.0, 17.0, 55.0, 130.0, 900.0):
+        scale = drawing.next_moving_scale(1.0, {"preprocess_ms": 2.0, "sort_ms": 3.0, "draw_ms": draw})
+        assert drawing.MOVING_SCALE_MIN <= scale <= 1.0 and (scale / step) == int(scale / step)
+        assert scale == drawing.MOVING_SCALE_MIN or 5.0 + draw * scale ** 2 <= budget + 1e-9
 
 
 def test_lasso_selects_inside_the_polygon():
