@@ -40,6 +40,7 @@ class View:
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
+        self.covered_left = 0.0  # window pixels the panel covers at the window's left (Home avoids them)
         self.last_motion = -1e9  # when the camera or the model last moved (drawing's moving size)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
 
@@ -126,9 +127,12 @@ class View:
         self.moved()
 
     def frame_model(self) -> None:
-        """Fit the view to the model's robust bounds, looking the same way; pivot at its centre."""
+        """Fit the view to the scene (navigation.framed: what the cameras look at, the shell and
+        far outliers left out) in the part of the window the panel leaves, looking the same way;
+        pivot at its centre."""
         width, height = self.framebuffer_size
-        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width / height)
+        covered, _ = self.window_to_framebuffer(self.covered_left, 0.0)
+        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width, height, covered, self.cameras)
         self.moved()
 
     def grab_depth(self, x: float, y: float) -> float:

@@ -177,6 +177,8 @@ class Viewer:
         self.imgui_impl.process_inputs()
         imgui.new_frame()
         draw_panels(self)
+        rect = self.ui.layout.get("rect") if self.view.settings.show_panel else None
+        self.view.covered_left = float(rect[2]) if rect else 0.0  # Home frames the part right of it
         imgui.render()
         self.imgui_impl.render(imgui.get_draw_data())
 
