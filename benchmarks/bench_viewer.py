@@ -186,6 +186,20 @@ def _idle_row(viewer, name: str, seconds: float) -> list[str]:
     return rows
 
 
+def _until_parked(viewer, quiet_s: float = 3.0) -> None:
+    """Run the loop until the paused job has finished the step it was in (its iteration and
+    its model unchanged for ``quiet_s``): the pause is honoured between steps."""
+    run, deadline = viewer.jobs.training, time.perf_counter() + 300
+    last, since = None, time.perf_counter()
+    while time.perf_counter() < deadline:
+        _loop_for(viewer, 0.5)
+        now = (run.progress.iteration, viewer.view.model_version)
+        if now != last:
+            last, since = now, time.perf_counter()
+        elif time.perf_counter() - since >= quiet_s:
+            return
+
+
 def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
     """The idle rows: nothing happening, a paused job, a stopped job (docstring above)."""
     import tempfile
@@ -206,6 +220,7 @@ def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
             while viewer.jobs.training.progress.iteration < 5 and time.perf_counter() < deadline:
                 _loop_for(viewer, 0.5)
             viewer.jobs.training.pause()
+            _until_parked(viewer)
             rows += _idle_row(viewer, "job paused", seconds)
             viewer.jobs.training.stop(timeout=120)
             rows += _idle_row(viewer, "job stopped", seconds)

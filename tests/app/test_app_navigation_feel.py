@@ -140,7 +140,6 @@ def test_sparse_points_are_small_screen_space_points(xvfb, tmp_path):
 
     scene = write_demo_scene(tmp_path / "scene", progress=False)
     with opened(open_viewer, scene, 640, 480) as viewer:
-        assert viewer.view.shows_points
         viewer.view.settings.show_panel = False
         viewer.view.settings.show_training_cameras = False
         press_key(viewer, glfw.KEY_HOME)
