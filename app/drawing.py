@@ -58,18 +58,32 @@ FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
-def next_moving_scale(scale: float, timings: dict) -> float:
-    """The render scale for the next moving frame, from the last render at ``scale`` and its
-    ``timings`` (preprocess_ms, sort_ms, draw_ms): draw time taken as proportional to the
-    pixels (scale squared), the rest as fixed. Quantised to MOVING_SCALE_STEP, kept within
-    [MOVING_SCALE_MIN, MOVING_SCALE_MAX]."""
-    draw_ms = max(float(timings.get("draw_ms", 0.0)), 1e-3)
-    fixed_ms = sum(float(v) for v in timings.values()) - draw_ms
-    full_draw_ms = draw_ms / max(scale, 1e-3) ** 2
-    allowed_ms = MOVING_BUDGET_MS - fixed_ms
-    if allowed_ms < MOVING_SORT_BOUND_SHARE * fixed_ms:
-        allowed_ms = MOVING_SORT_BOUND_SHARE * fixed_ms  # sort-bound: a smaller image would not help
-    target = (max(allowed_ms, 0.0) / full_draw_ms) ** 0.5
+def draw_cost_model(samples: dict) -> tuple[float, float, float]:
+    """(fixed_ms, draw_fixed_ms, draw_full_ms) from ``samples`` {scale: (fixed_ms, draw_ms)}, the
+    latest render at each scale: a render costs fixed_ms + draw_fixed_ms + draw_full_ms * scale^2.
+    The draw's own fixed part (binning, the compositor's per-Gaussian work) shows only between
+    two sizes: the smallest and the largest sampled; one size: the draw taken as all per pixel."""
+    smallest, largest = min(samples), max(samples)
+    fixed_ms = samples[largest][0]
+    draw_small, draw_large = samples[smallest][1], samples[largest][1]
+    if largest - smallest < 1e-6:
+        return fixed_ms, 0.0, max(draw_large, 1e-3) / largest ** 2
+    per_pixel = max((draw_large - draw_small) / (largest ** 2 - smallest ** 2), 1e-3)
+    return fixed_ms, max(draw_small - per_pixel * smallest ** 2, 0.0), per_pixel
+
+
+def next_moving_scale(samples: dict) -> float:
+    """The render scale for the next moving frame from ``samples`` {scale: (fixed_ms, draw_ms)}
+    (draw_cost_model): the largest MOVING_SCALE_STEP multiple whose render holds
+    MOVING_BUDGET_MS; when none can (the size-independent part alone over budget), the one
+    whose per-pixel draw adds at most MOVING_SORT_BOUND_SHARE of that part: shrinking further
+    would make the image blocky for little gain. Within [MOVING_SCALE_MIN, MOVING_SCALE_MAX]."""
+    fixed_ms, draw_fixed_ms, draw_full_ms = draw_cost_model(samples)
+    size_independent = fixed_ms + draw_fixed_ms
+    allowed_ms = MOVING_BUDGET_MS - size_independent
+    if allowed_ms < MOVING_SORT_BOUND_SHARE * size_independent:
+        allowed_ms = MOVING_SORT_BOUND_SHARE * size_independent
+    target = (max(allowed_ms, 0.0) / draw_full_ms) ** 0.5
     quantised = MOVING_SCALE_STEP * max(int(target / MOVING_SCALE_STEP), 1)  # rounded down: within budget
     return float(min(max(quantised, MOVING_SCALE_MIN), MOVING_SCALE_MAX))
 
@@ -105,6 +119,7 @@ class FrameDrawer:
         self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
         self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
+        self.render_samples: dict[float, tuple[float, float]] = {}  # scale -> (fixed, draw) ms, latest
         self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
         self._frustums: tuple[list[int], float] = ([], 1.0)
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
@@ -134,7 +149,8 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
-        scale = self.moving_scale if moving else 1.0
+        points = view.shows_points and view.settings.mode == "rgb" and view.settings.photo == "off"
+        scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         self.upload_model(view)
         settings = view.settings
         mode = settings.mode
@@ -148,8 +164,8 @@ class FrameDrawer:
             self.draw_reference(view)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
-            if view.shows_points and mode == "rgb" and photo is None:
-                self.draw_points(view, camera, scale)
+            if points:
+                self.draw_points(view, camera)
             elif photo is not None:
                 # The render with the nearest training photo: composed on the CPU, then uploaded.
                 image = self.renderer.render(camera, "rgb", background=settings.background,
@@ -171,14 +187,16 @@ class FrameDrawer:
                 self.scene_texture.upload(visualize(image, mode))
             stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
             stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
-            if mode in ("rgb", "coverage"):  # the modes drawn as they move (the others read back)
-                self.moving_scale = next_moving_scale(scale, self.renderer.timings)
+            if mode in ("rgb", "coverage") and photo is None and not points:  # the splats drawn into the texture
+                timings = self.renderer.timings
+                self.render_samples[scale] = (timings["preprocess_ms"] + timings["sort_ms"], timings["draw_ms"])
+                self.moving_scale = next_moving_scale(self.render_samples)
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
         self.scene_texture.blit(screen)
 
-    def draw_points(self, view, camera, scale: float) -> None:
+    def draw_points(self, view, camera) -> None:
         """Sparse points as small screen-space points (SPARSE_POINT_PIXELS of the window, at
         any distance) in their colours, far ones first, into the scene texture. The splats stay
         uploaded: picking a depth under the cursor still reads them."""
@@ -190,9 +208,8 @@ class FrameDrawer:
         target = self.scene_texture.ensure(camera.width, camera.height)
         target.use()
         target.clear(*view.settings.background, 1.0)
-        self.overlay.draw_points(camera, means[order], colors[order], size=max(SPARSE_POINT_PIXELS * scale, 1.0))
+        self.overlay.draw_points(camera, means[order], colors[order], size=SPARSE_POINT_PIXELS)
         self.scene_texture.flip_y = False
-        self.renderer.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
 
     def draw_reference(self, view) -> None:
         """GL and torch at the same reduced camera; the torch image comes from the worker. The

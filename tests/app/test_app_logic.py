@@ -388,24 +388,24 @@ def test_heatmap_and_side_by_side():
     assert both[:, :3].max() == 0 and both[:, 4:].min() == 1
 
 
-def test_moving_render_scale_holds_the_budget_from_the_last_renders_split():
+def test_moving_render_scale_holds_the_budget_from_the_renders_costs():
     drawing = pytest.importorskip("inceptiongs.app.drawing")
-    budget, step = drawing.MOVING_BUDGET_MS, drawing.MOVING_SCALE_STEP
-    # Draw-bound: 10 ms fixed, 120 ms to draw the full frame -> the draw may take 30 ms: scale
-    # sqrt(30 / 120) = 0.5 (from a still full-size render or a moving one at 0.25 alike).
-    full = {"preprocess_ms": 4.0, "sort_ms": 6.0, "draw_ms": 120.0}
-    assert drawing.next_moving_scale(1.0, full) == 0.5
-    assert drawing.next_moving_scale(0.25, {**full, "draw_ms": 120.0 / 16}) == 0.5
-    # Cheap to draw: the full size holds the budget.
-    assert drawing.next_moving_scale(0.5, {"preprocess_ms": 1.0, "sort_ms": 2.0, "draw_ms": 5.0}) == 1.0
-    # Sort-bound (fixed part over budget): not shrunk to the floor for nothing.
-    sort_bound = {"preprocess_ms": 20.0, "sort_ms": 60.0, "draw_ms": 40.0}
-    scale = drawing.next_moving_scale(1.0, sort_bound)
-    assert scale > drawing.MOVING_SCALE_MIN and 40.0 * scale ** 2 <= 0.5 * 80.0 + 1e-9
-    # Hopelessly slow: the floor; always a multiple of the step within the range.
-    assert drawing.next_moving_scale(1.0, {"preprocess_ms": 1.0, "sort_ms": 1.0, "draw_ms": 5000.0}) == 0.25
+    budget, step, pick = drawing.MOVING_BUDGET_MS, drawing.MOVING_SCALE_STEP, drawing.next_moving_scale
+    # One size known, draw-bound: 10 ms fixed, 120 ms to draw the full frame -> the draw may take
+    # 30 ms: scale sqrt(30 / 120) = 0.5, from a full-size render or a quarter-size one alike.
+    assert pick({1.0: (10.0, 120.0)}) == 0.5
+    assert pick({0.25: (10.0, 120.0 / 16)}) == 0.5
+    assert pick({0.5: (3.0, 5.0)}) == 1.0  # cheap to draw: the full size holds the budget
+    # Two sizes show the draw's own fixed part (donut on llvmpipe: 124 ms full, 50 ms at a
+    # quarter): 8 + 45 ms whatever the size, so no size holds 40 ms; the pixels may add half of
+    # that (27 ms of 79 ms full): 0.5, not the blocky quarter a pixels-only model gives.
+    samples = {1.0: (8.0, 124.0), 0.25: (8.0, 50.0)}
+    fixed, draw_fixed, draw_full = drawing.draw_cost_model(samples)
+    assert (fixed, round(draw_fixed, 1), round(draw_full, 1)) == (8.0, 45.1, 78.9)
+    assert pick(samples) == 0.5
+    assert pick({1.0: (2.0, 5000.0)}) == 0.25  # hopelessly slow: the floor
     for draw in (3.0, 17.0, 55.0, 130.0, 900.0):
-        scale = drawing.next_moving_scale(1.0, {"preprocess_ms": 2.0, "sort_ms": 3.0, "draw_ms": draw})
+        scale = pick({1.0: (5.0, draw)})
         assert drawing.MOVING_SCALE_MIN <= scale <= 1.0 and (scale / step) == int(scale / step)
         assert scale == drawing.MOVING_SCALE_MIN or 5.0 + draw * scale ** 2 <= budget + 1e-9
 
