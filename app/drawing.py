@@ -25,18 +25,21 @@ from .settings import GL_MODE_NAMES
 
 # While the camera moves the splats are drawn at a reduced resolution; the full frame follows
 # once it has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate
-# target). The size is chosen to hold MOVING_BUDGET_MS per render: a render's preprocess and
-# sort cost the same at any size, its draw scales with the pixels, so from the last render's
-# split the scale whose draw fills what the fixed part leaves of the budget is the next one.
-# It moves in steps of MOVING_SCALE_STEP (the scene texture is not reallocated for every small
-# change) between MOVING_SCALE_MIN and 1; a sort-bound render (the fixed part over budget) is
-# not made blocky for nothing: its draw may add MOVING_SORT_BOUND_SHARE of the fixed part.
+# target). The size follows the renders' cost (next_moving_scale): a step of MOVING_SCALE_STEP
+# down after a render over MOVING_BUDGET_MS, a step up after one under MOVING_GROW_SHARE of it,
+# between MOVING_SCALE_MIN and the full size. A step down that barely helped (the smaller size
+# costs over MOVING_SHRINK_GAIN of the larger: the render is sort-bound, its cost is per Gaussian)
+# is not taken, or taken back: the image is not made blocky for nothing.
 MOVING_SCALE_MIN = 0.25
 MOVING_SCALE_MAX = 1.0
 MOVING_SCALE_STEP = 0.125
-MOVING_RENDER_SCALE = 0.5  # the first moving render's, before any timing is known
+MOVING_RENDER_SCALE = 0.5  # the first moving render's
 MOVING_BUDGET_MS = 40.0
-MOVING_SORT_BOUND_SHARE = 0.5
+MOVING_GROW_SHARE = 0.6
+MOVING_SHRINK_GAIN = 0.85
+# Each size's cost is a running mean (this weight for the newest render): one render slowed by
+# other work on the machine does not move the size.
+MOVING_COST_WEIGHT = 0.5
 STILL_SECONDS = 0.15
 # A model that changed less than MODEL_STILL_SECONDS ago is drawn at the moving size too (a
 # training view updates at reduced resolution) and refined once the job pauses, stops or goes
@@ -58,34 +61,29 @@ FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
-def draw_cost_model(samples: dict) -> tuple[float, float, float]:
-    """(fixed_ms, draw_fixed_ms, draw_full_ms) from ``samples`` {scale: (fixed_ms, draw_ms)}, the
-    latest render at each scale: a render costs fixed_ms + draw_fixed_ms + draw_full_ms * scale^2.
-    The draw's own fixed part (binning, the compositor's per-Gaussian work) shows only between
-    two sizes: the smallest and the largest sampled; one size: the draw taken as all per pixel."""
-    smallest, largest = min(samples), max(samples)
-    fixed_ms = samples[largest][0]
-    draw_small, draw_large = samples[smallest][1], samples[largest][1]
-    if largest - smallest < 1e-6:
-        return fixed_ms, 0.0, max(draw_large, 1e-3) / largest ** 2
-    per_pixel = max((draw_large - draw_small) / (largest ** 2 - smallest ** 2), 1e-3)
-    return fixed_ms, max(draw_small - per_pixel * smallest ** 2, 0.0), per_pixel
+def next_moving_scale(scale: float, costs: dict) -> float:
+    """The render scale for the next moving frame after a render at ``scale``; ``costs``:
+    {scale: running mean of the render's ms (preprocess + sort + draw)} (the constants above)."""
+    current = costs.get(scale)
+    if current is None:
+        return scale
+    down, up = round(scale - MOVING_SCALE_STEP, 6), round(scale + MOVING_SCALE_STEP, 6)
+    smaller, larger = costs.get(down), costs.get(up)
+    if current > MOVING_BUDGET_MS:
+        if larger is not None and up <= MOVING_SCALE_MAX and current > MOVING_SHRINK_GAIN * larger:
+            return up  # the step down bought little: back to the sharper size
+        if down < MOVING_SCALE_MIN - 1e-9 or (smaller is not None and smaller > MOVING_SHRINK_GAIN * current):
+            return scale
+        return down
+    if current < MOVING_GROW_SHARE * MOVING_BUDGET_MS and up <= MOVING_SCALE_MAX + 1e-9:
+        return scale if larger is not None and larger > MOVING_BUDGET_MS else up
+    return scale
 
 
-def next_moving_scale(samples: dict) -> float:
-    """The render scale for the next moving frame from ``samples`` {scale: (fixed_ms, draw_ms)}
-    (draw_cost_model): the largest MOVING_SCALE_STEP multiple whose render holds
-    MOVING_BUDGET_MS; when none can (the size-independent part alone over budget), the one
-    whose per-pixel draw adds at most MOVING_SORT_BOUND_SHARE of that part: shrinking further
-    would make the image blocky for little gain. Within [MOVING_SCALE_MIN, MOVING_SCALE_MAX]."""
-    fixed_ms, draw_fixed_ms, draw_full_ms = draw_cost_model(samples)
-    size_independent = fixed_ms + draw_fixed_ms
-    allowed_ms = MOVING_BUDGET_MS - size_independent
-    if allowed_ms < MOVING_SORT_BOUND_SHARE * size_independent:
-        allowed_ms = MOVING_SORT_BOUND_SHARE * size_independent
-    target = (max(allowed_ms, 0.0) / draw_full_ms) ** 0.5
-    quantised = MOVING_SCALE_STEP * max(int(target / MOVING_SCALE_STEP), 1)  # rounded down: within budget
-    return float(min(max(quantised, MOVING_SCALE_MIN), MOVING_SCALE_MAX))
+def add_render_cost(costs: dict, scale: float, milliseconds: float) -> None:
+    """Fold one render's ``milliseconds`` at ``scale`` into ``costs`` (MOVING_COST_WEIGHT)."""
+    old = costs.get(scale)
+    costs[scale] = milliseconds if old is None else (1 - MOVING_COST_WEIGHT) * old + MOVING_COST_WEIGHT * milliseconds
 
 
 def frustum_colors(cameras: list, poorly_fit) -> np.ndarray:
@@ -119,7 +117,7 @@ class FrameDrawer:
         self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
         self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
-        self.render_samples: dict[float, tuple[float, float]] = {}  # scale -> (fixed, draw) ms, latest
+        self.render_costs: dict[float, float] = {}  # scale -> running mean ms (add_render_cost)
         self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
         self._frustums: tuple[list[int], float] = ([], 1.0)
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
@@ -188,9 +186,9 @@ class FrameDrawer:
             stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
             stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
             if mode in ("rgb", "coverage") and photo is None and not points:  # the splats drawn into the texture
-                timings = self.renderer.timings
-                self.render_samples[scale] = (timings["preprocess_ms"] + timings["sort_ms"], timings["draw_ms"])
-                self.moving_scale = next_moving_scale(self.render_samples)
+                add_render_cost(self.render_costs, scale, sum(self.renderer.timings.values()))
+                if moving:
+                    self.moving_scale = next_moving_scale(scale, self.render_costs)
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key

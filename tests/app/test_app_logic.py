@@ -388,26 +388,29 @@ def test_heatmap_and_side_by_side():
     assert both[:, :3].max() == 0 and both[:, 4:].min() == 1
 
 
-def test_moving_render_scale_holds_the_budget_from_the_renders_costs():
+def test_moving_render_scale_holds_the_budget_and_stays_sharp_when_shrinking_buys_nothing():
     drawing = pytest.importorskip("inceptiongs.app.drawing")
-    budget, step, pick = drawing.MOVING_BUDGET_MS, drawing.MOVING_SCALE_STEP, drawing.next_moving_scale
-    # One size known, draw-bound: 10 ms fixed, 120 ms to draw the full frame -> the draw may take
-    # 30 ms: scale sqrt(30 / 120) = 0.5, from a full-size render or a quarter-size one alike.
-    assert pick({1.0: (10.0, 120.0)}) == 0.5
-    assert pick({0.25: (10.0, 120.0 / 16)}) == 0.5
-    assert pick({0.5: (3.0, 5.0)}) == 1.0  # cheap to draw: the full size holds the budget
-    # Two sizes show the draw's own fixed part (donut on llvmpipe: 124 ms full, 50 ms at a
-    # quarter): 8 + 45 ms whatever the size, so no size holds 40 ms; the pixels may add half of
-    # that (27 ms of 79 ms full): 0.5, not the blocky quarter a pixels-only model gives.
-    samples = {1.0: (8.0, 124.0), 0.25: (8.0, 50.0)}
-    fixed, draw_fixed, draw_full = drawing.draw_cost_model(samples)
-    assert (fixed, round(draw_fixed, 1), round(draw_full, 1)) == (8.0, 45.1, 78.9)
-    assert pick(samples) == 0.5
-    assert pick({1.0: (2.0, 5000.0)}) == 0.25  # hopelessly slow: the floor
-    for draw in (3.0, 17.0, 55.0, 130.0, 900.0):
-        scale = pick({1.0: (5.0, draw)})
-        assert drawing.MOVING_SCALE_MIN <= scale <= 1.0 and (scale / step) == int(scale / step)
-        assert scale == drawing.MOVING_SCALE_MIN or 5.0 + draw * scale ** 2 <= budget + 1e-9
+    pick, step, budget = drawing.next_moving_scale, drawing.MOVING_SCALE_STEP, drawing.MOVING_BUDGET_MS
+
+    def settle(cost_of, scale=drawing.MOVING_RENDER_SCALE, frames=40):
+        costs = {}
+        for _ in range(frames):
+            drawing.add_render_cost(costs, scale, cost_of(scale))
+            scale = pick(scale, costs)
+        return scale
+
+    # Draw-bound: 10 ms fixed + 120 ms per full frame of pixels: the largest size within budget.
+    scale = settle(lambda s: 10.0 + 120.0 * s * s)
+    assert 10.0 + 120.0 * scale ** 2 <= budget and 10.0 + 120.0 * (scale + step) ** 2 > drawing.MOVING_GROW_SHARE * budget
+    assert settle(lambda s: 3.0 + 5.0 * s * s) == 1.0  # cheap: the full size
+    # Sort-bound (donut-like on a loaded machine: 53 ms whatever the size, 79 ms of pixels at
+    # full size): no size holds 40 ms; it stops where a step down buys under 15 %, not at 1/4.
+    scale = settle(lambda s: 53.0 + 79.0 * s * s, scale=1.0)
+    assert scale > drawing.MOVING_SCALE_MIN
+    cost = 53.0 + 79.0 * scale ** 2
+    assert 53.0 + 79.0 * (scale - step) ** 2 > drawing.MOVING_SHRINK_GAIN * cost
+    assert settle(lambda s: 5000.0 * s * s) == drawing.MOVING_SCALE_MIN  # pixel-bound and slow: the floor
+    assert pick(0.5, {}) == 0.5  # no cost known yet: kept
 
 
 def test_lasso_selects_inside_the_polygon():
