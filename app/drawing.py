@@ -76,7 +76,10 @@ def next_moving_scale(scale: float, costs: dict) -> float:
             return scale
         return down
     if current < MOVING_GROW_SHARE * MOVING_BUDGET_MS and up <= MOVING_SCALE_MAX + 1e-9:
-        return scale if larger is not None and larger > MOVING_BUDGET_MS else up
+        # Safe when even all of the cost grew with the pixels; else only if the larger size's
+        # own cost (a running mean, maybe of a first slow render) is within budget.
+        if current * (up / scale) ** 2 <= MOVING_BUDGET_MS or larger is None or larger <= MOVING_BUDGET_MS:
+            return up
     return scale
 
 

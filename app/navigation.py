@@ -268,6 +268,10 @@ def robust_bounds(means: np.ndarray) -> tuple[np.ndarray, float]:
 FRAME_OUTLIER_FACTOR = 3.0
 FRAME_MAX_POINTS = 50_000
 FRAME_MAX_CAMERAS = 32
+# With training cameras, Home looks down at the scene from this many degrees above its horizon
+# (keeping the current heading): a capture's cameras stand level inside it, and a level view
+# from outside shows its ground edge-on, a thin band under the sky.
+FRAME_ELEVATION_DEG = 35.0
 
 
 def looked_at(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
@@ -309,6 +313,7 @@ def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, cov
     ``covered_left`` pixels (the panel over the window's left), centred there; the pivot at
     the scene's centre."""
     center, radius = robust_bounds(scene_of_interest(means, list(cameras)))
+    rotation = looking_down(nav.rotation, nav.up, FRAME_ELEVATION_DEG) if len(cameras) else nav.rotation
     covered_left = float(np.clip(covered_left, 0.0, 0.6 * width))  # a panel over most of it: frame anyway
     focal = 0.5 * height / math.tan(math.radians(nav.fov_y_deg) * 0.5)
     half_y = math.radians(nav.fov_y_deg) * 0.5
@@ -317,9 +322,22 @@ def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, cov
     # The centre shows at the middle of the free part: the camera slides left of it by the
     # middle's offset from the image centre at that distance.
     offset_px = 0.5 * covered_left
-    eye = center - nav.rotation[2] * distance - nav.rotation[0] * (offset_px / focal * distance)
-    return NavigationState(eye, nav.rotation.copy(), nav.up.copy(), center, nav.fov_y_deg,
+    eye = center - rotation[2] * distance - rotation[0] * (offset_px / focal * distance)
+    return NavigationState(eye, rotation.copy(), nav.up.copy(), center, nav.fov_y_deg,
                            speed=max(radius * 0.6, 1e-3))
+
+
+def looking_down(rotation: np.ndarray, up: np.ndarray, elevation_deg: float) -> np.ndarray:
+    """World-to-camera rotation [3, 3] with the heading of ``rotation`` that looks down
+    ``elevation_deg`` below the horizon of ``up`` [3], level (no roll)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    forward = rotation[2] - (rotation[2] @ up) * up
+    if np.linalg.norm(forward) < 1e-6:  # looking straight up or down: the image's up is the heading
+        forward = -rotation[1] - (-rotation[1] @ up) * up
+    forward /= np.linalg.norm(forward)
+    angle = math.radians(elevation_deg)
+    forward = math.cos(angle) * forward - math.sin(angle) * up
+    return look_at(np.zeros(3), forward, up)[:3, :3]
 
 
 def leveled(nav: NavigationState, up: np.ndarray) -> NavigationState:

@@ -411,6 +411,8 @@ def test_moving_render_scale_holds_the_budget_and_stays_sharp_when_shrinking_buy
     assert 53.0 + 79.0 * (scale - step) ** 2 > drawing.MOVING_SHRINK_GAIN * cost
     assert settle(lambda s: 5000.0 * s * s) == drawing.MOVING_SCALE_MIN  # pixel-bound and slow: the floor
     assert pick(0.5, {}) == 0.5  # no cost known yet: kept
+    # A first slow render at 0.5 (a new texture, a busy machine) does not hold a cheap model at 0.375.
+    assert pick(0.375, {0.5: 90.0, 0.375: 1.5}) == 0.5
 
 
 def test_lasso_selects_inside_the_polygon():

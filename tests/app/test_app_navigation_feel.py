@@ -59,7 +59,7 @@ def test_home_frames_the_model_right_of_the_panel_leaving_a_far_shell_out(xvfb, 
 
 
 def test_home_frames_what_the_training_cameras_look_at():
-    from inceptiongs.app.navigation import NavigationState, framed, scene_of_interest
+    from inceptiongs.app.navigation import FRAME_ELEVATION_DEG, NavigationState, framed, scene_of_interest
 
     grid = synthetic_gaussians()["means"].astype(np.float64)
     cameras = []
@@ -75,6 +75,9 @@ def test_home_frames_what_the_training_cameras_look_at():
     assert len(kept) == len(grid) and np.abs(kept).max() < 2.0
     nav = framed(NavigationState.from_camera(cameras[5]), means, 800, 600, 0.0, cameras)
     assert np.linalg.norm(nav.center - nav.pivot) < 6.0  # near the grid, not 30 units back for the shell
+    # An overview: looking down at it from FRAME_ELEVATION_DEG above the horizon, level.
+    assert nav.rotation[2] @ nav.up == pytest.approx(-math.sin(math.radians(FRAME_ELEVATION_DEG)))
+    assert abs(nav.rotation[0] @ nav.up) < 1e-9
 
 
 def _middle_drag(viewer, start, end, steps=6) -> None:
