@@ -49,17 +49,11 @@ class InputController:
         glfw.set_window_refresh_callback(window, lambda _window: self.note_event())
         glfw.set_framebuffer_size_callback(window, lambda _window, _w, _h: self.note_event())
         glfw.set_window_focus_callback(window, lambda _window, _focused: self.note_event())
-        glfw.set_cursor_enter_callback(window, self.on_cursor_enter)
+        glfw.set_cursor_enter_callback(window, lambda _window, _entered: self.note_event())
 
     def note_event(self) -> None:
         """Something the next frame must show arrived (Viewer.wait_for_next_frame draws it)."""
         self.last_event = time.perf_counter()
-
-    def on_cursor_enter(self, window, entered) -> None:
-        self.note_event()
-        if not entered and self.viewer.imgui_impl is not None:
-            # imgui's own backend would report the mouse gone: no panel stays hovered.
-            self.viewer.imgui_impl.io.add_mouse_pos_event(-3.4e38, -3.4e38)
 
     def on_key(self, window, key, scancode, action, mods) -> None:
         self.last_event = time.perf_counter()
