@@ -12,30 +12,41 @@ import time
 import moderngl
 import numpy as np
 
-from inceptiongs.constants import sh_degree_from_count
+from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
 from .editing import box_handles
-from .frustums import away_from, segments_for_cameras
+from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .settings import GL_MODE_NAMES
 
-# Resolution factors while the camera moves, largest first; the full frame follows once it
-# has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate target).
-# Each moving render picks the next factor from the last one's splat time: a smaller factor
-# when it overran MOVING_BUDGET_MS, a larger one when it took under half of it. A few fixed
-# sizes rather than a continuous factor, so the scene texture is not reallocated every frame.
-MOVING_RENDER_SCALES = (0.5, 0.375, 0.25)
-MOVING_RENDER_SCALE = MOVING_RENDER_SCALES[0]
+# While the camera moves the splats are drawn at a reduced resolution; the full frame follows
+# once it has been still for STILL_SECONDS (the "refine when still" rule of the frame-rate
+# target). The size follows the renders' cost (next_moving_scale): a step of MOVING_SCALE_STEP
+# down after a render over MOVING_BUDGET_MS, a step up after one under MOVING_GROW_SHARE of it,
+# between MOVING_SCALE_MIN and the full size. A step down that barely helped (the smaller size
+# costs over MOVING_SHRINK_GAIN of the larger: the render is sort-bound, its cost is per Gaussian)
+# is not taken, or taken back: the image is not made blocky for nothing.
+MOVING_SCALE_MIN = 0.25
+MOVING_SCALE_MAX = 1.0
+MOVING_SCALE_STEP = 0.125
+MOVING_RENDER_SCALE = 0.5  # the first moving render's
 MOVING_BUDGET_MS = 40.0
+MOVING_GROW_SHARE = 0.6
+MOVING_SHRINK_GAIN = 0.85
+# Each size's cost is a running mean (this weight for the newest render): one render slowed by
+# other work on the machine does not move the size.
+MOVING_COST_WEIGHT = 0.5
 STILL_SECONDS = 0.15
 # A model that changed less than MODEL_STILL_SECONDS ago is drawn at the moving size too (a
 # training view updates at reduced resolution) and refined once the job pauses, stops or goes
 # quiet.
 MODEL_STILL_SECONDS = 1.0
+# Sparse points are drawn this many window pixels wide (squares), whatever their distance.
+SPARSE_POINT_PIXELS = 2.0
 # The torch reference renders at most this many pixels wide (it runs on the CPU).
 REFERENCE_MAX_WIDTH = 320
 TRAINING_COLOR = (0.2, 0.6, 1.0)
@@ -50,14 +61,32 @@ FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
 
 
-def next_moving_level(level: int, splat_ms: float) -> int:
-    """The MOVING_RENDER_SCALES index for the next moving frame, from the last one's splat
-    time (preprocess + sort + draw ms): down a size over budget, up one under half of it."""
-    if splat_ms > MOVING_BUDGET_MS:
-        return min(level + 1, len(MOVING_RENDER_SCALES) - 1)
-    if splat_ms < 0.5 * MOVING_BUDGET_MS:
-        return max(level - 1, 0)
-    return level
+def next_moving_scale(scale: float, costs: dict) -> float:
+    """The render scale for the next moving frame after a render at ``scale``; ``costs``:
+    {scale: running mean of the render's ms (preprocess + sort + draw)} (the constants above)."""
+    current = costs.get(scale)
+    if current is None:
+        return scale
+    down, up = round(scale - MOVING_SCALE_STEP, 6), round(scale + MOVING_SCALE_STEP, 6)
+    smaller, larger = costs.get(down), costs.get(up)
+    if current > MOVING_BUDGET_MS:
+        if larger is not None and up <= MOVING_SCALE_MAX and current > MOVING_SHRINK_GAIN * larger:
+            return up  # the step down bought little: back to the sharper size
+        if down < MOVING_SCALE_MIN - 1e-9 or (smaller is not None and smaller > MOVING_SHRINK_GAIN * current):
+            return scale
+        return down
+    if current < MOVING_GROW_SHARE * MOVING_BUDGET_MS and up <= MOVING_SCALE_MAX + 1e-9:
+        # Safe when even all of the cost grew with the pixels; else only if the larger size's
+        # own cost (a running mean, maybe of a first slow render) is within budget.
+        if current * (up / scale) ** 2 <= MOVING_BUDGET_MS or larger is None or larger <= MOVING_BUDGET_MS:
+            return up
+    return scale
+
+
+def add_render_cost(costs: dict, scale: float, milliseconds: float) -> None:
+    """Fold one render's ``milliseconds`` at ``scale`` into ``costs`` (MOVING_COST_WEIGHT)."""
+    old = costs.get(scale)
+    costs[scale] = milliseconds if old is None else (1 - MOVING_COST_WEIGHT) * old + MOVING_COST_WEIGHT * milliseconds
 
 
 def frustum_colors(cameras: list, poorly_fit) -> np.ndarray:
@@ -90,7 +119,10 @@ class FrameDrawer:
         self.reference_request = None
         self.reference_shown = None  # (result, view) whose comparison the texture holds
         self.last_render_key = None
-        self.moving_level = 0  # index into MOVING_RENDER_SCALES
+        self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
+        self.render_costs: dict[float, float] = {}  # scale -> running mean ms (add_render_cost)
+        self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
+        self._frustums: tuple[list[int], float] = ([], 1.0)
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
 
     def upload_model(self, view) -> None:
@@ -118,7 +150,8 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
-        scale = MOVING_RENDER_SCALES[self.moving_level] if moving else 1.0
+        points = view.shows_points and view.settings.mode == "rgb" and view.settings.photo == "off"
+        scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         self.upload_model(view)
         settings = view.settings
         mode = settings.mode
@@ -132,7 +165,9 @@ class FrameDrawer:
             self.draw_reference(view)
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
-            if photo is not None:
+            if points:
+                self.draw_points(view, camera)
+            elif photo is not None:
                 # The render with the nearest training photo: composed on the CPU, then uploaded.
                 image = self.renderer.render(camera, "rgb", background=settings.background,
                                              sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
@@ -153,12 +188,29 @@ class FrameDrawer:
                 self.scene_texture.upload(visualize(image, mode))
             stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
             stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
-            if moving:
-                self.moving_level = next_moving_level(self.moving_level, sum(self.renderer.timings.values()))
+            if mode in ("rgb", "coverage") and photo is None and not points:  # the splats drawn into the texture
+                add_render_cost(self.render_costs, scale, sum(self.renderer.timings.values()))
+                if moving:
+                    self.moving_scale = next_moving_scale(scale, self.render_costs)
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
         self.scene_texture.blit(screen)
+
+    def draw_points(self, view, camera) -> None:
+        """Sparse points as small screen-space points (SPARSE_POINT_PIXELS of the window, at
+        any distance) in their colours, far ones first, into the scene texture. The splats stay
+        uploaded: picking a depth under the cursor still reads them."""
+        arrays = view.edit.visible_arrays()
+        means = arrays["means"]
+        colors = np.clip(arrays["sh"][:, 0, :] * SH_C0 + SH_OFFSET, 0.0, 1.0)
+        depth = (means @ camera.rotation[2].astype(np.float32)) + np.float32(camera.world_to_camera[2, 3])
+        order = np.argsort(-depth, kind="stable")  # painter's order: no depth buffer needed
+        target = self.scene_texture.ensure(camera.width, camera.height)
+        target.use()
+        target.clear(*view.settings.background, 1.0)
+        self.overlay.draw_points(camera, means[order], colors[order], size=SPARSE_POINT_PIXELS)
+        self.scene_texture.flip_y = False
 
     def draw_reference(self, view) -> None:
         """GL and torch at the same reduced camera; the torch image comes from the worker. The
@@ -204,8 +256,9 @@ class FrameDrawer:
         settings, edit, flags = view.settings, view.edit, flag_book.items
         camera = view.current_camera()
         screen.use()
-        depth = max(view.nav.speed * 0.1, 1e-3)
-        training = away_from(view.cameras, camera.center, FLAG_HIDE_DISTANCE * depth)
+        drawn, depth = self.training_frustums(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
+        training = [drawn[i] for i in away_from([view.cameras[i] for i in drawn], camera.center,
+                                                FLAG_HIDE_DISTANCE * depth)]
         if settings.show_training_cameras and training:
             shown_cameras = [view.cameras[i] for i in training]
             segments = segments_for_cameras(shown_cameras, depth)
@@ -227,6 +280,16 @@ class FrameDrawer:
                                      size=CROP_HANDLE_SIZE)
         if edit.selected.any():
             self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
+
+    def training_frustums(self, cameras: list, poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
+        """frustums.drawn_training_frustums for ``cameras``, the poorly fit photos kept; computed
+        once per camera list and poorly-fit set."""
+        key = (id(cameras), len(cameras), tuple(sorted(poorly_fit)), fallback_depth if len(cameras) < 2 else None)
+        if self._frustums_key != key:
+            keep = {i for i, c in enumerate(cameras) if c.name in poorly_fit}
+            self._frustums = drawn_training_frustums(cameras, fallback_depth, keep)
+            self._frustums_key = key
+        return self._frustums
 
     def close(self) -> None:
         """Stop the reference worker (no GL calls: safe without a current context)."""

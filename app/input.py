@@ -37,6 +37,7 @@ class InputController:
         self.dragging_button = None
         self.lasso: list[tuple[float, float]] = []  # the lasso being drawn (window positions)
         self.crop_handle: int | None = None  # the crop-box face being dragged
+        self.pan_depth = 1.0  # camera depth of the point a middle-drag grabbed
 
     def install(self, window) -> None:
         glfw.set_key_callback(window, self.on_key)
@@ -44,6 +45,16 @@ class InputController:
         glfw.set_mouse_button_callback(window, self.on_mouse_button)
         glfw.set_cursor_pos_callback(window, self.on_cursor)
         glfw.set_scroll_callback(window, self.on_scroll)
+        # Not input, but each needs a frame: an expose (the window's pixels lost), a resize, the
+        # focus or the cursor entering or leaving (hover highlights).
+        glfw.set_window_refresh_callback(window, lambda _window: self.note_event())
+        glfw.set_framebuffer_size_callback(window, lambda _window, _w, _h: self.note_event())
+        glfw.set_window_focus_callback(window, lambda _window, _focused: self.note_event())
+        glfw.set_cursor_enter_callback(window, lambda _window, _entered: self.note_event())
+
+    def note_event(self) -> None:
+        """Something the next frame must show arrived (Viewer.wait_for_next_frame draws it)."""
+        self.last_event = time.perf_counter()
 
     def on_key(self, window, key, scancode, action, mods) -> None:
         self.last_event = time.perf_counter()
@@ -152,8 +163,7 @@ class InputController:
                 view.nav.look(dx, dy)
                 view.moved()
         elif self.dragging_button == glfw.MOUSE_BUTTON_MIDDLE:
-            view.nav.fly(np.array([-dx, -dy, 0.0]), seconds=0.01)
-            view.moved()
+            view.pan(dx, dy, self.pan_depth)
 
     def on_mouse_button(self, window, button, action, mods) -> None:
         self.last_event = time.perf_counter()
@@ -181,6 +191,8 @@ class InputController:
             return
         self.dragging_button = button
         self.drag_start = (x, y)
+        if button == glfw.MOUSE_BUTTON_MIDDLE:
+            self.pan_depth = view.grab_depth(x, y)  # the grabbed point stays under the cursor
         if button == glfw.MOUSE_BUTTON_LEFT:
             self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:

@@ -193,6 +193,18 @@ class NavigationState:
         self.center = self.center + step
         self.pivot = self.pivot + step
 
+    def pan(self, dx: float, dy: float, depth: float, focal: float) -> None:
+        """Slide the camera sideways so a point at camera depth ``depth`` follows the cursor: a
+        drag of (dx, dy) pixels moves it by (dx, dy) on the screen (``focal``: pixels per unit of
+        depth-normalised image plane). The pivot slides with the camera."""
+        step = self.rotation.T @ np.array([-dx, -dy, 0.0]) * (max(depth, _ORBIT_MIN_DISTANCE) / max(focal, 1e-6))
+        self.center = self.center + step
+        self.pivot = self.pivot + step
+
+    def pivot_depth(self) -> float:
+        """The pivot's camera depth (its distance along the viewing direction)."""
+        return float(self.rotation[2] @ (self.pivot - self.center))
+
     def look(self, dx: float, dy: float, radians_per_pixel: float = 0.004) -> None:
         """Mouse look: dx > 0 turns right (yaw about world up), dy < 0 looks up (pitch)."""
         self.rotation = self._turned(self.rotation, dx * radians_per_pixel, -dy * radians_per_pixel)
@@ -248,16 +260,84 @@ def robust_bounds(means: np.ndarray) -> tuple[np.ndarray, float]:
     return np.median(means, axis=0), float(max(0.5 * np.linalg.norm(hi - lo), 1e-3))
 
 
-def framed(nav: NavigationState, means: np.ndarray, aspect: float) -> NavigationState:
-    """``nav`` moved back along its viewing direction until the model's robust bounds fit the
-    field of view (the narrower of the two), pivot at the model's centre. aspect: width/height."""
-    center, radius = robust_bounds(means)
+# Home frames the scene, not everything in the model: the Gaussians inside the view of at least
+# one training camera (the sky shell behind the scene is seen too, but it and far floaters lie
+# many times farther from the scene's middle than the scene's own Gaussians), those within
+# FRAME_OUTLIER_FACTOR x the median distance from the median of them. The test runs on at most
+# FRAME_MAX_POINTS Gaussians and FRAME_MAX_CAMERAS cameras (evenly strided): enough for bounds.
+FRAME_OUTLIER_FACTOR = 3.0
+FRAME_MAX_POINTS = 50_000
+FRAME_MAX_CAMERAS = 32
+# With training cameras, Home looks down at the scene from this many degrees above its horizon
+# (keeping the current heading): a capture's cameras stand level inside it, and a level view
+# from outside shows its ground edge-on, a thin band under the sky.
+FRAME_ELEVATION_DEG = 35.0
+
+
+def looked_at(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    """[N] bool: which of ``means`` [N, 3] lie in front of and inside the image of at least one
+    of ``cameras`` (all True without cameras)."""
+    means = np.asarray(means, np.float64)
+    seen = np.zeros(len(means), bool) if cameras else np.ones(len(means), bool)
+    for camera in cameras[:: max(len(cameras) // FRAME_MAX_CAMERAS, 1)]:
+        local = means @ camera.rotation.T + camera.world_to_camera[:3, 3]
+        z = local[:, 2]
+        in_front = z > 1e-6
+        safe_z = np.where(in_front, z, 1.0)
+        u = camera.fx * local[:, 0] / safe_z + camera.cx
+        v = camera.fy * local[:, 1] / safe_z + camera.cy
+        seen |= in_front & (u >= 0) & (u <= camera.width) & (v >= 0) & (v <= camera.height)
+    return seen
+
+
+def scene_of_interest(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    """The Gaussians [M, 3] Home frames, out of ``means`` [N, 3] (a strided sample of at most
+    FRAME_MAX_POINTS): those the cameras look at (looked_at), far outliers and the sky shell
+    left out (FRAME_OUTLIER_FACTOR). All of the sample when nothing would be left."""
+    means = np.asarray(means, np.float64)
+    means = means[:: max(len(means) // FRAME_MAX_POINTS, 1)]
+    seen = means[looked_at(means, cameras)]
+    if len(seen) < 3:
+        seen = means
+    if len(seen) < 3:
+        return seen
+    distance = np.linalg.norm(seen - np.median(seen, axis=0), axis=1)
+    near = seen[distance <= FRAME_OUTLIER_FACTOR * max(float(np.median(distance)), 1e-9)]
+    return near if len(near) >= 3 else seen
+
+
+def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, covered_left: float = 0.0,
+           cameras: list[Camera] = ()) -> NavigationState:
+    """``nav`` moved back along its viewing direction until the scene's robust bounds (the
+    Gaussians of scene_of_interest) fit the part of the ``width`` x ``height`` image right of
+    ``covered_left`` pixels (the panel over the window's left), centred there; the pivot at
+    the scene's centre."""
+    center, radius = robust_bounds(scene_of_interest(means, list(cameras)))
+    rotation = looking_down(nav.rotation, nav.up, FRAME_ELEVATION_DEG) if len(cameras) else nav.rotation
+    covered_left = float(np.clip(covered_left, 0.0, 0.6 * width))  # a panel over most of it: frame anyway
+    focal = 0.5 * height / math.tan(math.radians(nav.fov_y_deg) * 0.5)
     half_y = math.radians(nav.fov_y_deg) * 0.5
-    half_x = math.atan(math.tan(half_y) * max(aspect, 1e-3))
-    distance = radius / math.sin(min(half_x, half_y))  # the bounding sphere touches the view's sides
-    forward = nav.rotation[2]
-    return NavigationState(center - forward * distance, nav.rotation.copy(), nav.up.copy(), center,
-                           nav.fov_y_deg, speed=max(radius * 0.6, 1e-3))
+    half_x = math.atan(0.5 * (width - covered_left) / focal)
+    distance = radius / math.sin(min(half_x, half_y))  # the bounding sphere touches the free part's sides
+    # The centre shows at the middle of the free part: the camera slides left of it by the
+    # middle's offset from the image centre at that distance.
+    offset_px = 0.5 * covered_left
+    eye = center - rotation[2] * distance - rotation[0] * (offset_px / focal * distance)
+    return NavigationState(eye, rotation.copy(), nav.up.copy(), center, nav.fov_y_deg,
+                           speed=max(radius * 0.6, 1e-3))
+
+
+def looking_down(rotation: np.ndarray, up: np.ndarray, elevation_deg: float) -> np.ndarray:
+    """World-to-camera rotation [3, 3] with the heading of ``rotation`` that looks down
+    ``elevation_deg`` below the horizon of ``up`` [3], level (no roll)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    forward = rotation[2] - (rotation[2] @ up) * up
+    if np.linalg.norm(forward) < 1e-6:  # looking straight up or down: the image's up is the heading
+        forward = -rotation[1] - (-rotation[1] @ up) * up
+    forward /= np.linalg.norm(forward)
+    angle = math.radians(elevation_deg)
+    forward = math.cos(angle) * forward - math.sin(angle) * up
+    return look_at(np.zeros(3), forward, up)[:3, :3]
 
 
 def leveled(nav: NavigationState, up: np.ndarray) -> NavigationState:

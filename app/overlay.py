@@ -60,7 +60,7 @@ class OverlayRenderer:
         self.vao.render(moderngl.LINES, vertices=2 * len(segments))
 
     def draw_points(self, camera: Camera, points: np.ndarray, color, size: float = 3.0) -> None:
-        """points: [P, 3] world, one colour."""
+        """points: [P, 3] world; color: one RGB [3] or one per point [P, 3]; size: pixels."""
         if len(points) == 0:
             return
         colors = np.broadcast_to(np.asarray(color, np.float32), (len(points), 3))

@@ -31,6 +31,8 @@ class View:
         self.source = source
         self.edit = EditState(source.gaussians)  # the model shown, with its deletions and selection
         self.model_version = 1  # changes whenever another model replaces the shown one
+        # The model shown is sparse (or triangulated) points, drawn as small screen-space points.
+        self.shows_points = bool(getattr(source, "sparse_points", False))
         self.cameras = source.cameras
         # Up: the cameras' mean up, else the model's dominant plane; the View panel may change it.
         self.up = estimate_up(self.cameras) if self.cameras else model_up(source.gaussians["means"])
@@ -38,20 +40,22 @@ class View:
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
+        self.covered_left = 0.0  # window pixels the panel covers at the window's left (Home avoids them)
         self.last_motion = -1e9  # when the camera or the model last moved (drawing's moving size)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
 
     # --- the model shown -----------------------------------------------------------------------
-    def show_model(self, gaussians: dict) -> None:
-        """A new model (a job's snapshot, the triangulated points) replaces the shown one: edits
-        are for models at rest, so its edit state starts afresh."""
+    def show_model(self, gaussians: dict, points: bool = False) -> None:
+        """A new model (a job's snapshot, the triangulated points: ``points``) replaces the shown
+        one: edits are for models at rest, so its edit state starts afresh."""
         self.edit = EditState(gaussians)
         self.model_version += 1
+        self.shows_points = points
 
     def show_source(self, source) -> None:
         """Another source of the same scene (a run opened from the Training panel) is shown."""
         self.source = source
-        self.show_model(source.gaussians)
+        self.show_model(source.gaussians, points=bool(getattr(source, "sparse_points", False)))
 
     # --- the camera ----------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
@@ -123,9 +127,28 @@ class View:
         self.moved()
 
     def frame_model(self) -> None:
-        """Fit the view to the model's robust bounds, looking the same way; pivot at its centre."""
+        """Fit the view to the scene (navigation.framed: what the cameras look at, the shell and
+        far outliers left out) in the part of the window the panel leaves, looking the same way;
+        pivot at its centre."""
         width, height = self.framebuffer_size
-        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width / height)
+        covered, _ = self.window_to_framebuffer(self.covered_left, 0.0)
+        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width, height, covered, self.cameras)
+        self.moved()
+
+    def grab_depth(self, x: float, y: float) -> float:
+        """The camera depth a pan started at window position (x, y) keeps under the cursor: the
+        surface there, else the pivot's depth, else the fly speed (a step ahead)."""
+        px, py = self.window_to_framebuffer(x, y)
+        depth = self.renderer.pick_depth(self.current_camera(), int(px), int(py))
+        if depth is None:
+            depth = self.nav.pivot_depth()
+        return depth if depth > 1e-6 else self.nav.speed
+
+    def pan(self, dx: float, dy: float, depth: float) -> None:
+        """A drag of (dx, dy) window pixels slides the view so the point grabbed at ``depth``
+        stays under the cursor."""
+        fb_dx, fb_dy = self.window_to_framebuffer(dx, dy)  # the camera's focal is in framebuffer pixels
+        self.nav.pan(fb_dx, fb_dy, depth, self.current_camera().fy)
         self.moved()
 
     def set_pivot_at_pixel(self, x: float, y: float) -> None:

@@ -37,10 +37,11 @@ from .view import View
 from .window import create_imgui, create_window, destroy_imgui
 
 # run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
-# (no motion, no refine pending, no running job, no reference image awaited): an idle window
-# costs no frames. Any input event ends the wait at once; the timeout only refreshes the
-# panel's figures now and then.
-IDLE_WAIT_SECONDS = 2.0
+# (no motion, no refine pending, no running job, no reference image awaited). Any event (input,
+# an expose, a resize) ends the wait at once and a frame follows; a wait that times out draws a
+# frame only when what the panels show changed meanwhile (Viewer.shown_state): an idle window,
+# a paused, stopped or finished job included, draws no frames at all.
+IDLE_WAIT_SECONDS = 1.0
 # After any input event the viewer draws frames for this long before it may sleep: imgui shows
 # some answers a frame or two later (the help window, sized on its first frame, appears on the
 # next; an opened combo; a hover), which an idle wait of up to IDLE_WAIT_SECONDS held back.
@@ -81,6 +82,7 @@ class Viewer:
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
         self._last_frame_time = time.perf_counter()
+        self._drawn_state: tuple | None = None  # shown_state() when the last frame was drawn
         self.imgui_impl = create_imgui(self.window) if with_ui else None
         self.points_worker = PointsWorker(source.scene.root) if source.points_pending else None
         self.input = InputController(self)
@@ -109,7 +111,7 @@ class Viewer:
         self.points_worker = None
         splats, self.status = worker.result
         if splats is not None and self.jobs.training is None:
-            self.view.show_model(splats)
+            self.view.show_model(splats, points=True)
             self.view.moved()
 
     # --- pictures --------------------------------------------------------------------------------
@@ -193,6 +195,7 @@ class Viewer:
             _ = self.ctx.error
         glfw.swap_buffers(self.window)
         self.stats.add_frame(time.perf_counter() - now)
+        self._drawn_state = self.shown_state()
 
     def draw_ui(self) -> None:
         from imgui_bundle import imgui  # noqa: PLC0415 (no imgui unless there is a UI)
@@ -204,6 +207,8 @@ class Viewer:
         imgui.new_frame()
         draw_panels(self)
         closing_question.draw_question(self)
+        rect = self.ui.layout.get("rect") if self.view.settings.show_panel else None
+        self.view.covered_left = float(rect[2]) if rect else 0.0  # Home frames the part right of it
         imgui.render()
         self.imgui_impl.render(imgui.get_draw_data())
 
@@ -238,23 +243,38 @@ class Viewer:
         share = min(max(self.jobs.training_utilisation, 0.0), MAX_TRAINING_UTILISATION)
         return min(self.stats.frame_ms / 1000.0 * share / (1.0 - share), MAX_TRAINING_WAIT_SECONDS)
 
-    def wait_for_next_frame(self) -> None:
-        """Sleep until input arrives or the next frame is due; step() polls what arrived."""
+    def shown_state(self) -> tuple:
+        """What the window shows that can change with no event: the status line, the title, the
+        job's state and progress, the model shown, the points to come. An idle wait that times
+        out with this unchanged has nothing new to draw."""
+        run = self.jobs.training
+        job = None if run is None else (run.state, run.progress.iteration, run.progress.gaussian_count,
+                                        run.error, self.jobs.reported)
+        return (self.status_line.text, self.title, job, self.view.model_version,
+                self.points_worker is None, self.should_close())
+
+    def wait_for_next_frame(self) -> bool:
+        """Sleep until input arrives or the next frame is due -> whether to draw it (step() polls
+        what arrived). False only after an idle wait that saw no event and no change."""
         still = time.perf_counter() - self.view.last_motion >= STILL_SECONDS
         if self.is_idle():
+            began = time.perf_counter()
             glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
-        elif self.jobs.running() and still:
+            return self.input.last_event >= began or self.shown_state() != self._drawn_state
+        if self.jobs.running() and still:
             glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
         elif self.points_worker is not None and still:
             glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
+        return True
 
     def run_frame(self) -> bool:
         """One turn of the frame loop: the close button and stop signals are looked at
-        (closing.py), then a frame is drawn. -> whether the loop goes on."""
+        (closing.py), then a frame is drawn unless an idle wait saw nothing change. -> whether
+        the loop goes on."""
         if not closing_question.keep_open(self):
             return False
-        self.wait_for_next_frame()
-        self.step()
+        if self.wait_for_next_frame():
+            self.step()
         return True
 
     def run(self) -> int:

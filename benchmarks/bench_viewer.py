@@ -4,8 +4,8 @@ Logs per-frame totals and the renderer's sort/draw times for these situations:
   idle      the camera is still; each frame re-renders the splats at full resolution
             (the app itself would skip the re-render when nothing changed, and run() even
             waits for events: that frame rate is printed too as "idle, cached")
-  moving    the camera turns every frame; the app renders at one of MOVING_RENDER_SCALES,
-            picked from the last moving render's time (MOVING_BUDGET_MS)
+  moving    the camera turns every frame; the app renders at the scale that holds
+            MOVING_BUDGET_MS, chosen from the last render's split of its time (next_moving_scale)
   training  a job thread publishes new Gaussians ~5 times a second with CPU work in between
             (competing for the 2 cores); the app does what it does live: a new snapshot at
             most every TRAINING_REFRESH_SECONDS costs a re-render at the moving size (the model
@@ -22,7 +22,14 @@ With --jobs, the CPU rows (the app's own loop, ``run()``'s wait included):
                         with the job paused, and in the reference mode once its image is in
                         (target < 5 %)
 
+With --idle, the idle rows (target < 5 % CPU, no memory growth): the app's own loop on the demo
+scene at --size for --idle-seconds (default 60) each, with nothing happening, with a real stage-I
+job paused, and after it was stopped; each with the pointer inside the window (over the scene)
+and outside it. Process CPU time (every thread, the job's included) / wall time, the frames
+drawn, and the growth of the resident memory.
+
     DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30] [--jobs [--seconds 20]]
+                                                   [--idle [--idle-seconds 60]]
 """
 
 from __future__ import annotations
@@ -87,8 +94,8 @@ def _loop_for(viewer, seconds: float) -> tuple[float, int]:
     frames = viewer.stats.frames
     cpu, wall = time.process_time(), time.perf_counter()
     while time.perf_counter() - wall < seconds:
-        viewer.wait_for_next_frame()
-        viewer.step()
+        if viewer.wait_for_next_frame():
+            viewer.step()
     return 100.0 * (time.process_time() - cpu) / (time.perf_counter() - wall), viewer.stats.frames - frames
 
 
@@ -155,6 +162,73 @@ def job_rows(seconds: float) -> list[str]:
     return rows
 
 
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _idle_row(viewer, name: str, seconds: float) -> list[str]:
+    """Two rows for ``name``: the app's loop idling ``seconds`` with the pointer inside the
+    window (over the scene, right of the panel), then outside it."""
+    import glfw
+
+    width, height = glfw.get_window_size(viewer.window)
+    rows = []
+    for where, (x, y) in (("inside", (0.7 * width, 0.5 * height)), ("outside", (-200.0, -200.0))):
+        glfw.set_cursor_pos(viewer.window, x, y)  # a pointer warp: GLFW sees the move and the enter/leave
+        _loop_for(viewer, 2.0)  # the move's frames and the refine after it
+        memory = _resident_mb()
+        cpu, frames = _loop_for(viewer, seconds)
+        growth = _resident_mb() - memory
+        verdict = "ok" if cpu < 5.0 and growth < 5.0 else "ABOVE target (5 % CPU, no growth)"
+        rows.append(f"  {name:22s} mouse {where:7s} CPU {cpu:5.1f} %  {frames:4d} frames in {seconds:.0f} s  "
+                    f"memory {growth:+6.1f} MB  {verdict}")
+    return rows
+
+
+def _until_parked(viewer, quiet_s: float = 3.0) -> None:
+    """Run the loop until the paused job has finished the step it was in (its iteration and
+    its model unchanged for ``quiet_s``): the pause is honoured between steps."""
+    run, deadline = viewer.jobs.training, time.perf_counter() + 300
+    last, since = None, time.perf_counter()
+    while time.perf_counter() < deadline:
+        _loop_for(viewer, 0.5)
+        now = (run.progress.iteration, viewer.view.model_version)
+        if now != last:
+            last, since = now, time.perf_counter()
+        elif time.perf_counter() - since >= quiet_s:
+            return
+
+
+def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
+    """The idle rows: nothing happening, a paused job, a stopped job (docstring above)."""
+    import tempfile
+
+    from inceptiongs.app.jobs import JobSettings
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.scene.demo import write_demo_scene
+
+    with tempfile.TemporaryDirectory() as folder:
+        scene = write_demo_scene(Path(folder) / "scene", progress=False)
+        viewer = Viewer(open_source(scene), *size)
+        try:
+            rows = _idle_row(viewer, "idle, no job", seconds)
+            viewer.jobs.settings = JobSettings(minutes=None, iterations=100_000, downscale=2, protocol="none")
+            viewer.jobs.start_training()
+            deadline = time.perf_counter() + 300
+            while viewer.jobs.training.progress.iteration < 5 and time.perf_counter() < deadline:
+                _loop_for(viewer, 0.5)
+            viewer.jobs.training.pause()
+            _until_parked(viewer)
+            rows += _idle_row(viewer, "job paused", seconds)
+            viewer.jobs.training.stop(timeout=120)
+            rows += _idle_row(viewer, "job stopped", seconds)
+        finally:
+            viewer.close()
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ply", type=Path, default=_default_ply())
@@ -162,7 +236,13 @@ def main() -> int:
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--jobs", action="store_true", help="also the job-throughput and idle-CPU rows")
     parser.add_argument("--seconds", type=float, default=20.0, help="length of each --jobs measurement")
+    parser.add_argument("--idle", action="store_true", help="also the idle CPU and memory rows")
+    parser.add_argument("--idle-seconds", type=float, default=60.0, help="length of each --idle measurement")
     args = parser.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
+    if args.idle:
+        print(f"idle rows at {width}x{height}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+        print("\n".join(idle_rows(args.idle_seconds, (width, height))), flush=True)
     if args.jobs:
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
               "(figures are noisy on a shared machine)")
@@ -174,7 +254,6 @@ def main() -> int:
     from inceptiongs.app.drawing import STILL_SECONDS
     from inceptiongs.app.sources import open_source
 
-    width, height = (int(v) for v in args.size.split("x"))
     source = open_source(args.ply)
     job = _PublishingJob(source.gaussians)
     viewer = viewer_module.Viewer(source, width, height, job_factory=lambda s: job)

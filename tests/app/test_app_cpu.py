@@ -3,8 +3,10 @@ the reference comparison computed once per change. The real app under Xvfb, its 
 
 from __future__ import annotations
 
+import os
 import time
 
+import glfw
 import pytest
 
 from inceptiongs.app.viewer import MAX_TRAINING_WAIT_SECONDS
@@ -17,8 +19,8 @@ def _loop(viewer, seconds: float) -> int:
     """The app's run() loop body for ``seconds``; returns the frames drawn."""
     frames, end = viewer.stats.frames, time.perf_counter() + seconds
     while time.perf_counter() < end:
-        viewer.wait_for_next_frame()
-        viewer.step()
+        if viewer.wait_for_next_frame() is not False:  # False: nothing new to draw
+            viewer.step()
     return viewer.stats.frames - frames
 
 
@@ -71,3 +73,69 @@ def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
         for _ in range(3):
             viewer.step()
         assert len(calls) == 1
+
+
+def _cursor_to(viewer, x: float, y: float) -> None:
+    """Move the X pointer (a warp, as xdotool's mousemove): GLFW delivers the motion, and the
+    enter or leave, as events of the next wait."""
+    glfw.set_cursor_pos(viewer.window, x, y)
+    viewer.step()
+
+
+def test_paused_stopped_and_finished_jobs_draw_no_frames_with_the_mouse_inside_or_outside(xvfb, tmp_path):
+    """Idle means idle: once the refine is done, nothing changes and nothing is drawn, whatever
+    the job's state and wherever the mouse is; each of these cost a frame every wait before."""
+    job = MovingGridJob()
+    with opened(open_viewer, write_grid_model(tmp_path / "model.ply"), 800, 600,
+                job_factory=lambda source: job) as viewer:
+        viewer.step()
+        viewer.jobs.start_training()
+        _loop(viewer, 1.0)
+        viewer.jobs.training.pause()
+        for x, y in ((500, 300), (-200, -200)):  # inside (over the scene), outside the window
+            _cursor_to(viewer, x, y)
+            _settle(viewer)
+            _loop(viewer, 0.5)  # the events of the move itself
+            assert _loop(viewer, 2.5) == 0, ("paused", x, y)
+        steps = job.steps
+        viewer.jobs.training.stop(timeout=10)
+        _loop(viewer, 0.5)
+        assert not viewer.jobs.training.alive and job.steps == steps
+        _settle(viewer)
+        _loop(viewer, 0.5)  # the closing line and the last snapshot's refine are drawn
+        assert _loop(viewer, 2.5) == 0, "stopped"
+        rss = _rss_bytes()
+        assert _loop(viewer, 2.0) == 0 and _rss_bytes() - rss < 8e6  # no memory growth
+
+
+def test_an_event_while_idle_draws_a_frame(xvfb, tmp_path):
+    with opened(open_viewer, write_grid_model(tmp_path / "model.ply")) as viewer:
+        viewer.step()
+        _settle(viewer)
+        assert _loop(viewer, 1.5) == 0
+        viewer.status = "a new line"  # a change the panel shows, without an event
+        assert _loop(viewer, 1.5) == 1
+        glfw.set_window_size(viewer.window, 700, 500)  # a resize is an event: answered at once
+        assert _loop(viewer, 0.3) >= 1
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def test_the_benchmark_reports_idle_and_paused_cpu_and_memory(xvfb):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_viewer.py"
+    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "1", "--size", "640x480",
+                             "--ply", "/nonexistent.ply"], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    rows = [line for line in result.stdout.splitlines() if " CPU " in line]
+    names = {(line.split("mouse")[0].strip(), line.split("mouse")[1].split()[0]) for line in rows}
+    assert names == {(name, where) for name in ("idle, no job", "job paused", "job stopped")
+                     for where in ("inside", "outside")}, result.stdout
+    for line in rows:
+        assert "frames in 1 s" in line and "memory" in line, line
