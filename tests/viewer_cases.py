@@ -214,6 +214,24 @@ def click_at(viewer, x: float, y: float) -> None:
     viewer.step()  # imgui lets the widget go (no longer active: keys reach the viewer again)
 
 
+def scroll_panel_to(viewer, label: str) -> None:
+    """Turn the mouse wheel over the panel until its widget ``label`` is inside the window, as a
+    user scrolls a panel longer than the window."""
+    import glfw
+
+    viewer.input.on_cursor(viewer.window, 200, 200)
+    for _ in range(3):
+        viewer.step()
+    height = glfw.get_window_size(viewer.window)[1]
+    for _ in range(20):
+        if viewer.ui.rects[label][3] <= height - 5:
+            return
+        viewer.input.on_scroll(viewer.window, 0.0, -1.0)
+        viewer.step()
+        viewer.step()
+    raise AssertionError(f"{label!r} stays below the window: {viewer.ui.rects[label]}")
+
+
 def click_widget(viewer, label: str) -> None:
     """Click the middle of a panel widget the panels recorded in viewer.ui.rects."""
     viewer.step()  # the panel as it is now (a click may have changed which widgets show)

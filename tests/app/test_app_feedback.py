@@ -14,7 +14,7 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (click_at, click_widget, open_grid_viewer, opened, press_key, synthetic_gaussians,
+from viewer_cases import (click_at, click_widget, open_grid_viewer, scroll_panel_to, opened, press_key, synthetic_gaussians,
                           write_grid_model)
 
 pytestmark = pytest.mark.gl
@@ -121,10 +121,13 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
     _write_summary(tmp_path / "run_baseline", run, True, _scores(20.20, 22.30), _scores(20.40, 22.33))
     monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+        # The window shows the run the stand-in repairs (a bare PLY offers no bootstrap: capabilities.py).
+        viewer.jobs.run_dir = run
         _frames(viewer)
         viewer.input.on_cursor(viewer.window, 700, 500)
         _frames(viewer)
         press_key(viewer, glfw.KEY_F)                          # the flagged view
+        scroll_panel_to(viewer, "Bootstrap flagged views")     # below the window's bottom edge
         click_widget(viewer, "Bootstrap flagged views")
         deadline = time.time() + 60
         while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
@@ -138,7 +141,8 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
         assert shown.name == "flag 1" and shown.before.shape == shown.after.shape
         assert np.abs(shown.before - shown.after).mean() > 0.02
         assert shown.before.max() > 0.2 and shown.after.max() > 0.2
-        # In the panel: the table and both images, inside the window.
+        # In the panel: the table and both images, inside the window (scrolled to, as a user would).
+        scroll_panel_to(viewer, "verdict")
         rect = viewer.ui.rects["verdict"]
         assert _inside_window(viewer, rect) and rect[3] - rect[1] > shown.before.shape[0]
         window = viewer.capture_window()

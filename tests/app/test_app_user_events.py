@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, opened, press_key,
+from viewer_cases import (choose, click_at, click_widget, scroll_panel_to, open_grid_viewer, open_viewer, opened, press_key,
                           type_into, write_grid_model, write_table_model)
 
 pytestmark = pytest.mark.gl
@@ -120,20 +120,6 @@ def _hover(viewer, x: float, y: float) -> None:
     viewer.input.on_cursor(viewer.window, x, y)
     for _ in range(3):
         viewer.step()
-
-
-def _scroll_panel(viewer, label: str) -> None:
-    """Turn the mouse wheel over the panel until its widget ``label`` is inside the window, as a
-    user scrolls a panel longer than the window."""
-    _hover(viewer, 200, 200)
-    height = glfw.get_window_size(viewer.window)[1]
-    for _ in range(20):
-        if viewer.ui.rects[label][3] <= height - 5:
-            return
-        viewer.input.on_scroll(viewer.window, 0.0, -1.0)
-        viewer.step()
-        viewer.step()
-    raise AssertionError(f"{label!r} stays below the window: {viewer.ui.rects[label]}")
 
 
 def _press(viewer, x: float, y: float, button=glfw.MOUSE_BUTTON_LEFT) -> None:
@@ -312,7 +298,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         # Save PLY: typed file name, a valid PLY with what is shown; the model's folder untouched.
         out = tmp_path / "out" / "cropped.ply"
         out.parent.mkdir()
-        _scroll_panel(viewer, "save PLY")                    # the panel's end, below a 480-pixel window
+        scroll_panel_to(viewer, "save PLY")                    # the panel's end, below a 480-pixel window
         type_into(viewer, "file", str(out))
         click_widget(viewer, "save PLY")
         rects = viewer.ui.rects
