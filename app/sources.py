@@ -121,10 +121,13 @@ def scene_runs(scene, runs_dir: Path | None = None) -> list[Path]:
     """Every run of a scene the viewer knows of, oldest first: the command line's under
     ./runs/NAME (`inceptiongs train` without --out, the bootstrap's NAME_bootstrap beside it, the
     viewer's jobs); those in the runs folder ``runs_dir`` the user named (--runs); and those the
-    viewer once kept in the scene's work folder (only runs whose config names this scene)."""
+    viewer once kept in the scene's work folder; and the folders beside the scene's own (the
+    layout `inceptiongs demo OUT` writes: OUT/scene, OUT/run, OUT/run_bootstrap) — only runs whose
+    config names this scene."""
     from inceptiongs.train.run_folder import cli_run_dirs  # noqa: PLC0415
 
     runs = set(work_dir_runs(scene.work_dir)) | set(cli_run_dirs(scene.root))
+    runs |= set(folder_runs(Path(scene.root).parent, scene.root))
     if runs_dir is not None:
         runs |= set(folder_runs(runs_folder(runs_dir), scene.root))
     return oldest_first(runs)

@@ -116,6 +116,26 @@ def test_scene_lists_its_runs_from_every_place_newest_first_with_scores(xvfb, de
     assert main([str(demo_scene), "--runs", str(older / "model.ply")]) == 2  # a file is no runs folder
 
 
+def test_runs_beside_the_scene_folder_are_its_runs_too(tmp_path, monkeypatch):
+    """`inceptiongs demo OUT` writes OUT/scene beside OUT/run and OUT/run_bootstrap: opening
+    OUT/scene lists them (it said "no trained model yet"); a sibling run of another scene is not."""
+    import json
+    from types import SimpleNamespace
+
+    from inceptiongs.app.sources import scene_runs
+
+    monkeypatch.chdir(tmp_path)
+    scene_root = tmp_path / "demo" / "scene"
+    scene_root.mkdir(parents=True)
+    for name, scene in (("run", scene_root), ("run_bootstrap", scene_root), ("other", tmp_path / "elsewhere")):
+        run = tmp_path / "demo" / name
+        run.mkdir()
+        (run / "config.json").write_text(json.dumps({"scene": str(scene)}))
+        (run / "model.ply").write_bytes(b"ply\n")
+    runs = scene_runs(SimpleNamespace(root=scene_root, work_dir=tmp_path / "cache"))
+    assert {run.name for run in runs} == {"run", "run_bootstrap"}
+
+
 # --- 4. no lost job ---------------------------------------------------------------------------------
 
 @pytest.mark.gl
