@@ -48,6 +48,8 @@ class Verdict:
     baseline: dict | None = None
     baseline_dir: Path | None = None
     images: list = field(default_factory=list)
+    # What stage I's curve said before the bootstrap started (inceptiongs.bootstrap.outlook).
+    outlook: str | None = None
 
 
 def _summary(run_dir: Path) -> dict | None:
@@ -97,7 +99,10 @@ def read_verdict(run_dir: Path | None) -> Verdict | None:
     if not before or not after:
         return None
     stage1 = Path(data["run"]) if isinstance(data.get("run"), str) else None
-    verdict = Verdict(Path(run_dir), stage1, before, after)
+    outlook = data.get("outlook")
+    verdict = Verdict(Path(run_dir), stage1, before, after,
+                      outlook=outlook.get("line") if isinstance(outlook, dict) and isinstance(outlook.get("line"), str)
+                      else None)
     baseline = find_baseline(Path(run_dir), stage1)
     if baseline is not None:
         verdict.baseline_dir, verdict.baseline = baseline
@@ -144,6 +149,8 @@ def draw_verdict(ui, verdict: Verdict | None) -> None:
     imgui.separator_text("repair verdict")
     imgui.push_text_wrap_pos(0.0)
     imgui.text(verdict_line(verdict))
+    if verdict.outlook:
+        imgui.text_disabled(f"before it started: {verdict.outlook}")
     imgui.pop_text_wrap_pos()
     top = imgui.get_cursor_screen_pos().y
     _score_table(verdict)

@@ -353,4 +353,9 @@ def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_
         (shown,) = verdict.images
         assert shown.name == targets[0].name and shown.before.max() > 0.1
         assert np.abs(shown.before - shown.after).mean() > 1e-3  # the refined model renders differently
+        # What stage I's curve said before the bootstrap started, as the bootstrap recorded it.
+        recorded = json.loads((tmp_path / "run_bootstrap" / "bootstrap" / "summary.json").read_text())["outlook"]
+        assert verdict.outlook == recorded["line"] and recorded["verdict"] in ("repair", "train longer",
+                                                                               "nothing to repair", "unknown")
+        scroll_panel_to(viewer, "verdict")
         assert _inside_window(viewer, viewer.ui.rects["verdict"])
