@@ -120,10 +120,11 @@ def score_rows(verdict: Verdict) -> list[tuple[str, float, float, float | None]]
     return rows
 
 
-def _change(difference: float) -> str:
+def _change(difference: float, other: str) -> str:
+    """How the result compares with ``other`` ("the same-time baseline", "stage I")."""
     if abs(difference) < SAME_DB:
-        return f"about the same ({difference:+.2f} dB)"
-    return f"{'better' if difference > 0 else 'worse'} by {abs(difference):.2f} dB"
+        return f"about the same as {other} ({difference:+.2f} dB)"
+    return f"{'better' if difference > 0 else 'worse'} by {abs(difference):.2f} dB than {other}"
 
 
 def verdict_line(verdict: Verdict) -> str:
@@ -134,8 +135,8 @@ def verdict_line(verdict: Verdict) -> str:
         return "no held-out scores to judge the bootstrap by"
     group, before, after, baseline = rows[0]
     if baseline is not None:
-        return f"{group} views: {_change(after - baseline)} than the same-time baseline"
-    return (f"{group} views: {_change(after - before)} than stage I; no same-time baseline was run, so "
+        return f"{group} views: {_change(after - baseline, 'the same-time baseline')}"
+    return (f"{group} views: {_change(after - before, 'stage I')}; no same-time baseline was run, so "
             "part of that may be the extra training alone")
 
 

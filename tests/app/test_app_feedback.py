@@ -359,3 +359,13 @@ def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_
                                                                                "nothing to repair", "unknown")
         scroll_panel_to(viewer, "verdict")
         assert _inside_window(viewer, viewer.ui.rects["verdict"])
+
+
+def test_the_verdict_sentence_reads_as_a_comparison():
+    from inceptiongs.app.verdict import Verdict, verdict_line
+
+    flat = _scores(20.00, 22.00)
+    same = Verdict(Path("boot"), None, flat, _scores(20.02, 22.00))
+    assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time")
+    worse = Verdict(Path("boot"), None, flat, _scores(19.00, 22.00), baseline=_scores(19.50, 22.00))
+    assert verdict_line(worse) == "scarce views: worse by 0.50 dB than the same-time baseline"
