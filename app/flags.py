@@ -52,11 +52,14 @@ class FlagBook:
     in the Flags panel (-1: none). ``view``: the view.View whose camera flags are made from and
     jumped to; ``status``: the status line."""
 
-    def __init__(self, file: Path, view, status) -> None:
+    def __init__(self, file: Path, view, status, earlier: Path | None = None) -> None:
+        """``earlier``: where older viewers kept this source's flags (the cache), read when
+        ``file`` does not exist yet; every change is saved to ``file``."""
         self.file, self.view, self.status = Path(file), view, status
         self.selected = -1
+        source = self.file if self.file.exists() or earlier is None else Path(earlier)
         try:
-            self.items: list[Flag] = flag_io.load_flags(self.file)
+            self.items: list[Flag] = flag_io.load_flags(source)
         except InputError as exc:
             self.items, status.text = [], f"flags not loaded: {exc}"
 

@@ -14,13 +14,12 @@ import os
 from pathlib import Path
 
 from inceptiongs.train.checkpoint import latest_checkpoint
-from inceptiongs.train.run_folder import CLI_RUNS_FOLDER, default_run_dir
+from inceptiongs.train.run_folder import CLI_RUNS_FOLDER, SAVED_SUFFIX, default_run_dir
 
 # Runs the viewer made in the scene's work folder (the cache) before it wrote where the
 # command line does: still listed and opened.
 TRAIN_RUN_NAME = "train"
 BOOTSTRAP_SUFFIX = "_bootstrap"
-SAVED_SUFFIX = "_saved"  # saved PLYs and screenshots: ./runs/NAME_saved
 
 
 def fresh_folder(base: Path) -> Path:

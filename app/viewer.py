@@ -72,7 +72,9 @@ class Viewer:
         self.stats = FrameStats()
         self.status_line = StatusLine("; ".join(source.notes))
         self.view = View(source, self.window, self.renderer, self.status_line)
-        self.flags = FlagBook(flag_io.flags_path(source.work_dir), self.view, self.status_line)
+        # The user's flags are their work: beside the runs (./runs/NAME_saved), not in the cache.
+        self.flags = FlagBook(saved_dir(source, source.runs_dir) / flag_io.FLAGS_FILE_NAME, self.view,
+                              self.status_line, earlier=flag_io.flags_path(source.work_dir))
         self.editor = Editor(self.view, self.status_line)
         # job_factory: source -> job; None: the job dialog's stage-I training.
         self.jobs = Jobs(self.view, self.flags, self.status_line, self.update_title, job_factory)

@@ -65,9 +65,13 @@ def stopped_bootstrap_step(out_dir: Path) -> int | None:
 
 # --- inputs ----------------------------------------------------------------------------------------
 def default_flag_files(scene, run_dir: str | Path | None = None) -> list[Path]:
-    """Where the viewer's flags.json may be, first found wins: the run folder, the scene's
-    cache folder, then (read-only) the scene folder's .inceptiongs/ written by older versions."""
+    """Where the viewer's flags.json may be, first found wins: the run folder, ./runs/NAME_saved
+    (where the viewer keeps them), the scene's cache folder (older viewers), then (read-only) the
+    scene folder's .inceptiongs/ written by older versions."""
+    from ..train.run_folder import default_saved_dir
+
     found = [Path(run_dir) / FLAGS_FILE_NAME] if run_dir is not None else []
+    found.append(default_saved_dir(scene.root) / FLAGS_FILE_NAME)
     with contextlib.suppress(InputError):
         found.append(Path(scene.work_dir) / FLAGS_FILE_NAME)
     return found + [Path(scene.legacy_work_dir) / FLAGS_FILE_NAME]

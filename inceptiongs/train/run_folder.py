@@ -122,6 +122,17 @@ def default_run_dir(scene: str | Path, cwd: str | Path | None = None) -> Path:
     return Path(cwd if cwd is not None else Path.cwd()) / CLI_RUNS_FOLDER / (name or "scene")
 
 
+# The user's own work beside the runs (saved PLYs, screenshots, the viewer's flags): ./runs/NAME_saved.
+SAVED_SUFFIX = "_saved"
+
+
+def default_saved_dir(scene_root: str | Path, cwd: str | Path | None = None) -> Path:
+    """./runs/NAME_saved: where the viewer keeps what a user made of a scene (its flags.json, saved
+    PLYs, screenshots) and where `inceptiongs bootstrap` looks for those flags."""
+    run = default_run_dir(scene_root, cwd)
+    return run.with_name(run.name + SAVED_SUFFIX)
+
+
 def is_run_of(run_dir: str | Path, scene_root: str | Path) -> bool:
     """Whether ``run_dir`` is a run (config.json with a model or checkpoints) of the scene at
     ``scene_root``: its config names that scene. An unreadable config is not a run of anything."""

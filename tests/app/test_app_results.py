@@ -12,6 +12,7 @@ import threading
 import time
 from pathlib import Path
 
+import glfw
 import numpy as np
 import pytest
 
@@ -134,6 +135,30 @@ def test_runs_beside_the_scene_folder_are_its_runs_too(tmp_path, monkeypatch):
         (run / "model.ply").write_bytes(b"ply\n")
     runs = scene_runs(SimpleNamespace(root=scene_root, work_dir=tmp_path / "cache"))
     assert {run.name for run in runs} == {"run", "run_bootstrap"}
+
+
+@pytest.mark.gl
+def test_flags_are_kept_beside_the_runs_and_the_bootstrap_finds_them(xvfb, demo_scene, tmp_path, monkeypatch):
+    """A user's flags are their work, not a cache: they go to ./runs/NAME_saved/flags.json (flags an
+    older viewer kept in the cache are read there once), and `inceptiongs bootstrap` looks there."""
+    from inceptiongs.app.flags import flag_camera
+    from inceptiongs.bootstrap.runner import default_flag_files
+    from inceptiongs.io import flags as flag_io
+    from inceptiongs.scene.loader import load_scene
+
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene(demo_scene)
+    with opened(_viewer, demo_scene) as viewer:
+        older = flag_io.flags_path(viewer.view.source.work_dir)
+    visible = tmp_path / "runs" / f"{demo_scene.name}_saved" / "flags.json"
+    older.parent.mkdir(parents=True, exist_ok=True)
+    flag_io.save_flags(older, [flag_camera(scene.cameras[0], "from the cache")])
+    with opened(_viewer, demo_scene) as viewer:
+        assert [f.name for f in viewer.flags.items] == ["from the cache"] and viewer.flags.file == visible
+        press_key(viewer, glfw.KEY_F)
+    assert [f.name for f in flag_io.load_flags(visible)] == ["from the cache", "flag 1"]
+    assert [f.name for f in flag_io.load_flags(older)] == ["from the cache"]        # the cache is left as it was
+    assert default_flag_files(scene)[0].resolve() == visible.resolve()   # the command line's first place
 
 
 # --- 4. no lost job ---------------------------------------------------------------------------------
