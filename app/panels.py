@@ -15,7 +15,7 @@ from .jobs import SIZED_TO_BUDGET
 from .notifications import draw_notification
 from .plots import draw_plots
 from .textfit import middle_ellipsis
-from .verdict import draw_verdict
+from .verdict import draw_verdict, outlook_before_repair
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
@@ -402,6 +402,10 @@ def _training(ui, jobs) -> None:
         if _button(ui, "Bootstrap flagged views"):
             jobs.start_bootstrap()
         imgui.end_disabled()
+        outlook = outlook_before_repair(jobs.run_dir) if no_bootstrap is None else None
+        if outlook is not None:   # before the user spends minutes on a repair (bootstrap/outlook.py)
+            _hint(outlook)
+            _remember(ui, "repair outlook")
         if blocked is not None:
             _hint(f"no resume here: {blocked}")
             _remember(ui, "why no resume")

@@ -10,6 +10,7 @@ and drawn here with imgui."""
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -273,3 +274,23 @@ def release_textures(verdict: Verdict | None) -> None:
         for texture in shown.textures:
             texture.release()
         shown.textures = ()
+
+
+def outlook_before_repair(run_dir: Path | None) -> str | None:
+    """What a bootstrap of the open stage-I run would face (inceptiongs.bootstrap.outlook), said
+    before the user starts one; None for no run or a bootstrap's result. Re-read only when the
+    run's metrics change (the panel asks every frame)."""
+    if run_dir is None or (Path(run_dir) / "bootstrap").exists():
+        return None
+    try:
+        stamp = (Path(run_dir) / "metrics.jsonl").stat().st_mtime_ns
+    except OSError:
+        return None
+    return _outlook_line(str(run_dir), stamp)
+
+
+@functools.lru_cache(maxsize=8)
+def _outlook_line(run_dir: str, stamp: int) -> str:
+    from inceptiongs.bootstrap.outlook import run_outlook  # noqa: PLC0415
+
+    return run_outlook(run_dir).line

@@ -369,3 +369,24 @@ def test_the_verdict_sentence_reads_as_a_comparison():
     assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time")
     worse = Verdict(Path("boot"), None, flat, _scores(19.00, 22.00), baseline=_scores(19.50, 22.00))
     assert verdict_line(worse) == "scarce views: worse by 0.50 dB than the same-time baseline"
+
+
+def test_a_stage_i_run_says_its_repair_outlook_before_a_bootstrap_starts(xvfb, tmp_path):
+    """The bootstrap's outlook (nothing to repair / train longer / worth a repair) was only printed
+    once a bootstrap had started; the Training panel now says it under the button."""
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.app.verdict import outlook_before_repair
+    from inceptiongs.app.viewer import Viewer
+    from inceptiongs.bootstrap.outlook import run_outlook
+    from train_cases import tiny_demo_run
+
+    run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,
+                        eval_every=5, checkpoint_every=10)
+    expected = run_outlook(run).line
+    assert outlook_before_repair(run) == expected and outlook_before_repair(None) is None
+    with opened(Viewer, open_source(run), 900, 1000) as viewer:
+        _frames(viewer)
+        scroll_panel_to(viewer, "repair outlook")
+        assert _inside_window(viewer, viewer.ui.rects["repair outlook"])
+    (run / "bootstrap").mkdir()
+    assert outlook_before_repair(run) is None      # a bootstrap's result: its verdict speaks instead
