@@ -231,6 +231,7 @@ class Jobs:
         """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
         self.training = LiveTraining(job, plan=plan_of(job))
         self.training.start()
+        self.set_verdict(None)     # the open result's verdict says nothing about the new job's folder
         self.fold_settings = True  # the dialog closes: the job's progress is what to watch
         self.reported = False
         self.out_dir = Path(out_dir) if out_dir is not None else None

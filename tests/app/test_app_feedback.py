@@ -128,7 +128,12 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
         _frames(viewer)
         press_key(viewer, glfw.KEY_F)                          # the flagged view
         scroll_panel_to(viewer, "Bootstrap flagged views")     # below the window's bottom edge
+        from inceptiongs.app.verdict import Verdict
+
+        stale = Verdict(tmp_path / "earlier_result", None, _scores(10.0, 11.0), _scores(10.5, 11.0))
+        viewer.jobs.set_verdict(stale)
         click_widget(viewer, "Bootstrap flagged views")
+        assert viewer.jobs.verdict is not stale      # an earlier result's verdict goes when the job starts
         deadline = time.time() + 60
         while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
             viewer.step()
