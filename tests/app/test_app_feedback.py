@@ -242,9 +242,10 @@ def test_esc_closes_the_help_ctrl_q_quits_and_the_help_is_opaque(xvfb, tmp_path)
         assert viewer.should_close()
 
 
-def test_figures_keep_their_units_and_a_long_path_is_shortened_with_a_tooltip(xvfb, tmp_path):
+def test_figures_keep_their_units_and_a_long_path_is_shortened_with_a_tooltip(xvfb, tmp_path, monkeypatch):
     deep = tmp_path.joinpath(*[f"a_rather_long_folder_name_{i}" for i in range(4)])
     deep.mkdir(parents=True)
+    monkeypatch.chdir(deep)   # the flags go to ./runs/model_saved/flags.json: a long path from here
     with opened(open_grid_viewer, write_grid_model(deep / "model.ply"), 640, 480) as viewer:
         _frames(viewer)
         line = viewer.ui.rects["stats/0"][3] - viewer.ui.rects["stats/0"][1]
