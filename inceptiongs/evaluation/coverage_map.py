@@ -160,7 +160,7 @@ def summary(c: Coverage, listed: int = SCARCE_VIEWS_LISTED) -> dict:
             "up": c.frame[2].tolist(),
             "peak_views_per_sr": peak,
             "mean_views_per_sr": float((density * area).sum() / area.sum()),
-            # Share of the hemisphere (by area) seen at under a tenth of the peak density.
+            # Share of the hemisphere (by area) seen at under 10 % of the peak density.
             "sparse_fraction": float((area * (density < 0.1 * peak)).sum() / area.sum()) if peak > 0 else 1.0,
         },
         "scarcest_views": [{"name": c.cameras[i].name, "index": int(i), "scarcity": round(float(c.scarcity[i]), 4)}

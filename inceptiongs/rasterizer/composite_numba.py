@@ -15,7 +15,7 @@ Along a row span of a wide footprint (conic a < RECURRENCE_CONIC_MAX) exp(-power
 from the span's first pixel by two multiplications per pixel instead of one exp() each (spans
 are clipped to a 16-pixel tile, so the drift is ~1e-14 relative); the backward steps through
 the same spans in the same way, so both passes see bit-identical alphas and take the same
-decisions. Roughly a fifth of the forward + backward time was exp().
+decisions. Roughly 20 % of the forward + backward time was exp().
 
 Determinism: the backward writes one gradient row per (tile, Gaussian) entry, each owned by
 the single thread that handles the tile, and reduces the rows in a fixed order. Results do

@@ -1,8 +1,8 @@
 """LLFF ``poses_bounds.npy`` (N x 17) with ``images/`` or ``images_N/`` folders.
 
-Each row is a 3x5 matrix (row-major) followed by near/far bounds. Its first three columns are
-the camera-to-world rotation with LLFF's camera axes [down, right, back], the fourth the
-camera centre, the fifth (height, width, focal) of the full-resolution images. The sorted
+Each row is a 3x5 matrix (row-major) followed by near/far bounds. Its columns 0-2 are the
+camera-to-world rotation with LLFF's camera axes [down, right, back], column 3 the camera
+centre, column 4 (height, width, focal) of the full-resolution images. The sorted
 image names of the chosen folder match the rows.
 """
 

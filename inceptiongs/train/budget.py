@@ -24,7 +24,7 @@ BUDGET_RESIZE_TOLERANCE = 0.25
 BUDGET_FILL = 0.95
 BUDGET_FREEZE = 0.15
 # A run sized to a time budget grows until a step costs this many times a step of the model it
-# started the run with (by the fitted cost line): more Gaussians, but still about a third of
+# started the run with (by the fitted cost line): more Gaussians, but still about 1/3 of
 # the steps the first model's rate promised. Without it fern's densification reached 300k
 # Gaussians (the 374k budget of the 5 618 steps planned at the first rate) at 0.35 steps/s.
 BUDGET_COST_RATIO = 4.0

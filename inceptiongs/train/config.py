@@ -353,7 +353,7 @@ def short_run_schedule(config: TrainConfig) -> TrainConfig:
     return dataclasses.replace(
         config,
         # Densifying before the first photometric fit has settled clones nearly everything
-        # (every gradient is large at the start): wait a tenth of the run, at most 100 steps,
+        # (every gradient is large at the start): wait 10 % of the run, at most 100 steps,
         # and average the gradients over at least 25 views.
         densify_from=scaled(config.densify_from, min(100, config.iterations // 10)),
         densify_until=scaled(config.densify_until, 2),

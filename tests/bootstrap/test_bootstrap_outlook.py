@@ -24,7 +24,7 @@ def _curve(scarce: list[float], covered: list[float], minutes_apart: float = 1.0
 
 def test_the_slope_is_read_over_the_end_of_the_curve_in_db_per_minute():
     lines = _curve([10, 14, 15, 15.3], [20, 22, 23, 23.3], minutes_apart=2.0)
-    assert gain_per_minute(lines, "scarce_psnr") == pytest.approx(0.3 / 2.0)    # the last third: 4 to 6 min
+    assert gain_per_minute(lines, "scarce_psnr") == pytest.approx(0.3 / 2.0)    # the last 1/3: 4 to 6 min
     assert gain_per_minute(lines[:2], "scarce_psnr") is None                      # one evaluation: no slope
     assert gain_per_minute(lines, "absent") is None
 
