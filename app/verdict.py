@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-SUMMARY = Path("bootstrap") / "summary.json"
+from inceptiongs.bootstrap.summary_file import SUMMARY_FILE, read_summary
+
+SUMMARY = Path(SUMMARY_FILE)
 GROUPS = ("scarce", "covered", "all")
 # Width of each before / after image in the panel, pixels.
 THUMBNAIL_WIDTH = 150
@@ -55,11 +57,7 @@ class Verdict:
 
 def _summary(run_dir: Path) -> dict | None:
     """RUN/bootstrap/summary.json as a dict; None when absent or unreadable (a run being written)."""
-    try:
-        data = json.loads((Path(run_dir) / SUMMARY).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
+    return read_summary(run_dir)
 
 
 def _scores(data: dict, key: str) -> dict:

@@ -24,6 +24,7 @@ from ..evaluation.run import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
 from ..io.config_json import json_safe
+from ..rasterizer.interface import rasterizer_device
 from ..train.checkpoint import list_checkpoints, save_checkpoint
 from ..train.config import TrainConfig
 from ..train.loop import SaveAttempts, StepLoop, out_of_memory_stops, save_model
@@ -38,11 +39,11 @@ from .outlook import run_outlook
 from .perceptual import perceptual_name
 from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
 from .stage1 import Stage1
+from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
 from .targets import Target, round_targets, targets_to_json
 from .view_targets import TargetMaker, TargetSetting
 from .virtual_views import DEFAULT_K, VirtualView, nearest_training_views, virtual_views
 
-BOOTSTRAP_DIR = "bootstrap"
 TARGETS_FILE = "targets.json"     # in RUN2/bootstrap: what is repaired, so --resume needs no flags
 
 # How the report names each --virtual-depth.
@@ -195,7 +196,7 @@ class Bootstrap:
                      else state_from_gaussians(run.gaussians, data, train_config))
             state.iteration = start
         cpu_photos = data.images
-        device = getattr(rasterizer, "device", "cpu")   # a stand-in callable renders on the CPU
+        device = rasterizer_device(rasterizer)
         data, state = data_on(data, device), state_on(state, device, train_config, data.extent)
         boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, rasterizer, log, data, state, sh_max,
                    start, cpu_photos=cpu_photos)
@@ -470,4 +471,4 @@ class Bootstrap:
                 "views": [self.run.scene.cameras[i].name for i in self.conscience_views],
                 "tolerance": conscience.tolerance, "baseline": conscience.baseline,
                 "checks": [list(c) for c in conscience.history]})
-        atomic_write_text(self.boot_dir / "summary.json", json.dumps(json_safe(self.summary), indent=1) + "\n")
+        atomic_write_text(self.out_dir / SUMMARY_FILE, json.dumps(json_safe(self.summary), indent=1) + "\n")

@@ -114,20 +114,11 @@ def recorded_outlook(run_dir: str | Path) -> tuple[str, Outlook] | None:
     """What ``inceptiongs eval`` shows beside a run's scores: for a bootstrap result the outlook it
     printed before it started ("before the bootstrap"), for a stage-I run the outlook of a
     bootstrap of it ("for a bootstrap"); None for a baseline or a folder without either."""
-    import json
-
-    from ..errors import InputError
-    from ..io.paths import contained_path, read_small_text
+    from .summary_file import SUMMARY_FILE, read_summary
 
     run_dir = Path(run_dir)
-    summary_path = run_dir / "bootstrap" / "summary.json"
-    if summary_path.exists():
-        try:
-            summary = json.loads(read_small_text(contained_path(run_dir, "bootstrap/summary.json",
-                                                                f"{run_dir}"), "bootstrap summary"))
-        except (InputError, json.JSONDecodeError):
-            return None
-        recorded = summary.get("outlook") if isinstance(summary, dict) else None
+    if (run_dir / SUMMARY_FILE).exists():
+        recorded = (read_summary(run_dir) or {}).get("outlook")
         if not isinstance(recorded, dict) or not isinstance(recorded.get("line"), str):
             return None
         fields = {name: recorded.get(name) for name in Outlook.__dataclass_fields__}

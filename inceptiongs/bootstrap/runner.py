@@ -21,7 +21,8 @@ from ..train.loop import StepLoop, default_log, expected_total_steps  # noqa: F4
 from ..train.run_folder import holds_result, next_free_folder
 from .config import BootstrapConfig
 from .loop import BOOTSTRAP_DIR, Bootstrap, BootstrapResult  # noqa: F401 (BOOTSTRAP_DIR: re-exported)
-from .stage1 import Stage1, as_stage1, load_stage1  # noqa: F401 (load_stage1: re-exported)
+from .stage1 import Stage1, as_stage1, load_stage1
+from .summary_file import read_summary  # noqa: F401 (load_stage1: re-exported)
 from .targets import Target, flag_targets, named_target, split_targets
 
 
@@ -45,21 +46,13 @@ def check_output_folder(out_dir: Path, overwrite: bool) -> None:
 def stopped_bootstrap_step(out_dir: Path) -> int | None:
     """The newest checkpoint's step when ``out_dir`` holds a bootstrap that was stopped (its
     summary says so, or it has none: killed), else None."""
-    import json
-
     from ..train.checkpoint import list_checkpoints
 
     kept = list_checkpoints(out_dir)
     if not kept:
         return None
-    from ..io.paths import contained_path, read_small_text
-
-    try:
-        summary = json.loads(read_small_text(contained_path(out_dir, f"{BOOTSTRAP_DIR}/summary.json", str(out_dir)),
-                                             "bootstrap summary"))
-    except (OSError, InputError, ValueError):
-        summary = {}
-    ended = isinstance(summary, dict) and "iteration" in summary and summary.get("stopped") is not True
+    summary = read_summary(out_dir) or {}
+    ended = "iteration" in summary and summary.get("stopped") is not True
     return None if ended else kept[-1][0]
 
 

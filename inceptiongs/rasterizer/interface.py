@@ -74,6 +74,12 @@ RASTERIZERS: dict[str, Callable[[], Rasterizer]] = {
 }
 
 
+def rasterizer_device(rasterizer) -> str:
+    """Where ``rasterizer`` renders ("cpu", "cuda"): where a run keeps its tensors. A stand-in
+    callable without ``device`` (tests, plain render functions) renders on the CPU."""
+    return getattr(rasterizer, "device", "cpu")
+
+
 def get_rasterizer(name: str) -> Rasterizer:
     """The rasterizer registered as ``name``; ValueError naming the choices otherwise."""
     if name not in RASTERIZERS:

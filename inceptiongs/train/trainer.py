@@ -23,6 +23,7 @@ from ..scene.loader import load_scene
 from ..io.run_lock import run_folder_lock
 from ..io.atomic import atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
+from ..rasterizer.interface import rasterizer_device
 from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
                      RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
@@ -82,7 +83,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
     sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
     state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log, rasterizer)
     # The photos, parameters and statistics live where the rasterizer runs: no per-step copies.
-    device = getattr(rasterizer, "device", "cpu")   # a stand-in callable renders on the CPU
+    device = rasterizer_device(rasterizer)
     data, state = data_on(data, device), state_on(state, device, config, data.extent)
     if config.pgsr and not any(data.neighbours.values()):
         log_once(state, "no-neighbours", "multi-view terms skipped: no training view has a neighbour", log)

@@ -74,3 +74,18 @@ def test_eval_shows_the_outlook_a_bootstrap_recorded_and_a_stage_i_runs_own(tmp_
     assert recorded_outlook(boot) == ("before the bootstrap", outlook)
     (boot / "bootstrap" / "summary.json").write_text(json.dumps({"baseline": True}))    # a baseline records none
     assert recorded_outlook(boot) is None
+
+
+def test_the_summary_is_read_once_way_and_a_planted_link_is_not_followed(tmp_path):
+    from inceptiongs.bootstrap.summary_file import read_summary
+
+    outside = tmp_path / "elsewhere.json"
+    outside.write_text(json.dumps({"outlook": {"verdict": "repair", "line": "planted"}}))
+    boot = tmp_path / "boot"
+    (boot / "bootstrap").mkdir(parents=True)
+    (boot / "bootstrap" / "summary.json").symlink_to(outside)
+    assert read_summary(boot) is None and recorded_outlook(boot) is None
+    (boot / "bootstrap" / "summary.json").unlink()
+    (boot / "bootstrap" / "summary.json").write_text("[1, 2]")            # JSON, but not an object
+    assert read_summary(boot) is None
+    assert read_summary(tmp_path / "absent") is None
