@@ -76,7 +76,7 @@ def test_eval_shows_the_outlook_a_bootstrap_recorded_and_a_stage_i_runs_own(tmp_
     assert recorded_outlook(boot) is None
 
 
-def test_the_summary_is_read_once_way_and_a_planted_link_is_not_followed(tmp_path):
+def test_the_summary_has_one_reader_that_never_follows_a_planted_link(tmp_path):
     from inceptiongs.bootstrap.summary_file import read_summary
 
     outside = tmp_path / "elsewhere.json"
