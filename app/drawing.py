@@ -16,6 +16,7 @@ from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
+from .detail import BUDGET_START, LOD_MIN_GAUSSIANS, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
 from .editing import box_handles
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .images import compose_photo, visualize
@@ -124,6 +125,12 @@ class FrameDrawer:
         self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
         self._frustums: tuple[list[int], float] = ([], 1.0)
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
+        self.detail: DetailWorker | None = None  # made when a large model is first shown (detail.py)
+        self.detail_budget = BUDGET_START
+        self.detail_seen: tuple = ()  # detail_state() when a frame last looked at the worker
+        self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
+        self._preview: tuple | None = None  # (model, arrays): what a large model shows while its tree builds
+        self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
 
     def upload_model(self, view) -> None:
         """Hand the view's visible Gaussians to the renderer when they changed (recoloured by
@@ -140,6 +147,72 @@ class FrameDrawer:
             self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
 
+    def detail_engaged(self, view, model_age: float) -> bool:
+        """Whether this frame draws a cut of the model's LOD tree (detail.py): a model of at least
+        LOD_MIN_GAUSSIANS that has rested MODEL_STILL_SECONDS, in a mode that draws the splats as
+        they are, unless the user asked for full detail."""
+        settings = view.settings
+        engaged = (view.edit.count >= LOD_MIN_GAUSSIANS and not settings.full_detail and not view.shows_points
+                   and settings.mode in ("rgb", "depth", "normal", "opacity") and model_age >= MODEL_STILL_SECONDS)
+        if not engaged:
+            self.drawn = (view.edit.count, view.edit.count, "full detail")
+        return engaged
+
+    def upload_detail(self, view, moving: bool) -> bool:
+        """Hand the renderer the cut to draw (detail.py) -> whether the frame waits for the
+        settled cut and keeps the last image meanwhile."""
+        model = (view.model_version, view.edit.version)
+        if self.detail is None:
+            self.detail = DetailWorker()
+        self.detail_seen = self.detail_state()
+        self.detail.set_model(model, view.edit.visible_arrays())
+        camera = view.current_camera()
+        total = view.edit.count
+        if not self.detail.ready:
+            self._upload_preview(view, model)
+            return False
+        key = camera_key(camera)
+        wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
+        cut = self.detail.latest(model)
+        have_settled = cut is not None and cut.settled and cut.camera_key == key
+        if self._detail_requested != wanted and not have_settled:
+            self.detail.request(model, camera, not moving, self.detail_budget)
+            self._detail_requested = wanted
+        if cut is None:
+            self._upload_preview(view, model)
+            return False
+        version = ("cut", model, cut.serial)
+        if self.uploaded_version != version:
+            self.renderer.set_packed(*cut.packed, version=hash(version) & 0x7FFFFFFF)
+            self.uploaded_version = version
+        how = f"settled cut ({SETTLED_GRANULARITY_PX:g} px)" if cut.settled else f"budget {cut.budget:,}"
+        self.drawn = (cut.count, total, how)
+        return not moving and not have_settled
+
+    def _upload_preview(self, view, model) -> None:
+        """While the tree builds: a fixed random subset of the model (detail.preview_arrays)."""
+        if self._preview is None or self._preview[0] != model:
+            self._preview = (model, preview_arrays(view.edit.visible_arrays()))
+        version = ("preview", model)
+        if self.uploaded_version != version:
+            self.renderer.set_gaussians(self._preview[1], version=hash(version) & 0x7FFFFFFF)
+            self.uploaded_version = version
+        share = int(round(100 * self.detail.progress)) if self.detail is not None else 0
+        self.drawn = (len(self._preview[1]["means"]), view.edit.count, f"preview, building the tree {share} %")
+
+    def detail_busy(self) -> bool:
+        """The LOD worker is building or cutting, or made something no frame has drawn yet: a
+        frame will follow without an event."""
+        return self.detail is not None and (self.detail.busy or self.detail_state() != self.detail_seen)
+
+    def detail_state(self) -> tuple:
+        """What of the LOD worker can change the picture with no event (Viewer.shown_state)."""
+        if self.detail is None:
+            return ()
+        cut = self.detail._cut
+        return (self.detail.ready, round(self.detail.progress, 2), None if cut is None else cut.serial,
+                self.detail.error)
+
     def depth_of(self, camera) -> np.ndarray:
         """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
         return self.renderer.render(camera, "depth")[..., 0]
@@ -152,9 +225,16 @@ class FrameDrawer:
                   or now - model_changed_at < MODEL_STILL_SECONDS)
         points = view.shows_points and view.settings.mode == "rgb" and view.settings.photo == "off"
         scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
-        self.upload_model(view)
+        detail = self.detail_engaged(view, now - model_changed_at)
         settings = view.settings
         mode = settings.mode
+        if detail:
+            pending = self.upload_detail(view, moving)
+            if pending and self.scene_texture.texture is not None:
+                self.scene_texture.blit(screen)  # the settled cut is on its way: the last frame stays
+                return
+        else:
+            self.upload_model(view)
         camera = view.current_camera(scale)
         photo_index = view.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
@@ -192,6 +272,9 @@ class FrameDrawer:
                 add_render_cost(self.render_costs, scale, sum(self.renderer.timings.values()))
                 if moving:
                     self.moving_scale = next_moving_scale(scale, self.render_costs)
+            if detail and moving and stats.frame_times:
+                # The whole frame's time (upload, panel and swap included) sets the splat budget.
+                self.detail_budget = next_budget(self.detail_budget, 1e3 * stats.frame_times[-1])
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
@@ -292,9 +375,11 @@ class FrameDrawer:
         return self._frustums
 
     def close(self) -> None:
-        """Stop the reference worker (no GL calls: safe without a current context)."""
+        """Stop the reference and LOD workers (no GL calls: safe without a current context)."""
         if self.reference is not None:
             self.reference.close()
+        if self.detail is not None:
+            self.detail.close()
 
     def release(self) -> None:
         self.overlay.release()

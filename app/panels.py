@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
+from .detail import LOD_MIN_GAUSSIANS
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET
 from .notifications import draw_notification
@@ -77,6 +78,7 @@ def draw_panels(viewer) -> None:
     imgui.set_next_window_size(imgui.ImVec2(PANEL_WIDTH, height - 2 * PANEL_MARGIN), imgui.Cond_.first_use_ever)
     imgui.begin("InceptionGS")
     _stats(ui, viewer.stats, view.edit, viewer.last_gl_error)
+    _detail(ui, view, viewer.drawing)
     if imgui.small_button("keys and mouse (H)"):
         ui.show_help = not ui.show_help
     if _header(ui, "View", imgui.TreeNodeFlags_.default_open) and _view(ui, view):
@@ -235,6 +237,21 @@ def _stats(ui, s, edit, gl_error: str | None) -> None:
     _flow(ui, "model", [f"{edit.count} Gaussians", f"render scale {s.rendered_scale:.2f}"])
     if gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {gl_error}")
+
+
+def _detail(ui, view, drawing) -> None:
+    """A large model's level of detail (detail.py): the splats drawn of the total and how they
+    were chosen, and the "full detail always" switch."""
+    if view.edit.count < LOD_MIN_GAUSSIANS:
+        return
+    drawn, total, how = drawing.drawn
+    _flow(ui, "detail", [f"drawn {drawn:,} / {total:,} splats", how])
+    if drawing.detail is not None and drawing.detail.error:
+        imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), drawing.detail.error)
+    _, view.settings.full_detail = imgui.checkbox("full detail always", view.settings.full_detail)
+    _remember(ui, "full detail always")
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("draw every Gaussian in every frame (slow on a model this large)")
 
 
 def _view(ui, view) -> bool:

@@ -70,6 +70,7 @@ class ViewSettings:
     crop_max: list | None = None
     max_opacity: float = 0.05
     min_size: float = 0.5
+    full_detail: bool = False  # draw every Gaussian of a large model, never a LOD cut (detail.py)
 
 
 # FrameStats.frame_ms and fps average over this many frames.

@@ -48,6 +48,9 @@ IDLE_WAIT_SECONDS = 1.0
 UI_SETTLE_SECONDS = 0.25
 # While a job runs the viewer waits at most this long between frames (its snapshots show).
 MAX_TRAINING_WAIT_SECONDS = 0.5
+# While the level-of-detail thread works and the camera is still, the loop looks this often
+# whether its cut arrived (the settled frame follows it at once).
+DETAIL_WAIT_SECONDS = 0.02
 
 
 def read_framebuffer(screen: moderngl.Framebuffer, width: int, height: int) -> np.ndarray:
@@ -238,6 +241,8 @@ class Viewer:
             return False  # a paused job is idle: it publishes nothing
         if self.points_worker is not None:
             return False  # the triangulated points are to come
+        if self.drawing.detail_busy():
+            return False  # a level-of-detail tree or cut is to come
         return self.view.settings.mode != "reference" or self.drawing.reference_settled()
 
     def training_frame_wait(self) -> float:
@@ -267,6 +272,8 @@ class Viewer:
             glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
         elif self.points_worker is not None and still:
             glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
+        elif self.drawing.detail_busy() and still:
+            glfw.wait_events_timeout(DETAIL_WAIT_SECONDS)  # the LOD thread needs the CPU; its cut is soon due
         return True
 
     def run_frame(self) -> bool:

@@ -35,6 +35,7 @@ drawn, and the growth of the resident memory.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import sys
@@ -229,6 +230,83 @@ def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
     return rows
 
 
+def _settle(viewer, timeout: float = 120.0) -> float:
+    """Run the app's loop until the settled frame of a still camera is drawn -> seconds it took
+    (from now, taken as the last movement)."""
+    began = time.perf_counter()
+    while time.perf_counter() - began < timeout:
+        if viewer.wait_for_next_frame():
+            viewer.step()
+        drawing = viewer.drawing
+        settled = "settled" in drawing.drawn[2] or drawing.drawn[2] == "full detail"
+        if settled and drawing.last_render_key is not None and drawing.last_render_key[2] == 1.0:
+            return time.perf_counter() - began
+    return float("nan")
+
+
+def _upsampled(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    import cv2
+
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_LINEAR)
+
+
+def model_rows(path: Path, size: tuple[int, int], frames: int) -> dict:
+    """The large-model figures (module docstring of the issue's benchmark): load_s, moving_ms,
+    settle_s, full_ms, peak_rss_mb, moving_psnr, and how the level of detail drew them."""
+    import resource
+
+    from inceptiongs.app import viewer as viewer_module
+    from inceptiongs.app.drawing import STILL_SECONDS
+    from inceptiongs.app.sources import open_source
+    from inceptiongs.evaluation.metrics import psnr
+
+    began = time.perf_counter()
+    viewer = viewer_module.Viewer(open_source(path), *size)
+    out = {"model": str(path), "size": f"{size[0]}x{size[1]}", "gaussians": viewer.view.edit.count}
+    try:
+        out["window_s"] = time.perf_counter() - began  # the PLY read and the window open
+        _settle(viewer, timeout=600.0)
+        out["load_s"] = time.perf_counter() - began
+        detail = viewer.drawing.detail
+        out["tree_from_cache"] = None if detail is None else detail.from_cache
+        out["tree_s"] = None if detail is None else detail.build_seconds
+        times, drawn = [], []
+        for _ in range(frames):
+            viewer.view.nav.orbit(12.0, 0.0)   # 3.4 degrees a frame around the pivot
+            viewer.view.moved()
+            start = time.perf_counter()
+            viewer.step()
+            times.append(time.perf_counter() - start)
+            drawn.append(viewer.drawing.drawn[0])
+        out["moving_ms"] = 1e3 * statistics.median(times)
+        out["moving_p90_ms"] = 1e3 * sorted(times)[int(0.9 * len(times))]
+        out["moving_drawn"] = int(statistics.median(drawn))
+        out["budget"] = viewer.drawing.detail_budget
+        scale = viewer.drawing.last_render_key[2]
+        moving = viewer.renderer.render(viewer.view.current_camera(scale), "rgb")
+        time.sleep(STILL_SECONDS)
+        out["settle_s"] = _settle(viewer) + STILL_SECONDS
+        out["settled_drawn"] = viewer.drawing.drawn[0]
+        settled = viewer.renderer.render(viewer.view.current_camera(), "rgb")
+        out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+        viewer.view.settings.full_detail = True
+        viewer.view.moved()
+        time.sleep(STILL_SECONDS)
+        start = time.perf_counter()
+        _settle(viewer)
+        out["full_ms"] = 1e3 * (time.perf_counter() - start)
+        full = viewer.renderer.render(viewer.view.current_camera(), "rgb").astype(np.float64)
+        width, height = full.shape[1], full.shape[0]
+        out["moving_scale"] = scale
+        out["moving_psnr"] = float(psnr(_upsampled(moving, width, height).astype(np.float64), full))
+        out["settled_psnr"] = float(psnr(settled.astype(np.float64), full))
+        out["peak_rss_full_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+    finally:
+        viewer.close()
+    out["load_average"] = os.getloadavg()[0]
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ply", type=Path, default=_default_ply())
@@ -238,8 +316,16 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=20.0, help="length of each --jobs measurement")
     parser.add_argument("--idle", action="store_true", help="also the idle CPU and memory rows")
     parser.add_argument("--idle-seconds", type=float, default=60.0, help="length of each --idle measurement")
+    parser.add_argument("--model", type=Path, help="a large model: the level-of-detail figures only")
+    parser.add_argument("--json", type=Path, help="with --model: also write the figures here")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
+    if args.model is not None:
+        figures = model_rows(args.model, (width, height), args.frames)
+        print(json.dumps(figures, indent=1))
+        if args.json is not None:
+            args.json.write_text(json.dumps(figures, indent=1) + "\n")
+        return 0
     if args.idle:
         print(f"idle rows at {width}x{height}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
         print("\n".join(idle_rows(args.idle_seconds, (width, height))), flush=True)

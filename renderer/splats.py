@@ -155,7 +155,13 @@ class SplatRenderer:
         opacity_logits [N], sh [N,K,3]). The same non-None version as last time: no upload."""
         if version is not None and version == self._version:
             return
-        texels, anchor, degree = pack_gaussians(arrays)
+        self.set_packed(*pack_gaussians(arrays), version=version)
+
+    def set_packed(self, texels: np.ndarray, anchor: np.ndarray, degree: int, version: int | None = None) -> None:
+        """set_gaussians() for Gaussians packed already (pack_gaussians(), e.g. on a worker
+        thread): texels [N, 3 + S, 4] float32, anchor [3], SH degree."""
+        if version is not None and version == self._version:
+            return
         n, per_gaussian = texels.shape[0], texels.shape[1]
         height = _texture_height(n * per_gaussian)
         if height > self.ctx.info["GL_MAX_TEXTURE_SIZE"]:
@@ -166,9 +172,7 @@ class SplatRenderer:
         if n == 0:
             return
         self._gaussian_texture = self._grow_texture(self._gaussian_texture, height)
-        data = np.zeros((height * TEXTURE_WIDTH, 4), np.float32)
-        data[: n * per_gaussian] = texels.reshape(-1, 4)
-        self._gaussian_texture.write(data.tobytes())
+        self._write_texels(np.ascontiguousarray(texels, np.float32).reshape(-1, 4))
         splat_height = _texture_height(n * SPLAT_TEXELS)
         self._splat_texture = self._grow_texture(self._splat_texture, splat_height)
         splat_bytes = TEXTURE_WIDTH * splat_height * 16
@@ -177,6 +181,18 @@ class SplatRenderer:
                 self._splat_buffer.release()
             # Exactly the splat texture's size: the buffer is copied into it each frame.
             self._splat_buffer = self.ctx.buffer(reserve=splat_bytes)
+
+    def _write_texels(self, flat: np.ndarray) -> None:
+        """flat [T, 4] float32 into the Gaussian texture, row by row of TEXTURE_WIDTH: the full
+        rows straight from ``flat`` (no padded copy of a model of millions), the last one padded."""
+        full_rows, rest = divmod(len(flat), TEXTURE_WIDTH)
+        if full_rows:
+            self._gaussian_texture.write(memoryview(flat[: full_rows * TEXTURE_WIDTH]),
+                                         viewport=(0, 0, TEXTURE_WIDTH, full_rows))
+        if rest:
+            last = np.zeros((TEXTURE_WIDTH, 4), np.float32)
+            last[:rest] = flat[full_rows * TEXTURE_WIDTH:]
+            self._gaussian_texture.write(last.tobytes(), viewport=(0, full_rows, TEXTURE_WIDTH, 1))
 
     def _grow_texture(self, texture: moderngl.Texture | None, height: int) -> moderngl.Texture:
         if texture is not None and texture.height == height:

@@ -1,0 +1,210 @@
+"""Level of detail in the window: a model of millions of Gaussians drawn as a cut of its LOD tree.
+
+A frame cannot draw every Gaussian of a large model in time (5M on two cores: ~3 s), so above
+LOD_MIN_GAUSSIANS the window draws a cut of the model's hierarchy (inceptiongs/lod):
+
+- while the camera moves, the finest cut within a splat *budget* (greedy_budget_cut_nodes),
+  the budget following the frames' cost so a moving frame holds MOVING_TARGET_MS
+  (:func:`next_budget`), at the reduced render scale the window picks for any moving frame
+  (drawing.next_moving_scale);
+- once the camera is still, the cut at SETTLED_GRANULARITY_PX (nodes merged only where their
+  whole footprint is under a pixel), drawn at full size: the settled frame, within a fraction
+  of a grey level of the full render (tests/app/test_app_detail.py);
+- "full detail always" (ViewSettings.full_detail) draws every Gaussian, as small models are.
+
+The hierarchy is built (or read from the cache, keyed by the model's content) and the cuts are
+chosen on one worker thread, so the window keeps answering while a 5M model builds (~30 s the
+first time, ~1.5 s from the cache): the newest request replaces an unanswered one. Until the
+hierarchy is ready a fixed random PREVIEW_COUNT of the Gaussians is drawn, and the panel says so.
+
+A job's snapshots change the model several times a minute: a hierarchy is built only for a
+model that has rested MODEL_REST_SECONDS (FrameDrawer decides); until then the snapshot is
+drawn like a small model, at the moving size.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+LOD_MIN_GAUSSIANS = 500_000
+SETTLED_GRANULARITY_PX = 1.0
+MOVING_TARGET_MS = 80.0
+BUDGET_START = 100_000
+BUDGET_MIN = 20_000
+BUDGET_MAX = 2_000_000
+# One frame moves the budget by at most this factor either way: one frame slowed by other work
+# on the machine must not halve the detail, nor one fast frame double it.
+BUDGET_STEP_MAX = 1.5
+PREVIEW_COUNT = 200_000
+MODEL_REST_SECONDS = 1.0
+
+
+@dataclass(frozen=True)
+class Cut:
+    """The Gaussians one frame draws. packed: (texels, anchor, degree) as
+    renderer.splats.pack_gaussians gives them (packed on the worker, not in the frame), ``count``
+    of them, of ``total`` in the model; settled: the still camera's fine cut; camera_key: the pose and
+    size it was chosen for; serial: increases with every cut of the worker."""
+
+    serial: int
+    packed: tuple
+    count: int
+    total: int
+    settled: bool
+    camera_key: bytes
+    budget: int | None
+
+
+def next_budget(budget: int, frame_ms: float, target_ms: float = MOVING_TARGET_MS) -> int:
+    """The splat budget for the next moving cut after a frame of ``frame_ms`` drawn with
+    ``budget`` splats: proportional (a frame's cost grows about linearly with its splats),
+    moved by at most BUDGET_STEP_MAX, within [BUDGET_MIN, BUDGET_MAX]."""
+    if not (frame_ms > 0.0 and np.isfinite(frame_ms)):
+        return budget   # no cost measured (a cached frame): nothing to learn
+    ratio = min(max(target_ms / frame_ms, 1.0 / BUDGET_STEP_MAX), BUDGET_STEP_MAX)
+    return int(min(max(budget * ratio, BUDGET_MIN), BUDGET_MAX))
+
+
+def camera_key(camera) -> bytes:
+    """What a cut depends on: pose, focal lengths and size."""
+    return camera.world_to_camera.tobytes() + np.array([camera.fx, camera.fy, camera.width, camera.height],
+                                                       np.float64).tobytes()
+
+
+def preview_arrays(arrays: dict, count: int = PREVIEW_COUNT, seed: int = 0) -> dict:
+    """A fixed random ``count`` of the Gaussians (all when fewer), in their order."""
+    total = len(arrays["means"])
+    if total <= count:
+        return arrays
+    keep = np.sort(np.random.default_rng(seed).choice(total, count, replace=False))
+    return {name: values[keep] for name, values in arrays.items()}
+
+
+class DetailWorker:
+    """The hierarchy of the model shown and its cuts, made on one daemon thread.
+
+    set_model() hands a model over (its hierarchy is built or loaded); request() asks for the cut
+    of a camera; latest() is the newest cut made for the current model. ``progress`` (0..1) and
+    ``error`` describe the build."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Condition()
+        self._model: tuple | None = None   # (version, arrays) to build for
+        self._request: tuple | None = None  # (version, camera, settled, budget)
+        self._closed = False
+        self._serial = 0
+        self.version = None          # the model the hierarchy below belongs to
+        self.hierarchy = None
+        self.progress = 0.0
+        self.error: str | None = None
+        self.build_seconds: float | None = None
+        self.from_cache = False
+        self._cut: Cut | None = None
+        self._working = False  # the thread is building or cutting
+        self._thread = threading.Thread(target=self._run, name="level-of-detail", daemon=True)
+        self._thread.start()
+
+    # --- the window's side ------------------------------------------------------------------------
+    def set_model(self, version, arrays: dict) -> None:
+        """Build (or load) the hierarchy of ``arrays`` for model ``version``; the old cut is dropped."""
+        with self._lock:
+            if self._model is not None and self._model[0] == version or self.version == version:
+                return
+            self._model, self._request, self._cut = (version, arrays), None, None
+            self.hierarchy, self.version, self.progress, self.error = None, None, 0.0, None
+            self._lock.notify()
+
+    @property
+    def ready(self) -> bool:
+        return self.hierarchy is not None
+
+    def request(self, version, camera, settled: bool, budget: int) -> None:
+        """Ask for the cut of ``camera`` (the settled one, or the moving one within ``budget``)."""
+        with self._lock:
+            self._request = (version, camera, settled, int(budget))
+            self._lock.notify()
+
+    def latest(self, version) -> Cut | None:
+        with self._lock:
+            return self._cut if self.version == version else None
+
+    @property
+    def busy(self) -> bool:
+        """A build or a cut is under way or waiting (the window is not idle)."""
+        with self._lock:
+            return self._model is not None or self._request is not None or self._working
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            self._lock.notify()
+
+    # --- the thread ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                while not self._closed and self._model is None and (self._request is None or self.hierarchy is None):
+                    self._lock.wait()
+                if self._closed:
+                    return
+                model, self._model = self._model, None
+                request = None if model is not None else self._request
+                if request is not None:
+                    self._request = None
+                self._working = True
+            try:
+                if model is not None:
+                    self._build(*model)
+                elif request is not None:
+                    self._make_cut(*request)
+            finally:
+                with self._lock:
+                    self._working = False
+
+    def _build(self, version, arrays: dict) -> None:
+        from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 - only large models need it
+        from inceptiongs.lod.cache import load_or_build  # noqa: PLC0415
+
+        start = time.perf_counter()
+
+        def progress(fraction: float) -> None:
+            self.progress = fraction
+
+        try:
+            gaussians = Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(values))
+                                     for name, values in arrays.items()})
+            hierarchy, cached = load_or_build(gaussians, progress=progress)
+        except (MemoryError, ValueError, OSError) as error:
+            with self._lock:
+                if self._model is None:
+                    self.error = f"level of detail unavailable: {error}"
+            return
+        with self._lock:
+            if self._model is not None:
+                return   # another model came meanwhile: this hierarchy is for nothing shown
+            self.hierarchy, self.version, self.progress = hierarchy, version, 1.0
+            self.build_seconds, self.from_cache = time.perf_counter() - start, cached
+
+    def _make_cut(self, version, camera, settled: bool, budget: int) -> None:
+        from inceptiongs.lod.cut import cut_nodes, greedy_budget_cut_nodes  # noqa: PLC0415
+        from inceptiongs.renderer.splats import pack_gaussians  # noqa: PLC0415
+
+        hierarchy = self.hierarchy
+        if hierarchy is None or version != self.version:
+            return
+        if settled:
+            nodes = cut_nodes(hierarchy, camera, SETTLED_GRANULARITY_PX)
+        else:
+            nodes = greedy_budget_cut_nodes(hierarchy, camera, budget)
+        packed = pack_gaussians(hierarchy.node_arrays(nodes))
+        with self._lock:
+            if version != self.version:
+                return
+            self._serial += 1
+            self._cut = Cut(self._serial, packed, len(nodes), hierarchy.leaf_count, settled,
+                            camera_key(camera), None if settled else budget)
