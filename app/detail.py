@@ -76,8 +76,9 @@ def camera_key(camera) -> bytes:
                                                        np.float64).tobytes()
 
 
-def preview_arrays(arrays: dict, count: int = PREVIEW_COUNT, seed: int = 0) -> dict:
-    """A fixed random ``count`` of the Gaussians (all when fewer), in their order."""
+def preview_arrays(arrays: dict, count: int | None = None, seed: int = 0) -> dict:
+    """A fixed random ``count`` (default PREVIEW_COUNT) of the Gaussians (all when fewer), in their order."""
+    count = PREVIEW_COUNT if count is None else count
     total = len(arrays["means"])
     if total <= count:
         return arrays
@@ -106,6 +107,7 @@ class DetailWorker:
         self.from_cache = False
         self._cut: Cut | None = None
         self._working = False  # the thread is building or cutting
+        self._building = None  # the model version whose tree the thread is building
         self._thread = threading.Thread(target=self._run, name="level-of-detail", daemon=True)
         self._thread.start()
 
@@ -113,7 +115,8 @@ class DetailWorker:
     def set_model(self, version, arrays: dict) -> None:
         """Build (or load) the hierarchy of ``arrays`` for model ``version``; the old cut is dropped."""
         with self._lock:
-            if self._model is not None and self._model[0] == version or self.version == version:
+            queued = None if self._model is None else self._model[0]
+            if version in (queued, self._building, self.version):
                 return
             self._model, self._request, self._cut = (version, arrays), None, None
             self.hierarchy, self.version, self.progress, self.error = None, None, 0.0, None
@@ -153,6 +156,7 @@ class DetailWorker:
                 if self._closed:
                     return
                 model, self._model = self._model, None
+                self._building = None if model is None else model[0]
                 request = None if model is not None else self._request
                 if request is not None:
                     self._request = None
@@ -164,7 +168,7 @@ class DetailWorker:
                     self._make_cut(*request)
             finally:
                 with self._lock:
-                    self._working = False
+                    self._working, self._building = False, None
 
     def _build(self, version, arrays: dict) -> None:
         from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 - only large models need it

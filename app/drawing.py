@@ -16,7 +16,8 @@ from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
-from .detail import BUDGET_START, LOD_MIN_GAUSSIANS, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
+from . import detail as level_of_detail
+from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
 from .editing import box_handles
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .images import compose_photo, visualize
@@ -152,7 +153,7 @@ class FrameDrawer:
         LOD_MIN_GAUSSIANS that has rested MODEL_STILL_SECONDS, in a mode that draws the splats as
         they are, unless the user asked for full detail."""
         settings = view.settings
-        engaged = (view.edit.count >= LOD_MIN_GAUSSIANS and not settings.full_detail and not view.shows_points
+        engaged = (view.edit.count >= level_of_detail.LOD_MIN_GAUSSIANS and not settings.full_detail and not view.shows_points
                    and settings.mode in ("rgb", "depth", "normal", "opacity") and model_age >= MODEL_STILL_SECONDS)
         if not engaged:
             self.drawn = (view.edit.count, view.edit.count, "full detail")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from .detail import LOD_MIN_GAUSSIANS
+from . import detail as level_of_detail
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .jobs import SIZED_TO_BUDGET
 from .notifications import draw_notification
@@ -208,8 +208,9 @@ def _hint(text: str) -> None:
 
 def _flow(ui, key: str, parts: list[str]) -> None:
     """Texts side by side, each starting a new line only when it does not fit before the panel's
-    edge: a figure stays with its unit ("12.3 ms" never breaks before "ms"). Each part's
-    rectangle is kept under "key/N" (N from 0)."""
+    edge: a figure stays with its unit ("12.3 ms" never breaks before "ms"). The parts are kept
+    in ui.texts[key], each one's rectangle under "key/N" (N from 0)."""
+    ui.texts[key] = list(parts)
     for number, part in enumerate(parts):
         if number:
             _same_line_if_fits(part, frame=False)
@@ -242,7 +243,7 @@ def _stats(ui, s, edit, gl_error: str | None) -> None:
 def _detail(ui, view, drawing) -> None:
     """A large model's level of detail (detail.py): the splats drawn of the total and how they
     were chosen, and the "full detail always" switch."""
-    if view.edit.count < LOD_MIN_GAUSSIANS:
+    if view.edit.count < level_of_detail.LOD_MIN_GAUSSIANS:
         return
     drawn, total, how = drawing.drawn
     _flow(ui, "detail", [f"drawn {drawn:,} / {total:,} splats", how])

@@ -130,5 +130,6 @@ class PanelState:
 
     show_help: bool = False
     rects: dict = field(default_factory=dict)
+    texts: dict = field(default_factory=dict)  # the lines of figures drawn, by key (panels._flow)
     tooltip: str | None = None  # the last tooltip a shortened path showed (its whole text)
     layout: dict = field(default_factory=dict)
