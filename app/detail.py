@@ -44,6 +44,47 @@ PREVIEW_COUNT = 200_000
 MODEL_REST_SECONDS = 1.0
 
 
+# Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every
+# leaf copied in Morton order plus a third as many parents, 4 x (11 + 3 K) bytes each, with 16
+# bytes of links and radius) and, for each Gaussian drawn, the GL side: the packed Gaussian
+# texture (16 x (3 + ceil(3 K / 4)) bytes), the preprocess output buffer (64), its read-back
+# for the CPU compositing or its copy as a texture for the quad paths (64), the depth order (8).
+TREE_LINK_BYTES = 16
+GL_SPLAT_BYTES = 64 + 64 + 8
+
+
+def model_bytes_per_gaussian(sh_coefficients: int) -> int:
+    """A Gaussian's float32 arrays: mean, log-scales, quaternion, opacity and K SH colours."""
+    return 4 * (3 + 3 + 4 + 1 + 3 * sh_coefficients)
+
+
+def gl_bytes_per_gaussian(sh_coefficients: int) -> int:
+    """GL memory per Gaussian drawn (on llvmpipe this is system memory too)."""
+    return 16 * (3 + -(-3 * sh_coefficients // 4)) + GL_SPLAT_BYTES
+
+
+def window_bytes(count: int, sh_coefficients: int) -> int:
+    """Memory the window needs beyond the model for ``count`` Gaussians: the LOD tree when the
+    model is large, and the GL buffers of the most it draws at once (every Gaussian, at worst)."""
+    tree = 0
+    if count >= LOD_MIN_GAUSSIANS:
+        tree = (count * 4 // 3) * (model_bytes_per_gaussian(sh_coefficients) + TREE_LINK_BYTES)
+    return tree + count * gl_bytes_per_gaussian(sh_coefficients)
+
+
+def check_window_memory(source_path, count: int, sh_coefficients: int, available: int | None = None) -> None:
+    """InputError with one line and what to do instead when the window cannot hold the model."""
+    from inceptiongs.errors import InputError  # noqa: PLC0415
+    from inceptiongs.io.limits import available_memory_bytes  # noqa: PLC0415
+
+    available = available_memory_bytes() if available is None else available
+    needed = window_bytes(count, sh_coefficients)
+    if available is not None and needed > available:
+        raise InputError(f"{source_path}: showing {count:,} Gaussians needs about {needed / 2**30:.1f} GiB more "
+                         f"memory, only {available / 2**30:.1f} GiB available; close other programs, or render "
+                         "views offscreen with `inceptiongs render --lod-budget 2000000`")
+
+
 @dataclass(frozen=True)
 class Cut:
     """The Gaussians one frame draws. packed: (texels, anchor, degree) as

@@ -69,8 +69,12 @@ def _open(args, size) -> int:
         path = take_screenshot(source, args.screenshot, args.camera, size)
         print(f"wrote {path}", file=sys.stderr)
         return 0
+    from .detail import check_window_memory  # noqa: PLC0415
     from .viewer import Viewer  # noqa: PLC0415
     from .window import WindowError  # noqa: PLC0415
+
+    model = source.gaussians
+    check_window_memory(source.model_path or source.path, len(model["means"]), model["sh"].shape[1])
 
     width, height = size or (1280, 720)
     try:

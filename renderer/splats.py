@@ -173,13 +173,11 @@ class SplatRenderer:
             return
         self._gaussian_texture = self._grow_texture(self._gaussian_texture, height)
         self._write_texels(np.ascontiguousarray(texels, np.float32).reshape(-1, 4))
-        splat_height = _texture_height(n * SPLAT_TEXELS)
-        self._splat_texture = self._grow_texture(self._splat_texture, splat_height)
-        splat_bytes = TEXTURE_WIDTH * splat_height * 16
+        splat_bytes = TEXTURE_WIDTH * _texture_height(n * SPLAT_TEXELS) * 16
         if self._splat_buffer is None or self._splat_buffer.size != splat_bytes:
             if self._splat_buffer is not None:
                 self._splat_buffer.release()
-            # Exactly the splat texture's size: the buffer is copied into it each frame.
+            # Exactly the splat texture's size: the quad paths copy the buffer into it each frame.
             self._splat_buffer = self.ctx.buffer(reserve=splat_bytes)
 
     def _write_texels(self, flat: np.ndarray) -> None:
@@ -368,6 +366,9 @@ class SplatRenderer:
                 self._index_buffer.write(elements.tobytes())
             element_buffer = self._index_buffer
             generation = ("cpu", self._element_generation)
+        # The splat texture exists for the quad paths only: CPU compositing reads the buffer
+        # (a model of millions saves its 64 bytes per Gaussian).
+        self._splat_texture = self._grow_texture(self._splat_texture, _texture_height(self._count * SPLAT_TEXELS))
         self._splat_texture.write(self._splat_buffer)
         ctx.finish()
         sort_done = time.perf_counter()
