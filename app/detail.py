@@ -18,8 +18,8 @@ first time, ~1.5 s from the cache): the newest request replaces an unanswered on
 hierarchy is ready a fixed random PREVIEW_COUNT of the Gaussians is drawn, and the panel says so.
 
 A job's snapshots change the model several times a minute: a hierarchy is built only for a
-model that has rested MODEL_REST_SECONDS (FrameDrawer decides); until then the snapshot is
-drawn like a small model, at the moving size.
+model that has rested a second (drawing.MODEL_STILL_SECONDS); until then a fixed random
+PREVIEW_COUNT of the newest snapshot is drawn ("live snapshot" in the panel).
 """
 
 from __future__ import annotations
@@ -41,7 +41,6 @@ BUDGET_MAX = 2_000_000
 # on the machine must not halve the detail, nor one fast frame double it.
 BUDGET_STEP_MAX = 1.5
 PREVIEW_COUNT = 200_000
-MODEL_REST_SECONDS = 1.0
 
 
 # Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every

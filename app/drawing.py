@@ -131,6 +131,7 @@ class FrameDrawer:
         self.detail_seen: tuple = ()  # detail_state() when a frame last looked at the worker
         self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
         self._preview: tuple | None = None  # (model, arrays): what a large model shows while its tree builds
+        self._model_age = float("inf")  # seconds since a job's snapshot last replaced the model
         self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
 
     def upload_model(self, view) -> None:
@@ -149,12 +150,13 @@ class FrameDrawer:
             self.uploaded_version = version
 
     def detail_engaged(self, view, model_age: float) -> bool:
-        """Whether this frame draws a cut of the model's LOD tree (detail.py): a model of at least
-        LOD_MIN_GAUSSIANS that has rested MODEL_STILL_SECONDS, in a mode that draws the splats as
-        they are, unless the user asked for full detail."""
+        """Whether this frame draws a large model by its level of detail (detail.py): a model of
+        at least LOD_MIN_GAUSSIANS, in a mode that draws the splats as they are, unless the user
+        asked for full detail. ``model_age``: seconds since a job's snapshot replaced the model."""
         settings = view.settings
-        engaged = (view.edit.count >= level_of_detail.LOD_MIN_GAUSSIANS and not settings.full_detail and not view.shows_points
-                   and settings.mode in ("rgb", "depth", "normal", "opacity") and model_age >= MODEL_STILL_SECONDS)
+        engaged = (view.edit.count >= level_of_detail.LOD_MIN_GAUSSIANS and not settings.full_detail
+                   and not view.shows_points and settings.mode in ("rgb", "depth", "normal", "opacity"))
+        self._model_age = model_age
         if not engaged:
             self.drawn = (view.edit.count, view.edit.count, "full detail")
         return engaged
@@ -166,6 +168,11 @@ class FrameDrawer:
         if self.detail is None:
             self.detail = DetailWorker()
         self.detail_seen = self.detail_state()
+        if self._model_age < MODEL_STILL_SECONDS:
+            # A job's snapshots come faster than a tree builds: a fixed subset of the newest one
+            # is drawn, the tree is built once the model rests.
+            self._upload_preview(view, model, "live snapshot")
+            return False
         self.detail.set_model(model, view.edit.visible_arrays())
         camera = view.current_camera()
         total = view.edit.count
@@ -190,16 +197,18 @@ class FrameDrawer:
         self.drawn = (cut.count, total, how)
         return not moving and not have_settled
 
-    def _upload_preview(self, view, model) -> None:
-        """While the tree builds: a fixed random subset of the model (detail.preview_arrays)."""
+    def _upload_preview(self, view, model, why: str | None = None) -> None:
+        """While the tree builds or a job's snapshots change the model: a fixed random subset of
+        the model (detail.preview_arrays); ``why``: the panel's word for it."""
         if self._preview is None or self._preview[0] != model:
             self._preview = (model, preview_arrays(view.edit.visible_arrays()))
         version = ("preview", model)
         if self.uploaded_version != version:
             self.renderer.set_gaussians(self._preview[1], version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
-        share = int(round(100 * self.detail.progress)) if self.detail is not None else 0
-        self.drawn = (len(self._preview[1]["means"]), view.edit.count, f"preview, building the tree {share} %")
+        if why is None:
+            why = f"preview, building the tree {int(round(100 * self.detail.progress))} %"
+        self.drawn = (len(self._preview[1]["means"]), view.edit.count, why)
 
     def detail_busy(self) -> bool:
         """The LOD worker is building or cutting, or made something no frame has drawn yet: a

@@ -152,3 +152,32 @@ def test_small_models_and_the_coverage_mode_draw_every_gaussian(xvfb, large_mode
         viewer.step()
         assert viewer.drawing.detail is None and viewer.drawing.drawn[2] == "full detail"
         assert "detail" not in viewer.ui.texts   # no LOD line for a model that needs none
+
+
+class _PlaneJob:
+    """A stand-in training job on the large plane: publishes it nudged a little each step."""
+
+    def run(self, box, control):
+        step, plane = 0, ground_plane()
+        while not control.stop.is_set():
+            step += 1
+            moved = dict(plane, means=plane["means"] + np.float32([0.001 * step, 0.0, 0.0]))
+            box.publish(step, moved, {"loss": 1.0 / step})
+            time.sleep(0.1)
+
+
+@pytest.mark.gl
+def test_a_running_job_shows_a_subset_of_its_snapshots_and_the_tree_follows_when_it_stops(
+        xvfb, large_model, monkeypatch):
+    monkeypatch.setattr(detail, "PREVIEW_COUNT", 4_000)
+    job = _PlaneJob()
+    with opened(open_viewer, large_model, 480, 360, job_factory=lambda source: job) as viewer:
+        viewer.step()
+        _look_down_the_street(viewer)
+        viewer.jobs.start_training()
+        _run_until(viewer, lambda: viewer.view.model_version >= 3 and viewer.drawing.drawn[2] == "live snapshot")
+        assert viewer.drawing.drawn[:2] == (4_000, SIDE * SIDE) and viewer.renderer.count == 4_000
+        viewer.jobs.training.stop(timeout=30)
+        version = viewer.view.model_version
+        _run_until(viewer, lambda: _settled(viewer))
+        assert viewer.drawing.detail.version[0] == version   # the tree of the last snapshot
