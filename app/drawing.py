@@ -161,9 +161,10 @@ class FrameDrawer:
             self.drawn = (view.edit.count, view.edit.count, "full detail")
         return engaged
 
-    def upload_detail(self, view, moving: bool) -> bool:
-        """Hand the renderer the cut to draw (detail.py) -> whether the frame waits for the
-        settled cut and keeps the last image meanwhile."""
+    def upload_detail(self, view, moving: bool) -> str:
+        """Hand the renderer what a large model shows (detail.py) -> "preview" (a subset while the
+        tree builds or a job runs), "pending" (the settled cut is on its way: the frame keeps the
+        last image) or "cut"."""
         model = (view.model_version, view.edit.version)
         if self.detail is None:
             self.detail = DetailWorker()
@@ -172,13 +173,13 @@ class FrameDrawer:
             # A job's snapshots come faster than a tree builds: a fixed subset of the newest one
             # is drawn, the tree is built once the model rests.
             self._upload_preview(view, model, "live snapshot")
-            return False
+            return "preview"
         self.detail.set_model(model, view.edit.visible_arrays())
         camera = view.current_camera()
         total = view.edit.count
         if not self.detail.ready:
             self._upload_preview(view, model)
-            return False
+            return "preview"
         key = camera_key(camera)
         wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
         cut = self.detail.latest(model)
@@ -188,14 +189,14 @@ class FrameDrawer:
             self._detail_requested = wanted
         if cut is None:
             self._upload_preview(view, model)
-            return False
+            return "preview"
         version = ("cut", model, cut.serial)
         if self.uploaded_version != version:
             self.renderer.set_packed(*cut.packed, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
         how = f"settled cut ({SETTLED_GRANULARITY_PX:g} px)" if cut.settled else f"budget {cut.budget:,}"
         self.drawn = (cut.count, total, how)
-        return not moving and not have_settled
+        return "pending" if not moving and not have_settled else "cut"
 
     def _upload_preview(self, view, model, why: str | None = None) -> None:
         """While the tree builds or a job's snapshots change the model: a fixed random subset of
@@ -239,10 +240,12 @@ class FrameDrawer:
         settings = view.settings
         mode = settings.mode
         if detail:
-            pending = self.upload_detail(view, moving)
-            if pending and self.scene_texture.texture is not None:
+            shown = self.upload_detail(view, moving)
+            if shown == "pending" and self.scene_texture.texture is not None:
                 self.scene_texture.blit(screen)  # the settled cut is on its way: the last frame stays
                 return
+            if shown == "preview":
+                scale = self.moving_scale   # a stand-in: not worth the full size's time
         else:
             self.upload_model(view)
         camera = view.current_camera(scale)
