@@ -17,7 +17,7 @@ from inceptiongs.errors import InputError
 
 from . import flags as flagging
 from .editing import EditState
-from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up
+from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up, statistics_sample
 from .settings import StatusLine, ViewSettings
 
 
@@ -66,7 +66,7 @@ class View:
             centers = np.stack([c.center for c in self.cameras])
             spread = float(np.linalg.norm(centers.max(0) - centers.min(0))) if len(centers) > 1 else 1.0
             nav = NavigationState.from_camera(first, up=self.up, speed=max(spread * 0.5, 1e-3))
-            nav.pivot = np.median(means, axis=0) if len(means) else nav.pivot
+            nav.pivot = np.median(statistics_sample(means), axis=0) if len(means) else nav.pivot
             return nav
         return default_view(means, width, height, up=self.up)
 

@@ -180,4 +180,5 @@ def test_a_running_job_shows_a_subset_of_its_snapshots_and_the_tree_follows_when
         viewer.jobs.training.stop(timeout=30)
         version = viewer.view.model_version
         _run_until(viewer, lambda: _settled(viewer))
-        assert viewer.drawing.detail.version[0] == version   # the tree of the last snapshot
+        # The tree of the last snapshot (one more may arrive as the job stops).
+        assert viewer.drawing.detail.version[0] == viewer.view.model_version >= version
