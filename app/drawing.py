@@ -163,8 +163,8 @@ class FrameDrawer:
 
     def upload_detail(self, view, moving: bool) -> str:
         """Hand the renderer what a large model shows (detail.py) -> "preview" (a subset while the
-        tree builds or a job runs), "pending" (the settled cut is on its way: the frame keeps the
-        last image) or "cut"."""
+        tree builds or a job runs), "pending" (the cut for this frame is on its way: the frame
+        keeps the last image) or "cut"."""
         model = (view.model_version, view.edit.version)
         if self.detail is None:
             self.detail = DetailWorker()
@@ -190,6 +190,10 @@ class FrameDrawer:
         if cut is None:
             self._upload_preview(view, model)
             return "preview"
+        if moving and cut.settled and self.uploaded_version == ("cut", model, cut.serial):
+            # The camera started moving: drawing the fine cut again would hold the frame for
+            # seconds; the last image stays until the first budgeted cut arrives.
+            return "pending"
         version = ("cut", model, cut.serial)
         if self.uploaded_version != version:
             self.renderer.set_packed(*cut.packed, version=hash(version) & 0x7FFFFFFF)
@@ -242,7 +246,7 @@ class FrameDrawer:
         if detail:
             shown = self.upload_detail(view, moving)
             if shown == "pending" and self.scene_texture.texture is not None:
-                self.scene_texture.blit(screen)  # the settled cut is on its way: the last frame stays
+                self.scene_texture.blit(screen)  # the cut to draw is on its way: the last frame stays
                 return
             if shown == "preview":
                 scale = self.moving_scale   # a stand-in: not worth the full size's time
@@ -285,9 +289,8 @@ class FrameDrawer:
                 add_render_cost(self.render_costs, scale, sum(self.renderer.timings.values()))
                 if moving:
                     self.moving_scale = next_moving_scale(scale, self.render_costs)
-            if detail and moving and stats.frame_times:
-                # The whole frame's time (upload, panel and swap included) sets the splat budget.
-                self.detail_budget = next_budget(self.detail_budget, 1e3 * stats.frame_times[-1])
+            if detail and moving and self.drawn[2].startswith("budget"):
+                self.detail_budget = next_budget(self.detail_budget, sum(self.renderer.timings.values()))
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
