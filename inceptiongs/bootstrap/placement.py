@@ -14,6 +14,7 @@ gradient.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -21,7 +22,8 @@ from typing import Callable, Sequence
 import torch
 
 from ..camera import Camera
-from .validation import EvidenceGrid, view_margins
+from .generation import VirtualTarget
+from .validation import EvidenceGrid, evidence_weights, view_margins
 from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, virtual_views
 
 # A candidate needs at least this share of its pixels with depth on positive evidence.
@@ -96,3 +98,20 @@ def place_by_evidence(candidates: Sequence[VirtualView], grid: EvidenceGrid | No
     reason = None if views else (f"no candidate pose has {min_fraction:.0%} of its pixels on regions where the "
                                  f"blend is validated to beat the render")
     return Placement(views, scores, reason)
+
+
+def with_evidence(entry: VirtualTarget, grid: EvidenceGrid | None, depth: torch.Tensor,
+                  min_fraction: float = DEFAULT_MIN_FRACTION) -> VirtualTarget:
+    """``entry`` with its loss weights from the evidence (depth [H, W, 1]: the model's at the view)
+    and ``supervised`` when at least ``min_fraction`` of its pixels with depth carry weight (this
+    replaces the agreement gate)."""
+    depth = torch.as_tensor(depth)
+    weights = evidence_weights(view_margins(grid, entry.camera, depth))
+    with_depth = int((torch.isfinite(depth[..., 0]) & (depth[..., 0] > 0)).sum())
+    share = float(weights.sum()) / max(with_depth, 1)
+    return dataclasses.replace(entry, evidence=weights, supervised=share >= min_fraction)
+
+
+def evidence_share(entry: VirtualTarget) -> float | None:
+    """The share of the view's pixels that carry virtual loss (None: no evidence weights)."""
+    return None if entry.evidence is None else float(entry.evidence.mean())

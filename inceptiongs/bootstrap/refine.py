@@ -188,8 +188,10 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
     outputs = ("rgb", "depth", "normal") if geometry else ("rgb",)
     out = rasterizer(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
     if config.virtual_colour:
-        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
-                                         pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
+        weights = pixel_weights(view.mask, config.generated_weight, config.virtual_pixels)
+        if view.evidence is not None:   # regions without positive evidence get no virtual gradient
+            weights = view.evidence if weights is None else weights * view.evidence
+        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips, weights)
         total = config.lambda_virtual * choice.weight * scale * loss
     else:
         # No colour target: the rgb output still enters the graph (at zero weight) so the
@@ -223,7 +225,12 @@ def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int,
 
 def render_l1(rasterizer, gaussians, view: VirtualTarget, sh_degree: int,
               world_to_camera: torch.Tensor) -> torch.Tensor:
-    """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose)."""
+    """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose);
+    with the view's evidence weights, only where they are set (the Langevin energy then follows
+    the evidence too)."""
     out = rasterizer(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
                     world_to_camera=world_to_camera)
-    return (out["rgb"] - view.target).abs().mean()
+    residual = (out["rgb"] - view.target).abs()
+    if view.evidence is not None:
+        residual = residual * view.evidence
+    return residual.mean()

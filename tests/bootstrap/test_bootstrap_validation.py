@@ -199,3 +199,35 @@ def test_validation_photos_are_the_sources_and_their_neighbours():
     assert chosen[:2] == [0, 1] and set(chosen) == {0, 1, 2}
     assert validation_photos(target, cameras, [5], k=3) == [5]
     assert validation_photos(target, cameras, list(range(8)), k=3, limit=2) == [0, 1]
+
+
+def test_pixels_without_evidence_carry_no_virtual_gradient():
+    from types import SimpleNamespace
+
+    from inceptiongs.bootstrap.generation import VirtualTarget
+    from inceptiongs.bootstrap.refine import ViewChoice, render_l1, virtual_loss
+    from inceptiongs.train.config import TrainConfig
+
+    size = (16, 16)
+    target = torch.full((*size, 3), 0.8)
+    params = {"means": torch.zeros(1, 3, requires_grad=True), "log_scales": torch.zeros(1, 3, requires_grad=True),
+              "quats": torch.tensor([[1.0, 0, 0, 0]], requires_grad=True),
+              "opacity_logits": torch.zeros(1, requires_grad=True),
+              "sh_dc": torch.full((1, 1, 3), 0.1, requires_grad=True)}
+
+    def render_fn(gaussians, camera, outputs, sh_degree, world_to_camera=None):   # flat: the one colour
+        return {"rgb": gaussians.sh[0, 0].expand(*size, 3)}
+
+    def gradient(evidence):
+        view = VirtualTarget("v", None, target, torch.ones(*size, 1), target, False, 1, evidence=evidence)
+        loss, _, _ = virtual_loss(10, SimpleNamespace(params=params), TrainConfig(scene="unused"), 0, view,
+                                  ViewChoice(0, 1.0, 1.0), BootstrapConfig(tau=-1.0), render_fn)
+        return torch.autograd.grad(loss, params["sh_dc"])[0], view
+
+    unweighted, _ = gradient(None)
+    everywhere, _ = gradient(torch.ones(*size, 1))
+    nowhere, view = gradient(torch.zeros(*size, 1))
+    assert float(unweighted.abs().sum()) > 0 and torch.allclose(everywhere, unweighted)
+    assert float(nowhere.abs().sum()) == 0.0
+    gaussians = SimpleNamespace(sh=params["sh_dc"].detach())
+    assert float(render_l1(render_fn, gaussians, view, 0, None)) == 0.0
