@@ -231,3 +231,19 @@ def test_pixels_without_evidence_carry_no_virtual_gradient():
     assert float(nowhere.abs().sum()) == 0.0
     gaussians = SimpleNamespace(sh=params["sh_dc"].detach())
     assert float(render_l1(render_fn, gaussians, view, 0, None)) == 0.0
+
+
+def test_the_tau_test_judges_structure_only_where_the_loss_is():
+    from inceptiongs.bootstrap.refine import virtual_view_loss
+
+    g = torch.Generator().manual_seed(3)
+    target = torch.rand(32, 32, 3, generator=g)
+    render = torch.rand(32, 32, 3, generator=g)          # no structure in common
+    weights = torch.zeros(32, 32, 1)
+    weights[:8] = 1.0                                    # a quarter of the pixels carry loss
+    config = BootstrapConfig()
+    _, diluted = virtual_view_loss(render, target, config, 0.2, weights=weights)
+    _, judged = virtual_view_loss(render, target, config, 0.2, weights=weights, weighted_share=0.25)
+    # The zero-weight pixels equal I* and dilute the SSIM loss below tau; divided by their share it is not.
+    assert diluted["virtual_ssim_loss"] <= config.tau < diluted["virtual_ssim_loss"] / 0.25
+    assert diluted["virtual_branch"] == "perceptual" and judged["virtual_branch"] == "l1_ssim"
