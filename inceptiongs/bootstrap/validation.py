@@ -140,7 +140,8 @@ def photo_evidence(index: int, cameras: Sequence[Camera], train: Sequence[int], 
     empty = torch.zeros(0, dtype=torch.float64)
     supervision, sources = leave_one_out_blend(index, cameras, train, photos, config, depth_of, render_of)
     if not sources:
-        return PhotoEvidence(index, [], empty.reshape(0, 3), empty, empty, "no other training photo to blend")
+        return PhotoEvidence(index, [], empty.reshape(0, 3), empty, empty,
+                             "no other training photo to blend (or blending is off)")
     photo = torch.as_tensor(photos[index]).float()
     depth = torch.as_tensor(depth_of(camera)).double()
     blend_se = squared_error(supervision.image, photo)
