@@ -42,7 +42,7 @@ from .refine import ViewSampler, active_views, continuation_config, render_l1, v
 from .stage1 import Stage1
 from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
 from .targets import Target, round_targets, targets_to_json
-from .validation import EvidenceGrid, measure_evidence, validation_photos
+from .validation import EvidenceGrid, measure_evidence, seen_cells, validation_photos
 from .view_targets import TargetMaker, TargetSetting
 from .virtual_views import DEFAULT_K, VirtualView, nearest_training_views, virtual_views
 
@@ -359,7 +359,9 @@ class Bootstrap:
         views = []
         for index, target in enumerate(goal):
             candidates = candidate_views(target.camera, cameras, train, config.k, config.l, config.include_target)
-            placement = place_by_evidence(candidates, self.evidence, maker.renders.depth, config.evidence_min_fraction)
+            region = seen_cells(self.evidence, target.camera, maker.renders.depth(target.camera))
+            placement = place_by_evidence(candidates, self.evidence, maker.renders.depth, config.evidence_min_fraction,
+                                          region=region)
             views.extend((index, view) for view in placement.views)
             record["targets"].append({"target": target.name, "placed": [view.name for view in placement.views],
                                       "reason": placement.reason,

@@ -4,9 +4,11 @@
 Candidates are poses in the target's neighbourhood: the target itself and the poses on the
 paths from it towards its ``2 k`` nearest training photos (twice the loop's sources, so the
 neighbourhood is wider than the k paths of the default placement). Each candidate's pixels are
-looked up in the evidence grid with the model's depth there; a candidate is kept when at least
-``min_fraction`` of its pixels with depth fall on cells of positive margin and the mean margin
-over its pixels with evidence is positive. Kept views are ranked by the share of positive pixels.
+looked up in the evidence grid with the model's depth there, counting only those on cells the
+target itself sees (the surface to repair: a view of well covered surroundings would otherwise
+rank first and take the virtual steps); a candidate is kept when at least ``min_fraction`` of its
+pixels with depth fall on such cells of positive margin and the mean margin over them is
+positive. Kept views are ranked by the share of positive pixels.
 In the loss, a kept view's pixels without positive evidence carry no weight
 (validation.evidence_weights), so a region the estimate knows nothing about gets no virtual
 gradient.
@@ -23,7 +25,7 @@ import torch
 
 from ..camera import Camera
 from .generation import VirtualTarget
-from .validation import EvidenceGrid, evidence_weights, view_margins
+from .validation import EvidenceGrid, evidence_weights, view_margins, world_points
 from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, virtual_views
 
 # A candidate needs at least this share of its pixels with depth on positive evidence.
@@ -76,9 +78,11 @@ def score_view(name: str, margins: torch.Tensor) -> CandidateScore:
 
 def place_by_evidence(candidates: Sequence[VirtualView], grid: EvidenceGrid | None,
                       depth_of: Callable[[Camera], torch.Tensor], min_fraction: float = DEFAULT_MIN_FRACTION,
-                      limit: int | None = None) -> Placement:
+                      limit: int | None = None, region: torch.Tensor | None = None) -> Placement:
     """The candidates whose pixels lie on positive evidence (module doc), best first, at most
-    ``limit``; no grid, or no candidate passing -> no views and the reason."""
+    ``limit``; no grid, or no candidate passing -> no views and the reason. region: [V] bool, the
+    cells the target sees (validation.seen_cells); when given, only a candidate's pixels in them
+    count, so the views kept are those that see the target's own surface where the blend wins."""
     if not 0 < min_fraction <= 1 or not math.isfinite(min_fraction):
         raise ValueError(f"min_fraction must be in (0, 1], got {min_fraction}")
     if grid is None:
@@ -89,6 +93,9 @@ def place_by_evidence(candidates: Sequence[VirtualView], grid: EvidenceGrid | No
         depth = torch.as_tensor(depth_of(view.camera))
         margins = view_margins(grid, view.camera, depth)
         has_depth = torch.isfinite(depth[..., 0]) & (depth[..., 0] > 0)
+        if region is not None:
+            index, inside = grid.cells(world_points(depth, view.camera))
+            margins = torch.where(inside & region[index], margins, torch.full_like(margins, float("nan")))
         score = score_view(view.name, margins[has_depth])
         scores.append(score)
         if score.positive >= min_fraction and score.mean_margin_db is not None and score.mean_margin_db > 0:

@@ -178,6 +178,13 @@ class EvidenceGrid:
         ijk = torch.where(inside[..., None], ijk, torch.zeros_like(ijk))
         return (ijk[..., 0] * dims[1] + ijk[..., 1]) * dims[2] + ijk[..., 2], inside
 
+    def occupied(self, points: torch.Tensor) -> torch.Tensor:
+        """points [..., 3] -> [V] bool: the cells at least one of them falls in."""
+        index, inside = self.cells(points)
+        hit = torch.zeros(self.margin_db.numel(), dtype=torch.bool)
+        hit[index[inside]] = True
+        return hit
+
     def lookup(self, points: torch.Tensor) -> torch.Tensor:
         """points [..., 3] -> margin [...] float64 (NaN: outside the grid or no evidence)."""
         index, inside = self.cells(points)
@@ -253,6 +260,15 @@ def view_margins(grid: EvidenceGrid | None, camera: Camera, depth: torch.Tensor)
     margins = grid.lookup(world_points(depth, camera))
     has_depth = torch.isfinite(depth[..., 0]) & (depth[..., 0] > 0)
     return torch.where(has_depth, margins, torch.full_like(margins, float("nan")))
+
+
+def seen_cells(grid: EvidenceGrid | None, camera: Camera, depth: torch.Tensor) -> torch.Tensor | None:
+    """[V] bool: the cells a view's pixels with depth (depth [H, W, 1]) fall in; None without a grid."""
+    if grid is None:
+        return None
+    depth = torch.as_tensor(depth)
+    has_depth = torch.isfinite(depth[..., 0]) & (depth[..., 0] > 0)
+    return grid.occupied(world_points(depth, camera)[has_depth])
 
 
 def evidence_weights(margins: torch.Tensor) -> torch.Tensor:

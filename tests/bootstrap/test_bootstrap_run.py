@@ -502,6 +502,23 @@ def test_evidence_placement_records_the_estimate_and_uses_only_validated_views(s
         _config(evidence_min_fraction=0.0).validate()
 
 
+@pytest.mark.slow
+def test_without_evidence_no_view_is_placed_and_the_summary_says_why(stage1, tmp_path, monkeypatch):
+    import inceptiongs.bootstrap.loop as loop_module
+
+    monkeypatch.setattr(loop_module, "measure_evidence", lambda *args, **kwargs: None)
+    out = tmp_path / "no_evidence"
+    iterations = 4
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=iterations, fill="render", placement="evidence", save_views=0),
+                           progress=False)
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    evidence = summary["rounds"][0]["evidence"]
+    assert evidence["estimate"] is None and evidence["targets"][0]["placed"] == []
+    assert "no evidence" in evidence["targets"][0]["reason"]
+    assert result.finished and result.virtual_views == 0 and summary["steps"]["real"] == iterations
+
+
 def checks_at(checks: list, iteration: int) -> float:
     """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
     return [scale for step, _, scale in checks if step <= iteration][-1]

@@ -247,3 +247,20 @@ def test_the_tau_test_judges_structure_only_where_the_loss_is():
     # The zero-weight pixels equal I* and dilute the SSIM loss below tau; divided by their share it is not.
     assert diluted["virtual_ssim_loss"] <= config.tau < diluted["virtual_ssim_loss"] / 0.25
     assert diluted["virtual_branch"] == "perceptual" and judged["virtual_branch"] == "l1_ssim"
+
+
+def test_only_pixels_on_the_targets_own_surface_count_when_a_region_is_given(grid):
+    from inceptiongs.bootstrap.validation import seen_cells
+
+    target = near_camera("target", 0.3)                   # sees x in [-0.77, 1.37]
+    region = seen_cells(grid, target, depth(target))
+    beside, elsewhere = near_camera("beside", 0.6), near_camera("elsewhere", 2.6)   # the latter: x in [1.53, 3.67]
+    candidates = [VirtualView(c, -1, 0.0, c.name) for c in (elsewhere, beside)]
+    anywhere = place_by_evidence(candidates, grid, depth)
+    assert [v.name for v in anywhere.views] == ["beside", "elsewhere"]
+    focused = place_by_evidence(candidates, grid, depth, region=region)
+    assert [v.name for v in focused.views] == ["beside"]
+    scores = {s.name: s for s in focused.scores}
+    assert scores["elsewhere"].positive == 0.0 and scores["elsewhere"].mean_margin_db is None
+    assert seen_cells(None, target, depth(target)) is None
+    assert not bool(seen_cells(grid, target, torch.zeros(HEIGHT, WIDTH, 1)).any())
