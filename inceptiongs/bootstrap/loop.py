@@ -44,7 +44,7 @@ from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
 from .targets import Target, round_targets, targets_to_json
 from .validation import EvidenceGrid, measure_evidence, seen_cells, validation_photos
 from .view_targets import TargetMaker, TargetSetting
-from .virtual_views import DEFAULT_K, VirtualView, nearest_training_views, virtual_views
+from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, nearest_training_views, virtual_views
 
 TARGETS_FILE = "targets.json"     # in RUN2/bootstrap: what is repaired, so --resume needs no flags
 
@@ -360,8 +360,10 @@ class Bootstrap:
         for index, target in enumerate(goal):
             candidates = candidate_views(target.camera, cameras, train, config.k, config.l, config.include_target)
             region = seen_cells(self.evidence, target.camera, maker.renders.depth(target.camera))
+            # As many views as the default placement makes: the virtual steps are not spread thinner.
+            limit = (config.k or DEFAULT_K) * (config.l or DEFAULT_L) + int(config.include_target)
             placement = place_by_evidence(candidates, self.evidence, maker.renders.depth, config.evidence_min_fraction,
-                                          region=region)
+                                          limit=limit, region=region)
             views.extend((index, view) for view in placement.views)
             record["targets"].append({"target": target.name, "placed": [view.name for view in placement.views],
                                       "reason": placement.reason,
