@@ -20,6 +20,7 @@ from ..errors import InputError
 
 SAMPLING = ("langevin", "uniform")
 VIRTUAL_DEPTHS = ("render", "sources", "both", "auto")
+PLACEMENTS = ("paths", "evidence")
 
 # A field's role (docs/bootstrap_options.md explains them).
 DEFAULT_PATH = "default path"           # its value shapes a run with every default
@@ -56,6 +57,16 @@ class BootstrapConfig(SavedConfig):
                                  "(null: virtual_views.DEFAULT_L, 4)", "poses")
     max_virtual_views: int = option(64, "at most this many virtual views per round; the rest are dropped", "views")
     # The view the user flagged is where the repair matters most.
+    placement: str = option("paths", "where the virtual views go: \"paths\" (default: k * l poses on the paths "
+                                     "from each target to its k nearest photos, gated by `agreement_min_db`) or "
+                                     "\"evidence\" (experimental: poses near the target where the leave-one-out "
+                                     "estimate says the blend beats the render, validation.py and placement.py; "
+                                     "pixels without that evidence carry no virtual loss; replaces the agreement gate)")
+    evidence_min_fraction: float = option(0.05, "placement \"evidence\" only: a virtual view is used when at "
+                                                "least this share of its pixels with depth lie on regions of "
+                                                "positive evidence", "fraction, in (0, 1]", EXPERIMENTAL)
+    evidence_photos: int = option(6, "placement \"evidence\" only: training photos near the targets at which "
+                                     "the leave-one-out estimate is measured each round", "views", EXPERIMENTAL)
     include_target: bool = option(True, "also supervise the target pose itself (t = 0) with the repair of its "
                                         "render; false: exactly k * l virtual views per target")
 
@@ -210,6 +221,12 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: agreement_min_db must be a finite number (or null: off), got {self.agreement_min_db}")
         if self.align_px is not None and not (math.isfinite(self.align_px) and self.align_px > 0):
             raise InputError(f"{source}: align_px must be a positive number of pixels (or null: off), got {self.align_px}")
+        if self.placement not in PLACEMENTS:
+            raise InputError(f"{source}: placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        if not 0 < self.evidence_min_fraction <= 1:
+            raise InputError(f"{source}: evidence_min_fraction must be in (0, 1], got {self.evidence_min_fraction}")
+        if self.evidence_photos < 1:
+            raise InputError(f"{source}: evidence_photos must be >= 1, got {self.evidence_photos}")
         if self.virtual_depth not in VIRTUAL_DEPTHS:
             raise InputError(f"{source}: virtual_depth must be one of {', '.join(VIRTUAL_DEPTHS)}, "
                              f"got {self.virtual_depth!r}")

@@ -172,3 +172,6 @@ class VirtualTarget:
     # Which depth placed the photos: "render", "sources" or "both" (--virtual-depth; "auto"
     # records the one it chose).
     depth: str = "render"
+    # placement "evidence" only: [H, W, 1] loss weight, 1 where the leave-one-out estimate says
+    # the blend beats the render (placement.with_evidence), else 0; None: every pixel counts.
+    evidence: torch.Tensor | None = None

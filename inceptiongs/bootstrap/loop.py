@@ -37,12 +37,14 @@ from .conscience import Conscience, photo_loss
 from .generation import GenerationCache, VirtualTarget, obtain_prior, prior_version
 from .outlook import run_outlook
 from .perceptual import perceptual_name
+from .placement import candidate_views, evidence_share, place_by_evidence, with_evidence
 from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
 from .stage1 import Stage1
 from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
 from .targets import Target, round_targets, targets_to_json
+from .validation import EvidenceGrid, measure_evidence, seen_cells, validation_photos
 from .view_targets import TargetMaker, TargetSetting
-from .virtual_views import DEFAULT_K, VirtualView, nearest_training_views, virtual_views
+from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, nearest_training_views, virtual_views
 
 TARGETS_FILE = "targets.json"     # in RUN2/bootstrap: what is repaired, so --resume needs no flags
 
@@ -174,6 +176,8 @@ class Bootstrap:
     # round); ``data`` holds them on the rasterizer's device for the refinement steps.
     cpu_photos: dict = field(default_factory=dict)
     current_round: int = 0          # 1-based: the round being refined (0: none yet)
+    # placement "evidence": the newest round's leave-one-out estimate (validation.py; None: no evidence).
+    evidence: EvidenceGrid | None = None
 
     # --- prepare ---------------------------------------------------------------------------------
     @classmethod
@@ -288,7 +292,8 @@ class Bootstrap:
     def on_device(self, entry: VirtualTarget) -> VirtualTarget:
         """``entry`` with its I* and mask where the refinement renders (moved once, used many steps)."""
         device = self.state.params["means"].device
-        return dataclasses.replace(entry, target=entry.target.to(device), mask=entry.mask.to(device))
+        moved = {} if entry.evidence is None else {"evidence": entry.evidence.to(device)}
+        return dataclasses.replace(entry, target=entry.target.to(device), mask=entry.mask.to(device), **moved)
 
     def make_round_targets(self, round_index: int) -> None:
         """The round's virtual views and their I* (from the round's starting Gaussians) join the pool."""
@@ -296,40 +301,87 @@ class Bootstrap:
         round_info = {"round": round_index + 1, "targets": [t.name for t in goal], "views": []}
         self.summary["rounds"].append(round_info)
         began = time.perf_counter()
-        new_views = round_virtual_views(goal, list(self.run.scene.cameras), self.run.split.train, config)
+        maker = None
+        if config.placement == "evidence":
+            maker = self.target_maker()
+            new_views = self.evidence_views(round_index, goal, maker, round_info)
+        else:
+            new_views = round_virtual_views(goal, list(self.run.scene.cameras), self.run.split.train, config)
         if not new_views:
             return
-        make = self.target_maker().make
+        maker = maker or self.target_maker()
         for number, (target_index, view) in enumerate(new_views):
             if self.loop.wait_or_stop() or self.loop.out_of_time():
                 break
             name = f"r{round_index + 1}_t{target_index}_{view.name}"
-            entry, sources = make(view.camera.with_pose(view.camera.world_to_camera, name=name), round_index + 1,
-                                  save=number < config.save_views)
+            entry, sources = self.make_target(maker, view.camera.with_pose(view.camera.world_to_camera, name=name),
+                                              round_index + 1, save=number < config.save_views)
             self.pool.append(self.on_device(entry))
             round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
                                         "cache_hit": entry.cache_hit, "mask_fraction": float(entry.mask.mean()),
                                         "agreement_db": entry.agreement_db, "supervised": entry.supervised,
                                         "depth": entry.depth, "blend_sources": [int(s) for s in sources]})
+            if entry.evidence is not None:
+                round_info["views"][-1]["evidence_share"] = evidence_share(entry)
         round_info["generation_s"] = time.perf_counter() - began
         views = round_info["views"]
         self.log(f"round {round_index + 1}: {len(views)} virtual views "
                  f"({sum(v['cache_hit'] for v in views)} from the cache) in {round_info['generation_s']:.1f} s")
         left_out = [v for v in views if not v["supervised"]]
-        if left_out:
+        if left_out and config.placement == "evidence":
+            self.log(f"round {round_index + 1}: {len(left_out)} of {len(views)} virtual views left out: too few "
+                     f"of their pixels lie where the blend is validated to beat the render")
+        elif left_out:
             self.log(f"round {round_index + 1}: {len(left_out)} of {len(views)} virtual views left "
                      f"out: the render agrees with their warped photos better than the photos agree with "
                      f"each other (by more than {-config.agreement_min_db:g} dB)")
+
+    def make_target(self, maker: TargetMaker, camera, round_number: int, save: bool) -> tuple[VirtualTarget, list]:
+        """``maker.make``, with placement "evidence" the view's loss weights and gate from the estimate."""
+        entry, sources = maker.make(camera, round_number, save)
+        if self.config.placement == "evidence":
+            entry = with_evidence(entry, self.evidence, maker.renders.depth(camera), self.config.evidence_min_fraction)
+        return entry, sources
+
+    def evidence_views(self, round_index: int, goal: Sequence[Target], maker: TargetMaker, round_info: dict) -> list:
+        """[(target index, VirtualView)] where the leave-one-out estimate, measured now at the
+        training photos nearest the targets (validation.py), says the blend beats the render
+        (placement.py); the estimate and every candidate's score go into the round's summary."""
+        config, cameras, train = self.config, list(self.run.scene.cameras), self.run.split.train
+        k = config.k or DEFAULT_K
+        photos = nearest_training_views(goal[0].camera, cameras, sorted({
+            i for target in goal for i in validation_photos(target.camera, cameras, train, k)}),
+            config.evidence_photos) if goal else []
+        self.evidence = measure_evidence(photos, cameras, train, self.cpu_photos, config, maker.renders.depth,
+                                         maker.renders.rgb)
+        record = {"validation_photos": [cameras[i].name for i in photos],
+                  "estimate": None if self.evidence is None else self.evidence.summary(), "targets": []}
+        views = []
+        for index, target in enumerate(goal):
+            candidates = candidate_views(target.camera, cameras, train, config.k, config.l, config.include_target)
+            region = seen_cells(self.evidence, target.camera, maker.renders.depth(target.camera))
+            # As many views as the default placement makes: the virtual steps are not spread thinner.
+            limit = (config.k or DEFAULT_K) * (config.l or DEFAULT_L) + int(config.include_target)
+            placement = place_by_evidence(candidates, self.evidence, maker.renders.depth, config.evidence_min_fraction,
+                                          limit=limit, region=region)
+            views.extend((index, view) for view in placement.views)
+            record["targets"].append({"target": target.name, "placed": [view.name for view in placement.views],
+                                      "reason": placement.reason,
+                                      "candidates": [score.to_json() for score in placement.scores]})
+            if placement.reason:
+                self.log(f"round {round_index + 1}: {target.name}: {placement.reason}")
+        round_info["evidence"] = record
+        return views[:config.max_virtual_views]
 
     def regenerate_pool(self) -> None:
         """I* of every pool view again, from the Gaussians as they are now: the prior then repairs
         the refined render rather than the stage-I one (the bootstrap's feedback loop)."""
         began = time.perf_counter()
-        make = self.target_maker().make
+        maker = self.target_maker()
         for number, entry in enumerate(self.pool):
             if self.loop.wait_or_stop() or self.loop.out_of_time():
                 break  # the views not reached keep their I*
-            self.pool[number] = self.on_device(make(entry.camera, entry.round, save=False)[0])
+            self.pool[number] = self.on_device(self.make_target(maker, entry.camera, entry.round, save=False)[0])
         self.regenerations.append({"iteration": self.state.iteration, "views": len(self.pool),
                                    "supervised": sum(entry.supervised for entry in self.pool),
                                    "seconds": time.perf_counter() - began})

@@ -41,6 +41,8 @@ DENSIFY_END_FRACTION = 0.7
 # P = exp(L1) with L1 of images in [0, 1] is in [1, e]: exp never overflows and 1/P is in
 # [1/e, 1]. The clamp guards renders outside [0, 1] (black background, SH overshoot).
 L1_MAX_FOR_P = 10.0
+# The tau test's divisor never goes below this (a view with no weighted pixel is not sampled).
+MIN_WEIGHTED_SHARE = 1e-3
 
 
 def continuation_config(stage1: TrainConfig, start: int, steps: int, densify: bool) -> TrainConfig:
@@ -150,11 +152,13 @@ def active_views(pool: Sequence[VirtualTarget], virtual_pixels: str) -> list[int
 
 
 def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: BootstrapConfig,
-                      lambda_dssim: float, lpips=None, weights: torch.Tensor | None = None
-                      ) -> tuple[torch.Tensor, dict]:
+                      lambda_dssim: float, lpips=None, weights: torch.Tensor | None = None,
+                      weighted_share: float = 1.0) -> tuple[torch.Tensor, dict]:
     """rgb, target: [H, W, 3] -> (loss, record). Perceptual when 1 - SSIM <= tau, else L1 + D-SSIM.
     weights: optional [H, W, 1] per-pixel confidence (pixel_weights). With ``virtual_pixels=
-    "informative"``: :func:`informative_loss` (weights = the informative mask)."""
+    "informative"``: :func:`informative_loss` (weights = the informative mask). weighted_share in
+    (0, 1]: the share of pixels that carry loss at all (evidence weights); the SSIM loss of the
+    others is 0, so the tau test divides by it to judge the structure where the loss is."""
     if config.virtual_pixels == "informative":
         from .experimental.informative import informative_loss
 
@@ -166,7 +170,7 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
     l1 = (rgb - target).abs().mean()
     ssim_loss = 1.0 - ssim(rgb, target)
     record = {"virtual_l1": float(l1.detach()), "virtual_ssim_loss": float(ssim_loss.detach())}
-    if float(ssim_loss.detach()) <= config.tau:
+    if float(ssim_loss.detach()) / weighted_share <= config.tau:
         loss = perceptual_distance(rgb, target, lpips=lpips)
         record["virtual_branch"] = "perceptual"
     else:
@@ -188,8 +192,13 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
     outputs = ("rgb", "depth", "normal") if geometry else ("rgb",)
     out = rasterizer(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
     if config.virtual_colour:
-        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips,
-                                         pixel_weights(view.mask, config.generated_weight, config.virtual_pixels))
+        weights = pixel_weights(view.mask, config.generated_weight, config.virtual_pixels)
+        share = 1.0
+        if view.evidence is not None:   # regions without positive evidence get no virtual gradient
+            weights = view.evidence if weights is None else weights * view.evidence
+            share = max(float(view.evidence.mean()), MIN_WEIGHTED_SHARE)
+        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips, weights,
+                                         share)
         total = config.lambda_virtual * choice.weight * scale * loss
     else:
         # No colour target: the rgb output still enters the graph (at zero weight) so the
@@ -223,7 +232,12 @@ def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int,
 
 def render_l1(rasterizer, gaussians, view: VirtualTarget, sh_degree: int,
               world_to_camera: torch.Tensor) -> torch.Tensor:
-    """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose)."""
+    """L1(render of the detached ``gaussians`` at ``world_to_camera``, I*) (differentiable in the pose);
+    with the view's evidence weights, only where they are set (the Langevin energy then follows
+    the evidence too)."""
     out = rasterizer(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
                     world_to_camera=world_to_camera)
-    return (out["rgb"] - view.target).abs().mean()
+    residual = (out["rgb"] - view.target).abs()
+    if view.evidence is not None:
+        residual = residual * view.evidence
+    return residual.mean()

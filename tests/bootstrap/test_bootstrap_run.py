@@ -476,6 +476,49 @@ def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos
     assert result.supervised_views == 0 and result.virtual_views == len(views)
 
 
+@pytest.mark.slow
+def test_evidence_placement_records_the_estimate_and_uses_only_validated_views(stage1, tmp_path):
+    """placement "evidence": the leave-one-out estimate is measured and recorded per round, every
+    view taken is a candidate the placement kept, and a view in use has pixels on positive evidence."""
+    out = tmp_path / "evidence"
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=4, fill="render", virtual_depth="auto", save_views=0,
+                                   regenerate_every=2, placement="evidence", evidence_photos=3),
+                           progress=False)
+    assert result.finished and (out / "model.ply").is_file()
+    round_info = json.loads((out / "bootstrap" / "summary.json").read_text())["rounds"][0]
+    evidence = round_info["evidence"]
+    assert len(evidence["validation_photos"]) == 3 and len(evidence["targets"]) == 1
+    placed = evidence["targets"][0]["placed"]
+    assert [v["name"].split("_", 2)[2] for v in round_info["views"]] == placed
+    if placed:
+        assert evidence["estimate"]["voxels_positive"] > 0
+        assert all(v["evidence_share"] >= 0.05 for v in round_info["views"] if v["supervised"])
+    else:
+        assert evidence["targets"][0]["reason"]
+    with pytest.raises(InputError, match="placement"):
+        _config(placement="anywhere").validate()
+    with pytest.raises(InputError, match="evidence_min_fraction"):
+        _config(evidence_min_fraction=0.0).validate()
+
+
+@pytest.mark.slow
+def test_without_evidence_no_view_is_placed_and_the_summary_says_why(stage1, tmp_path, monkeypatch):
+    import inceptiongs.bootstrap.loop as loop_module
+
+    monkeypatch.setattr(loop_module, "measure_evidence", lambda *args, **kwargs: None)
+    out = tmp_path / "no_evidence"
+    iterations = 4
+    result = run_bootstrap(stage1, out, _targets(stage1),
+                           _config(iterations=iterations, fill="render", placement="evidence", save_views=0),
+                           progress=False)
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    evidence = summary["rounds"][0]["evidence"]
+    assert evidence["estimate"] is None and evidence["targets"][0]["placed"] == []
+    assert "no evidence" in evidence["targets"][0]["reason"]
+    assert result.finished and result.virtual_views == 0 and summary["steps"]["real"] == iterations
+
+
 def checks_at(checks: list, iteration: int) -> float:
     """The conscience's scale in force at ``iteration`` (the newest check at or before it)."""
     return [scale for step, _, scale in checks if step <= iteration][-1]
