@@ -44,6 +44,7 @@ BUDGET_MAX = 2_000_000
 # on the machine must not halve the detail, nor one fast frame double it.
 BUDGET_STEP_MAX = 1.5
 PREVIEW_COUNT = 200_000
+MOVING_CUT_INTERVAL = 0.2
 
 
 # Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every
@@ -87,10 +88,11 @@ def check_window_memory(source_path, count: int, sh_coefficients: int, available
                          "views offscreen with `inceptiongs render --lod-budget 2000000`")
 
 
-@dataclass(frozen=True)
+@dataclass
 class Cut:
     """The Gaussians one frame draws. packed: (texels, anchor, degree) as
-    renderer.splats.pack_gaussians gives them (packed on the worker, not in the frame), ``count``
+    renderer.splats.pack_gaussians gives them (packed on the worker, not in the frame; None once
+    uploaded), ``count``
     of them, of ``total`` in the model; settled: the still camera's fine cut; camera_key: the pose and
     size it was chosen for; serial: increases with every cut of the worker."""
 

@@ -130,6 +130,8 @@ class FrameDrawer:
         self.detail_budget = BUDGET_START
         self.detail_seen: tuple = ()  # detail_state() when a frame last looked at the worker
         self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
+        self._detail_requested_at = -1e9  # perf_counter() of that request
+        self._detail_model = None  # the model last handed to the worker
         self._preview: tuple | None = None  # (model, arrays): what a large model shows while its tree builds
         self._model_age = float("inf")  # seconds since a job's snapshot last replaced the model
         self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
@@ -174,7 +176,9 @@ class FrameDrawer:
             # is drawn, the tree is built once the model rests.
             self._upload_preview(view, model, "live snapshot")
             return "preview"
-        self.detail.set_model(model, view.edit.visible_arrays())
+        if self._detail_model != model:   # visible_arrays() copies the model when some are deleted
+            self.detail.set_model(model, view.edit.visible_arrays())
+            self._detail_model = model
         camera = view.current_camera()
         total = view.edit.count
         if not self.detail.ready:
@@ -184,9 +188,12 @@ class FrameDrawer:
         wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
         cut = self.detail.latest(model)
         have_settled = cut is not None and cut.settled and cut.camera_key == key
-        if self._detail_requested != wanted and not have_settled:
+        # A moving camera asks for a new cut at most every MOVING_CUT_INTERVAL seconds: the worker
+        # shares the two cores with the frame, and a cut a few degrees old still fits the view.
+        due = not moving or time.perf_counter() - self._detail_requested_at >= level_of_detail.MOVING_CUT_INTERVAL
+        if self._detail_requested != wanted and not have_settled and due:
             self.detail.request(model, camera, not moving, self.detail_budget)
-            self._detail_requested = wanted
+            self._detail_requested, self._detail_requested_at = wanted, time.perf_counter()
         if cut is None:
             self._upload_preview(view, model)
             return "preview"
@@ -196,8 +203,15 @@ class FrameDrawer:
             return "pending"
         version = ("cut", model, cut.serial)
         if self.uploaded_version != version:
+            if cut.packed is None:
+                # Uploaded once, then dropped (another model or mode was drawn since): made again.
+                if self._detail_requested != ("again",) + wanted:
+                    self.detail.request(model, camera, not moving, self.detail_budget)
+                    self._detail_requested = ("again",) + wanted
+                return "pending"
             self.renderer.set_packed(*cut.packed, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
+            cut.packed = None   # GL holds it now: a settled cut of millions is not kept twice
         how = f"settled cut ({SETTLED_GRANULARITY_PX:g} px)" if cut.settled else f"budget {cut.budget:,}"
         self.drawn = (cut.count, total, how)
         return "pending" if not moving and not have_settled else "cut"

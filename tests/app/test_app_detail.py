@@ -115,6 +115,8 @@ def test_a_large_model_is_drawn_as_a_cut_that_settles_on_the_full_render(xvfb, l
                    and viewer.drawing.last_render_key is not None and viewer.drawing.last_render_key[2] == 1.0)
         full = viewer.renderer.render(viewer.view.current_camera(), "rgb").astype(np.float64)
         assert viewer.renderer.count == total
+        click_widget(viewer, "full detail always")   # off again: the settled cut comes back
+        _run_until(viewer, lambda: _settled(viewer) and viewer.renderer.count == drawn)
         assert psnr(settled, full) >= 40.0
         assert np.abs(settled - full).max() > 0.0   # it is a cut, not the model itself
 
