@@ -132,6 +132,7 @@ class FrameDrawer:
         self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
         self._detail_requested_at = -1e9  # perf_counter() of that request
         self._detail_model = None  # the model last handed to the worker
+        self.still_frame_owed = False  # the last frame was drawn for a moving camera or model
         self._preview: tuple | None = None  # (model, arrays): what a large model shows while its tree builds
         self._model_age = float("inf")  # seconds since a job's snapshot last replaced the model
         self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
@@ -252,6 +253,7 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
+        self.still_frame_owed = moving   # the frame after the motion stops refines (Viewer.is_idle)
         points = view.shows_points and view.settings.mode == "rgb" and view.settings.photo == "off"
         scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         detail = self.detail_engaged(view, now - model_changed_at)

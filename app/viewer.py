@@ -233,6 +233,8 @@ class Viewer:
         now = time.perf_counter()
         if now - self.view.last_motion < STILL_SECONDS + 0.1 or self.input.keys_down:
             return False
+        if self.drawing.still_frame_owed:
+            return False  # the last frame was a moving one: its refine is still to be drawn
         if now - self.input.last_event < UI_SETTLE_SECONDS:
             return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
         if now - self.jobs.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
