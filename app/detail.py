@@ -36,7 +36,7 @@ SETTLED_GRANULARITY_PX = 1.0
 # The moving cut's render (preprocess, sort, compositing) is held near this; the rest of a
 # frame (the panel, the swap, the worker's cut on the other core) does not depend on the budget,
 # and a budget chasing it fell to its minimum for nothing.
-MOVING_TARGET_MS = 40.0
+MOVING_TARGET_MS = 25.0
 BUDGET_START = 100_000
 BUDGET_MIN = 20_000
 BUDGET_MAX = 2_000_000

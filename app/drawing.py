@@ -306,7 +306,8 @@ class FrameDrawer:
                 if moving:
                     self.moving_scale = next_moving_scale(scale, self.render_costs)
             if detail and moving and self.drawn[2].startswith("budget"):
-                self.detail_budget = next_budget(self.detail_budget, sum(self.renderer.timings.values()))
+                # From the splats this render drew: the cut in hand may be older and smaller than the budget.
+                self.detail_budget = next_budget(self.drawn[0], sum(self.renderer.timings.values()))
             stats.rendered_scale = scale
             stats.splat_renders += 1
             self.last_render_key = key
