@@ -45,6 +45,7 @@ BUDGET_MAX = 2_000_000
 BUDGET_STEP_MAX = 1.5
 PREVIEW_COUNT = 200_000
 MOVING_CUT_INTERVAL = 0.2
+PACK_CHUNK = 262_144
 
 
 # Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every
@@ -115,6 +116,28 @@ def next_budget(budget: int, render_ms: float, target_ms: float | None = None) -
         return budget   # no cost measured (a cached frame): nothing to learn
     ratio = min(max(target_ms / render_ms, 1.0 / BUDGET_STEP_MAX), BUDGET_STEP_MAX)
     return int(min(max(budget * ratio, BUDGET_MIN), BUDGET_MAX))
+
+
+def pack_nodes(hierarchy, nodes: np.ndarray, chunk: int | None = None) -> tuple:
+    """renderer.splats.pack_gaussians of the tree's ``nodes`` [S], gathered and packed ``chunk``
+    (default PACK_CHUNK) nodes at a time into one texel array: a settled cut of millions holds
+    only its texels and one chunk's temporaries (gathering it whole first took 3 x the memory).
+    The anchor is the cut's float64 centroid, as pack_gaussians would choose."""
+    from inceptiongs.constants import sh_degree_from_count  # noqa: PLC0415
+    from inceptiongs.renderer.splats import pack_gaussians  # noqa: PLC0415
+
+    chunk = PACK_CHUNK if chunk is None else chunk
+    count = len(nodes)
+    total = np.zeros(3)
+    for start in range(0, count, chunk):
+        total += hierarchy.means[nodes[start:start + chunk]].astype(np.float64).sum(axis=0)
+    anchor = total / max(count, 1)   # an empty cut: 0 / 1
+    degree = sh_degree_from_count(hierarchy.sh.shape[1])
+    texels = np.empty((count, 3 + -(-3 * hierarchy.sh.shape[1] // 4), 4), np.float32)
+    for start in range(0, count, chunk):
+        part, _, _ = pack_gaussians(hierarchy.node_arrays(nodes[start:start + chunk]), anchor=anchor)
+        texels[start:start + len(part)] = part
+    return texels, (anchor if np.all(np.isfinite(anchor)) else np.zeros(3)), degree
 
 
 def camera_key(camera) -> bytes:
@@ -248,7 +271,6 @@ class DetailWorker:
 
     def _make_cut(self, version, camera, settled: bool, budget: int) -> None:
         from inceptiongs.lod.cut import cut_nodes, greedy_budget_cut_nodes  # noqa: PLC0415
-        from inceptiongs.renderer.splats import pack_gaussians  # noqa: PLC0415
 
         hierarchy = self.hierarchy
         if hierarchy is None or version != self.version:
@@ -257,7 +279,7 @@ class DetailWorker:
             nodes = cut_nodes(hierarchy, camera, SETTLED_GRANULARITY_PX)
         else:
             nodes = greedy_budget_cut_nodes(hierarchy, camera, budget)
-        packed = pack_gaussians(hierarchy.node_arrays(nodes))
+        packed = pack_nodes(hierarchy, nodes)
         with self._lock:
             if version != self.version:
                 return

@@ -185,6 +185,8 @@ class FrameDrawer:
         if not self.detail.ready:
             self._upload_preview(view, model)
             return "preview"
+        if self.detail.version == model:
+            view.share_tree_leaves(self.detail.hierarchy)
         key = camera_key(camera)
         wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
         cut = self.detail.latest(model)

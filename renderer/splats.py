@@ -49,19 +49,21 @@ SPLAT_TEXELS = 4
 QUAD_AXIS_MAX = 4096.0
 
 
-def pack_gaussians(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, int]:
+def pack_gaussians(arrays: dict[str, np.ndarray], anchor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Gaussians.numpy() arrays -> (texels [N, 3 + S, 4] float32, anchor [3] float64, degree).
 
-    Means are stored relative to their float64 centroid (the anchor) so shader arithmetic is
-    as precise far from the origin as next to it. S = ceil(3 K / 4) texels hold the
-    K = (degree + 1)^2 SH coefficients, channel-interleaved as in the arrays.
+    Means are stored relative to their float64 centroid (the anchor; ``anchor`` when given, e.g.
+    one model packed in parts) so shader arithmetic is as precise far from the origin as next
+    to it. S = ceil(3 K / 4) texels hold the K = (degree + 1)^2 SH coefficients,
+    channel-interleaved as in the arrays.
     """
     means = np.asarray(arrays["means"], np.float64).reshape(-1, 3)
     n = means.shape[0]
     sh = np.asarray(arrays["sh"], np.float32)
     sh = sh.reshape(n, sh.shape[1] if sh.ndim == 3 else -1, 3)
     degree = sh_degree_from_count(sh.shape[1])
-    anchor = means.mean(axis=0) if n else np.zeros(3)
+    if anchor is None:
+        anchor = means.mean(axis=0) if n else np.zeros(3)
     if not np.all(np.isfinite(anchor)):
         anchor = np.zeros(3)
     sh_texels = math.ceil(3 * sh.shape[1] / 4)

@@ -87,6 +87,14 @@ def test_a_large_model_is_drawn_as_a_cut_that_settles_on_the_full_render(xvfb, l
         assert shown_total == total and how.startswith("settled")
         assert drawn < 0.8 * total   # the sub-pixel far end is merged
         assert viewer.ui.texts["detail"] == [f"drawn {drawn:,} / {total:,} splats", how]
+        # The unedited model is held once: the tree's leaves are the model shown (Morton order).
+        tree = viewer.drawing.detail.hierarchy
+        shown = viewer.view.edit.base
+        assert np.shares_memory(shown["means"], tree.means) and viewer.view.source.gaussians is shown
+        original = ground_plane()
+        for name in ("means", "sh"):
+            rows = lambda a: np.sort(a.reshape(len(a), -1).view(np.dtype((np.void, a[0].nbytes))).ravel())  # noqa: E731
+            assert np.array_equal(rows(np.ascontiguousarray(shown[name])), rows(original[name]))
         settled = viewer.renderer.render(viewer.view.current_camera(), "rgb").astype(np.float64)
 
         # Moving: a budgeted cut at the moving size, the budget in the panel.

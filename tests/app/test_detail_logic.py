@@ -121,3 +121,44 @@ def test_the_worker_builds_once_and_cuts_for_the_newest_request(tmp_path, monkey
         assert worker.latest("second") is None
     finally:
         worker.close()
+
+
+def test_packing_a_cut_in_chunks_equals_packing_it_whole():
+    from inceptiongs.lod.hierarchy import build_hierarchy
+    from inceptiongs.renderer.splats import pack_gaussians
+
+    arrays = _cloud(1000)
+    arrays["means"] = arrays["means"] + np.float32([1e4, -2e4, 3e4])   # far from the origin
+    arrays["sh"] = np.random.default_rng(2).normal(0, 0.5, (1000, 16, 3)).astype(np.float32)   # degree 3
+    tree = build_hierarchy(Gaussians.from_numpy(arrays))
+    nodes = cut_nodes(tree, _camera(), 3.0)
+    whole = pack_gaussians(tree.node_arrays(nodes))
+    chunked = detail.pack_nodes(tree, nodes, chunk=37)
+    assert chunked[2] == whole[2] == 3
+    np.testing.assert_allclose(chunked[1], whole[1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(chunked[0], whole[0], rtol=0, atol=2e-3)   # means relative to anchors 1e-9 apart
+    assert np.array_equal(chunked[0][:, 1:], whole[0][:, 1:])   # scales, rotations, colours exactly
+    empty = detail.pack_nodes(tree, nodes[:0])
+    assert empty[0].shape == (0, whole[0].shape[1], 4) and np.all(empty[1] == 0)
+
+
+def test_only_an_unedited_model_is_replaced_by_the_tree_leaves():
+    from types import SimpleNamespace
+
+    from inceptiongs.app.editing import EditState
+    from inceptiongs.app.view import View
+    from inceptiongs.lod.hierarchy import build_hierarchy
+
+    arrays = _cloud(500)
+    tree = build_hierarchy(Gaussians.from_numpy(arrays))
+    edited = EditState(arrays)
+    edited.select(np.arange(500) < 10)
+    edited.delete_selected()
+    for edit in (edited, EditState(arrays, selected=np.arange(500) < 3)):
+        holder = SimpleNamespace(edit=edit, source=SimpleNamespace(gaussians=arrays))
+        assert View.share_tree_leaves(holder, tree) is False and holder.edit is edit
+    holder = SimpleNamespace(edit=EditState(arrays), source=SimpleNamespace(gaussians=arrays))
+    assert View.share_tree_leaves(holder, tree) is True
+    assert np.shares_memory(holder.edit.base["sh"], tree.sh) and holder.source.gaussians is holder.edit.base
+    assert holder.edit.count == 500
+    assert View.share_tree_leaves(holder, tree) is False   # once
