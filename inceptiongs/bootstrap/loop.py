@@ -70,6 +70,14 @@ class BootstrapResult:
     last_eval: dict = field(default_factory=dict)
     # Virtual views that took part in the refinement at the end (agreement.py; None: unknown).
     supervised_views: int | None = None
+    # Refinement steps that carried a virtual loss, over the whole run (None: unknown).
+    virtual_steps: int | None = None
+
+
+def virtual_step_count(step_counts: dict) -> int:
+    """Steps that carried a virtual loss: every virtual branch's count ("additive" photo steps
+    are counted by their branch too; "real" and "idle" are photo steps)."""
+    return sum(count for kind, count in step_counts.items() if kind not in ("real", "idle", "additive"))
 
 
 def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
@@ -505,7 +513,8 @@ class Bootstrap:
         return BootstrapResult(self.out_dir, self.start, self.state.iteration, self.finished, self.rounds_done,
                                len(gaussians), len(self.pool), self.cache.hits, self.cache.misses,
                                self.loop.wall_s(), self.prior_text, self.initial_eval, self.last_eval,
-                               supervised_views=sum(entry.supervised for entry in self.pool))
+                               supervised_views=sum(entry.supervised for entry in self.pool),
+                               virtual_steps=virtual_step_count(self.step_counts))
 
     def write_summary(self) -> None:
         """RUN2/config.json with the steps made, and RUN2/bootstrap/summary.json."""

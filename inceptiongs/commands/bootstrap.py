@@ -110,9 +110,10 @@ def run(args) -> int:
         return stopping.exit_status
     print(f"prior: {result.prior}")
     if result.supervised_views is not None and result.supervised_views < result.virtual_views:
-        print(f"{result.virtual_views - result.supervised_views} of {result.virtual_views} virtual views took no step: "
-              f"their warped photos agree with the render better than with each other"
-              + (" (so this run is stage I trained longer)" if result.supervised_views == 0 else ""))
+        steps = "" if result.virtual_steps is None else f"; {result.virtual_steps} virtual steps ran"
+        print(f"{result.virtual_views - result.supervised_views} of {result.virtual_views} virtual views were left out "
+              f"by the end: their warped photos agree with the render better than with each other{steps}"
+              + (" (so this run is stage I trained longer)" if result.virtual_steps == 0 else ""))
     print(f"{result.virtual_views} virtual views ({result.cache_hits} from the cache), "
           f"iterations {result.start_iteration}..{result.iteration}, {result.wall_s:.1f} s, "
           f"{result.num_gaussians} Gaussians")
