@@ -4,8 +4,8 @@ A frame cannot draw every Gaussian of a large model in time (5M on two cores: ~3
 LOD_MIN_GAUSSIANS the window draws a cut of the model's hierarchy (inceptiongs/lod):
 
 - while the camera moves, the finest cut within a splat *budget* (greedy_budget_cut_nodes),
-  the budget following the frames' cost so a moving frame holds MOVING_TARGET_MS
-  (:func:`next_budget`: the render's own time), at the reduced render scale the window picks for any moving frame
+  the budget following the moving render's own time so it stays near MOVING_TARGET_MS
+  (:func:`next_budget`), at the reduced size the window picks for any moving frame
   (drawing.next_moving_scale);
 - once the camera is still, the cut at SETTLED_GRANULARITY_PX (nodes merged only where their
   whole footprint is under a pixel), drawn at full size: the settled frame, within a fraction
@@ -50,7 +50,8 @@ PACK_CHUNK = 262_144
 
 # Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every
 # leaf copied in Morton order plus a third as many parents, 4 x (11 + 3 K) bytes each, with 16
-# bytes of links and radius) and, for each Gaussian drawn, the GL side: the packed Gaussian
+# bytes of links and radius; an unedited model is then shown from those leaves and its own
+# arrays freed, so the estimate errs on the safe side) and, for each Gaussian drawn, the GL side: the packed Gaussian
 # texture (16 x (3 + ceil(3 K / 4)) bytes), the preprocess output buffer (64), its read-back
 # for the CPU compositing or its copy as a texture for the quad paths (64), the depth order (8).
 TREE_LINK_BYTES = 16
