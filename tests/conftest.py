@@ -24,7 +24,7 @@ use_torch_threads()
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache_dir(tmp_path_factory):
-    """Caches of the whole test session go to one temporary folder, never to the user's
+    """Caches of the whole pytest run go to one temporary folder, never to the user's
     ~/.cache (and never into scene folders, which the library no longer writes)."""
     previous = os.environ.get("INCEPTIONGS_CACHE_DIR")
     os.environ["INCEPTIONGS_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
@@ -101,7 +101,7 @@ def _free_display() -> int:
 
 @pytest.fixture(scope="session")
 def xvfb():
-    """One Xvfb server for the whole session; DISPLAY points at it while tests run.
+    """One Xvfb server for the whole pytest run; DISPLAY points at it while tests run.
 
     One server, not one per module: GLFW keeps its X connection open until glfw.terminate(),
     and Xlib ends the process (exit 1, "XIO: fatal IO error") when a server it is connected
