@@ -78,16 +78,17 @@ def window_bytes(count: int, sh_coefficients: int) -> int:
 
 
 def check_window_memory(source_path, count: int, sh_coefficients: int, available: int | None = None) -> None:
-    """InputError with one line and what to do instead when the window cannot hold the model."""
+    """io.limits.check_allocation for what the window adds to the model, its one line ending
+    with what to do instead."""
     from inceptiongs.errors import InputError  # noqa: PLC0415
-    from inceptiongs.io.limits import available_memory_bytes  # noqa: PLC0415
+    from inceptiongs.io.limits import check_allocation  # noqa: PLC0415
 
-    available = available_memory_bytes() if available is None else available
-    needed = window_bytes(count, sh_coefficients)
-    if available is not None and needed > available:
-        raise InputError(f"{source_path}: showing {count:,} Gaussians needs about {needed / 2**30:.1f} GiB more "
-                         f"memory, only {available / 2**30:.1f} GiB available; close other programs, or render "
-                         "views offscreen with `inceptiongs render --lod-budget 2000000`")
+    try:
+        check_allocation(window_bytes(count, sh_coefficients), str(source_path),
+                         f"showing {count:,} Gaussians", available)
+    except InputError as error:
+        raise InputError(f"{error}; close other programs, or render views offscreen with "
+                         "`inceptiongs render --lod-budget 2000000`") from None
 
 
 @dataclass
