@@ -214,6 +214,12 @@ class DetailWorker:
             return self._cut if self.version == version else None
 
     @property
+    def cut_serial(self) -> int | None:
+        """The newest cut's serial, whatever model it was made for (None before the first)."""
+        with self._lock:
+            return None if self._cut is None else self._cut.serial
+
+    @property
     def busy(self) -> bool:
         """A build or a cut is under way or waiting (the window is not idle)."""
         with self._lock:

@@ -238,12 +238,11 @@ class FrameDrawer:
         return self.detail is not None and (self.detail.busy or self.detail_state() != self.detail_seen)
 
     def detail_state(self) -> tuple:
-        """What of the LOD worker can change the picture with no event (Viewer.shown_state)."""
+        """What of the LOD worker can change the picture with no event (detail_busy compares it
+        with what the last frame saw)."""
         if self.detail is None:
             return ()
-        cut = self.detail._cut
-        return (self.detail.ready, round(self.detail.progress, 2), None if cut is None else cut.serial,
-                self.detail.error)
+        return (self.detail.ready, round(self.detail.progress, 2), self.detail.cut_serial, self.detail.error)
 
     def depth_of(self, camera) -> np.ndarray:
         """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
