@@ -35,6 +35,14 @@ def grid_offsets(copies: int, spacing: float) -> np.ndarray:
     return offsets
 
 
+def tiled_arrays(model: dict, copies: int, spacing: float = 0.25) -> dict:
+    """``model`` (arrays as Gaussians.numpy()) repeated ``copies`` times on grid_offsets."""
+    offsets = grid_offsets(copies, spacing).astype(np.float32)
+    tiled = {name: np.concatenate([values] * copies) for name, values in model.items() if name != "means"}
+    tiled["means"] = (model["means"][None] + offsets[:, None]).reshape(-1, 3)
+    return tiled
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
@@ -47,9 +55,7 @@ def main() -> int:
 
     start = time.perf_counter()
     model = read_ply(args.ply).numpy()
-    offsets = grid_offsets(args.copies, args.spacing).astype(np.float32)
-    tiled = {name: np.concatenate([values] * args.copies) for name, values in model.items() if name != "means"}
-    tiled["means"] = (model["means"][None] + offsets[:, None]).reshape(-1, 3)
+    tiled = tiled_arrays(model, args.copies, args.spacing)
     write_ply(Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(v)) for name, v in tiled.items()}), args.out)
     print(f"{args.out}: {len(tiled['means']):,} Gaussians ({args.copies} copies of {args.ply.name}), "
           f"{args.out.stat().st_size / 1e6:.0f} MB, {time.perf_counter() - start:.1f} s")
