@@ -7,7 +7,8 @@ read back, so the read is the one a user's model gets), with a fresh cache folde
   moving_ms       median render of a budgeted cut along an orbit (3.4 degrees a frame, the view
                   the window opens with), the budget adapted towards the window's 25 ms target
                   by app.detail.next_budget; the cut is chosen and uploaded for every frame
-                  (cut_ms, upload_ms apart: the window does that on its worker, at most every 0.2 s)
+                  (cut_ms, upload_ms apart: the window does that on its worker, at most every 0.2 s),
+                  blended towards the parents as the window's moving cuts are
   settled_*       the 1-pixel cut: cut, pack + upload seconds, its render ms and PSNR
   full_ms         every Gaussian's render; moving_psnr: the last moving frame against it
   passes_ms       the last moving, settled and full render split into preprocess, sort, draw
@@ -43,11 +44,12 @@ from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io.atomic import atomic_write_text
 from inceptiongs.io.ply import read_ply, write_ply
+from inceptiongs.lod.blend import blend_weights, effective_granularity
 from inceptiongs.lod.cache import load_or_build
 from inceptiongs.lod.cut import cut_nodes, greedy_budget_cut_nodes
 from inceptiongs.renderer.context import create_offscreen_context
 from inceptiongs.renderer.splats import SplatRenderer
-from tile_model import _default_ply, tiled_arrays
+from tile_model import default_ply, tiled_arrays
 
 
 def timed(fn):
@@ -95,7 +97,9 @@ def measure_size(donut: dict, copies: int, size: tuple[int, int], frames: int, c
             nav.orbit(12.0, 0.0)
             camera = nav.camera(*size)
             nodes, cut_s = timed(lambda: greedy_budget_cut_nodes(tree, camera, budget))
-            _, upload_s = timed(lambda: renderer.set_packed(*pack_nodes(tree, nodes)))
+            # Blended towards their parents, as the window's moving cuts are.
+            _, upload_s = timed(lambda: renderer.set_packed(*pack_nodes(
+                tree, nodes, weights=blend_weights(tree, camera, nodes, effective_granularity(tree, camera, nodes)))))
             render_ms = draw_ms(renderer, camera, framebuffer, passes=passes["moving"])
             moving.append(render_ms), cuts.append(1e3 * cut_s), uploads.append(1e3 * upload_s)
             drawn.append(len(nodes))
@@ -123,7 +127,7 @@ def measure_size(donut: dict, copies: int, size: tuple[int, int], frames: int, c
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ply", type=Path, default=_default_ply(), help="the model tiled (default donut.ply)")
+    parser.add_argument("--ply", type=Path, default=default_ply(), help="the model tiled (default donut.ply)")
     parser.add_argument("--copies", type=int, nargs="+", default=[110, 440], help="5.0M and 20.1M Gaussians")
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--frames", type=int, default=20)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 
-def _default_ply() -> Path:
+def default_ply() -> Path:
     root = Path(os.environ.get("INCEPTIONGS_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
     return root / "splats" / "donut.ply"
 
@@ -46,7 +46,7 @@ def tiled_arrays(model: dict, copies: int, spacing: float = 0.25) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
-    parser.add_argument("--ply", type=Path, default=_default_ply())
+    parser.add_argument("--ply", type=Path, default=default_ply())
     parser.add_argument("--copies", type=int, default=110)
     parser.add_argument("--spacing", type=float, default=0.25)
     args = parser.parse_args()

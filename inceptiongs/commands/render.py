@@ -7,8 +7,9 @@ run's config names it, or --scene), in the scene's normalised frame, and the mod
 into that frame with the scene's normalisation.
 
 ``--lod GRANULARITY_PX`` / ``--lod-budget SPLATS`` draw a level-of-detail cut of the model
-(:mod:`inceptiongs.lod`, the hierarchy cached by the model's content); without them the model
-is drawn exactly as it is.
+(:mod:`inceptiongs.lod`, the hierarchy cached by the model's content), each node blended towards
+its parent near the threshold (:mod:`inceptiongs.lod.blend`); without them the model is drawn
+exactly as it is.
 """
 
 from __future__ import annotations
@@ -170,6 +171,8 @@ def level_of_detail(gaussians, camera: Camera, granularity_px: float | None, bud
     if budget is not None and budget < 0:
         raise InputError(f"--lod-budget: the budget must be >= 0 splats, got {budget}")
     from ..lod.cache import load_or_build
+    from ..gaussians import Gaussians
+    from ..lod.blend import blend_weights, blended_arrays
     from ..lod.cut import budget_cut_nodes, cut_nodes
 
     tree, cached = load_or_build(gaussians)
@@ -179,7 +182,9 @@ def level_of_detail(gaussians, camera: Camera, granularity_px: float | None, bud
         nodes = cut_nodes(tree, camera, granularity_px)
     note = (f"lod: {len(nodes):,} of {len(gaussians):,} splats at {granularity_px:g} px "
             f"(hierarchy {'from the cache' if cached else 'built'})")
-    return tree.gaussians(nodes, device=gaussians.device), note
+    # Blended towards their parents near the threshold: a camera path's frames do not pop.
+    arrays = blended_arrays(tree, nodes, blend_weights(tree, camera, nodes, granularity_px))
+    return Gaussians.from_numpy(arrays, device=gaussians.device), note
 
 
 def render_image(gaussians, camera: Camera, backend: str, mode: str, background, rasterizer=None) -> np.ndarray:

@@ -68,8 +68,9 @@ def test_the_viewer_refuses_a_model_too_large_for_memory_in_one_line(tmp_path, m
     assert len(err) == 1 and str(path) in err[0] and "50 Gaussians" in err[0]
 
 
-def _camera() -> Camera:
-    pose = look_at(np.array([0.0, 0.0, -3.0]), np.zeros(3), np.array([0.0, -1.0, 0.0]))
+def _camera(centre=(0.0, 0.0, 0.0)) -> Camera:
+    centre = np.asarray(centre, np.float64)
+    pose = look_at(centre + [0.0, 0.0, -3.0], centre, np.array([0.0, -1.0, 0.0]))
     return Camera("c", 160, 120, 150.0, 150.0, 80.0, 60.0, pose)
 
 
@@ -128,10 +129,13 @@ def test_packing_a_cut_in_chunks_equals_packing_it_whole():
     from inceptiongs.renderer.splats import pack_gaussians
 
     arrays = _cloud(1000)
-    arrays["means"] = arrays["means"] + np.float32([1e4, -2e4, 3e4])   # far from the origin
+    far = np.float32([1e4, -2e4, 3e4])   # far from the origin
+    arrays["means"] = arrays["means"] + far
     arrays["sh"] = np.random.default_rng(2).normal(0, 0.5, (1000, 16, 3)).astype(np.float32)   # degree 3
     tree = build_hierarchy(Gaussians.from_numpy(arrays))
-    nodes = cut_nodes(tree, _camera(), 3.0)
+    camera = _camera(far)
+    nodes = cut_nodes(tree, camera, 30.0)
+    assert (tree.child_count[nodes] > 0).any() and (tree.child_count[nodes] == 0).any()   # merged nodes and leaves
     whole = pack_gaussians(tree.node_arrays(nodes))
     chunked = detail.pack_nodes(tree, nodes, chunk=37)
     assert chunked[2] == whole[2] == 3
@@ -140,6 +144,16 @@ def test_packing_a_cut_in_chunks_equals_packing_it_whole():
     assert np.array_equal(chunked[0][:, 1:], whole[0][:, 1:])   # scales, rotations, colours exactly
     empty = detail.pack_nodes(tree, nodes[:0])
     assert empty[0].shape == (0, whole[0].shape[1], 4) and np.all(empty[1] == 0)
+    # Blended: each chunk's nodes take their sibling counts from the whole cut, not the chunk.
+    from inceptiongs.lod.blend import blend_weights, blended_arrays
+
+    weights = blend_weights(tree, camera, nodes, 30.0)
+    assert 0 < (weights < 1).sum() < len(nodes)
+    blended_whole = pack_gaussians(blended_arrays(tree, nodes, weights))
+    blended_chunked = detail.pack_nodes(tree, nodes, chunk=37, weights=weights)
+    np.testing.assert_allclose(blended_chunked[0], blended_whole[0], rtol=0, atol=2e-3)
+    assert np.array_equal(blended_chunked[0][:, 1:], blended_whole[0][:, 1:])
+    assert not np.array_equal(blended_chunked[0][:, 1:], chunked[0][:, 1:])
 
 
 def test_only_an_unedited_model_is_replaced_by_the_tree_leaves():

@@ -2,34 +2,16 @@
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
 import pytest
 
-from inceptiongs.camera import Camera, look_at
 from inceptiongs.io.ply import read_ply
 from inceptiongs.lod.cut import cut_nodes
 from inceptiongs.lod.hierarchy import build_hierarchy
 from inceptiongs.rasterizer.interface import cpu_rasterizer, render_rgb
 
-from lod_cases import random_gaussians
+from lod_cases import orbit_camera, psnr, random_gaussians
 
 GRANULARITIES = (64.0, 16.0, 4.0, 1.0, 0.0)
-
-
-def psnr(image, reference) -> float:
-    mse = float(((image - reference) ** 2).mean())
-    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
-
-
-def orbit_camera(means: np.ndarray, width=128, height=96) -> Camera:
-    """A camera looking at the model's median from 2.5 times its 95th-percentile radius."""
-    centre = np.median(means, axis=0)
-    radius = np.percentile(np.linalg.norm(means - centre, axis=1), 95)
-    direction = np.array([0.3, -1.0, -2.0]) / np.linalg.norm([0.3, -1.0, -2.0])
-    return Camera("orbit", width, height, 0.9 * width, 0.9 * width, width / 2, height / 2,
-                  look_at(centre + 2.5 * radius * direction, centre))
 
 
 def psnr_by_granularity(gaussians) -> tuple[list[float], list[int]]:
