@@ -61,7 +61,18 @@ def children_of(hierarchy: LodHierarchy, nodes: np.ndarray) -> np.ndarray:
 
 
 def cut_nodes(hierarchy: LodHierarchy, camera: Camera, granularity_px: float) -> np.ndarray:
-    """The nodes to draw at ``granularity_px`` (see the module doc): [S] int64, ascending."""
+    """The nodes to draw at ``granularity_px`` (see the module doc): [S] int64, ascending. The
+    numba pass of :mod:`.cut_numba`; :func:`walk_cut_nodes` is the same cut in numpy."""
+    from .cut_numba import DRAWN, cut_states  # noqa: PLC0415  (numba compiles on first use)
+
+    if not granularity_px >= 0.0:
+        raise ValueError(f"granularity must be >= 0 pixels, got {granularity_px}")
+    return np.flatnonzero(cut_states(hierarchy, camera, granularity_px, view_ratio_bounds(camera)) == DRAWN)
+
+
+def walk_cut_nodes(hierarchy: LodHierarchy, camera: Camera, granularity_px: float) -> np.ndarray:
+    """:func:`cut_nodes` by walking down from the root level by level, vectorised over the
+    frontier (the reference the numba pass is tested against)."""
     if not granularity_px >= 0.0:
         raise ValueError(f"granularity must be >= 0 pixels, got {granularity_px}")
     frontier = hierarchy.roots.astype(np.int64)

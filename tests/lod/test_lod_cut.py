@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from inceptiongs.camera import Camera, look_at
-from inceptiongs.lod.cut import budget_cut_nodes, children_of, cut_intervals, cut_nodes, lod_gaussians, node_sizes
+from inceptiongs.lod.cut import (budget_cut_nodes, children_of, cut_intervals, cut_nodes, lod_gaussians, node_sizes,
+                                 walk_cut_nodes)
 from inceptiongs.lod.hierarchy import build_hierarchy
 
 from lod_cases import random_gaussians
@@ -48,6 +50,25 @@ def test_cut_is_a_cut_and_matches_the_interval_route(tree):
         nodes = cut_nodes(tree, camera, g)
         assert_is_cut(tree, nodes)
         np.testing.assert_array_equal(nodes, np.flatnonzero(kept & (lower < g) & (g <= upper)))
+
+
+@pytest.mark.parametrize("eye, target", [((1.0, -2.0, -7.0), (0.0, 0.0, 0.0)),     # the model in view
+                                         ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),      # inside the root's sphere
+                                         ((0.3, 0.1, -1.5), (2.0, 0.0, 0.0)),     # partly beside the view
+                                         ((0.0, 0.0, -30.0), (0.0, 0.0, -60.0))])  # the model behind
+def test_the_numba_pass_equals_the_numpy_walk(tree, eye, target):
+    camera = camera_at(eye, target)
+    for g in (0.0, 0.25, 1.0, 3.0, 9.5, 40.0, 1e6, np.inf):
+        np.testing.assert_array_equal(cut_nodes(tree, camera, g), walk_cut_nodes(tree, camera, g))
+    # Far from the origin (float32 means of 1e4), a camera beside the model.
+    shifted = random_gaussians(300, seed=5)
+    shifted.means.add_(torch.tensor([1e4, -2e4, 3e4]))
+    far = build_hierarchy(shifted)
+    camera = camera_at(np.array([1e4, -2e4, 3e4]) + [0.5, -1.0, -6.0], target=np.array([1e4, -2e4, 3e4]))
+    for g in (0.0, 2.0, 20.0):
+        np.testing.assert_array_equal(cut_nodes(far, camera, g), walk_cut_nodes(far, camera, g))
+    with pytest.raises(ValueError, match="granularity"):
+        cut_nodes(tree, camera, float("nan"))
 
 
 def test_nodes_behind_or_beside_the_camera_are_dropped(tree):
