@@ -55,9 +55,10 @@ PACK_CHUNK = 262_144
 # Bytes the window keeps per Gaussian besides the model's own arrays: the LOD tree (every
 # leaf copied in Morton order plus a third as many parents, 4 x (11 + 3 K) bytes each, with 16
 # bytes of links and radius; an unedited model is then shown from those leaves and its own
-# arrays freed, so the estimate errs on the safe side) and, for each Gaussian drawn, the GL side: the packed Gaussian
-# texture (16 x (3 + ceil(3 K / 4)) bytes), the preprocess output buffer (64), its read-back
-# for the CPU compositing or its copy as a texture for the quad paths (64), the depth order (8).
+# arrays freed, so the estimate errs on the safe side) and, for each Gaussian drawn, the
+# renderer's: the packed Gaussians (16 x (3 + ceil(3 K / 4)) bytes; a texture for the quad
+# paths), the preprocess output (64), then its copy as a texture for the quad paths (64) or
+# the CPU compositing's per-splat terms (60), and the depth order (8).
 TREE_LINK_BYTES = 16
 GL_SPLAT_BYTES = 64 + 64 + 8
 
@@ -125,13 +126,14 @@ def next_budget(budget: int, render_ms: float, target_ms: float | None = None) -
 
 
 def pack_nodes(hierarchy, nodes: np.ndarray, chunk: int | None = None, weights: np.ndarray | None = None) -> tuple:
-    """renderer.splats.pack_gaussians of the tree's ``nodes`` [S], gathered and packed ``chunk``
-    (default PACK_CHUNK) nodes at a time into one texel array: a settled cut of millions holds
-    only its texels and one chunk's temporaries (gathering it whole first took 3 x the memory).
-    weights [S]: each node blended towards its parent (lod.blend; None: drawn as they are).
-    The anchor is the cut's float64 centroid, as pack_gaussians would choose."""
+    """renderer.splats.pack_gaussians of the tree's ``nodes`` [S] into one texel array, holding
+    no gathered copy of a cut of millions (gathering it whole first took 3 x the memory): nodes
+    drawn as they are in one pass straight from the tree (renderer.pack_numba), nodes blended
+    towards their parents (``weights`` [S], lod.blend) ``chunk`` (default PACK_CHUNK) at a
+    time. The anchor is the cut's float64 centroid, as pack_gaussians would choose."""
     from inceptiongs.constants import sh_degree_from_count  # noqa: PLC0415
     from inceptiongs.lod.blend import blended_arrays, sibling_counts  # noqa: PLC0415
+    from inceptiongs.renderer.pack_numba import pack_rows  # noqa: PLC0415
     from inceptiongs.renderer.splats import pack_gaussians  # noqa: PLC0415
 
     chunk = PACK_CHUNK if chunk is None else chunk
@@ -141,16 +143,19 @@ def pack_nodes(hierarchy, nodes: np.ndarray, chunk: int | None = None, weights: 
         total += hierarchy.means[nodes[start:start + chunk]].astype(np.float64).sum(axis=0)
     anchor = total / max(count, 1)   # an empty cut: 0 / 1
     degree = sh_degree_from_count(hierarchy.sh.shape[1])
+    anchor = anchor if np.all(np.isfinite(anchor)) else np.zeros(3)
     texels = np.empty((count, 3 + -(-3 * hierarchy.sh.shape[1] // 4), 4), np.float32)
-    blend = weights is not None and bool((weights < 1.0).any())
-    siblings = sibling_counts(hierarchy, nodes) if blend else None
+    if weights is None or not (weights < 1.0).any():
+        # The nodes as they are: packed straight from the tree in one pass (no gathered copies).
+        pack_rows(hierarchy.arrays(), nodes, anchor, out=texels)
+        return texels, anchor, degree
+    siblings = sibling_counts(hierarchy, nodes)
     for start in range(0, count, chunk):
         part_nodes = nodes[start:start + chunk]
-        arrays = blended_arrays(hierarchy, part_nodes, weights[start:start + chunk], siblings[start:start + chunk]) \
-            if blend else hierarchy.node_arrays(part_nodes)
+        arrays = blended_arrays(hierarchy, part_nodes, weights[start:start + chunk], siblings[start:start + chunk])
         part, _, _ = pack_gaussians(arrays, anchor=anchor)
         texels[start:start + len(part)] = part
-    return texels, (anchor if np.all(np.isfinite(anchor)) else np.zeros(3)), degree
+    return texels, anchor, degree
 
 
 def camera_key(camera) -> bytes:

@@ -122,12 +122,14 @@ def visible_depth_order(relative_means: np.ndarray, visible: np.ndarray, rotatio
 
     The torch rasterizer's order: camera z computed in float64, rounded to float32, ascending,
     ties by index. Visible Gaussians have z >= NEAR_PLANE > 0, where the float32 bit pattern
-    read as uint32 is monotonic in z, so (bits << 32 | index) is a unique uint64 key whose
-    plain sort is that stable order, about twice as fast as a stable argsort of floats."""
+    read as uint32 is monotonic in z: :mod:`.sort_numba` sorts those bits (stable, so ties keep
+    index order). A mask that lets through a depth not finite and positive (a caller's own)
+    gets a stable argsort of the floats instead."""
+    from .sort_numba import sorted_visible  # noqa: PLC0415 (numba compiles on first use)
+
     candidates = np.flatnonzero(visible)
+    order = sorted_visible(relative_means, candidates, rotation[2], translation[2])
+    if order is not None:
+        return order
     z = (relative_means[candidates].astype(np.float64) @ rotation[2] + translation[2]).astype(np.float32)
-    if not (candidates.size == 0 or (np.all(z > 0.0) and np.all(np.isfinite(z)))):
-        return candidates[np.argsort(z, kind="stable")]  # only reachable with a foreign mask
-    keys = (z.view(np.uint32).astype(np.uint64) << np.uint64(32)) | candidates.astype(np.uint64)
-    keys.sort()
-    return (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    return candidates[np.argsort(z, kind="stable")]

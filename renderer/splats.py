@@ -6,9 +6,10 @@ A frame is three passes:
 2. depth sort (compute-shader bitonic sort on GL >= 4.3, numpy otherwise);
 3. compositing, one of (``SplatRenderer.compositing``):
    - "cpu" (the default on software GL such as llvmpipe, whose "GPU" is the CPU cores):
-     the preprocess output is read back and composited front to back with the stop rule
-     by renderer/cpu_composite.py, exactly like the torch rasterizer; draw() uploads the
-     result and shows it with one full-viewport pass;
+     passes 1 and 2 run on the CPU cores too (renderer/preprocess_numba.py, the shader's rules
+     on the packed Gaussians kept here; renderer/sort_numba.py), and the splats are composited
+     front to back with the stop rule by renderer/cpu_composite.py, exactly like the torch
+     rasterizer; draw() uploads the result and shows it with one full-viewport pass;
    - "fetch" (hardware GL with GL_EXT_shader_framebuffer_fetch): one quad per Gaussian (the
      oriented box of the ellipse where alpha >= ALPHA_MIN), composited front to back in the
      fragment shader, stop rule included; draw() blends back to front;
@@ -32,18 +33,12 @@ from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 
 from .context import RendererError, check_context
 from .gl_camera import pixel_to_ndc_scale, shader_camera
+from .layout import BASE_TEXELS, MODES, SPLAT_TEXELS, TEXTURE_WIDTH
 from .shaders import build_source
 from .sorting import GpuDepthSort, depth_order, quad_elements, visible_depth_order
 
-MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
 COMPOSITING = ("cpu", "fetch", "blend")
 FRAMEBUFFER_FETCH = "GL_EXT_shader_framebuffer_fetch"
-# Width of the packed data textures (texels); height grows with the Gaussian count.
-TEXTURE_WIDTH = 4096
-# Texels per Gaussian before the SH: mean - anchor & opacity logit, log-scales, quaternion.
-_BASE_TEXELS = 3
-# The preprocess pass writes this many vec4 per Gaussian.
-SPLAT_TEXELS = 4
 # Oriented quads whose semi-axis exceeds this many pixels are drawn as clamped axis-aligned
 # boxes instead (float32 corners far outside the image lose the sub-pixel precision).
 QUAD_AXIS_MAX = 4096.0
@@ -67,14 +62,14 @@ def pack_gaussians(arrays: dict[str, np.ndarray], anchor: np.ndarray | None = No
     if not np.all(np.isfinite(anchor)):
         anchor = np.zeros(3)
     sh_texels = math.ceil(3 * sh.shape[1] / 4)
-    texels = np.zeros((n, _BASE_TEXELS + sh_texels, 4), np.float32)
+    texels = np.zeros((n, BASE_TEXELS + sh_texels, 4), np.float32)
     texels[:, 0, :3] = means - anchor
     texels[:, 0, 3] = np.asarray(arrays["opacity_logits"], np.float32).reshape(n)
     texels[:, 1, :3] = np.asarray(arrays["log_scales"], np.float32).reshape(n, 3)
     texels[:, 2, :] = np.asarray(arrays["quats"], np.float32).reshape(n, 4)
-    flat_sh = texels[:, _BASE_TEXELS:, :].reshape(n, sh_texels * 4)
+    flat_sh = texels[:, BASE_TEXELS:, :].reshape(n, sh_texels * 4)
     flat_sh[:, : 3 * sh.shape[1]] = sh.reshape(n, 3 * sh.shape[1])
-    texels[:, _BASE_TEXELS:, :] = flat_sh.reshape(n, sh_texels, 4)
+    texels[:, BASE_TEXELS:, :] = flat_sh.reshape(n, sh_texels, 4)
     return texels, anchor, degree
 
 
@@ -133,6 +128,8 @@ class SplatRenderer:
         self._degree = 0
         self._anchor = np.zeros(3)
         self._relative_means = np.zeros((0, 3), np.float32)
+        self._texels: np.ndarray | None = None       # "cpu" compositing: the packed Gaussians
+        self._cpu_splats: np.ndarray | None = None   # and their preprocess output, reused
         self._gaussian_texture: moderngl.Texture | None = None
         self._splat_buffer: moderngl.Buffer | None = None
         self._splat_texture: moderngl.Texture | None = None
@@ -161,26 +158,53 @@ class SplatRenderer:
 
     def set_packed(self, texels: np.ndarray, anchor: np.ndarray, degree: int, version: int | None = None) -> None:
         """set_gaussians() for Gaussians packed already (pack_gaussians(), e.g. on a worker
-        thread): texels [N, 3 + S, 4] float32, anchor [3], SH degree."""
+        thread): texels [N, 3 + S, 4] float32, anchor [3], SH degree. With "cpu" compositing
+        the texels stay here (the CPU cores preprocess them, renderer/preprocess_numba.py) and
+        GL holds none of them; the quad paths upload them into the Gaussian texture."""
         if version is not None and version == self._version:
             return
+        texels = np.ascontiguousarray(texels, np.float32)
+        self._count, self._degree, self._anchor, self._version = texels.shape[0], degree, anchor, version
+        if self.compositing == "cpu":
+            self._texels, self._relative_means = texels, texels[:, 0, :3]
+            return
+        self._texels = None
+        self._relative_means = np.ascontiguousarray(texels[:, 0, :3])
+        self._upload(texels)
+
+    def _upload(self, texels: np.ndarray) -> None:
+        """texels [N, 3 + S, 4] float32 into the Gaussian texture; the preprocess output buffer sized."""
         n, per_gaussian = texels.shape[0], texels.shape[1]
         height = _texture_height(n * per_gaussian)
         if height > self.ctx.info["GL_MAX_TEXTURE_SIZE"]:
-            raise RendererError(f"{n} Gaussians with SH degree {degree} exceed this GL's "
+            raise RendererError(f"{n} Gaussians with SH degree {self._degree} exceed this GL's "
                                 f"texture size ({self.ctx.info['GL_MAX_TEXTURE_SIZE']})")
-        self._count, self._degree, self._anchor, self._version = n, degree, anchor, version
-        self._relative_means = np.ascontiguousarray(texels[:, 0, :3])
         if n == 0:
             return
         self._gaussian_texture = self._grow_texture(self._gaussian_texture, height)
-        self._write_texels(np.ascontiguousarray(texels, np.float32).reshape(-1, 4))
+        self._write_texels(texels.reshape(-1, 4))
         splat_bytes = TEXTURE_WIDTH * _texture_height(n * SPLAT_TEXELS) * 16
         if self._splat_buffer is None or self._splat_buffer.size != splat_bytes:
             if self._splat_buffer is not None:
                 self._splat_buffer.release()
             # Exactly the splat texture's size: the quad paths copy the buffer into it each frame.
             self._splat_buffer = self.ctx.buffer(reserve=splat_bytes)
+
+    def _texels_in_gl(self) -> None:
+        """The quad paths after "cpu" compositing held the texels: upload them now."""
+        if self._texels is not None:
+            texels, self._texels = self._texels, None
+            self._relative_means = np.ascontiguousarray(texels[:, 0, :3])
+            self._upload(texels)
+
+    def _texels_on_cpu(self) -> np.ndarray:
+        """The packed texels for the CPU preprocess; read back from GL when a quad path had
+        uploaded them (the compositing changed between frames)."""
+        if self._texels is None:
+            per_gaussian = BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)
+            flat = np.frombuffer(self._gaussian_texture.read(), np.float32)
+            self._texels = flat[: self._count * per_gaussian * 4].reshape(self._count, per_gaussian, 4)
+        return self._texels
 
     def _write_texels(self, flat: np.ndarray) -> None:
         """flat [T, 4] float32 into the Gaussian texture, row by row of TEXTURE_WIDTH: the full
@@ -208,7 +232,7 @@ class SplatRenderer:
         if program is None:
             defines = {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SH_DEGREE": self._degree,
                        "SH_TEXELS": math.ceil(3 * (self._degree + 1) ** 2 / 4),
-                       "GAUSSIAN_TEXELS": _BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)}
+                       "GAUSSIAN_TEXELS": BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)}
             program = self.ctx.program(
                 vertex_shader=build_source(330, ["splat_common.glsl", "splat_preprocess.vert"], defines),
                 varyings=["out_screen", "out_conic", "out_value", "out_minor"])
@@ -340,6 +364,7 @@ class SplatRenderer:
         self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
         if self._count == 0:
             return
+        self._texels_in_gl()
         start = time.perf_counter()
         cam = self._preprocess_pass(camera, mode, sh_degree_cap, splat_scale)
         preprocess_done = time.perf_counter()
@@ -414,6 +439,7 @@ class SplatRenderer:
         """GL preprocess, numpy order, CPU compositing: [H, W, 4] float32 (rgb = sum of
         T alpha value, a = T, negated once the pixel stopped), row 0 = image top."""
         from .cpu_composite import composite_splats  # numba: compiled on first use only
+        from .preprocess_numba import preprocess_splats
 
         self._check_frame_arguments(mode, splat_scale)
         width, height = int(camera.width), int(camera.height)
@@ -423,12 +449,10 @@ class SplatRenderer:
             empty[..., 3] = 1.0
             return empty
         start = time.perf_counter()
-        # GL refuses draws (transform feedback included) without a complete framebuffer,
-        # and a headless context has no default one.
-        self._offscreen_target(1, 1).use()
-        cam = self._preprocess_pass(camera, mode, sh_degree_cap, splat_scale)
-        splats = np.frombuffer(self._splat_buffer.read(size=self._count * SPLAT_TEXELS * 16),
-                               np.float32).reshape(self._count, SPLAT_TEXELS, 4)
+        cam = shader_camera(camera, self._anchor)
+        degree = self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
+        splats = self._cpu_splats = preprocess_splats(self._texels_on_cpu(), degree, cam, MODES[mode], splat_scale,
+                                                      out=self._cpu_splats)
         preprocess_done = time.perf_counter()
         order = visible_depth_order(self._relative_means, splats[:, 1, 3] > 0.0, cam.rotation, cam.translation)
         sort_done = time.perf_counter()
@@ -490,6 +514,6 @@ class SplatRenderer:
         self._gaussian_texture = self._splat_buffer = self._splat_texture = None
         self._index_buffer = self._preprocess_vao = self._offscreen = None
         self._present_vao = self._present_program = self._present_texture = None
-        self._composited = None
+        self._composited = self._texels = self._cpu_splats = None
         self._count = 0
         self._version = None

@@ -76,6 +76,26 @@ def test_visible_order_is_float32_z_then_index_without_the_culled():
     assert visible_depth_order(means, np.zeros(5000, bool), rotation, translation).size == 0
 
 
+def test_visible_order_at_scale_and_with_a_foreign_mask():
+    """200k splats turned by a random rotation (the numba radix sort's three passes all matter)
+    against the plain (float32 z, index) key sort; a mask that lets through depths behind the
+    camera gets the stable float sort instead."""
+    rng = np.random.default_rng(3)
+    means = rng.uniform(-1, 1, (200_000, 3)).astype(np.float32)
+    means[1000:1500] = means[7]   # exact ties
+    rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    translation = np.array([0.2, -0.1, 2.5])
+    visible = rng.uniform(size=200_000) > 0.3
+    order = visible_depth_order(means, visible, rotation, translation)
+    candidates = np.flatnonzero(visible)
+    z = (means[candidates].astype(np.float64) @ rotation[2] + translation[2]).astype(np.float32)
+    expected = candidates[np.lexsort((candidates, z))]
+    np.testing.assert_array_equal(order, expected)
+    behind = visible_depth_order(means, visible, rotation, np.array([0.0, 0.0, 0.0]))   # z of both signs
+    z = (means[candidates].astype(np.float64) @ rotation[2]).astype(np.float32)
+    np.testing.assert_array_equal(behind, candidates[np.lexsort((candidates, z))])
+
+
 @pytest.mark.parametrize("compositing", ["fetch", "blend"])
 def test_gpu_bitonic_sort_matches_numpy_sort(gl_context, compositing):
     if gl_context.version_code < 430:
