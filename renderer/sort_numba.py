@@ -3,12 +3,12 @@ without its [N] float64 and uint64 temporaries, and sorted in parallel.
 
 The visible Gaussians come in ascending index order, so a *stable* sort by the float32 depth
 alone gives the contract's order (depth, ties by index). Depths are >= NEAR_PLANE > 0, where a
-float32's bits read as uint32 rise with the value: two passes of a stable 16-bit counting sort
-(low half, then high half) sort them, each pass counted and scattered by every thread over its
-own contiguous share of the input, in order, which keeps it stable. On the 3.7M visible splats
-of a 5M overview (two cores): ~0.1 s, against ~0.5 s for the numpy keys and sort, and two
-the depths' bits and the order, twice each (24 bytes a splat), instead of the numpy route's
-gathered means, float64 depths and uint64 keys (about 80).
+float32's bits read as uint32 rise with the value: three passes of a stable 11-bit counting
+sort (lowest bits first) sort them, each pass counted and scattered by every thread over its
+own contiguous share of the input, in order, which keeps it stable. On 3.7M visible splats (two
+shared cores) 0.14-0.23 s against 0.20-0.33 s for the numpy keys and sort, with the depths'
+bits and the order, twice each (24 bytes a splat), instead of the numpy route's gathered means,
+float64 depths and uint64 keys (about 80).
 """
 
 from __future__ import annotations
