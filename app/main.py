@@ -58,7 +58,9 @@ def _open(args, size) -> int:
     """The window on ``args.source`` (or one screenshot of it) -> exit status."""
     from .screenshot import take_screenshot  # noqa: PLC0415
     from .sources import open_source  # noqa: PLC0415
+    from .warmup import start_warmup  # noqa: PLC0415
 
+    start_warmup()   # the first frame's kernels and imports, while the model is read
     runs_dir = None
     if args.runs:
         runs_dir = Path(args.runs)

@@ -273,7 +273,10 @@ def model_rows(path: Path, size: tuple[int, int], frames: int) -> dict:
     from inceptiongs.app.sources import open_source
     from inceptiongs.evaluation.metrics import psnr
 
+    from inceptiongs.app.warmup import start_warmup
+
     began = time.perf_counter()
+    start_warmup()   # as inceptiongs-viewer does before reading the model
     viewer = viewer_module.Viewer(open_source(path), *size)
     out = {"model": str(path), "size": f"{size[0]}x{size[1]}", "gaussians": viewer.view.edit.count}
     try:

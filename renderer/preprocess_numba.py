@@ -81,133 +81,125 @@ def _turn(rotation, row, a0, a1, a2):
     return rotation[row, 0] * a0 + rotation[row, 1] * a1 + rotation[row, 2] * a2
 
 
-@njit(fastmath=False, cache=True)
-def _preprocess_one(texels, g, degree, rotation, translation, center, intrinsics, size, bounds, mode,
-                    splat_scale, basis, out):
-    """Gaussian ``g`` into out[g] (module doc); bounds: the clamped view ratios lo_x, hi_x, lo_y,
-    hi_y; basis: [16] scratch."""
-    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
-    width, height = size[0], size[1]
-    lo_x, hi_x, lo_y, hi_y = bounds[0], bounds[1], bounds[2], bounds[3]
-    for r in range(4):
-        for c in range(4):
-            out[g, r, c] = 0.0   # culled unless written below
-    m0, m1, m2 = np.float64(texels[g, 0, 0]), np.float64(texels[g, 0, 1]), np.float64(texels[g, 0, 2])
-    t0 = _turn(rotation, 0, m0, m1, m2) + translation[0]
-    t1 = _turn(rotation, 1, m0, m1, m2) + translation[1]
-    t2 = _turn(rotation, 2, m0, m1, m2) + translation[2]
-    if not (t2 >= NEAR_PLANE and t2 <= FAR_PLANE):
-        return   # also rejects NaN
-    logit = min(max(np.float64(texels[g, 0, 3]), -OPACITY_LOGIT_ABS_MAX), OPACITY_LOGIT_ABS_MAX)
-    opacity = 1.0 / (1.0 + math.exp(-logit))
-    if opacity < ALPHA_MIN:
-        return
-    l0 = min(max(np.float64(texels[g, 1, 0]), LOG_SCALE_MIN), LOG_SCALE_MAX)
-    l1 = min(max(np.float64(texels[g, 1, 1]), LOG_SCALE_MIN), LOG_SCALE_MAX)
-    l2 = min(max(np.float64(texels[g, 1, 2]), LOG_SCALE_MIN), LOG_SCALE_MAX)
-    s0, s1, s2 = math.exp(l0) * splat_scale, math.exp(l1) * splat_scale, math.exp(l2) * splat_scale
-    # Rotation of the quaternion (w, x, y, z), its norm clamped: a zero one is the identity.
-    qw, qx, qy, qz = (np.float64(texels[g, 2, 0]), np.float64(texels[g, 2, 1]),
-                      np.float64(texels[g, 2, 2]), np.float64(texels[g, 2, 3]))
-    norm = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), QUAT_NORM_MIN)
-    qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
-    # The Gaussian's axes (columns of its rotation) in the model frame.
-    x0, x1, x2 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz), 2.0 * (qx * qz - qw * qy)
-    y0, y1, y2 = 2.0 * (qx * qy - qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
-    z0, z1, z2 = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
-    inv_z = 1.0 / t2   # t.z >= NEAR_PLANE > 0
-    tx = t2 * min(max(t0 * inv_z, lo_x), hi_x)
-    ty = t2 * min(max(t1 * inv_z, lo_y), hi_y)
-    j00, j02 = fx * inv_z, -fx * tx * inv_z * inv_z
-    j11, j12 = fy * inv_z, -fy * ty * inv_z * inv_z
-    # Rows of T = J W R diag(s) (2 x 3), cov2d before dilation = T T^T; column k is the
-    # k-th axis turned into the camera frame and scaled.
-    wx0, wx1, wx2 = _turn(rotation, 0, x0, x1, x2), _turn(rotation, 1, x0, x1, x2), _turn(rotation, 2, x0, x1, x2)
-    wy0, wy1, wy2 = _turn(rotation, 0, y0, y1, y2), _turn(rotation, 1, y0, y1, y2), _turn(rotation, 2, y0, y1, y2)
-    wz0, wz1, wz2 = _turn(rotation, 0, z0, z1, z2), _turn(rotation, 1, z0, z1, z2), _turn(rotation, 2, z0, z1, z2)
-    ax0, ax1, ax2 = wx0 * s0, wx1 * s0, wx2 * s0
-    ay0, ay1, ay2 = wy0 * s1, wy1 * s1, wy2 * s1
-    az0, az1, az2 = wz0 * s2, wz1 * s2, wz2 * s2
-    r00, r01, r02 = j00 * ax0 + j02 * ax2, j00 * ay0 + j02 * ay2, j00 * az0 + j02 * az2
-    r10, r11, r12 = j11 * ax1 + j12 * ax2, j11 * ay1 + j12 * ay2, j11 * az1 + j12 * az2
-    xx = r00 * r00 + r01 * r01 + r02 * r02
-    xy = r00 * r10 + r01 * r11 + r02 * r12
-    yy = r10 * r10 + r11 * r11 + r12 * r12
-    # det(T T^T) by the Lagrange identity (never negative), then the dilation.
-    c0, c1, c2 = r01 * r12 - r02 * r11, r02 * r10 - r00 * r12, r00 * r11 - r01 * r10
-    det = c0 * c0 + c1 * c1 + c2 * c2 + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
-    a, b, c = xx + DILATION_PX, xy, yy + DILATION_PX
-    if not (det >= DET_MIN) or math.isinf(det):
-        return
-    mx, my = fx * t0 * inv_z + cx, fy * t1 * inv_z + cy
-    level = 2.0 * math.log(opacity / ALPHA_MIN)   # opacity >= ALPHA_MIN: level >= 0
-    ex, ey = math.sqrt(level * a), math.sqrt(level * c)
-    if mx + ex <= 0.0 or mx - ex >= width or my + ey <= 0.0 or my - ey >= height:
-        return
-    if mode == MODE_RGB:
-        d0, d1, d2 = m0 - center[0], m1 - center[1], m2 - center[2]
-        length = max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _DIRECTION_MIN)
-        d0, d1, d2 = d0 / length, d1 / length, d2 / length
-        _sh_basis(degree, d0, d1, d2, basis)
-        coefficients = (degree + 1) * (degree + 1)
-        v0 = _sh_channel(texels, g, coefficients, basis, 0)
-        v1 = _sh_channel(texels, g, coefficients, basis, 1)
-        v2 = _sh_channel(texels, g, coefficients, basis, 2)
-    elif mode == MODE_NORMAL:
-        # Planar normal: the smallest-scale axis (first on ties), turned to face the camera.
-        n0, n1, n2 = wx0, wx1, wx2
-        smallest = l0
-        if l1 < smallest:
-            n0, n1, n2, smallest = wy0, wy1, wy2, l1
-        if l2 < smallest:
-            n0, n1, n2 = wz0, wz1, wz2
-        flip = -1.0 if n0 * t0 + n1 * t1 + n2 * t2 > 0.0 else 1.0
-        v0, v1, v2 = flip * n0, flip * n1, flip * n2
-    else:
-        v0 = v1 = v2 = t2
-    # The footprint ellipse's axes (eigenvectors of cov2d), semi-axes sqrt(level * lambda).
-    mid = 0.5 * (a + c)
-    lambda1 = mid + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))
-    lambda2 = det / lambda1   # lambda1 >= DILATION_PX > 0
-    if a >= c:
-        u0, u1 = lambda1 - c, b
-    else:
-        u0, u1 = b, lambda1 - a
-    major_length = math.sqrt(u0 * u0 + u1 * u1)
-    if major_length > 0.0:
-        u0, u1 = u0 / major_length, u1 / major_length
-    else:
-        u0, u1 = 1.0, 0.0   # a circle: any axis
-    major, minor = math.sqrt(level * lambda1), math.sqrt(level * max(lambda2, 0.0))
-    out[g, 0, 0] = mx
-    out[g, 0, 1] = my
-    out[g, 0, 2] = u0 * major
-    out[g, 0, 3] = u1 * major
-    out[g, 1, 0] = c / det
-    out[g, 1, 1] = -b / det
-    out[g, 1, 2] = a / det
-    out[g, 1, 3] = opacity
-    out[g, 2, 0] = v0
-    out[g, 2, 1] = v1
-    out[g, 2, 2] = v2
-    out[g, 2, 3] = t2
-    out[g, 3, 0] = -u1 * minor
-    out[g, 3, 1] = u0 * minor
-
-
 @njit(fastmath=False, cache=True, nogil=True)
 def _preprocess_range(texels, start, stop, degree, rotation, translation, center, intrinsics, size, mode,
                       splat_scale, out):
     """Gaussians [start, stop) into out; no interpreter lock held, so threads split a frame."""
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
-    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * size[0] / fx
-    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * size[1] / fy
-    bounds = np.array([-cx / fx - widen_x, (size[0] - cx) / fx + widen_x,
-                       -cy / fy - widen_y, (size[1] - cy) / fy + widen_y])
-    basis = np.zeros(16)
+    width, height = size[0], size[1]
+    # The Jacobian's view ratios clamped to the field of view widened by FRUSTUM_CLAMP_MARGIN.
+    widen_x = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * width / fx
+    widen_y = (FRUSTUM_CLAMP_MARGIN - 1.0) * 0.5 * height / fy
+    lo_x, hi_x = -cx / fx - widen_x, (width - cx) / fx + widen_x
+    lo_y, hi_y = -cy / fy - widen_y, (height - cy) / fy + widen_y
+    basis = np.zeros(16)   # the SH basis of the Gaussian at hand
     for g in range(start, stop):
-        _preprocess_one(texels, g, degree, rotation, translation, center, intrinsics, size, bounds, mode,
-                        splat_scale, basis, out)
+        for r in range(4):
+            for c in range(4):
+                out[g, r, c] = 0.0   # culled unless written below
+        m0, m1, m2 = np.float64(texels[g, 0, 0]), np.float64(texels[g, 0, 1]), np.float64(texels[g, 0, 2])
+        t0 = _turn(rotation, 0, m0, m1, m2) + translation[0]
+        t1 = _turn(rotation, 1, m0, m1, m2) + translation[1]
+        t2 = _turn(rotation, 2, m0, m1, m2) + translation[2]
+        if not (t2 >= NEAR_PLANE and t2 <= FAR_PLANE):
+            continue   # also rejects NaN
+        logit = min(max(np.float64(texels[g, 0, 3]), -OPACITY_LOGIT_ABS_MAX), OPACITY_LOGIT_ABS_MAX)
+        opacity = 1.0 / (1.0 + math.exp(-logit))
+        if opacity < ALPHA_MIN:
+            continue
+        l0 = min(max(np.float64(texels[g, 1, 0]), LOG_SCALE_MIN), LOG_SCALE_MAX)
+        l1 = min(max(np.float64(texels[g, 1, 1]), LOG_SCALE_MIN), LOG_SCALE_MAX)
+        l2 = min(max(np.float64(texels[g, 1, 2]), LOG_SCALE_MIN), LOG_SCALE_MAX)
+        s0, s1, s2 = math.exp(l0) * splat_scale, math.exp(l1) * splat_scale, math.exp(l2) * splat_scale
+        # Rotation of the quaternion (w, x, y, z), its norm clamped: a zero one is the identity.
+        qw, qx, qy, qz = (np.float64(texels[g, 2, 0]), np.float64(texels[g, 2, 1]),
+                          np.float64(texels[g, 2, 2]), np.float64(texels[g, 2, 3]))
+        norm = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), QUAT_NORM_MIN)
+        qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
+        # The Gaussian's axes (columns of its rotation) in the model frame.
+        x0, x1, x2 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz), 2.0 * (qx * qz - qw * qy)
+        y0, y1, y2 = 2.0 * (qx * qy - qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
+        z0, z1, z2 = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+        inv_z = 1.0 / t2   # t.z >= NEAR_PLANE > 0
+        tx = t2 * min(max(t0 * inv_z, lo_x), hi_x)
+        ty = t2 * min(max(t1 * inv_z, lo_y), hi_y)
+        j00, j02 = fx * inv_z, -fx * tx * inv_z * inv_z
+        j11, j12 = fy * inv_z, -fy * ty * inv_z * inv_z
+        # Rows of T = J W R diag(s) (2 x 3), cov2d before dilation = T T^T; column k is the
+        # k-th axis turned into the camera frame and scaled.
+        wx0, wx1, wx2 = _turn(rotation, 0, x0, x1, x2), _turn(rotation, 1, x0, x1, x2), _turn(rotation, 2, x0, x1, x2)
+        wy0, wy1, wy2 = _turn(rotation, 0, y0, y1, y2), _turn(rotation, 1, y0, y1, y2), _turn(rotation, 2, y0, y1, y2)
+        wz0, wz1, wz2 = _turn(rotation, 0, z0, z1, z2), _turn(rotation, 1, z0, z1, z2), _turn(rotation, 2, z0, z1, z2)
+        ax0, ax1, ax2 = wx0 * s0, wx1 * s0, wx2 * s0
+        ay0, ay1, ay2 = wy0 * s1, wy1 * s1, wy2 * s1
+        az0, az1, az2 = wz0 * s2, wz1 * s2, wz2 * s2
+        r00, r01, r02 = j00 * ax0 + j02 * ax2, j00 * ay0 + j02 * ay2, j00 * az0 + j02 * az2
+        r10, r11, r12 = j11 * ax1 + j12 * ax2, j11 * ay1 + j12 * ay2, j11 * az1 + j12 * az2
+        xx = r00 * r00 + r01 * r01 + r02 * r02
+        xy = r00 * r10 + r01 * r11 + r02 * r12
+        yy = r10 * r10 + r11 * r11 + r12 * r12
+        # det(T T^T) by the Lagrange identity (never negative), then the dilation.
+        c0, c1, c2 = r01 * r12 - r02 * r11, r02 * r10 - r00 * r12, r00 * r11 - r01 * r10
+        det = c0 * c0 + c1 * c1 + c2 * c2 + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
+        a, b, c = xx + DILATION_PX, xy, yy + DILATION_PX
+        if not (det >= DET_MIN) or math.isinf(det):
+            continue
+        mx, my = fx * t0 * inv_z + cx, fy * t1 * inv_z + cy
+        level = 2.0 * math.log(opacity / ALPHA_MIN)   # opacity >= ALPHA_MIN: level >= 0
+        ex, ey = math.sqrt(level * a), math.sqrt(level * c)
+        if mx + ex <= 0.0 or mx - ex >= width or my + ey <= 0.0 or my - ey >= height:
+            continue
+        if mode == MODE_RGB:
+            d0, d1, d2 = m0 - center[0], m1 - center[1], m2 - center[2]
+            length = max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _DIRECTION_MIN)
+            d0, d1, d2 = d0 / length, d1 / length, d2 / length
+            _sh_basis(degree, d0, d1, d2, basis)
+            coefficients = (degree + 1) * (degree + 1)
+            v0 = _sh_channel(texels, g, coefficients, basis, 0)
+            v1 = _sh_channel(texels, g, coefficients, basis, 1)
+            v2 = _sh_channel(texels, g, coefficients, basis, 2)
+        elif mode == MODE_NORMAL:
+            # Planar normal: the smallest-scale axis (first on ties), turned to face the camera.
+            n0, n1, n2 = wx0, wx1, wx2
+            smallest = l0
+            if l1 < smallest:
+                n0, n1, n2, smallest = wy0, wy1, wy2, l1
+            if l2 < smallest:
+                n0, n1, n2 = wz0, wz1, wz2
+            flip = -1.0 if n0 * t0 + n1 * t1 + n2 * t2 > 0.0 else 1.0
+            v0, v1, v2 = flip * n0, flip * n1, flip * n2
+        else:
+            v0 = v1 = v2 = t2
+        # The footprint ellipse's axes (eigenvectors of cov2d), semi-axes sqrt(level * lambda).
+        mid = 0.5 * (a + c)
+        lambda1 = mid + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))
+        lambda2 = det / lambda1   # lambda1 >= DILATION_PX > 0
+        if a >= c:
+            u0, u1 = lambda1 - c, b
+        else:
+            u0, u1 = b, lambda1 - a
+        major_length = math.sqrt(u0 * u0 + u1 * u1)
+        if major_length > 0.0:
+            u0, u1 = u0 / major_length, u1 / major_length
+        else:
+            u0, u1 = 1.0, 0.0   # a circle: any axis
+        major, minor = math.sqrt(level * lambda1), math.sqrt(level * max(lambda2, 0.0))
+        out[g, 0, 0] = mx
+        out[g, 0, 1] = my
+        out[g, 0, 2] = u0 * major
+        out[g, 0, 3] = u1 * major
+        out[g, 1, 0] = c / det
+        out[g, 1, 1] = -b / det
+        out[g, 1, 2] = a / det
+        out[g, 1, 3] = opacity
+        out[g, 2, 0] = v0
+        out[g, 2, 1] = v1
+        out[g, 2, 2] = v2
+        out[g, 2, 3] = t2
+        out[g, 3, 0] = -u1 * minor
+        out[g, 3, 1] = u0 * minor
+
+
 
 
 def preprocess_splats(texels: np.ndarray, sh_degree: int, camera, mode: int, splat_scale: float,
@@ -224,7 +216,7 @@ def preprocess_splats(texels: np.ndarray, sh_degree: int, camera, mode: int, spl
                  np.asarray(camera.intrinsics, np.float64), np.asarray(camera.size, np.float64), int(mode),
                  float(splat_scale), out)
     # Threads over contiguous shares, each in compiled code without the interpreter lock:
-    # numba's parallel=True lowering of this body took ~25 s to compile on first use, this 4.5 s.
+    # numba's parallel=True lowering of this loop took ~25 s to compile on first use, this 4.2 s.
     shares = max(1, min(_threads(), n // MIN_SHARE))
     bounds = np.linspace(0, n, shares + 1).astype(np.int64)
     if shares == 1:
