@@ -133,15 +133,12 @@ def pack_nodes(hierarchy, nodes: np.ndarray, chunk: int | None = None, weights: 
     time. The anchor is the cut's float64 centroid, as pack_gaussians would choose."""
     from inceptiongs.constants import sh_degree_from_count  # noqa: PLC0415
     from inceptiongs.lod.blend import blended_arrays, sibling_counts  # noqa: PLC0415
-    from inceptiongs.renderer.pack_numba import pack_rows  # noqa: PLC0415
+    from inceptiongs.renderer.pack_numba import pack_rows, rows_centroid  # noqa: PLC0415
     from inceptiongs.renderer.splats import pack_gaussians  # noqa: PLC0415
 
     chunk = PACK_CHUNK if chunk is None else chunk
     count = len(nodes)
-    total = np.zeros(3)
-    for start in range(0, count, chunk):
-        total += hierarchy.means[nodes[start:start + chunk]].astype(np.float64).sum(axis=0)
-    anchor = total / max(count, 1)   # an empty cut: 0 / 1
+    anchor = rows_centroid(hierarchy.means, nodes)
     degree = sh_degree_from_count(hierarchy.sh.shape[1])
     anchor = anchor if np.all(np.isfinite(anchor)) else np.zeros(3)
     texels = np.empty((count, 3 + -(-3 * hierarchy.sh.shape[1] // 4), 4), np.float32)

@@ -35,6 +35,25 @@ def _pack_rows(means, log_scales, quats, opacity_logits, sh, rows, anchor, texel
                 texels[i, BASE_TEXELS + flat // 4, flat % 4] = sh[row, k, channel]
 
 
+@njit(parallel=True, fastmath=False, cache=True)
+def _row_sums(means, rows):
+    s0 = s1 = s2 = 0.0
+    for i in prange(len(rows)):
+        s0 += np.float64(means[rows[i], 0])
+        s1 += np.float64(means[rows[i], 1])
+        s2 += np.float64(means[rows[i], 2])
+    return s0, s1, s2
+
+
+def rows_centroid(means: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """[3] float64 mean of ``means[rows]`` (the origin for no rows), without gathering them:
+    the anchor pack_gaussians would choose, to float64 rounding (0.15 s for 3.7M rows in
+    numpy chunks, a fraction of that here)."""
+    if len(rows) == 0:
+        return np.zeros(3)
+    return np.array(_row_sums(means, np.asarray(rows, np.int64))) / len(rows)
+
+
 def pack_rows(arrays: dict[str, np.ndarray], rows: np.ndarray, anchor: np.ndarray,
               out: np.ndarray | None = None) -> np.ndarray:
     """arrays as Gaussians.numpy() (float32), rows [S] int -> texels [S, 3 + ceil(3 K / 4), 4]
