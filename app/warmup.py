@@ -3,8 +3,8 @@
 Without it the first frame took 1.7-2.1 s (a 1M or 5M model, two cores): the CPU renderer's
 numba kernels loaded from numba's cache (or compiled, the first time after an install), numba's
 thread pool started, and the module the training panel imports on its first draw. Started
-before the model is read, a low-priority thread does that meanwhile: the 1M model's first frame
-then took 0.6 s and the window opened ~1 s sooner (docs/large_scenes.md). A frame that needs a
+before the model is read, a low-priority thread does that meanwhile: the first frame then
+took 0.5-1.0 s and the 1M model's settled frame came ~0.5 s sooner (docs/large_scenes.md). A frame that needs a
 kernel still loading waits for it (numba's compile lock), so the thread can only help.
 """
 
