@@ -33,13 +33,14 @@ def _warm_up() -> None:
         pass
     try:
         import inceptiongs.bootstrap.runner  # noqa: F401, PLC0415 (the training panel's first draw)
-        _tiny_frame()
+        tiny_frame()
     except Exception:  # noqa: BLE001 - only a head start: the first frame reports any real error itself
         pass
 
 
-def _tiny_frame() -> None:
-    """A 64 x 48 frame of 64 Gaussians through the CPU renderer's kernels (rgb, SH degree 0)."""
+def tiny_frame() -> np.ndarray:
+    """A 64 x 48 frame of 64 Gaussians through the CPU renderer's kernels (rgb, SH degree 0)
+    -> [48, 64, 3] float32."""
     from inceptiongs.camera import Camera, look_at  # noqa: PLC0415
     from inceptiongs.renderer.cpu_composite import colour_over_background, composite_splats  # noqa: PLC0415
     from inceptiongs.renderer.gl_camera import shader_camera  # noqa: PLC0415
@@ -59,4 +60,4 @@ def _tiny_frame() -> None:
     cam = shader_camera(camera, anchor)
     splats = preprocess_splats(texels, 0, cam, MODES["rgb"], 1.0)
     order = visible_depth_order(texels[:, 0, :3], splats[:, 1, 3] > 0.0, cam.rotation, cam.translation)
-    colour_over_background(composite_splats(splats, order, 64, 48), (0.0, 0.0, 0.0))
+    return colour_over_background(composite_splats(splats, order, 64, 48), (0.0, 0.0, 0.0))
