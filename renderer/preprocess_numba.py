@@ -27,42 +27,17 @@ from numba import njit
 
 from inceptiongs.constants import (ALPHA_MIN, DET_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN,
                                    LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, OPACITY_LOGIT_ABS_MAX,
-                                   QUAT_NORM_MIN, SH_C0, SH_C1, SH_C2, SH_C3, SH_OFFSET)
+                                   QUAT_NORM_MIN, SH_OFFSET)
+
+from inceptiongs.rasterizer.sh_numba import basis_into
 
 from .layout import BASE_TEXELS, MODES
 
 MODE_RGB, MODE_NORMAL = MODES["rgb"], MODES["normal"]
-_C2 = np.array(SH_C2)
-_C3 = np.array(SH_C3)
 # A thread's smallest share of a frame (fewer Gaussians run on the calling thread alone).
 MIN_SHARE = 16_384
 # Below this the view direction of a mean at the camera centre is not normalised (the shader's 1e-30).
 _DIRECTION_MIN = 1e-30
-
-
-@njit(cache=True)
-def _sh_basis(degree, x, y, z, basis):
-    """The real SH basis up to ``degree`` at the unit direction (x, y, z) into basis[:(degree + 1)^2]."""
-    basis[0] = SH_C0
-    if degree > 0:
-        basis[1] = -SH_C1 * y
-        basis[2] = SH_C1 * z
-        basis[3] = -SH_C1 * x
-    if degree > 1:
-        xx, yy, zz = x * x, y * y, z * z
-        basis[4] = _C2[0] * x * y
-        basis[5] = _C2[1] * y * z
-        basis[6] = _C2[2] * (2.0 * zz - xx - yy)
-        basis[7] = _C2[3] * x * z
-        basis[8] = _C2[4] * (xx - yy)
-        if degree > 2:
-            basis[9] = _C3[0] * y * (3.0 * xx - yy)
-            basis[10] = _C3[1] * x * y * z
-            basis[11] = _C3[2] * y * (4.0 * zz - xx - yy)
-            basis[12] = _C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
-            basis[13] = _C3[4] * x * (4.0 * zz - xx - yy)
-            basis[14] = _C3[5] * z * (xx - yy)
-            basis[15] = _C3[6] * x * (xx - 3.0 * yy)
 
 
 @njit(cache=True)
@@ -79,6 +54,50 @@ def _sh_channel(texels, g, coefficients, basis, channel):
 @njit(cache=True)
 def _turn(rotation, row, a0, a1, a2):
     return rotation[row, 0] * a0 + rotation[row, 1] * a1 + rotation[row, 2] * a2
+
+
+@njit(cache=True)
+def _axes(w, x, y, z):
+    """The rotation of the quaternion (w, x, y, z) as its three columns (the Gaussian's axes in
+    the model frame), flattened; the norm is clamped, so a zero quaternion is the identity."""
+    w, x, y, z = np.float64(w), np.float64(x), np.float64(y), np.float64(z)
+    norm = max(math.sqrt(w * w + x * x + y * y + z * z), QUAT_NORM_MIN)
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),
+            2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x),
+            2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+@njit(cache=True)
+def _footprint_axes(a, b, c, det, level):
+    """The footprint ellipse's major axis (unit u0, u1) and its semi-axes sqrt(level * lambda)
+    from the eigenvalues of the dilated cov2d [[a, b], [b, c]] (det its determinant)."""
+    lambda1 = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))
+    lambda2 = det / lambda1   # lambda1 >= DILATION_PX > 0
+    u0, u1 = (lambda1 - c, b) if a >= c else (b, lambda1 - a)
+    length = math.sqrt(u0 * u0 + u1 * u1)
+    if length > 0.0:
+        u0, u1 = u0 / length, u1 / length
+    else:
+        u0, u1 = 1.0, 0.0   # a circle: any axis
+    return u0, u1, math.sqrt(level * lambda1), math.sqrt(level * max(lambda2, 0.0))
+
+
+@njit(cache=True)
+def _screen_covariance(ax0, ax1, ax2, ay0, ay1, ay2, az0, az1, az2, j00, j11, j02, j12):
+    """The dilated cov2d (a, b, c) and its determinant from the scaled axes in the camera frame
+    (a*, columns of W R diag(s)) and the EWA Jacobian's entries [[j00, 0, j02], [0, j11, j12]]
+    (at the frustum-clamped mean)."""
+    # Rows of T = J W R diag(s) (2 x 3): cov2d before dilation = T T^T.
+    r00, r01, r02 = j00 * ax0 + j02 * ax2, j00 * ay0 + j02 * ay2, j00 * az0 + j02 * az2
+    r10, r11, r12 = j11 * ax1 + j12 * ax2, j11 * ay1 + j12 * ay2, j11 * az1 + j12 * az2
+    xx = r00 * r00 + r01 * r01 + r02 * r02
+    xy = r00 * r10 + r01 * r11 + r02 * r12
+    yy = r10 * r10 + r11 * r11 + r12 * r12
+    # det(T T^T) by the Lagrange identity (never negative), then the dilation.
+    c0, c1, c2 = r01 * r12 - r02 * r11, r02 * r10 - r00 * r12, r00 * r11 - r01 * r10
+    det = c0 * c0 + c1 * c1 + c2 * c2 + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
+    return xx + DILATION_PX, xy, yy + DILATION_PX, det
 
 
 @njit(fastmath=False, cache=True, nogil=True)
@@ -111,37 +130,16 @@ def _preprocess_range(texels, start, stop, degree, rotation, translation, center
         l1 = min(max(np.float64(texels[g, 1, 1]), LOG_SCALE_MIN), LOG_SCALE_MAX)
         l2 = min(max(np.float64(texels[g, 1, 2]), LOG_SCALE_MIN), LOG_SCALE_MAX)
         s0, s1, s2 = math.exp(l0) * splat_scale, math.exp(l1) * splat_scale, math.exp(l2) * splat_scale
-        # Rotation of the quaternion (w, x, y, z), its norm clamped: a zero one is the identity.
-        qw, qx, qy, qz = (np.float64(texels[g, 2, 0]), np.float64(texels[g, 2, 1]),
-                          np.float64(texels[g, 2, 2]), np.float64(texels[g, 2, 3]))
-        norm = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), QUAT_NORM_MIN)
-        qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
-        # The Gaussian's axes (columns of its rotation) in the model frame.
-        x0, x1, x2 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz), 2.0 * (qx * qz - qw * qy)
-        y0, y1, y2 = 2.0 * (qx * qy - qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
-        z0, z1, z2 = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
-        inv_z = 1.0 / t2   # t.z >= NEAR_PLANE > 0
-        tx = t2 * min(max(t0 * inv_z, lo_x), hi_x)
-        ty = t2 * min(max(t1 * inv_z, lo_y), hi_y)
-        j00, j02 = fx * inv_z, -fx * tx * inv_z * inv_z
-        j11, j12 = fy * inv_z, -fy * ty * inv_z * inv_z
-        # Rows of T = J W R diag(s) (2 x 3), cov2d before dilation = T T^T; column k is the
-        # k-th axis turned into the camera frame and scaled.
+        x0, x1, x2, y0, y1, y2, z0, z1, z2 = _axes(texels[g, 2, 0], texels[g, 2, 1], texels[g, 2, 2], texels[g, 2, 3])
+        # The axes turned into the camera frame (the normal mode's candidates too).
         wx0, wx1, wx2 = _turn(rotation, 0, x0, x1, x2), _turn(rotation, 1, x0, x1, x2), _turn(rotation, 2, x0, x1, x2)
         wy0, wy1, wy2 = _turn(rotation, 0, y0, y1, y2), _turn(rotation, 1, y0, y1, y2), _turn(rotation, 2, y0, y1, y2)
         wz0, wz1, wz2 = _turn(rotation, 0, z0, z1, z2), _turn(rotation, 1, z0, z1, z2), _turn(rotation, 2, z0, z1, z2)
-        ax0, ax1, ax2 = wx0 * s0, wx1 * s0, wx2 * s0
-        ay0, ay1, ay2 = wy0 * s1, wy1 * s1, wy2 * s1
-        az0, az1, az2 = wz0 * s2, wz1 * s2, wz2 * s2
-        r00, r01, r02 = j00 * ax0 + j02 * ax2, j00 * ay0 + j02 * ay2, j00 * az0 + j02 * az2
-        r10, r11, r12 = j11 * ax1 + j12 * ax2, j11 * ay1 + j12 * ay2, j11 * az1 + j12 * az2
-        xx = r00 * r00 + r01 * r01 + r02 * r02
-        xy = r00 * r10 + r01 * r11 + r02 * r12
-        yy = r10 * r10 + r11 * r11 + r12 * r12
-        # det(T T^T) by the Lagrange identity (never negative), then the dilation.
-        c0, c1, c2 = r01 * r12 - r02 * r11, r02 * r10 - r00 * r12, r00 * r11 - r01 * r10
-        det = c0 * c0 + c1 * c1 + c2 * c2 + DILATION_PX * (xx + yy) + DILATION_PX * DILATION_PX
-        a, b, c = xx + DILATION_PX, xy, yy + DILATION_PX
+        inv_z = 1.0 / t2   # t.z >= NEAR_PLANE > 0
+        a, b, c, det = _screen_covariance(wx0 * s0, wx1 * s0, wx2 * s0, wy0 * s1, wy1 * s1, wy2 * s1,
+                                          wz0 * s2, wz1 * s2, wz2 * s2, fx * inv_z, fy * inv_z,
+                                          -fx * t2 * min(max(t0 * inv_z, lo_x), hi_x) * inv_z * inv_z,
+                                          -fy * t2 * min(max(t1 * inv_z, lo_y), hi_y) * inv_z * inv_z)
         if not (det >= DET_MIN) or math.isinf(det):
             continue
         mx, my = fx * t0 * inv_z + cx, fy * t1 * inv_z + cy
@@ -153,8 +151,8 @@ def _preprocess_range(texels, start, stop, degree, rotation, translation, center
             d0, d1, d2 = m0 - center[0], m1 - center[1], m2 - center[2]
             length = max(math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), _DIRECTION_MIN)
             d0, d1, d2 = d0 / length, d1 / length, d2 / length
-            _sh_basis(degree, d0, d1, d2, basis)
             coefficients = (degree + 1) * (degree + 1)
+            basis_into(d0, d1, d2, coefficients, basis)
             v0 = _sh_channel(texels, g, coefficients, basis, 0)
             v1 = _sh_channel(texels, g, coefficients, basis, 1)
             v2 = _sh_channel(texels, g, coefficients, basis, 2)
@@ -170,20 +168,7 @@ def _preprocess_range(texels, start, stop, degree, rotation, translation, center
             v0, v1, v2 = flip * n0, flip * n1, flip * n2
         else:
             v0 = v1 = v2 = t2
-        # The footprint ellipse's axes (eigenvectors of cov2d), semi-axes sqrt(level * lambda).
-        mid = 0.5 * (a + c)
-        lambda1 = mid + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))
-        lambda2 = det / lambda1   # lambda1 >= DILATION_PX > 0
-        if a >= c:
-            u0, u1 = lambda1 - c, b
-        else:
-            u0, u1 = b, lambda1 - a
-        major_length = math.sqrt(u0 * u0 + u1 * u1)
-        if major_length > 0.0:
-            u0, u1 = u0 / major_length, u1 / major_length
-        else:
-            u0, u1 = 1.0, 0.0   # a circle: any axis
-        major, minor = math.sqrt(level * lambda1), math.sqrt(level * max(lambda2, 0.0))
+        u0, u1, major, minor = _footprint_axes(a, b, c, det, level)
         out[g, 0, 0] = mx
         out[g, 0, 1] = my
         out[g, 0, 2] = u0 * major
@@ -216,7 +201,7 @@ def preprocess_splats(texels: np.ndarray, sh_degree: int, camera, mode: int, spl
                  np.asarray(camera.intrinsics, np.float64), np.asarray(camera.size, np.float64), int(mode),
                  float(splat_scale), out)
     # Threads over contiguous shares, each in compiled code without the interpreter lock:
-    # numba's parallel=True lowering of this loop took ~25 s to compile on first use, this 4.2 s.
+    # numba's parallel=True lowering of this loop took ~25 s to compile on first use, this ~5 s.
     shares = max(1, min(_threads(), n // MIN_SHARE))
     bounds = np.linspace(0, n, shares + 1).astype(np.int64)
     if shares == 1:

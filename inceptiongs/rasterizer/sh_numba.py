@@ -24,7 +24,7 @@ C30, C31, C32, C33, C34, C35, C36 = SH_C3
 
 
 @njit(cache=True)
-def _basis(x, y, z, count, out):
+def basis_into(x, y, z, count, out):
     """The real SH basis (sh.sh_basis's order and signs) up to ``count`` terms into out."""
     out[0] = SH_C0
     if count > 1:
@@ -98,7 +98,7 @@ def _forward_kernel(sh, directions, count, colour):
     for chunk in prange((m + _CHUNK - 1) // _CHUNK):
         basis = np.empty(16)
         for i in range(chunk * _CHUNK, min(m, (chunk + 1) * _CHUNK)):
-            _basis(directions[i, 0], directions[i, 1], directions[i, 2], count, basis)
+            basis_into(directions[i, 0], directions[i, 1], directions[i, 2], count, basis)
             for c in range(3):
                 raw = SH_OFFSET
                 for k in range(count):
@@ -114,7 +114,7 @@ def _backward_kernel(sh, directions, count, g_colour, g_sh, g_directions):
         g_basis = np.empty(16)
         for i in range(chunk * _CHUNK, min(m, (chunk + 1) * _CHUNK)):
             x, y, z = directions[i, 0], directions[i, 1], directions[i, 2]
-            _basis(x, y, z, count, basis)
+            basis_into(x, y, z, count, basis)
             g_basis[:count] = 0.0
             for c in range(3):
                 raw = SH_OFFSET
