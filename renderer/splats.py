@@ -436,7 +436,7 @@ class SplatRenderer:
 
     def _cpu_frame(self, camera: Camera, mode: str, sh_degree_cap: int | None,
                    splat_scale: float) -> np.ndarray:
-        """GL preprocess, numpy order, CPU compositing: [H, W, 4] float32 (rgb = sum of
+        """Preprocess, order and compositing on the CPU cores: [H, W, 4] float32 (rgb = sum of
         T alpha value, a = T, negated once the pixel stopped), row 0 = image top."""
         from .cpu_composite import composite_splats  # numba: compiled on first use only
         from .preprocess_numba import preprocess_splats

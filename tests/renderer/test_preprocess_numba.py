@@ -89,3 +89,23 @@ def test_the_sh_degree_cap_and_splat_scale_are_honoured(gl_context):
     assert not np.allclose(full[both, 2, :3], capped[both, 2, :3])   # the cap changed colours
     wide = preprocess_splats(texels, 3, shader_camera(cam, anchor), MODES["rgb"], 2.0)
     assert (np.abs(wide[both, 0, 2:4]).sum() > np.abs(full[both, 0, 2:4]).sum() * 1.5)
+
+
+def test_switching_the_compositing_between_frames_keeps_the_model(gl_context):
+    """"cpu" keeps the packed Gaussians on the CPU; a quad path uploads them when it first
+    draws, and "cpu" again reads them back from GL: the same frame each time on "cpu"."""
+    arrays = stiff_model(800, seed=9, degree=1).numpy()
+    cam = camera()
+    renderer = SplatRenderer(gl_context, sort="cpu", compositing="cpu")
+    try:
+        renderer.set_gaussians(arrays)
+        first = renderer.render(cam, "rgb")
+        renderer.compositing = "blend"
+        blended = renderer.render(cam, "rgb")
+        renderer.compositing = "cpu"
+        again = renderer.render(cam, "rgb")
+    finally:
+        renderer.release()
+    np.testing.assert_array_equal(again, first)
+    assert float(np.abs(blended - first).mean()) < 0.05   # the same model drawn by the quads
+    assert first.max() > 0.1
