@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from inceptiongs.renderer.layout import texels_per_gaussian
+
 LOD_MIN_GAUSSIANS = 500_000
 SETTLED_GRANULARITY_PX = 1.0
 # The moving cut's render (preprocess, sort, compositing) is held near this; the rest of a
@@ -70,7 +72,7 @@ def model_bytes_per_gaussian(sh_coefficients: int) -> int:
 
 def gl_bytes_per_gaussian(sh_coefficients: int) -> int:
     """GL memory per Gaussian drawn (on llvmpipe this is system memory too)."""
-    return 16 * (3 + -(-3 * sh_coefficients // 4)) + GL_SPLAT_BYTES
+    return 16 * texels_per_gaussian(sh_coefficients) + GL_SPLAT_BYTES
 
 
 def window_bytes(count: int, sh_coefficients: int) -> int:
@@ -138,14 +140,13 @@ def pack_nodes(hierarchy, nodes: np.ndarray, chunk: int | None = None, weights: 
 
     chunk = PACK_CHUNK if chunk is None else chunk
     count = len(nodes)
-    anchor = rows_centroid(hierarchy.means, nodes)
     degree = sh_degree_from_count(hierarchy.sh.shape[1])
+    anchor = rows_centroid(hierarchy.means, nodes)
     anchor = anchor if np.all(np.isfinite(anchor)) else np.zeros(3)
-    texels = np.empty((count, 3 + -(-3 * hierarchy.sh.shape[1] // 4), 4), np.float32)
     if weights is None or not (weights < 1.0).any():
         # The nodes as they are: packed straight from the tree in one pass (no gathered copies).
-        pack_rows(hierarchy.arrays(), nodes, anchor, out=texels)
-        return texels, anchor, degree
+        return pack_rows(hierarchy.arrays(), nodes, anchor), anchor, degree
+    texels = np.empty((count, texels_per_gaussian(hierarchy.sh.shape[1]), 4), np.float32)
     siblings = sibling_counts(hierarchy, nodes)
     for start in range(0, count, chunk):
         part_nodes = nodes[start:start + chunk]
@@ -291,7 +292,7 @@ class DetailWorker:
             self.build_seconds, self.from_cache = time.perf_counter() - start, cached
 
     def _make_cut(self, version, camera, settled: bool, budget: int) -> None:
-        from inceptiongs.lod.blend import blend_weights, effective_granularity  # noqa: PLC0415
+        from inceptiongs.lod.blend import blend_weights  # noqa: PLC0415
         from inceptiongs.lod.cut import cut_nodes, greedy_budget_cut_nodes  # noqa: PLC0415
 
         hierarchy = self.hierarchy
@@ -305,7 +306,7 @@ class DetailWorker:
         else:
             # Blended towards their parents near the threshold: the next moving cut does not pop.
             nodes = greedy_budget_cut_nodes(hierarchy, camera, budget)
-            weights = blend_weights(hierarchy, camera, nodes, effective_granularity(hierarchy, camera, nodes))
+            weights = blend_weights(hierarchy, camera, nodes)   # at the budget cut's own granularity
         packed = pack_nodes(hierarchy, nodes, weights=weights)
         with self._lock:
             if version != self.version:

@@ -44,7 +44,7 @@ from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.io.atomic import atomic_write_text
 from inceptiongs.io.ply import read_ply, write_ply
-from inceptiongs.lod.blend import blend_weights, effective_granularity
+from inceptiongs.lod.blend import blend_weights
 from inceptiongs.lod.cache import load_or_build
 from inceptiongs.lod.cut import cut_nodes, greedy_budget_cut_nodes
 from inceptiongs.renderer.context import create_offscreen_context
@@ -98,8 +98,8 @@ def measure_size(donut: dict, copies: int, size: tuple[int, int], frames: int, c
             camera = nav.camera(*size)
             nodes, cut_s = timed(lambda: greedy_budget_cut_nodes(tree, camera, budget))
             # Blended towards their parents, as the window's moving cuts are.
-            _, upload_s = timed(lambda: renderer.set_packed(*pack_nodes(
-                tree, nodes, weights=blend_weights(tree, camera, nodes, effective_granularity(tree, camera, nodes)))))
+            weights = blend_weights(tree, camera, nodes)
+            _, upload_s = timed(lambda: renderer.set_packed(*pack_nodes(tree, nodes, weights=weights)))
             render_ms = draw_ms(renderer, camera, framebuffer, passes=passes["moving"])
             moving.append(render_ms), cuts.append(1e3 * cut_s), uploads.append(1e3 * upload_s)
             drawn.append(len(nodes))

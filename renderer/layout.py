@@ -9,3 +9,13 @@ BASE_TEXELS = 3
 SPLAT_TEXELS = 4
 # Render modes as the preprocess pass numbers them.
 MODES = {"rgb": 0, "depth": 1, "normal": 2, "alpha": 3}
+
+
+def sh_texels(sh_coefficients: int) -> int:
+    """Texels holding K SH coefficients per channel (3 K floats, 4 a texel)."""
+    return -(-3 * sh_coefficients // 4)
+
+
+def texels_per_gaussian(sh_coefficients: int) -> int:
+    """Texels one packed Gaussian takes: BASE_TEXELS and its SH."""
+    return BASE_TEXELS + sh_texels(sh_coefficients)

@@ -9,12 +9,10 @@ float32), so the texels are bit-equal (tests/renderer/test_pack_numba.py).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
-from .layout import BASE_TEXELS
+from .layout import BASE_TEXELS, texels_per_gaussian
 
 
 @njit(parallel=True, fastmath=False, cache=True)
@@ -60,7 +58,7 @@ def pack_rows(arrays: dict[str, np.ndarray], rows: np.ndarray, anchor: np.ndarra
     float32 (``out`` when given, e.g. a slice of a larger texel array), means relative to
     ``anchor`` [3] float64."""
     sh = arrays["sh"]
-    shape = (len(rows), BASE_TEXELS + math.ceil(3 * sh.shape[1] / 4), 4)
+    shape = (len(rows), texels_per_gaussian(sh.shape[1]), 4)
     if out is None:
         out = np.empty(shape, np.float32)
     if out.shape != shape:

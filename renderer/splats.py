@@ -33,7 +33,7 @@ from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 
 from .context import RendererError, check_context
 from .gl_camera import pixel_to_ndc_scale, shader_camera
-from .layout import BASE_TEXELS, MODES, SPLAT_TEXELS, TEXTURE_WIDTH
+from .layout import BASE_TEXELS, MODES, SPLAT_TEXELS, TEXTURE_WIDTH, sh_texels, texels_per_gaussian
 from .shaders import build_source
 from .sorting import GpuDepthSort, depth_order, quad_elements, visible_depth_order
 
@@ -61,15 +61,15 @@ def pack_gaussians(arrays: dict[str, np.ndarray], anchor: np.ndarray | None = No
         anchor = means.mean(axis=0) if n else np.zeros(3)
     if not np.all(np.isfinite(anchor)):
         anchor = np.zeros(3)
-    sh_texels = math.ceil(3 * sh.shape[1] / 4)
-    texels = np.zeros((n, BASE_TEXELS + sh_texels, 4), np.float32)
+    per_sh = sh_texels(sh.shape[1])
+    texels = np.zeros((n, BASE_TEXELS + per_sh, 4), np.float32)
     texels[:, 0, :3] = means - anchor
     texels[:, 0, 3] = np.asarray(arrays["opacity_logits"], np.float32).reshape(n)
     texels[:, 1, :3] = np.asarray(arrays["log_scales"], np.float32).reshape(n, 3)
     texels[:, 2, :] = np.asarray(arrays["quats"], np.float32).reshape(n, 4)
-    flat_sh = texels[:, BASE_TEXELS:, :].reshape(n, sh_texels * 4)
+    flat_sh = texels[:, BASE_TEXELS:, :].reshape(n, per_sh * 4)
     flat_sh[:, : 3 * sh.shape[1]] = sh.reshape(n, 3 * sh.shape[1])
-    texels[:, BASE_TEXELS:, :] = flat_sh.reshape(n, sh_texels, 4)
+    texels[:, BASE_TEXELS:, :] = flat_sh.reshape(n, per_sh, 4)
     return texels, anchor, degree
 
 
@@ -201,7 +201,7 @@ class SplatRenderer:
         """The packed texels for the CPU preprocess; read back from GL when a quad path had
         uploaded them (the compositing changed between frames)."""
         if self._texels is None:
-            per_gaussian = BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)
+            per_gaussian = texels_per_gaussian((self._degree + 1) ** 2)
             flat = np.frombuffer(self._gaussian_texture.read(), np.float32)
             self._texels = flat[: self._count * per_gaussian * 4].reshape(self._count, per_gaussian, 4)
         return self._texels
@@ -231,8 +231,8 @@ class SplatRenderer:
         program = self._preprocess.get(self._degree)
         if program is None:
             defines = {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SH_DEGREE": self._degree,
-                       "SH_TEXELS": math.ceil(3 * (self._degree + 1) ** 2 / 4),
-                       "GAUSSIAN_TEXELS": BASE_TEXELS + math.ceil(3 * (self._degree + 1) ** 2 / 4)}
+                       "SH_TEXELS": sh_texels((self._degree + 1) ** 2),
+                       "GAUSSIAN_TEXELS": texels_per_gaussian((self._degree + 1) ** 2)}
             program = self.ctx.program(
                 vertex_shader=build_source(330, ["splat_common.glsl", "splat_preprocess.vert"], defines),
                 varyings=["out_screen", "out_conic", "out_value", "out_minor"])

@@ -18,8 +18,9 @@ FIGURE = re.compile(r"(?:docs/)?figures/[A-Za-z0-9_.-]+\.(?:png|jpg|jpeg|gif|svg
 
 ORGANISATION_WORDS = [
     r"\bsessions?\b",
-    r"\b(ninth|tenth|eleventh|twelfth|thirteenth|fourteenth|fifteenth|sixteenth|seventeenth|eighteenth)\b",
-    r"\b(first|second|third|fourth|fifth|sixth|seventh|eighth) (session|round of work)\b",
+    # Ordinals from 9 to 18 ("...th"): the docs count in figures ("17 runs"); the lower
+    # ordinals stay allowed ("the first frame").
+    r"\b(nin|ten|eleven|twelf|thirteen|fourteen|fifteen|sixteen|seventeen|eighteen)th\b",
     r"\bthis round\b",
     r"\bround of work\b",
     r"\bclosing note\b",
@@ -81,6 +82,6 @@ def test_no_word_about_how_the_work_was_organised(path: Path):
 
 def test_the_checks_can_fail(tmp_path: Path):
     doc = tmp_path / "x.md"
-    doc.write_text("As measured in the seventeenth Session.\n![f](figures/none.png)\n")
+    doc.write_text("Figures from before this change.\n![f](figures/none.png)\n")
     assert any(re.search(p, doc.read_text(), re.IGNORECASE) for p in ORGANISATION_WORDS)
     assert not resolve(doc, link_targets(doc)[0]).exists()

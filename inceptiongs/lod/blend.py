@@ -39,19 +39,21 @@ _OPACITY_LOW = 1.0 / (1.0 + np.exp(OPACITY_LOGIT_ABS_MAX))
 _OPACITY_HIGH = 1.0 / (1.0 + np.exp(-OPACITY_LOGIT_ABS_MAX))
 
 
-def blend_weights(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray, granularity_px: float) -> np.ndarray:
-    """nodes [S] of a cut at ``granularity_px`` -> t [S] float32 in [0, 1] (module doc):
+def blend_weights(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray,
+                  granularity_px: float | None = None) -> np.ndarray:
+    """nodes [S] of a cut at ``granularity_px`` (None: a budget cut, at its
+    :func:`effective_granularity`) -> t [S] float32 in [0, 1] (module doc):
     clip((parent size / g - 1) / (BLEND_RATIO - 1), 0, 1); 1 for roots, for g <= 0 (the exact
     model) and for a parent holding the camera (infinite size)."""
     nodes = np.asarray(nodes, np.int64)
     weights = np.ones(len(nodes), np.float32)
-    if not granularity_px > 0.0 or not np.isfinite(granularity_px) or len(nodes) == 0:
+    if granularity_px is not None and not (granularity_px > 0.0 and np.isfinite(granularity_px)):
+        return weights   # the exact model or the root: nothing to blend, no sizes needed
+    has_parent, inverse, sizes, culled = _parents_on_screen(hierarchy, camera, nodes)
+    g = _granularity_of(sizes, culled) if granularity_px is None else granularity_px
+    if not (g > 0.0 and np.isfinite(g)):
         return weights
-    parents = hierarchy.parent[nodes].astype(np.int64)
-    has_parent = parents >= 0
-    unique, inverse = np.unique(parents[has_parent], return_inverse=True)
-    sizes, _ = node_sizes(hierarchy, camera, unique)
-    ratio = sizes[inverse] / granularity_px   # g > 0 and finite: bounded, inf stays inf
+    ratio = sizes[inverse] / g   # g > 0 and finite: bounded, inf stays inf
     weights[has_parent] = np.clip((ratio - 1.0) / (BLEND_RATIO - 1.0), 0.0, 1.0)
     return weights
 
@@ -61,11 +63,22 @@ def effective_granularity(hierarchy: LodHierarchy, camera: Camera, nodes: np.nda
     that all but EFFECTIVE_QUANTILE of the parents it expanded exceed (a cut at g expands only
     nodes of size >= g; the greedy budget cut's batches expand a few smaller ones too); 0 when
     it draws only roots (nothing was expanded: nothing to blend)."""
-    parents = np.unique(hierarchy.parent[np.asarray(nodes, np.int64)])
-    parents = parents[parents >= 0]
-    if len(parents) == 0:
-        return 0.0
-    sizes, culled = node_sizes(hierarchy, camera, parents)
+    _, _, sizes, culled = _parents_on_screen(hierarchy, camera, np.asarray(nodes, np.int64))
+    return _granularity_of(sizes, culled)
+
+
+def _parents_on_screen(hierarchy: LodHierarchy, camera: Camera, nodes: np.ndarray):
+    """-> (has_parent [S] bool, inverse: each such node's index into the distinct parents,
+    the distinct parents' projected sizes and culled flags, as cut.node_sizes gives them)."""
+    parents = hierarchy.parent[nodes].astype(np.int64)
+    has_parent = parents >= 0
+    unique, inverse = np.unique(parents[has_parent], return_inverse=True)
+    sizes, culled = node_sizes(hierarchy, camera, unique)
+    return has_parent, inverse, sizes, culled
+
+
+def _granularity_of(sizes: np.ndarray, culled: np.ndarray) -> float:
+    """EFFECTIVE_QUANTILE of the finite sizes of the parents in view; 0 without any."""
     sizes = sizes[~culled & np.isfinite(sizes)]
     return float(np.quantile(sizes, EFFECTIVE_QUANTILE)) if len(sizes) else 0.0
 

@@ -94,6 +94,7 @@ def test_effective_granularity_of_a_budget_cut(scene):
         greedy = greedy_budget_cut_nodes(tree, camera, budget)
         g = effective_granularity(tree, camera, greedy)
         weights = blend_weights(tree, camera, greedy, g)
+        np.testing.assert_array_equal(blend_weights(tree, camera, greedy), weights)   # g left to the cut
         # Few of the drawn nodes are left as mere shares of their parents (t = 0), some blend.
         assert (weights == 0.0).mean() <= 0.2 and (weights < 1.0).mean() > 0.2, (budget, g)
     assert effective_granularity(tree, camera, tree.roots) == 0.0

@@ -326,7 +326,7 @@ def test_gaussian_seen_from_one_direction_keeps_sh_degree_0():
 def _size_run(**overrides) -> tuple[float, list[dict], float, int]:
     cameras = tc.ring_cameras(4)
     truth = tc.ball(80)
-    # 0.5 units: larger than a tenth of the scene extent (3.3), well inside the ring.
+    # 0.5 units: more than 10 % of the scene extent (3.3), well inside the ring.
     big = tc.blob([0.0, 0.0, 0.0], 0.5, opacity=0.5)
     # The CLI's schedule for 300 steps, without growth (the ball is exact; splits only cost time).
     cfg = dataclasses.replace(short_run_schedule(TrainConfig(pgsr=False, iterations=300, free_space=False,
