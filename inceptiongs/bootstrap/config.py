@@ -69,6 +69,11 @@ class BootstrapConfig(SavedConfig):
                                      "the leave-one-out estimate is measured each round", "views", EXPERIMENTAL)
     include_target: bool = option(True, "also supervise the target pose itself (t = 0) with the repair of its "
                                         "render; false: exactly k * l virtual views per target")
+    # A stage with nothing to do is left out; photo steps come first while they gain more.
+    follow_outlook: bool = option(True, "follow the outlook printed before the start (outlook.py): \"nothing to "
+                                        "repair\" makes no virtual views (every step a photo step); \"train "
+                                        "longer\" takes photo steps until stage I's curve predicts they gain less "
+                                        "than 0.5 dB a minute. false: virtual steps from the first step either way")
 
     # --- generation (only when a prior is used: fill "prior" or blending off) ---------------
     prior: str = option("trained", "\"trained\": the run's prior, else a short one trained here; "

@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import math
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -76,8 +77,8 @@ class BootstrapResult:
 
 def virtual_step_count(step_counts: dict) -> int:
     """Steps that carried a virtual loss: every virtual branch's count ("additive" photo steps
-    are counted by their branch too; "real" and "idle" are photo steps)."""
-    return sum(count for kind, count in step_counts.items() if kind not in ("real", "idle", "additive"))
+    are counted by their branch too; "real", "idle" and "photo_first" are photo steps)."""
+    return sum(count for kind, count in step_counts.items() if kind not in ("real", "idle", "photo_first", "additive"))
 
 
 def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
@@ -173,19 +174,25 @@ class Bootstrap:
     conscience_views: list[int] = field(default_factory=list)
     conscience: Conscience | None = None
     # What each refinement step was ("additive": a photo step carrying a virtual loss, also
-    # counted by its virtual branch; "idle": a virtual slot with no informative view, a photo step).
+    # counted by its virtual branch; "idle": a virtual slot with no informative view, a photo step;
+    # "photo_first": a virtual slot before the round's views are made (follow_outlook), a photo step).
     step_counts: dict = field(default_factory=lambda: dict.fromkeys(
-        ("real", "perceptual", "l1_ssim", "informative_l1", "geometry", "additive", "idle"), 0))
+        ("real", "perceptual", "l1_ssim", "informative_l1", "geometry", "additive", "idle", "photo_first"), 0))
     view_use: dict = field(default_factory=dict)            # how often each virtual view was chosen
     regenerations: list = field(default_factory=list)
     finished: bool = True
     rounds_done: int = 0
-    # The photos on the CPU, where a round's virtual views are made (warps, blending: once per
-    # round); ``data`` holds them on the rasterizer's device for the refinement steps.
+    # The photos on the CPU, for the leave-one-out estimate (placement "evidence"); ``data`` holds
+    # them on the rasterizer's device, where a round's virtual views are made and refined.
     cpu_photos: dict = field(default_factory=dict)
     current_round: int = 0          # 1-based: the round being refined (0: none yet)
     # placement "evidence": the newest round's leave-one-out estimate (validation.py; None: no evidence).
     evidence: EvidenceGrid | None = None
+    # follow_outlook: the outlook's verdict, and the bootstrap's wall second before which every step
+    # is a photo step (0: none; inf: all). A round whose views wait for it is made then (pending).
+    verdict: str = ""
+    photo_until_s: float = 0.0
+    pending_round: int | None = None
 
     # --- prepare ---------------------------------------------------------------------------------
     @classmethod
@@ -223,6 +230,8 @@ class Bootstrap:
             outlook = run_outlook(run.run_dir)   # what stage I's curve says before any work is spent
             log(outlook.line)
             boot.summary["outlook"] = outlook.to_json()
+            if config.follow_outlook:
+                boot.follow(outlook)
             boot.obtain_prior()
         if config.lpips_weights:
             boot.lpips = load_torchscript(config.lpips_weights, "LPIPS")
@@ -236,10 +245,30 @@ class Bootstrap:
         boot.watch_conscience()
         return boot
 
+    def follow(self, outlook) -> None:
+        """The step plan the outlook asks for (outlook.py): none of the virtual views' work when
+        there is nothing to repair, photo steps first while stage I's curve still rises fast."""
+        self.verdict = outlook.verdict
+        if outlook.verdict == "nothing to repair":
+            self.photo_until_s = math.inf
+        elif outlook.verdict == "train longer":
+            wait = outlook.photo_first_min
+            self.photo_until_s = math.inf if wait is None else self.loop.wall_s() + 60.0 * wait
+        self.summary["photo_first_s"] = None if math.isinf(self.photo_until_s) else self.photo_until_s
+        if self.photo_until_s > 0.0:
+            self.log("the loop follows the outlook: " + (
+                "no virtual views, every step on the photos" if math.isinf(self.photo_until_s) else
+                f"photo steps until {self.photo_until_s / 60.0:.1f} min, then virtual views")
+                + " (follow_outlook: false makes virtual views from the start)")
+
     def obtain_prior(self) -> None:
         """The prior that generates the fill, when the supervision needs one (else none is
         trained or loaded, and the summary says what I* is made of instead)."""
         config, began = self.config, time.perf_counter()
+        if math.isinf(self.photo_until_s):
+            self.prior_text = "none: no virtual views (the loop follows the outlook: nothing to repair)"
+            self.summary["prior"] = {"description": self.prior_text, "version": "", "seconds": 0.0}
+            return
         if not config.needs_prior():
             self.prior_text = (f"none: I* is made from the photos and the render (supervision {config.supervision}, "
                                f"fill {config.fill}, depth from the "
@@ -291,11 +320,12 @@ class Bootstrap:
 
     # --- a round's virtual views -------------------------------------------------------------------
     def target_maker(self) -> TargetMaker:
-        """I* from the Gaussians as they are now."""
-        setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.cpu_photos,
+        """I* from the Gaussians as they are now, made where the refinement renders: on a GPU the
+        renders, warps and splatted depths of a round stay on it (at 800x533 on the CPU a view
+        took ~5 s, most of it moving the model and the images across)."""
+        setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.data.images,
                                 self.cache, self.boot_dir / "views", self.rasterizer, self.prior, self.prior_hash)
-        sky = None if self.state.sky is None else self.state.sky.cpu()
-        return TargetMaker(setting, self.model().to("cpu"), sky)
+        return TargetMaker(setting, self.model(), self.state.sky)
 
     def on_device(self, entry: VirtualTarget) -> VirtualTarget:
         """``entry`` with its I* and mask where the refinement renders (moved once, used many steps)."""
@@ -305,9 +335,20 @@ class Bootstrap:
 
     def make_round_targets(self, round_index: int) -> None:
         """The round's virtual views and their I* (from the round's starting Gaussians) join the pool."""
-        goal, config = self.rounds[round_index], self.config
+        goal = self.rounds[round_index]
         round_info = {"round": round_index + 1, "targets": [t.name for t in goal], "views": []}
         self.summary["rounds"].append(round_info)
+        if self.loop.wall_s() < self.photo_until_s:
+            # Photo steps first (follow): the views are made when they are due, from the Gaussians then.
+            round_info["deferred"] = "every step on the photos" if math.isinf(self.photo_until_s) else \
+                f"until {self.photo_until_s:.0f} s"
+            self.pending_round = round_index
+            return
+        self.add_round_views(round_index, round_info)
+
+    def add_round_views(self, round_index: int, round_info: dict) -> None:
+        """The round's virtual views and I* into the pool, their records into ``round_info``."""
+        goal, config = self.rounds[round_index], self.config
         began = time.perf_counter()
         maker = None
         if config.placement == "evidence":
@@ -348,7 +389,8 @@ class Bootstrap:
         """``maker.make``, with placement "evidence" the view's loss weights and gate from the estimate."""
         entry, sources = maker.make(camera, round_number, save)
         if self.config.placement == "evidence":
-            entry = with_evidence(entry, self.evidence, maker.renders.depth(camera), self.config.evidence_min_fraction)
+            entry = with_evidence(entry, self.evidence, maker.renders.depth(camera).cpu(),
+                                  self.config.evidence_min_fraction)
         return entry, sources
 
     def evidence_views(self, round_index: int, goal: Sequence[Target], maker: TargetMaker, round_info: dict) -> list:
@@ -360,17 +402,19 @@ class Bootstrap:
         photos = nearest_training_views(goal[0].camera, cameras, sorted({
             i for target in goal for i in validation_photos(target.camera, cameras, train, k)}),
             config.evidence_photos) if goal else []
-        self.evidence = measure_evidence(photos, cameras, train, self.cpu_photos, config, maker.renders.depth,
-                                         maker.renders.rgb)
+        # The estimate and its voxel grid stay on the CPU (placement "evidence" is experimental).
+        depth_of = lambda camera: maker.renders.depth(camera).cpu()     # noqa: E731
+        self.evidence = measure_evidence(photos, cameras, train, self.cpu_photos, config, depth_of,
+                                         lambda camera: maker.renders.rgb(camera).cpu())
         record = {"validation_photos": [cameras[i].name for i in photos],
                   "estimate": None if self.evidence is None else self.evidence.summary(), "targets": []}
         views = []
         for index, target in enumerate(goal):
             candidates = candidate_views(target.camera, cameras, train, config.k, config.l, config.include_target)
-            region = seen_cells(self.evidence, target.camera, maker.renders.depth(target.camera))
+            region = seen_cells(self.evidence, target.camera, depth_of(target.camera))
             # As many views as the default placement makes: the virtual steps are not spread thinner.
             limit = (config.k or DEFAULT_K) * (config.l or DEFAULT_L) + int(config.include_target)
-            placement = place_by_evidence(candidates, self.evidence, maker.renders.depth, config.evidence_min_fraction,
+            placement = place_by_evidence(candidates, self.evidence, depth_of, config.evidence_min_fraction,
                                           limit=limit, region=region)
             views.extend((index, view) for view in placement.views)
             record["targets"].append({"target": target.name, "placed": [view.name for view in placement.views],
@@ -431,11 +475,15 @@ class Bootstrap:
         its bookkeeping: metrics, snapshot, checkpoint."""
         config = self.config
         self.loop.mark_first_step()
+        if self.pending_round is not None and self.loop.wall_s() >= self.photo_until_s:
+            pending, self.pending_round = self.pending_round, None
+            self.add_round_views(pending, self.summary["rounds"][-1])
         if self.regeneration_due(step, round_end):
             self.regenerate_pool()
         # (A resumed run's conscience starts again: its first step takes the baseline.)
-        if self.conscience is not None and ((step - self.start - 1) % config.conscience_every == 0
-                                            or not self.conscience.history):
+        # (No virtual views yet: nothing for the conscience to restrain, its photo renders are skipped.)
+        if self.conscience is not None and self.pool and ((step - self.start - 1) % config.conscience_every == 0
+                                                          or not self.conscience.history):
             loss = photo_loss(self.rasterizer, self.model(), list(self.run.scene.cameras), self.data.images,
                               self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))
             self.conscience.update(step, loss)
@@ -444,7 +492,7 @@ class Bootstrap:
         self.loop.advance()
         if step % config.log_every == 0:
             record.update(iteration=step, **self.loop.clocks(), round=round_index + 1)
-            if self.conscience is not None:
+            if self.conscience is not None and self.conscience.history:
                 record.update(conscience_loss=self.conscience.history[-1][1], virtual_scale=self.conscience.scale)
             if config.eval_every and step % config.eval_every == 0:
                 record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer))
@@ -460,6 +508,8 @@ class Bootstrap:
         virtual_slot = step % config.virtual_every == 0
         if pool and virtual_slot and not active:
             self.step_counts["idle"] += 1
+        elif self.pending_round is not None and virtual_slot:
+            self.step_counts["photo_first"] += 1
         if not (active and virtual_slot):
             record = train_step(step, self.state, self.data, self.train_config, self.sh_max, self.rasterizer, self.log)
             record["kind"] = "real"

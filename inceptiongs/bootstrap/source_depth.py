@@ -38,14 +38,14 @@ def splat_into(depth: torch.Tensor, camera: Camera, target: Camera) -> torch.Ten
     z_src = depth[..., 0].to(torch.float64)
     valid = (z_src > 0) & torch.isfinite(z_src)
     points = unproject(torch.where(valid, z_src, torch.zeros_like(z_src)), camera)[valid]       # [P, 3]
-    to_target = torch.as_tensor(relative_pose(target, camera), dtype=torch.float64)
+    to_target = torch.as_tensor(relative_pose(target, camera), dtype=torch.float64, device=depth.device)
     in_target = points @ to_target[:3, :3].T + to_target[:3, 3]
     in_target = in_target[in_target[:, 2] > NEAR_PLANE]     # in front only: project's divide is safe
     uv = project(in_target, target)
     x, y = torch.floor(uv[:, 0]), torch.floor(uv[:, 1])
     inside = (x >= 0) & (x < target.width) & (y >= 0) & (y < target.height)
     index = (y[inside].long() * target.width + x[inside].long())
-    zbuffer = torch.full((target.height * target.width,), float("inf"), dtype=torch.float64)
+    zbuffer = torch.full((target.height * target.width,), float("inf"), dtype=torch.float64, device=depth.device)
     zbuffer.scatter_reduce_(0, index, in_target[inside, 2], reduce="amin")
     return zbuffer.reshape(target.height, target.width)
 
@@ -76,7 +76,7 @@ def splatted_depth(target: Camera, sources: Sequence[tuple[torch.Tensor, Camera]
     if close_radius < 0:
         raise ValueError(f"close_radius must be >= 0, got {close_radius}")
     if not sources:
-        return torch.zeros(target.height, target.width, 1)
+        return torch.zeros(target.height, target.width, 1)      # (no source, no device to follow)
     # Each source's holes closed first, so a pixel's median is over every source that reaches
     # it, not only those whose points happened to land in that pixel.
     stacked = torch.stack([close_holes(splat_into(torch.as_tensor(depth), camera, target), close_radius)

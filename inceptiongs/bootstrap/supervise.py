@@ -31,7 +31,7 @@ def supervise_view(context: ViewContext) -> ViewSupervision:
     """I* of the view by ``config.supervision``; without blending (ablation) or photos: the fill
     and an all-zero mask."""
     if not context.config.blending or not context.sources:
-        return ViewSupervision(context.fill, torch.zeros((*context.fill.shape[:2], 1)))
+        return ViewSupervision(context.fill, torch.zeros((*context.fill.shape[:2], 1), device=context.fill.device))
     return supervision_kind(context.config.supervision)(context)
 
 

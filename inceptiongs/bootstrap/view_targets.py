@@ -88,14 +88,15 @@ class TargetMaker:
         self.renders = ModelRenders(current, setting.rasterizer, sky)
         self.gaussians_hash = gaussians_version(current)
 
-    def fill(self, camera: Camera) -> tuple[np.ndarray, bool]:
-        """(what fills the pixels no photo covers [H, W, 3] float32, read from the cache)."""
+    def fill(self, camera: Camera) -> tuple[np.ndarray | torch.Tensor, bool]:
+        """(what fills the pixels no photo covers [H, W, 3] float32, read from the cache): the
+        prior's image (numpy), else the render on the model's device."""
         s = self.setting
         if s.prior is not None:
-            return generate_cached(s.prior, self.current, camera, s.config.seed, s.config.ddim_steps, s.cache,
-                                   s.prior_hash, self.gaussians_hash)
+            return generate_cached(s.prior, self.current.to("cpu"), camera, s.config.seed, s.config.ddim_steps,
+                                   s.cache, s.prior_hash, self.gaussians_hash)
         # The fill is the render itself (or inpainted around it): nothing to generate.
-        return self.renders.rgb(camera).numpy(), False
+        return self.renders.rgb(camera), False
 
     def make(self, camera: Camera, round_number: int, save: bool) -> tuple[VirtualTarget, list[int]]:
         """-> (the view's VirtualTarget, the training views warped into it)."""
@@ -112,7 +113,8 @@ class TargetMaker:
         else:
             # No colour target: I* (depth sweep, warps; ~2.3 s per courtyard view) would be
             # built for nothing. The render stands in for the PNGs, with an empty mask.
-            image, mask = torch.as_tensor(generated, dtype=torch.float32), torch.zeros(camera.height, camera.width, 1)
+            image = torch.as_tensor(generated, dtype=torch.float32)
+            mask = torch.zeros(camera.height, camera.width, 1, device=image.device)
         geometry = self.geometry_sources(sources) if config.geometry_weight > 0 else []
         agreement = report.get("agreement_db")
         # Only the photos' colour is gated: a geometry-only view has no warped colour to judge.

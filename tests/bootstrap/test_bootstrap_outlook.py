@@ -6,11 +6,13 @@ log and summary, `inceptiongs eval`)."""
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
-from inceptiongs.bootstrap.outlook import (NOTHING_TO_REPAIR_DB, STILL_RISING_DB_PER_MIN, gain_per_minute,
-                                           outlook_from_curve, recorded_outlook)
+from inceptiongs.bootstrap.outlook import (NOTHING_TO_REPAIR_DB, STILL_RISING_DB_PER_MIN, gain_decay_minutes,
+                                           gain_per_minute, outlook_from_curve, photo_first_minutes,
+                                           recorded_outlook)
 
 
 def _curve(scarce: list[float], covered: list[float], minutes_apart: float = 1.0) -> list[dict]:
@@ -27,6 +29,52 @@ def test_the_slope_is_read_over_the_end_of_the_curve_in_db_per_minute():
     assert gain_per_minute(lines, "scarce_psnr") == pytest.approx(0.3 / 2.0)    # the last 1/3: 4 to 6 min
     assert gain_per_minute(lines[:2], "scarce_psnr") is None                      # one evaluation: no slope
     assert gain_per_minute(lines, "absent") is None
+
+
+def _saturating(minutes: list[float], tau: float, rise: float = 6.0, start: float = 12.0) -> list[float]:
+    """PSNR of a curve whose gain rate decays exponentially: start + rise (1 - exp(-t / tau))."""
+    return [start + rise * (1.0 - math.exp(-t / tau)) for t in minutes]
+
+
+def test_the_decay_of_the_gain_rate_is_read_from_the_curves_middle_and_last_thirds():
+    # Evaluations every 30 s up to 11.5 min: the middle third (4-7.5 min) and the last (8-11.5)
+    # hold the same layout of points, so their slopes differ by exactly exp(4 min / tau).
+    minutes = [0.5 * i for i in range(24)]
+    for tau in (2.0, 5.0, 20.0):
+        lines = _curve(_saturating(minutes, tau), [26.0] * 24, minutes_apart=0.5)
+        assert gain_decay_minutes(lines) == pytest.approx(tau, rel=1e-6)
+    # A straight line does not slow down, a curve speeding up neither, and three points are too few.
+    assert gain_decay_minutes(_curve([10.0 + i for i in range(12)], [26.0] * 12)) is None
+    assert gain_decay_minutes(_curve([10.0 + 0.1 * i * i for i in range(12)], [26.0] * 12)) is None
+    assert gain_decay_minutes(_curve([10.0, 12.0, 13.0], [26.0] * 3)) is None
+    assert gain_decay_minutes(_curve([20.0] * 12, [26.0] * 12)) is None                  # flat: no rate at all
+
+
+def test_photo_steps_come_first_until_the_predicted_rate_falls_to_the_break_even():
+    assert photo_first_minutes(2.0, 3.0, break_even=0.5) == pytest.approx(3.0 * math.log(4.0))
+    assert photo_first_minutes(0.4, 3.0, break_even=0.5) == 0.0            # already below: none
+    assert photo_first_minutes(None, 3.0) == 0.0 and photo_first_minutes(float("nan"), 3.0) == 0.0
+    assert photo_first_minutes(2.0, None) == math.inf                      # not seen to slow down: all
+    assert photo_first_minutes(2.0, 0.0) == math.inf
+    # The wait it gives brings the exponential rate exactly to the break-even.
+    rate, tau = 1.7, 4.2
+    wait = photo_first_minutes(rate, tau)
+    assert rate * math.exp(-wait / tau) == pytest.approx(STILL_RISING_DB_PER_MIN)
+
+
+def test_train_longer_says_how_long_the_bootstrap_takes_photo_steps_first():
+    minutes = [0.5 * i for i in range(24)]
+    slowing = outlook_from_curve(_curve(_saturating(minutes, 10.0, rise=30.0), [40.0] * 24, minutes_apart=0.5))
+    assert slowing.verdict == "train longer" and slowing.photo_first_min is not None
+    rate = slowing.scarce_db_per_min
+    assert slowing.photo_first_min == pytest.approx(10.0 * math.log(rate / STILL_RISING_DB_PER_MIN), abs=0.01)
+    assert f"first {slowing.photo_first_min:.1f} min on photo steps" in slowing.line
+    steady = outlook_from_curve(_curve([12.0, 15.0, 17.0, 19.0], [22.0, 25.0, 26.0, 27.0]))
+    assert steady.verdict == "train longer" and steady.photo_first_min is None
+    assert "spends every step on the photos" in steady.line
+    converged = outlook_from_curve(_curve([15.0, 17.0, 17.1, 17.15], [22.0, 24.0, 24.3, 24.5]))
+    assert converged.photo_first_min == 0.0
+    assert json.loads(json.dumps(steady.to_json()))["photo_first_min"] is None     # JSON-safe
 
 
 def test_scarce_views_as_good_as_covered_ones_are_nothing_to_repair():

@@ -52,9 +52,12 @@ def _tiny_stage1(root: Path, iterations: int, eval_every: int, checkpoint_every:
 def _config(**overrides) -> BootstrapConfig:
     # The paper's supervision (the prior's image under the blended photos, the render's depth,
     # every view used, alternating steps) unless a test says otherwise.
+    # The tiny stage I still rises fast, so the loop would follow its outlook ("train longer") and
+    # take photo steps only: these tests are about the virtual steps, so they do not follow it.
     base = BootstrapConfig(seed=2, iterations=8, k=2, l=2, ddim_steps=2, prior_steps=2, prior_minutes=1.0,
                            log_every=1, save_views=2, checkpoint_every=4, supervision="blend", fill="prior",
-                           virtual_depth="render", agreement_min_db=None, virtual_every=2, lambda_virtual=0.5)
+                           virtual_depth="render", agreement_min_db=None, virtual_every=2, lambda_virtual=0.5,
+                           follow_outlook=False)
     return dataclasses.replace(base, **overrides)
 
 
@@ -474,6 +477,83 @@ def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos
     assert steps["real"] == iterations and steps["idle"] == iterations // 2
     assert steps["perceptual"] + steps["l1_ssim"] == 0 and summary["regenerations"] == []
     assert result.supervised_views == 0 and result.virtual_views == len(views)
+
+
+def _with_curve(stage1: Path, root: Path, scarce_from_covered) -> Path:
+    """A copy of the stage-I run whose held-out curve says what a test needs: each evaluation's
+    scarce PSNR becomes ``scarce_from_covered(covered PSNR)``."""
+    import shutil
+
+    run = root / "run"
+    shutil.copytree(stage1, run)
+    lines = _records(run)
+    for record in lines:
+        if "scarce_psnr" in record:
+            record["scarce_psnr"] = scarce_from_covered(record["covered_psnr"])
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    return run
+
+
+@pytest.mark.slow
+def test_with_nothing_to_repair_the_loop_makes_no_views_and_is_the_baseline(stage1, tmp_path):
+    """The outlook says nothing to repair (scarce views as good as the covered ones): no virtual
+    view, no prior, no conscience renders; every step is the baseline's photo step, so the model
+    is the same-time baseline's to the bit."""
+    run = _with_curve(stage1, tmp_path, lambda covered: covered - 0.1)
+    iterations = 8
+    result = run_bootstrap(run, tmp_path / "boot", _targets(run), _config(iterations=iterations, follow_outlook=True),
+                           progress=False)
+    summary = json.loads((tmp_path / "boot" / "bootstrap" / "summary.json").read_text())
+    assert summary["outlook"]["verdict"] == "nothing to repair" and summary["photo_first_s"] is None
+    assert summary["rounds"][0]["deferred"] == "every step on the photos" and summary["rounds"][0]["views"] == []
+    assert summary["steps"]["real"] == iterations and summary["steps"]["photo_first"] == iterations // 2
+    assert result.virtual_views == 0 and result.virtual_steps == 0 and "nothing to repair" in result.prior
+    assert not (tmp_path / "boot" / "prior").exists()
+    assert summary["conscience"]["checks"] == []
+    baseline_run(run, tmp_path / "baseline", None, iterations, seed=2, progress=False)
+    boot, _, _ = load_run(tmp_path / "boot")
+    base, _, _ = load_run(tmp_path / "baseline")
+    for name, value in boot.tensors().items():
+        assert torch.equal(value, base.tensors()[name]), name
+    # Not following the outlook makes the views from the first step, as before.
+    other = run_bootstrap(run, tmp_path / "ignored", _targets(run), _config(iterations=iterations), progress=False)
+    assert other.virtual_views > 0 and other.virtual_steps > 0
+
+
+@pytest.mark.slow
+def test_train_longer_takes_photo_steps_first_then_makes_the_views(stage1, tmp_path, monkeypatch):
+    """While stage I's curve predicts photo steps gain more, virtual slots are photo steps; the
+    round's views are made once that time has passed, from the Gaussians then, and used after."""
+    import time
+
+    from inceptiongs.bootstrap import loop as loop_module
+    from inceptiongs.bootstrap.outlook import Outlook
+
+    wait_min = 1.0 / 60.0
+    monkeypatch.setattr(loop_module, "run_outlook", lambda run_dir: Outlook(
+        "train longer", "train longer first: (a test's curve)", photo_first_min=wait_min))
+    original = loop_module.Bootstrap.virtual_or_photo_step
+
+    def slow_step(self, step):          # every step takes >= 40 ms: 60 steps outlast the 1 s wait
+        time.sleep(0.04)
+        return original(self, step)
+
+    monkeypatch.setattr(loop_module.Bootstrap, "virtual_or_photo_step", slow_step)
+    iterations = 60
+    result = run_bootstrap(stage1, tmp_path / "boot", _targets(stage1),
+                           _config(iterations=iterations, follow_outlook=True, fill="render", save_views=0,
+                                   checkpoint_every=1000),
+                           progress=False)
+    summary = json.loads((tmp_path / "boot" / "bootstrap" / "summary.json").read_text())
+    until = summary["photo_first_s"]
+    assert until is not None and summary["rounds"][0]["deferred"] == f"until {until:.0f} s"
+    assert summary["rounds"][0]["views"] and result.virtual_steps > 0
+    assert summary["steps"]["photo_first"] >= 1
+    steps = [r for r in _records(tmp_path / "boot") if "kind" in r]
+    first_virtual = next(r for r in steps if r["kind"] != "real")
+    assert first_virtual["wall_s"] >= until
+    assert all(r["kind"] == "real" for r in steps if r["wall_s"] < until)
+    assert summary["steps"]["real"] + result.virtual_steps == iterations
 
 
 @pytest.mark.slow
