@@ -481,8 +481,10 @@ class Bootstrap:
         if self.regeneration_due(step, round_end):
             self.regenerate_pool()
         # (A resumed run's conscience starts again: its first step takes the baseline.)
-        # (No virtual views yet: nothing for the conscience to restrain, its photo renders are skipped.)
-        if self.conscience is not None and self.pool and ((step - self.start - 1) % config.conscience_every == 0
+        # (No view in use yet, or every view left out: nothing for the conscience to restrain, so
+        # its photo renders are skipped and the time goes to photo steps.)
+        restrains = any(entry.supervised for entry in self.pool)
+        if self.conscience is not None and restrains and ((step - self.start - 1) % config.conscience_every == 0
                                                           or not self.conscience.history):
             loss = photo_loss(self.rasterizer, self.model(), list(self.run.scene.cameras), self.data.images,
                               self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))

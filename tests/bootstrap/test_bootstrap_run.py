@@ -461,7 +461,7 @@ def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tm
 @pytest.mark.slow
 def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos(stage1, tmp_path):
     """An impossible agreement threshold leaves every view out: every step is a photo step and
-    no regeneration is spent; the views' margins are recorded."""
+    neither a regeneration nor the conscience's renders are spent; the views' margins are recorded."""
     out = tmp_path / "gated"
     iterations = 6
     result = run_bootstrap(stage1, out, _targets(stage1),
@@ -477,6 +477,7 @@ def test_views_the_render_outvotes_are_left_out_and_their_steps_go_to_the_photos
     assert steps["real"] == iterations and steps["idle"] == iterations // 2
     assert steps["perceptual"] + steps["l1_ssim"] == 0 and summary["regenerations"] == []
     assert result.supervised_views == 0 and result.virtual_views == len(views)
+    assert summary["conscience"]["checks"] == []          # no view in use: nothing to restrain, no renders
 
 
 def _with_curve(stage1: Path, root: Path, scarce_from_covered) -> Path:
