@@ -83,6 +83,12 @@ def main() -> None:
     photos = nearest_training_views(target, cameras, validation_photos(target, cameras, train, args.k), args.photos)
     grid = measure_evidence(photos, cameras, train, images, config, renders.depth, renders.rgb)
     print(json.dumps({"estimate": None if grid is None else grid.summary()}, indent=1))
+    if grid is not None:
+        # One figure a forecast could quote: the photos' margins weighted by their validated pixels.
+        weighted = [(p["margin_db"], p["pixels"]) for p in grid.photos if p["margin_db"] is not None]
+        total = sum(n for _, n in weighted)
+        print("pooled margin over the validation photos:",
+              "none" if not total else f"{sum(m * n for m, n in weighted) / total:+.2f} dB over {total} pixels")
     for group, views in (("scarce", split.scarce_test), ("covered", split.covered_test[:args.covered])):
         for index in views:
             print(group, json.dumps(score_view(index, grid, cameras, train, images, renders, config)))
