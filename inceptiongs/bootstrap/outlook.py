@@ -142,12 +142,14 @@ def outlook_from_curve(lines: list[dict]) -> Outlook:
     where = f"scarce {scarce:.2f} / covered {covered:.2f} dB"
     if gap < NOTHING_TO_REPAIR_DB:
         return Outlook("nothing to repair", f"nothing to repair here: the scarce views render within "
-                                            f"{NOTHING_TO_REPAIR_DB:g} dB of the covered ones ({where})", **figures)
+                                            f"{NOTHING_TO_REPAIR_DB:g} dB of the covered ones ({where}); by "
+                                            f"default a bootstrap spends every step on the photos", **figures)
     if scarce_rate is not None and scarce_rate >= STILL_RISING_DB_PER_MIN:
         wait = photo_first_minutes(scarce_rate, gain_decay_minutes(lines))
-        plan = ("a bootstrap now spends every step on the photos (stage I's curve shows no slowing)"
-                if math.isinf(wait) else f"a bootstrap now spends its first {wait:.1f} min on photo steps, until "
-                                         f"the curve predicts they gain less than {STILL_RISING_DB_PER_MIN:g} dB a minute")
+        plan = ("by default a bootstrap now spends every step on the photos (stage I's curve shows no slowing)"
+                if math.isinf(wait) else f"by default a bootstrap now spends its first {wait:.1f} min on photo steps, "
+                                         f"until the curve predicts they gain less than {STILL_RISING_DB_PER_MIN:g} "
+                                         f"dB a minute")
         return Outlook("train longer", f"train longer first: stage I still gains {scarce_rate:.2f} dB a minute on "
                                        f"the scarce views ({where}); {plan}",
                        photo_first_min=None if math.isinf(wait) else round(wait, 2), **figures)

@@ -82,6 +82,7 @@ def test_scarce_views_as_good_as_covered_ones_are_nothing_to_repair():
     outlook = outlook_from_curve(_curve([20.0, 23.0, 24.5], [20.5, 23.2, 24.6]))
     assert outlook.verdict == "nothing to repair"
     assert outlook.line.startswith("nothing to repair here: ") and "scarce 24.50 / covered 24.60 dB" in outlook.line
+    assert outlook.line.endswith("by default a bootstrap spends every step on the photos")
     assert outlook.gap_db == pytest.approx(0.1)
 
 
