@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inceptiongs.bootstrap.summary_file import SUMMARY_FILE, read_summary
+from inceptiongs.bootstrap.summary_file import SUMMARY_FILE, read_summary, virtual_step_count
 
 SUMMARY = Path(SUMMARY_FILE)
 GROUPS = ("scarce", "covered", "all")
@@ -53,6 +53,9 @@ class Verdict:
     images: list = field(default_factory=list)
     # What stage I's curve said before the bootstrap started (inceptiongs.bootstrap.outlook).
     outlook: str | None = None
+    # Steps that carried a virtual loss (None: unknown); 0 when the loop followed the outlook or
+    # every view was left out: the result is then stage I trained longer.
+    virtual_steps: int | None = None
 
 
 def _summary(run_dir: Path) -> dict | None:
@@ -99,9 +102,11 @@ def read_verdict(run_dir: Path | None) -> Verdict | None:
         return None
     stage1 = Path(data["run"]) if isinstance(data.get("run"), str) else None
     outlook = data.get("outlook")
+    steps = data.get("steps")
+    counted = isinstance(steps, dict) and all(isinstance(v, int) for v in steps.values())
     verdict = Verdict(Path(run_dir), stage1, before, after,
                       outlook=outlook.get("line") if isinstance(outlook, dict) and isinstance(outlook.get("line"), str)
-                      else None)
+                      else None, virtual_steps=virtual_step_count(steps) if counted else None)
     baseline = find_baseline(Path(run_dir), stage1)
     if baseline is not None:
         verdict.baseline_dir, verdict.baseline = baseline
@@ -135,6 +140,9 @@ def verdict_line(verdict: Verdict) -> str:
     group, before, after, baseline = rows[0]
     if baseline is not None:
         return f"{group} views: {_change(after - baseline, 'the same-time baseline')}"
+    if verdict.virtual_steps == 0:
+        return (f"{group} views: {_change(after - before, 'stage I')}; no virtual step ran (the loop followed "
+                "the outlook, or every view was left out), so this is stage I trained longer")
     return (f"{group} views: {_change(after - before, 'stage I')}; no same-time baseline was run, so "
             "part of that may be the extra training alone")
 

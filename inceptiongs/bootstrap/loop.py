@@ -41,7 +41,7 @@ from .perceptual import perceptual_name
 from .placement import candidate_views, evidence_share, place_by_evidence, with_evidence
 from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
 from .stage1 import Stage1
-from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
+from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE, virtual_step_count
 from .targets import Target, round_targets, targets_to_json
 from .validation import EvidenceGrid, measure_evidence, seen_cells, validation_photos
 from .view_targets import TargetMaker, TargetSetting
@@ -73,12 +73,6 @@ class BootstrapResult:
     supervised_views: int | None = None
     # Refinement steps that carried a virtual loss, over the whole run (None: unknown).
     virtual_steps: int | None = None
-
-
-def virtual_step_count(step_counts: dict) -> int:
-    """Steps that carried a virtual loss: every virtual branch's count ("additive" photo steps
-    are counted by their branch too; "real", "idle" and "photo_first" are photo steps)."""
-    return sum(count for kind, count in step_counts.items() if kind not in ("real", "idle", "photo_first", "additive"))
 
 
 def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):

@@ -22,3 +22,9 @@ def read_summary(out_dir: str | Path) -> dict | None:
     except (OSError, InputError, ValueError):
         return None
     return data if isinstance(data, dict) else None
+
+
+def virtual_step_count(step_counts: dict) -> int:
+    """Steps that carried a virtual loss: every virtual branch's count ("additive" photo steps
+    are counted by their branch too; "real", "idle" and "photo_first" are photo steps)."""
+    return sum(count for kind, count in step_counts.items() if kind not in ("real", "idle", "photo_first", "additive"))

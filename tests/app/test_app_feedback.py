@@ -6,6 +6,8 @@ that never reaches the scene)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import time
 from pathlib import Path
@@ -375,6 +377,12 @@ def test_the_verdict_sentence_reads_as_a_comparison():
     assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time")
     worse = Verdict(Path("boot"), None, flat, _scores(19.00, 22.00), baseline=_scores(19.50, 22.00))
     assert verdict_line(worse) == "scarce views: worse by 0.50 dB than the same-time baseline"
+    # No virtual step ran (the loop followed the outlook): the change is stage I trained longer.
+    photos_only = Verdict(Path("boot"), None, flat, _scores(19.54, 22.00), virtual_steps=0)
+    assert verdict_line(photos_only) == ("scarce views: worse by 0.46 dB than stage I; no virtual step ran (the "
+                                         "loop followed the outlook, or every view was left out), so this is "
+                                         "stage I trained longer")
+    assert "extra training alone" in verdict_line(dataclasses.replace(photos_only, virtual_steps=3))
 
 
 def test_a_stage_i_run_says_its_repair_outlook_before_a_bootstrap_starts(xvfb, tmp_path):
