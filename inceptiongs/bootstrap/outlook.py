@@ -16,11 +16,11 @@ The outlook says one line ("nothing to repair here: ...", "train longer first: .
 repair may help); the bootstrap still runs when asked to. Without a held-out split (protocol
 "none") or with too short a curve it says what it could not tell.
 
-The loop follows it (``BootstrapConfig.follow_outlook``, on by default): with nothing to repair
-it makes no virtual views and every step is a photo step (the same-time baseline's run, less
-nothing), and while stage I's curve says photo steps gain more than the break-even rate it takes
-photo steps first (``photo_first_minutes``: the rate's decay read from the curve's last two
-thirds, extrapolated exponentially). The break-even is ``STILL_RISING_DB_PER_MIN``: on the
+The loop follows it (``BootstrapConfig.follow_outlook``, on by default). With nothing to repair
+it makes no virtual views and every step is a photo step (the same-time baseline's run). While
+stage I's curve says photo steps gain more than the break-even rate, it takes photo steps first
+(``photo_first_minutes``: the rate's decay read from the curve's last two thirds, extrapolated
+exponentially). The break-even is ``STILL_RISING_DB_PER_MIN``: on the
 README courtyard the default loop gains ~0.5 dB a minute over the baseline (+0.75 dB in 92 s),
 so a photo step that lifts the scarce views faster than that is the better use of the time.
 """
@@ -80,6 +80,7 @@ def gain_per_minute(lines: list[dict], key: str, tail_fraction: float = CURVE_TA
 
 
 def curve_points(lines: list[dict], key: str) -> list[tuple[float, float]]:
+    """[(training seconds, value of ``key``)] of the metrics lines that have both."""
     return [(float(r["train_s"]), float(r[key])) for r in lines
             if isinstance(r.get(key), (int, float)) and isinstance(r.get("train_s"), (int, float))]
 
