@@ -245,7 +245,8 @@ class Bootstrap:
             self.photo_until_s = math.inf
         elif outlook.verdict == "train longer":
             wait = outlook.photo_first_min
-            self.photo_until_s = math.inf if wait is None else self.loop.wall_s() + 60.0 * wait
+            # On the bootstrap's own clock (0 at its start, carried through a resume).
+            self.photo_until_s = math.inf if wait is None else 60.0 * wait
         self.summary["photo_first_s"] = None if math.isinf(self.photo_until_s) else self.photo_until_s
         if self.photo_until_s > 0.0:
             self.log("the loop follows the outlook: " + (

@@ -534,6 +534,15 @@ def test_train_longer_takes_photo_steps_first_then_makes_the_views(stage1, tmp_p
     monkeypatch.setattr(loop_module, "run_outlook", lambda run_dir: Outlook(
         "train longer", "train longer first: (a test's curve)", photo_first_min=wait_min))
     original = loop_module.Bootstrap.virtual_or_photo_step
+    original_follow = loop_module.Bootstrap.follow
+
+    def follow_from_now(self, outlook):
+        original_follow(self, outlook)
+        assert self.photo_until_s == pytest.approx(60.0 * wait_min)    # on the bootstrap's own clock
+        self.photo_until_s += self.loop.wall_s()       # here the wait starts after loading, however long it took
+        self.summary["photo_first_s"] = self.photo_until_s
+
+    monkeypatch.setattr(loop_module.Bootstrap, "follow", follow_from_now)
 
     def slow_step(self, step):          # every step takes >= 40 ms: 60 steps outlast the 1 s wait
         time.sleep(0.04)
