@@ -57,6 +57,9 @@ class JobSettings:
     k: int = 0                      # 0: the bootstrap's own default
     l: int = 0
     prior_minutes: float = 2.0
+    # Photo steps only where the outlook says nothing to repair, first while stage I still rises fast
+    # (BootstrapConfig.follow_outlook); off: virtual views from the first step.
+    follow_outlook: bool = True
 
     def train_config(self, scene_root: Path):
         """The stage-I config as `inceptiongs train` builds it: a typed length is a fixed schedule
@@ -80,7 +83,7 @@ class JobSettings:
         defaults = BootstrapConfig()
         return BootstrapConfig(iterations=self.bootstrap_iterations, minutes=self.bootstrap_minutes,
                                k=self.k or None, l=self.l or None, prior_minutes=self.prior_minutes,
-                               eval_every=VIEWER_EVAL_EVERY,
+                               follow_outlook=self.follow_outlook, eval_every=VIEWER_EVAL_EVERY,
                                log_every=math.gcd(defaults.log_every, VIEWER_EVAL_EVERY)).validate()
 
 

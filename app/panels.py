@@ -561,6 +561,9 @@ def _job_settings(ui, jobs) -> None:
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
     _remember(ui, "prior min (if none)")
     settings.prior_minutes = _minutes_typed(settings.prior_minutes)
+    _, settings.follow_outlook = imgui.checkbox("follow the outlook (photo steps while they gain more)",
+                                                settings.follow_outlook)
+    _remember(ui, "follow the outlook")
     imgui.tree_pop()
 
 

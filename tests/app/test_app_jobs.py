@@ -53,6 +53,8 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
     boot = JobSettings(bootstrap_minutes=1.5, bootstrap_iterations=40, k=2, l=3, prior_minutes=0.5).bootstrap_config()
     assert (boot.minutes, boot.iterations, boot.k, boot.l, boot.prior_minutes) == (1.5, 40, 2, 3, 0.5)
     assert JobSettings().bootstrap_config().k is None  # 0 in the dialog: the bootstrap's own default
+    assert JobSettings().bootstrap_config().follow_outlook                 # as `inceptiongs bootstrap`
+    assert not JobSettings(follow_outlook=False).bootstrap_config().follow_outlook
     with pytest.raises(InputError):
         JobSettings(downscale=0).train_config(tmp_path)
 
@@ -449,15 +451,19 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
                 "L poses each (0: default)": "3", "prior min (if none)": "0.7"}
         for label, text in boot.items():
             type_into(viewer, label, text)
+        click_widget(viewer, "follow the outlook")      # virtual views from the first step, whatever it says
+        assert viewer.jobs.settings.follow_outlook is False
         click_widget(viewer, "Bootstrap flagged views")
         assert viewer.jobs.training is not None and viewer.jobs.training.job is not job, viewer.status
         config = viewer.jobs.training.job.config
-        expected = (0.5, 25, 2, 3, 0.7)
-        assert (config.minutes, config.iterations, config.k, config.l, config.prior_minutes) == expected
+        expected = (0.5, 25, 2, 3, 0.7, False)
+        assert (config.minutes, config.iterations, config.k, config.l, config.prior_minutes,
+                config.follow_outlook) == expected
         stored_file = viewer.jobs.training.job.out_dir / "bootstrap" / "config.json"
         _wait(viewer, stored_file.is_file)
         stored = BootstrapConfig.load(stored_file)
-        assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes) == expected
+        assert (stored.minutes, stored.iterations, stored.k, stored.l, stored.prior_minutes,
+                stored.follow_outlook) == expected
         viewer.jobs.training.stop()
 
 
