@@ -561,9 +561,11 @@ def _job_settings(ui, jobs) -> None:
     _, settings.prior_minutes = imgui.input_float("prior min (if none)", settings.prior_minutes, 0.5, 1.0, "%.1f")
     _remember(ui, "prior min (if none)")
     settings.prior_minutes = _minutes_typed(settings.prior_minutes)
-    _, settings.follow_outlook = imgui.checkbox("follow the outlook (photo steps while they gain more)",
-                                                settings.follow_outlook)
+    _, settings.follow_outlook = imgui.checkbox("follow the outlook", settings.follow_outlook)
     _remember(ui, "follow the outlook")
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("photo steps only when there is nothing to repair, and first while stage I still "
+                          "gains more than 0.5 dB a minute; off: virtual views from the first step")
     imgui.tree_pop()
 
 
