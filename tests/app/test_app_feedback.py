@@ -7,7 +7,6 @@ that never reaches the scene)."""
 from __future__ import annotations
 
 import dataclasses
-
 import json
 import time
 from pathlib import Path

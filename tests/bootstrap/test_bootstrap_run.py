@@ -668,6 +668,7 @@ def test_a_stop_during_the_prior_training_ends_the_bootstrap(stage1, tmp_path):
 def test_virtual_steps_are_counted_by_their_branches_only():
     from inceptiongs.bootstrap.summary_file import virtual_step_count
 
-    counts = {"real": 50, "idle": 7, "additive": 4, "perceptual": 3, "l1_ssim": 10, "informative_l1": 2, "geometry": 1}
-    assert virtual_step_count(counts) == 16   # additive steps already counted by their branch
+    counts = {"real": 50, "idle": 7, "photo_first": 9, "additive": 4, "perceptual": 3, "l1_ssim": 10,
+              "informative_l1": 2, "geometry": 1}
+    assert virtual_step_count(counts) == 16   # additive steps already counted by their branch; photo_first are photo steps
     assert virtual_step_count(dict.fromkeys(counts, 0)) == 0
