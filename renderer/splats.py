@@ -329,11 +329,15 @@ class SplatRenderer:
         if not (math.isfinite(splat_scale) and splat_scale > 0):
             raise ValueError(f"splat_scale must be a positive finite number, got {splat_scale}")
 
+    def _capped_degree(self, sh_degree_cap: int | None) -> int:
+        """The SH degree a frame evaluates: the model's, at most ``sh_degree_cap`` (None: no cap)."""
+        return self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
+
     def _preprocess_pass(self, camera: Camera, mode: str, sh_degree_cap: int | None, splat_scale: float):
         """Pass 1 into the splat buffer; returns the anchor-relative ShaderCamera."""
         ctx = self.ctx
         cam = shader_camera(camera, self._anchor)
-        degree = self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
+        degree = self._capped_degree(sh_degree_cap)
         program = self._preprocess_program()
         program["rotation"].write(cam.rotation.T.astype(np.float32).tobytes())  # column-major
         program["translation"].value = tuple(map(float, cam.translation))
@@ -450,7 +454,7 @@ class SplatRenderer:
             return empty
         start = time.perf_counter()
         cam = shader_camera(camera, self._anchor)
-        degree = self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
+        degree = self._capped_degree(sh_degree_cap)
         splats = self._cpu_splats = preprocess_splats(self._texels_on_cpu(), degree, cam, MODES[mode], splat_scale,
                                                       out=self._cpu_splats)
         preprocess_done = time.perf_counter()

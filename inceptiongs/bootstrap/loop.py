@@ -460,8 +460,11 @@ class Bootstrap:
         views the render already agrees with better."""
         every = self.config.regenerate_every
         return bool(self.pool and every and (step - self.start) % every == 0
-                    and round_end - step + 1 >= max(1, every // 2)
-                    and any(entry.supervised for entry in self.pool))
+                    and round_end - step + 1 >= max(1, every // 2) and self.views_in_use())
+
+    def views_in_use(self) -> bool:
+        """Any pool view the gate kept (agreement.py; placement "evidence": validated)."""
+        return any(entry.supervised for entry in self.pool)
 
     def refine_step(self, step: int, round_index: int, round_end: int) -> None:
         """One refinement step (a virtual view's every ``virtual_every``-th, else a photo's) and
@@ -476,9 +479,8 @@ class Bootstrap:
         # (A resumed run's conscience starts again: its first step takes the baseline.)
         # (No view in use yet, or every view left out: nothing for the conscience to restrain, so
         # its photo renders are skipped and the time goes to photo steps.)
-        restrains = any(entry.supervised for entry in self.pool)
-        if self.conscience is not None and restrains and ((step - self.start - 1) % config.conscience_every == 0
-                                                          or not self.conscience.history):
+        check_due = (step - self.start - 1) % config.conscience_every == 0
+        if self.conscience is not None and self.views_in_use() and (check_due or not self.conscience.history):
             loss = photo_loss(self.rasterizer, self.model(), list(self.run.scene.cameras), self.data.images,
                               self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))
             self.conscience.update(step, loss)

@@ -4,6 +4,7 @@ gate, and the PNG of the view."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -86,14 +87,25 @@ class TargetMaker:
         self.setting = setting
         self.current = current
         self.renders = ModelRenders(current, setting.rasterizer, sky)
-        self.gaussians_hash = gaussians_version(current)
+
+    # Only a prior's fill needs these, once per maker: without a prior nothing copies or hashes
+    # the model (on a GPU that would move every Gaussian to the host each regeneration).
+    @functools.cached_property
+    def current_on_cpu(self) -> Gaussians:
+        """The model on the CPU, where the prior generates (the same tensors on a CPU run)."""
+        return self.current.to("cpu")
+
+    @functools.cached_property
+    def gaussians_hash(self) -> str:
+        """The model's version in the generation cache's keys."""
+        return gaussians_version(self.current)
 
     def fill(self, camera: Camera) -> tuple[np.ndarray | torch.Tensor, bool]:
         """(what fills the pixels no photo covers [H, W, 3] float32, read from the cache): the
         prior's image (numpy), else the render on the model's device."""
         s = self.setting
         if s.prior is not None:
-            return generate_cached(s.prior, self.current.to("cpu"), camera, s.config.seed, s.config.ddim_steps,
+            return generate_cached(s.prior, self.current_on_cpu, camera, s.config.seed, s.config.ddim_steps,
                                    s.cache, s.prior_hash, self.gaussians_hash)
         # The fill is the render itself (or inpainted around it): nothing to generate.
         return self.renders.rgb(camera), False
