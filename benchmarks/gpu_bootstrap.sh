@@ -5,10 +5,17 @@
 # of j* (which follows the outlook), the bootstrap that does not (follow_outlook false), and stage I
 # continued on the photos alone. Figures: docs/results.md ("At full resolution on a GPU").
 #
-#     bash benchmarks/gpu_bootstrap.sh [OUT] [all|stage1|compare]   (default: runs/gpu_bootstrap all)
+#     bash benchmarks/gpu_bootstrap.sh [OUT] [all|stage1|compare|prior]   (default: runs/gpu_bootstrap all)
 #
 # "stage1" trains (and first builds gsplat's kernels), "compare" runs the three continuations of
-# the stage I already in OUT/s1; "all" does both. Needs gsplat (pip install 'inceptiongs[cuda]'),
+# the stage I already in OUT/s1; "all" does both. "prior" measures the scene-adaptive prior as the
+# fill at a GPU's size: `inceptiongs prior` on OUT/s1 for PRIOR_MIN minutes (denoiser UNET_WIDTH
+# channels wide, PRIOR_BATCH patches of PRIOR_PATCH px a step; its generated images scored on
+# held-out views before and after), a bootstrap for BOOT_MIN with that prior as the fill and the
+# agreement gate off (on, the gate judges the photos alone and left every view out here) and
+# virtual views from the start whatever the outlook says, and stage I continued on the photos for
+# PRIOR_MIN + BOOT_MIN, the bootstrap's whole time.
+# Needs gsplat (pip install 'inceptiongs[cuda]'),
 # nvcc for its build and bonsai (../shared/data or $INCEPTIONGS_DATA; $GPU_CHECK_BONSAI names
 # another copy). DEVICE=cpu DOWNSCALE=8 runs the same steps on a CPU (a dry run of this script).
 # OUT gets the runs, gpu_check.log (every step's output) and figures.json.
@@ -29,7 +36,7 @@ work=$out
 export INCEPTIONGS_CACHE_DIR=$out/cache
 . "$(dirname "$0")/check_step.sh"   # step SECONDS NAME COMMAND...
 inc="python3 -m inceptiongs"
-if [ "$phase" != compare ]; then
+if [ "$phase" = all ] || [ "$phase" = stage1 ]; then
     [ "$device" = cpu ] || nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
     [ "$device" = cpu ] || step 240 gsplat_build python3 -c \
         "from gsplat.cuda._backend import _C; assert _C is not None, 'gsplat did not build its CUDA kernels'"
@@ -37,6 +44,24 @@ if [ "$phase" != compare ]; then
         --sky-min-scale 0 --protocol unstructured --minutes "$stage1_min" --seed 0 --device "$device"
 fi
 [ "$phase" = stage1 ] && exit 0
+[ -f "$out/s1/model.ply" ] || { echo "$out/s1: no stage I here (run the stage1 phase first)"; exit 2; }
+if [ "$phase" = prior ]; then
+    prior_min=${PRIOR_MIN:-1}
+    echo '{"fill": "prior", "agreement_min_db": null, "follow_outlook": false}' >"$out/prior_fill.json"
+    step 400 prior $inc prior "$out/s1" --minutes "$prior_min" --unet-width "${UNET_WIDTH:-64}" \
+        --batch-size "${PRIOR_BATCH:-16}" --patch-size "${PRIOR_PATCH:-128}" --device "$device" --restart \
+        --eval-every-minutes "$prior_min" --eval-views 6
+    step 300 prior_fill $inc bootstrap "$out/s1" --out "$out/boot_prior" --minutes "$boot_min" \
+        --iterations 100000 --seed 0 --config "$out/prior_fill.json" --overwrite
+    total=$(python3 -c "print($prior_min + $boot_min)")
+    step 400 prior_baseline python3 -c "import sys; from inceptiongs.bootstrap.runner import baseline_run; \
+baseline_run(sys.argv[1], sys.argv[2], float(sys.argv[3]), 100000, seed=0, progress=False, overwrite=True)" \
+        "$out/s1" "$out/base_prior" "$total"
+    names="s1 boot_prior base_prior"
+    pairs="boot_prior:base_prior"
+else
+    names="s1 boot boot_nf base"
+    pairs="boot:base boot_nf:base"
 echo '{"follow_outlook": false}' >"$out/not_following.json"
 step 200 bootstrap $inc bootstrap "$out/s1" --out "$out/boot" --minutes "$boot_min" --iterations 100000 --seed 0 \
     --overwrite
@@ -45,13 +70,14 @@ step 200 not_following $inc bootstrap "$out/s1" --out "$out/boot_nf" --minutes "
 step 200 baseline python3 -c "import sys; from inceptiongs.bootstrap.runner import baseline_run; \
 baseline_run(sys.argv[1], sys.argv[2], float(sys.argv[3]), 100000, seed=0, progress=False, overwrite=True)" \
     "$out/s1" "$out/base" "$boot_min"
-python3 - "$out" <<'EOF'
+fi
+python3 - "$out" "$names" "$pairs" "$phase" <<'EOF'
 import json, sys
 from pathlib import Path
 
-out = Path(sys.argv[1])
+out, names, pairs, phase = Path(sys.argv[1]), sys.argv[2].split(), sys.argv[3].split(), sys.argv[4]
 rows = {}
-for name in ("s1", "boot", "boot_nf", "base"):
+for name in names:
     path = out / name / "metrics.jsonl"
     if not path.is_file():
         continue
@@ -68,11 +94,19 @@ for name in ("s1", "boot", "boot_nf", "base"):
         rows[name].update(steps=data.get("steps"), outlook=(data.get("outlook") or {}).get("line"),
                           generation_s=[r.get("generation_s") for r in data.get("rounds", [])],
                           regenerations=[round(r["seconds"], 1) for r in data.get("regenerations", [])])
+prior_metrics = out / "s1" / "prior" / "metrics.jsonl"
+if phase == "prior" and prior_metrics.is_file():
+    # The prior's own scores: its generated images against the held-out photos, first and last.
+    scored = [json.loads(line) for line in prior_metrics.read_text().splitlines() if '"generated"' in line]
+    if scored:
+        rows["prior"] = {"steps": scored[-1].get("step"), "train_s": scored[-1].get("train_s"),
+                         "first": scored[0], "last": scored[-1]}
 for name, row in rows.items():
     print(name, json.dumps(row))
-for name in ("boot", "boot_nf"):
-    if name in rows and "base" in rows:
-        print(f"{name} - baseline: {rows[name]['scarce'] - rows['base']['scarce']:+.2f} scarce / "
-              f"{rows[name]['covered'] - rows['base']['covered']:+.2f} covered")
-(out / "figures.json").write_text(json.dumps(rows, indent=1))
+for pair in pairs:
+    name, base = pair.split(":")
+    if name in rows and base in rows:
+        print(f"{name} - {base}: {rows[name]['scarce'] - rows[base]['scarce']:+.2f} scarce / "
+              f"{rows[name]['covered'] - rows[base]['covered']:+.2f} covered")
+(out / ("figures_prior.json" if phase == "prior" else "figures.json")).write_text(json.dumps(rows, indent=1))
 EOF

@@ -120,30 +120,31 @@ def generate_cached(prior, gaussians: Gaussians, camera: Camera, seed: int, step
 def obtain_prior(run_dir: Path, out_dir: Path, gaussians: Gaussians, cameras: list[Camera],
                  load_image: Callable[[int], np.ndarray], mode: str, seed: int,
                  minutes: float | None, steps: int | None, log: Callable[[str], None],
-                 should_stop: Callable[[], bool] | None = None):
+                 should_stop: Callable[[], bool] | None = None, device="cpu"):
     """The prior used for generation -> (Prior, one-line description).
 
     mode "untrained": a randomly initialised prior (the ablation). "trained": RUN/prior/prior.pt
     when the stage-I run has one, else RUN2/prior/prior.pt from an earlier bootstrap into the
     same folder, else a short training (``minutes`` / ``steps``) on the training photos,
     saved to RUN2/prior/prior.pt. should_stop() ends that training early (before any step):
-    the bootstrap's wall-clock share of its budget, or the user's stop.
+    the bootstrap's wall-clock share of its budget, or the user's stop. The prior is trained and
+    generates on ``device``, the run's (load_image still returns the photos on the host).
     """
     from ..prior.model import Prior, PriorConfig
     from ..prior.trainer import CHECKPOINT_NAME, PriorTrainer, load_prior, prior_dir
 
     if mode == "untrained":
-        prior = Prior.for_gaussians(PriorConfig(seed=seed), gaussians)
+        prior = Prior.for_gaussians(PriorConfig(seed=seed), gaussians).to(device)
         return prior, "untrained prior (random initial weights: ablation)"
     for folder, what in ((run_dir, "the stage-I run's"), (out_dir, "this bootstrap's earlier")):
         if (prior_dir(folder) / CHECKPOINT_NAME).is_file():
-            return load_prior(folder), f"{what} trained prior ({prior_dir(folder) / CHECKPOINT_NAME})"
+            return load_prior(folder, device), f"{what} trained prior ({prior_dir(folder) / CHECKPOINT_NAME})"
     if not cameras:
         raise InputError(f"{run_dir}: no training views to train a prior on")
     log(f"{run_dir}: no trained prior; training one for "
         + (f"{minutes:g} min" if minutes is not None else "") + (" / " if minutes and steps else "")
         + (f"{steps} steps" if steps is not None else ""))
-    trainer = PriorTrainer(Prior.for_gaussians(PriorConfig(seed=seed), gaussians), gaussians,
+    trainer = PriorTrainer(Prior.for_gaussians(PriorConfig(seed=seed), gaussians).to(device), gaussians,
                            cameras, load_image)
     trainer.train(steps=steps, minutes=minutes, run_dir=out_dir, progress=False, should_stop=should_stop)
     return trainer.prior, (f"prior trained here for {trainer.step_count} steps "

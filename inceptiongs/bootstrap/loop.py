@@ -176,8 +176,9 @@ class Bootstrap:
     regenerations: list = field(default_factory=list)
     finished: bool = True
     rounds_done: int = 0
-    # The photos on the CPU, for the leave-one-out estimate (placement "evidence"); ``data`` holds
-    # them on the rasterizer's device, where a round's virtual views are made and refined.
+    # The photos on the CPU, for the leave-one-out estimate (placement "evidence") and the prior's
+    # training; ``data`` holds them on the rasterizer's device, where a round's virtual views are
+    # made and refined.
     cpu_photos: dict = field(default_factory=dict)
     current_round: int = 0          # 1-based: the round being refined (0: none yet)
     # placement "evidence": the newest round's leave-one-out estimate (validation.py; None: no evidence).
@@ -277,11 +278,14 @@ class Bootstrap:
         if config.minutes is not None:
             prior_s = min(prior_s, max(60.0 * config.minutes - self.loop.wall_s(), 0.0) / 2.0)
         prior_end = self.loop.wall_s() + prior_s
-        train, images = self.run.split.train, self.data.images
+        # The photos from the host copy (the prior's trainer keeps them there and moves each
+        # batch), the prior on the run's device, where the virtual views are made.
+        train, images = self.run.split.train, self.cpu_photos
         self.prior, self.prior_text = obtain_prior(
             self.run.run_dir, self.out_dir, self.run.gaussians, self.run.train_cameras,
             lambda k: images[train[k]].numpy(), config.prior, config.seed, prior_s / 60.0, config.prior_steps,
-            self.log, should_stop=lambda: self.loop.wait_or_stop() or self.loop.wall_s() >= prior_end)
+            self.log, should_stop=lambda: self.loop.wait_or_stop() or self.loop.wall_s() >= prior_end,
+            device=rasterizer_device(self.rasterizer))
         self.prior.eval()
         self.prior_hash = prior_version(self.prior)
         self.summary["prior"] = {"description": self.prior_text, "version": self.prior_hash,

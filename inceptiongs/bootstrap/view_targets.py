@@ -91,22 +91,24 @@ class TargetMaker:
     # Only a prior's fill needs these, once per maker: without a prior nothing copies or hashes
     # the model (on a GPU that would move every Gaussian to the host each regeneration).
     @functools.cached_property
-    def current_on_cpu(self) -> Gaussians:
-        """The model on the CPU, where the prior generates (the same tensors on a CPU run)."""
-        return self.current.to("cpu")
+    def current_for_prior(self) -> Gaussians:
+        """The model on the prior's device (the same tensors when the run's device is the prior's)."""
+        return self.current.to(self.setting.prior.device)
 
     @functools.cached_property
     def gaussians_hash(self) -> str:
         """The model's version in the generation cache's keys."""
         return gaussians_version(self.current)
 
-    def fill(self, camera: Camera) -> tuple[np.ndarray | torch.Tensor, bool]:
-        """(what fills the pixels no photo covers [H, W, 3] float32, read from the cache): the
-        prior's image (numpy), else the render on the model's device."""
+    def fill(self, camera: Camera) -> tuple[torch.Tensor, bool]:
+        """(what fills the pixels no photo covers [H, W, 3] float32 on the model's device, read
+        from the cache): the prior's image, else the render."""
         s = self.setting
         if s.prior is not None:
-            return generate_cached(s.prior, self.current_on_cpu, camera, s.config.seed, s.config.ddim_steps,
-                                   s.cache, s.prior_hash, self.gaussians_hash)
+            image, hit = generate_cached(s.prior, self.current_for_prior, camera, s.config.seed, s.config.ddim_steps,
+                                         s.cache, s.prior_hash, self.gaussians_hash)
+            # The cache holds host arrays; the warps it is blended with are on the model's device.
+            return torch.as_tensor(image).to(self.current.means.device), hit
         # The fill is the render itself (or inpainted around it): nothing to generate.
         return self.renders.rgb(camera), False
 

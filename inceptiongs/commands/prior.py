@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch-size", type=int, default=None, help="patch edge s (default 64)")
     parser.add_argument("--batch-size", type=int, default=None, help="patches per step (default 4)")
     parser.add_argument("--seed", type=int, default=None, help="initial weights and patch sampling (default 0)")
+    parser.add_argument("--unet-width", type=int, default=None,
+                        help="tiny backend: channels of the denoiser's first level (default 32, the two-core "
+                             "machine's size; a GPU affords 64 or more); a new prior only")
     parser.add_argument("--prediction", choices=("epsilon", "v"), default=None,
                         help="tiny backend: what the UNet is trained to predict (default epsilon; see "
                              "docs/prior.md for when v samples better); a new prior only")
@@ -73,12 +76,15 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                 raise InputError("--backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
             if overrides.pop("prediction", "epsilon") != "epsilon":
                 raise InputError("--prediction v is for the tiny backend (SD 1.5 predicts epsilon)")
-            for name in ("high_noise_share", "appearance_weight", "sample_start", "sample_init"):
+            for name in ("high_noise_share", "appearance_weight", "sample_start", "sample_init", "unet_width"):
                 if overrides.pop(name, None) is not None:
                     raise InputError(f"--{name.replace('_', '-')} is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
         from ..prior.model import Prior, PriorConfig
+        from ..prior.unet import UNetConfig
+        if "unet_width" in overrides:
+            overrides["unet"] = UNetConfig(base_width=overrides.pop("unet_width"))
         return Prior.for_gaussians(replace(PriorConfig(), **overrides), gaussians).to(device)
     except ValueError as exc:
         raise InputError(f"{where}: {exc}") from None
@@ -92,8 +98,8 @@ def run(args) -> int:
     from ..train.run_folder import load_run
 
     run_dir = Path(args.run)
-    for name in ("minutes", "steps", "patch_size", "batch_size", "checkpoint_every", "eval_every_minutes",
-                 "eval_steps", "eval_views"):
+    for name in ("minutes", "steps", "patch_size", "batch_size", "unet_width", "checkpoint_every",
+                 "eval_every_minutes", "eval_steps", "eval_views"):
         value = getattr(args, name)
         if value is not None and value <= 0:
             raise InputError(f"--{name.replace('_', '-')}: must be positive, got {value}")
@@ -114,6 +120,10 @@ def run(args) -> int:
         if args.prediction and args.prediction != getattr(trainer.prior.config, "prediction", "epsilon"):
             raise InputError(f"{checkpoint}: its prior predicts {trainer.prior.config.prediction}, not "
                              f"{args.prediction} (use --restart to replace it)")
+        width = getattr(getattr(trainer.prior.config, "unet", None), "base_width", None)
+        if args.unet_width and args.unet_width != width:
+            raise InputError(f"{checkpoint}: its prior's denoiser is {width} channels wide, not {args.unet_width} "
+                             "(use --restart to replace it)")
         if args.backend and args.backend != trainer.prior.backend:
             raise InputError(f"{checkpoint}: holds a {trainer.prior.backend} prior, not {args.backend} "
                              "(use --restart to replace it)")
@@ -125,7 +135,7 @@ def run(args) -> int:
         prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
                           high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
-                          sample_start=sample_start, sample_init=args.sample_init)
+                          sample_start=sample_start, sample_init=args.sample_init, unet_width=args.unet_width)
         (prior_dir(run_dir) / METRICS_NAME).unlink(missing_ok=True)  # a new prior starts a new log
         trainer = PriorTrainer(prior, gaussians, cameras, load_image)
     evaluate = None

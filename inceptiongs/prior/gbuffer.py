@@ -27,7 +27,7 @@ from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN
                          NEAR_PLANE)
 from ..gaussians import Gaussians
 from ..bootstrap.warp import unproject
-from ..rasterizer.interface import cpu_rasterizer
+from ..rasterizer.interface import rasterizer_for
 from .hashgrid import HashGrid
 
 HASH_AT = ("surface", "centres")
@@ -88,8 +88,8 @@ def gaussian_features(gaussians: Gaussians, hash_grid: HashGrid) -> torch.Tensor
 def render_geometry(gaussians: Gaussians, camera: Camera, rasterizer=None) -> tuple[torch.Tensor, torch.Tensor]:
     """The hash-free part of the G-buffer: (normal and alpha [4, H, W], depth [H, W]: expected
     camera z, 0 where nothing covers the pixel). Only the Gaussians that can touch the image
-    are rendered (by ``rasterizer``, default the CPU's)."""
-    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
+    are rendered (by ``rasterizer``, default the one for the Gaussians' device)."""
+    rasterizer = rasterizer_for(gaussians.means.device) if rasterizer is None else rasterizer
     keep = crop_candidates(gaussians, camera)
     out = rasterizer(gaussians.subset(keep), camera, outputs=("normal", "alpha", "depth"))
     geometry = torch.cat([out["normal"], out["alpha"]], dim=-1).permute(2, 0, 1).contiguous()
@@ -147,7 +147,7 @@ def render_gbuffer(gaussians: Gaussians, camera: Camera, hash_grid: HashGrid,
         features = gaussian_features(gaussians, hash_grid)
     keep = crop_candidates(gaussians, camera)
     gaussians, features = gaussians.subset(keep), features[keep]
-    out = (rasterizer or cpu_rasterizer())(gaussians, camera, outputs=("normal", "alpha", "features"),
-                                           features=features)
+    rasterizer = rasterizer_for(gaussians.means.device) if rasterizer is None else rasterizer
+    out = rasterizer(gaussians, camera, outputs=("normal", "alpha", "features"), features=features)
     image = torch.cat([out["normal"], out["alpha"], out["features"]], dim=-1)  # [H, W, 4 + Z]
     return image.permute(2, 0, 1).contiguous()

@@ -88,6 +88,14 @@ class PriorTrainer:
         self._geometry: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._geometry_bytes = 0
         self._geometry_of: Gaussians | None = None  # the Gaussians object the cache was rendered from
+        self._on_device: tuple[Gaussians, Gaussians] | None = None   # (self.gaussians, its copy)
+
+    def _gaussians_on_device(self) -> Gaussians:
+        """self.gaussians on the prior's device, detached: moved once per model, not per step (a
+        host model trained against a GPU prior would otherwise cross the bus every step)."""
+        if self._on_device is None or self._on_device[0] is not self.gaussians:
+            self._on_device = (self.gaussians, self.gaussians.to(self.prior.device).detach())
+        return self._on_device[1]
 
     def _image(self, index: int) -> torch.Tensor:
         """Photo i as [3, H, W] in [-1, 1], cached (patches are drawn from it many times)."""
@@ -103,7 +111,7 @@ class PriorTrainer:
     def sample_batch(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""
         s = self.patch_size
-        gaussians = self.gaussians.to(self.prior.device).detach()
+        gaussians = self._gaussians_on_device()
         photos, patches = [], []
         for _ in range(self.prior.config.batch_size):
             index = int(torch.randint(len(self.cameras), (1,), generator=self.generator))

@@ -92,6 +92,15 @@ def cpu_rasterizer() -> Rasterizer:
     return get_rasterizer("numba" if numba_installed() else "torch")
 
 
+def rasterizer_for(device) -> Rasterizer:
+    """The rasterizer for tensors on ``device`` when a caller names none: gsplat on a CUDA device
+    when it is installed (the torch reference also runs there, as the fallback), else the CPU's
+    best."""
+    if torch.device(device).type == "cuda" and gsplat_installed():
+        return get_rasterizer("gsplat")
+    return cpu_rasterizer()
+
+
 def gsplat_installed() -> bool:
     return importlib.util.find_spec("gsplat") is not None
 
@@ -144,7 +153,8 @@ def device_line(name: str, rasterizer: Rasterizer, why: str) -> str:
 
 def render_rgb(gaussians: Gaussians, camera: Camera, rasterizer: Rasterizer | None = None) -> torch.Tensor:
     """The colour render [H, W, 3] float32 in [0, 1] on black, without gradients: what
-    evaluation scores and what the prior's sampler starts from. ``rasterizer``: default the CPU's."""
-    rasterizer = cpu_rasterizer() if rasterizer is None else rasterizer
+    evaluation scores and what the prior's sampler starts from. ``rasterizer``: default the one
+    for the Gaussians' device (``rasterizer_for``)."""
+    rasterizer = rasterizer_for(gaussians.means.device) if rasterizer is None else rasterizer
     with torch.no_grad():
         return rasterizer(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)

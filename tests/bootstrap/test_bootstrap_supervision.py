@@ -195,3 +195,33 @@ def test_informative_target_holds_the_blended_photos_where_the_mask_is_on(plane_
     assert torch.allclose(target[on], full.blended[on].clamp(0, 1)) and torch.allclose(target[~on], blurred[~on])
     # The informative target is closer to the truth than the blurred render where it is on.
     assert float(psnr(target, truth, on[..., None])) > float(psnr(blurred, truth, on[..., None])) + 3.0
+
+
+def test_the_priors_fill_is_generated_on_its_device_and_returned_on_the_models(tmp_path):
+    # "meta" stands in for a GPU prior beside a host model; the prior must be handed the model on
+    # its own device, and the fill (read back from the host cache) must come back as a tensor
+    # on the model's device, where the warps it is blended with live.
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.generation import GenerationCache
+    from inceptiongs.bootstrap.view_targets import TargetMaker, TargetSetting
+
+    from rasterize_cases import random_gaussians
+
+    class MetaPrior:
+        device = torch.device("meta")
+        seen = []
+
+        def generate(self, gaussians, camera, steps, seed):
+            self.seen.append(gaussians.means.device.type)
+            return torch.full((camera.height, camera.width, 3), 0.25), None
+
+    camera = camera_at("v", (0.0, 0.0, 0.0))
+    setting = TargetSetting(BootstrapConfig(fill="prior"), [camera], [0], {}, GenerationCache(tmp_path),
+                            tmp_path, rasterizer=None, prior=MetaPrior(), prior_hash="p")
+    current = random_gaussians(n=20, degree=0, seed=1)
+    fill, hit = TargetMaker(setting, current, sky=None).fill(camera)
+    assert MetaPrior.seen == ["meta"] and not hit
+    assert isinstance(fill, torch.Tensor) and fill.device == current.means.device
+    assert fill.shape == (camera.height, camera.width, 3) and float(fill.mean()) == 0.25
+    again, hit = TargetMaker(setting, current, sky=None).fill(camera)
+    assert hit and torch.equal(again, fill) and MetaPrior.seen == ["meta"]   # the cache, not the prior

@@ -50,6 +50,19 @@ def test_auto_takes_gsplat_when_nothing_is_missing(monkeypatch):
     assert select_rasterizer("cuda")[0] == "gsplat"
 
 
+def test_a_model_on_a_gpu_renders_with_gsplat_where_no_rasterizer_is_named(monkeypatch):
+    # The prior's G-buffer and sampler start, and render_rgb, render with rasterizer_for(the
+    # Gaussians' device): gsplat for CUDA tensors, the CPU's best for host ones or without gsplat.
+    simulate(monkeypatch, True, True, True)
+    stand_in = interface.ReferenceRasterizer("gsplat", "torch", "cuda")
+    monkeypatch.setitem(interface.RASTERIZERS, "gsplat", lambda: stand_in)
+    assert interface.rasterizer_for("cuda") is stand_in
+    assert interface.rasterizer_for(torch.device("cuda", 0)) is stand_in
+    assert interface.rasterizer_for("cpu").name == CPU_NAME
+    monkeypatch.setattr(interface, "gsplat_installed", lambda: False)
+    assert interface.rasterizer_for("cuda").name == CPU_NAME
+
+
 def test_cpu_and_the_auto_line_on_a_machine_without_a_gpu(monkeypatch, capsys):
     simulate(monkeypatch, False, False, False)
     assert select_rasterizer("cpu")[0] == CPU_NAME

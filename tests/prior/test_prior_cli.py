@@ -109,3 +109,16 @@ def test_a_prior_without_the_hint_repairs_renders_or_samples_from_noise(tmp_path
     view = load_run(run)[1].cameras[0].name
     assert main(["generate", str(run), "--view", view, "--out", str(tmp_path / "o.png"), "--steps", "1",
                  "--init", "hint", "--start", "0.5"]) == 2
+
+
+def test_unet_width_sizes_a_new_prior_and_is_refused_for_an_existing_one(tmp_path, capsys):
+    run = make_stand_in_run(tmp_path / "run")
+    assert main(["prior", str(run), "--steps", "1", "--patch-size", "16", "--batch-size", "1",
+                 "--unet-width", "8"]) == 0
+    payload = torch.load(run / "prior" / "prior.pt", weights_only=True)
+    assert payload["config"]["unet"]["base_width"] == 8
+    capsys.readouterr()
+    assert main(["prior", str(run), "--steps", "1", "--unet-width", "16"]) == 2
+    err = capsys.readouterr().err
+    assert "prior.pt" in err and "8 channels wide, not 16" in err
+    assert main(["prior", str(run), "--steps", "1", "--unet-width", "0"]) == 2

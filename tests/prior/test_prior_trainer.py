@@ -209,3 +209,33 @@ def test_sampling_from_part_of_T_trains_only_on_that_part():
         trainer.step()
     draws = torch.stack(seen)
     assert int(draws.max()) <= round(0.3 * 199) and int(draws.max()) > 40  # [0, 60], 48 draws
+
+
+def test_the_trainer_moves_a_model_to_the_priors_device_once_not_every_step():
+    gaussians, cameras, photos = prior_scene(n=5)
+    trainer = PriorTrainer(Prior.for_gaussians(replace(TINY, patch_size=8), gaussians), gaussians, cameras,
+                           lambda i: photos[i])
+    first = trainer._gaussians_on_device()
+    assert trainer._gaussians_on_device() is first          # the same copy on the next step
+    torch.testing.assert_close(first.means, gaussians.means)
+    trainer.gaussians = gaussians.map(lambda t: t + 0.0)    # new geometry (joint training): a new copy
+    assert trainer._gaussians_on_device() is not first
+
+
+def test_the_bootstraps_prior_is_made_and_loaded_on_the_runs_device(tmp_path):
+    # "meta" stands in for a GPU: a prior left on the host would say "cpu" here.
+    from inceptiongs.bootstrap.generation import obtain_prior
+
+    gaussians, cameras, photos = prior_scene(n=5)
+    untrained, _ = obtain_prior(tmp_path, tmp_path, gaussians, cameras, lambda i: photos[i], "untrained", 0,
+                                None, 1, print, device="meta")
+    assert untrained.device.type == "meta"
+    trainer = PriorTrainer(Prior.for_gaussians(replace(TINY, patch_size=8), gaussians), gaussians, cameras,
+                           lambda i: photos[i])
+    trainer.train(steps=1, run_dir=tmp_path / "run", progress=False)
+    loaded, text = obtain_prior(tmp_path / "run", tmp_path / "out", gaussians, cameras, lambda i: photos[i],
+                                "trained", 0, None, 1, print, device="meta")
+    assert "stage-I run's trained prior" in text and loaded.device.type == "meta"
+    on_host, _ = obtain_prior(tmp_path / "run", tmp_path / "out", gaussians, cameras, lambda i: photos[i],
+                              "trained", 0, None, 1, print)
+    assert on_host.device.type == "cpu"
