@@ -135,7 +135,7 @@ class TrainConfig(SavedConfig):
     # Weight of the D-SSIM term against L1: loss = (1 - w) L1 + w (1 - SSIM).
     lambda_dssim: float = 0.2
     # Each training step renders over a uniform random colour instead of black, so no pixel can
-    # match its photo by staying transparent (docs/results.md, "A random background").
+    # match its photo by staying transparent (docs/tried.md, "A random background").
     random_background: bool = False
 
     # --- densification (every strategy's window: MCMC relocates on the same steps) -----------
