@@ -18,7 +18,7 @@
 # Needs gsplat (pip install 'inceptiongs[cuda]'),
 # nvcc for its build and bonsai (../shared/data or $INCEPTIONGS_DATA; $GPU_CHECK_BONSAI names
 # another copy). DEVICE=cpu DOWNSCALE=8 runs the same steps on a CPU (a dry run of this script).
-# OUT gets the runs, gpu_check.log (every step's output) and figures.json.
+# OUT gets the runs, gpu_check.log (every step's output) and figures.json (figures_prior.json).
 set -u
 out=${1:-runs/gpu_bootstrap}
 phase=${2:-all}
@@ -62,14 +62,14 @@ baseline_run(sys.argv[1], sys.argv[2], float(sys.argv[3]), 100000, seed=0, progr
 else
     names="s1 boot boot_nf base"
     pairs="boot:base boot_nf:base"
-echo '{"follow_outlook": false}' >"$out/not_following.json"
-step 200 bootstrap $inc bootstrap "$out/s1" --out "$out/boot" --minutes "$boot_min" --iterations 100000 --seed 0 \
-    --overwrite
-step 200 not_following $inc bootstrap "$out/s1" --out "$out/boot_nf" --minutes "$boot_min" --iterations 100000 \
-    --seed 0 --config "$out/not_following.json" --overwrite
-step 200 baseline python3 -c "import sys; from inceptiongs.bootstrap.runner import baseline_run; \
+    echo '{"follow_outlook": false}' >"$out/not_following.json"
+    step 200 bootstrap $inc bootstrap "$out/s1" --out "$out/boot" --minutes "$boot_min" --iterations 100000 \
+        --seed 0 --overwrite
+    step 200 not_following $inc bootstrap "$out/s1" --out "$out/boot_nf" --minutes "$boot_min" --iterations 100000 \
+        --seed 0 --config "$out/not_following.json" --overwrite
+    step 200 baseline python3 -c "import sys; from inceptiongs.bootstrap.runner import baseline_run; \
 baseline_run(sys.argv[1], sys.argv[2], float(sys.argv[3]), 100000, seed=0, progress=False, overwrite=True)" \
-    "$out/s1" "$out/base" "$boot_min"
+        "$out/s1" "$out/base" "$boot_min"
 fi
 python3 - "$out" "$names" "$pairs" "$phase" <<'EOF'
 import json, sys
