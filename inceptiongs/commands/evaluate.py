@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 from ..errors import InputError
+from .device import add_torch_device_argument, torch_device
 from .generate import add_sampling_arguments
 
 HELP = "PSNR/SSIM on held-out views, scarce vs covered (LPIPS/FID only with local weights)"
@@ -26,7 +27,7 @@ def add_arguments(parser) -> None:
                              "against-steps curve of `inceptiongs report`)")
     parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
     add_sampling_arguments(parser, "--generated, ")
-    parser.add_argument("--device", default=None, help="torch device for --generated (default: cuda when available)")
+    add_torch_device_argument(parser, ' for --generated')
 
 
 def parse_steps(text: str) -> tuple[int, ...]:
@@ -45,13 +46,11 @@ def run(args) -> int:
     from ..evaluation.scoring import format_table
 
     steps = parse_steps(args.ddim_steps) if args.generated else None
+    device = torch_device(args.device) if args.generated else None   # an unusable one fails before any work
     summary = evaluate_run(args.run, lpips_weights=args.lpips_weights, fid_weights=args.fid_weights)
     generated = None
     if args.generated:
-        import torch
-
         from ..evaluation.generated import evaluate_generated_run, format_generated_table
-        device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
         generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device, start=args.start,
                                            init=args.init)
     from ..bootstrap.outlook import recorded_outlook

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .device import add_torch_device_argument, torch_device
 
 HELP = "generate an image for any viewpoint with a run's diffusion prior"
 
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
     add_sampling_arguments(parser)
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
-    parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
+    add_torch_device_argument(parser)
 
 
 def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -> None:
@@ -45,8 +46,6 @@ def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -
 
 
 def run(args) -> int:
-    import torch
-
     from ..io.atomic import atomic_write_bytes
     from ..camera import read_camera_json
     from ..io.images import write_png
@@ -59,7 +58,7 @@ def run(args) -> int:
         raise InputError(f"{args.gbuffer_out}: --gbuffer-out must be a .npy file")
     if args.steps < 1:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    device = torch_device(args.device)
     run_dir = Path(args.run)
     prior = load_prior(run_dir, device)  # fails fast, before the scene is loaded
     gaussians, scene, _ = load_run(run_dir)

@@ -15,6 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
+from .device import add_torch_device_argument, torch_device
 
 HELP = "train the scene-adaptive diffusion prior on a run's training photos (tiny or sd backend)"
 DEFAULT_MINUTES = 15.0
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tiny backend: the image a start below 1 noises: the Gaussians' render "
                              "(default: the prior repairs it) or the appearance hint; a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
-    parser.add_argument("--device", default=None, help="torch device (default: cuda when available)")
+    add_torch_device_argument(parser)
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
     add_backend_arguments(parser)
     parser.add_argument("--eval-every-minutes", type=float, default=None,
@@ -91,8 +92,6 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
 
 
 def run(args) -> int:
-    import torch
-
     from ..prior.joint import training_views
     from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
     from ..train.run_folder import load_run
@@ -104,7 +103,7 @@ def run(args) -> int:
         if value is not None and value <= 0:
             raise InputError(f"--{name.replace('_', '-')}: must be positive, got {value}")
     minutes = DEFAULT_MINUTES if args.minutes is None and args.steps is None else args.minutes
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    device = torch_device(args.device)
 
     gaussians, scene, _ = load_run(run_dir)
     from ..io.atomic import check_writable_dir

@@ -76,6 +76,24 @@ def test_cpu_and_the_auto_line_on_a_machine_without_a_gpu(monkeypatch, capsys):
     assert device_line(*select_rasterizer("cpu")).startswith("device: cpu")
 
 
+@pytest.mark.parametrize("command", [["prior", "RUN", "--steps", "1"],
+                                     ["generate", "RUN", "--view", "x", "--out", "OUT/g.png"],
+                                     ["eval", "RUN", "--generated"]])
+def test_the_priors_commands_refuse_cuda_without_a_gpu_in_one_line_before_any_work(monkeypatch, tmp_path, capsys,
+                                                                                    command):
+    # torch's own error here is an AssertionError traceback; the run need not even exist.
+    simulate(monkeypatch, False, False, False)
+    args = [a.replace("RUN", str(tmp_path / "run")).replace("OUT", str(tmp_path)) for a in command]
+    assert main(args + ["--device", "cuda"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: --device cuda: no CUDA GPU visible (torch.cuda.is_available() is False: " \
+        "needs an NVIDIA GPU, its driver and a CUDA build of torch)"
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(SystemExit) as exit_info:   # argparse: a device name it does not know
+        main(args + ["--device", "gpu"])
+    assert exit_info.value.code == 2
+
+
 def test_train_device_cuda_without_a_gpu_exits_2_with_one_line(monkeypatch, tmp_path, capsys):
     simulate(monkeypatch, False, True, True)
     status = main(["train", str(tmp_path), "--out", str(tmp_path / "run"), "--device", "cuda", "--iterations", "1"])
