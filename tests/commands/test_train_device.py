@@ -1,5 +1,6 @@
-"""--device auto|cpu|cuda (train, render): what each chooses, and one line, exit 2, naming what
-is missing when cuda cannot run (GPU, gsplat, CUDA compiler simulated absent or present)."""
+"""--device auto|cpu|cuda (train, render; prior, generate and eval --generated): what each chooses,
+and one line, exit 2, naming what is missing when cuda cannot run (GPU, gsplat, CUDA compiler
+simulated absent or present)."""
 
 from __future__ import annotations
 
