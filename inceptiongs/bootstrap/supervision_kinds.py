@@ -39,7 +39,7 @@ class ViewContext:
     source_depth: Callable[[], torch.Tensor] | None = None
 
     def __post_init__(self) -> None:
-        self.fill = torch.as_tensor(self.fill, dtype=torch.float32)   # a generated image arrives as numpy
+        self.fill = torch.as_tensor(self.fill, dtype=torch.float32)   # benchmarks and tests pass numpy
 
     @property
     def delta(self) -> float:

@@ -120,6 +120,8 @@ def run(args) -> int:
             raise InputError(f"{checkpoint}: its prior predicts {trainer.prior.config.prediction}, not "
                              f"{args.prediction} (use --restart to replace it)")
         width = getattr(getattr(trainer.prior.config, "unet", None), "base_width", None)
+        if args.unet_width and width is None:
+            raise InputError(f"{checkpoint}: holds a {trainer.prior.backend} prior; --unet-width is for the tiny backend")
         if args.unet_width and args.unet_width != width:
             raise InputError(f"{checkpoint}: its prior's denoiser is {width} channels wide, not {args.unet_width} "
                              "(use --restart to replace it)")

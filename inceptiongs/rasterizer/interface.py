@@ -94,9 +94,9 @@ def cpu_rasterizer() -> Rasterizer:
 
 def rasterizer_for(device) -> Rasterizer:
     """The rasterizer for tensors on ``device`` when a caller names none: gsplat on a CUDA device
-    when it is installed (the torch reference also runs there, as the fallback), else the CPU's
-    best."""
-    if torch.device(device).type == "cuda" and gsplat_installed():
+    when nothing it needs is missing (``cuda_missing``, the rule ``--device auto`` follows; the
+    torch reference also runs there, as the fallback), else the CPU's best."""
+    if torch.device(device).type == "cuda" and cuda_missing() is None:
         return get_rasterizer("gsplat")
     return cpu_rasterizer()
 

@@ -60,6 +60,9 @@ def test_a_model_on_a_gpu_renders_with_gsplat_where_no_rasterizer_is_named(monke
     assert interface.rasterizer_for("cuda") is stand_in
     assert interface.rasterizer_for(torch.device("cuda", 0)) is stand_in
     assert interface.rasterizer_for("cpu").name == CPU_NAME
+    monkeypatch.setattr(interface, "cuda_compiler", lambda: None)   # gsplat could not build its kernels
+    assert interface.rasterizer_for("cuda").name == CPU_NAME
+    monkeypatch.setattr(interface, "cuda_compiler", lambda: "/usr/local/cuda")
     monkeypatch.setattr(interface, "gsplat_installed", lambda: False)
     assert interface.rasterizer_for("cuda").name == CPU_NAME
 

@@ -121,7 +121,7 @@ def test_bad_sd_folders_raise_input_errors(tmp_path, sd_dir):
 
 
 @pytest.mark.slow
-def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path):
+def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path, capsys):
     from prior_cases import make_stand_in_run
 
     run = make_stand_in_run(tmp_path)
@@ -132,6 +132,9 @@ def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path):
     records = [json.loads(line) for line in (run / "prior" / "metrics.jsonl").read_text().splitlines()]
     assert records[-1]["step"] == 2 and records[-1]["train_s"] > 0
     assert main(["prior", str(run), "--steps", "1", "--backend", "tiny"]) == 2  # checkpoint is sd
+    capsys.readouterr()
+    assert main(["prior", str(run), "--steps", "1", "--unet-width", "64"]) == 2
+    assert "holds a sd prior; --unet-width is for the tiny backend" in capsys.readouterr().err
     out = tmp_path / "g.png"
     from inceptiongs.scene.loader import load_scene
     from inceptiongs.train.config import TrainConfig
