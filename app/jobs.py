@@ -46,7 +46,7 @@ class JobSettings:
     iterations: int = SIZED_TO_BUDGET
     downscale: int = 2
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
-    strategy: str = "default"       # inceptiongs.train.config.STRATEGY_NAMES
+    strategy: str = "default"       # inceptiongs.runs.config.STRATEGY_NAMES
     sky_shell: bool | None = None   # None: TrainConfig's default (as `inceptiongs train` without the flag)
     # Photos the next run leaves out (--exclude-photos): the Training panel fills it with the open
     # run's poorly fit photos when the user asks.
@@ -65,7 +65,7 @@ class JobSettings:
         """The stage-I config as `inceptiongs train` builds it: a typed length is a fixed schedule
         (--iterations); 0 with a budget starts from the command line's first guess and lets the
         trainer re-size it to the budget (--minutes alone); 0 without one: the default length."""
-        from inceptiongs.train.config import TrainConfig, schedule_length, short_run_schedule
+        from inceptiongs.runs.config import TrainConfig, schedule_length, short_run_schedule
 
         iterations, sized = schedule_length(self.iterations or None, self.minutes)
         sky_shell = TrainConfig.sky_shell if self.sky_shell is None else self.sky_shell
@@ -103,7 +103,7 @@ def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
     its own time budget, as `inceptiongs train --resume` without --minutes does (the same
     function builds it). ``settings`` is not read: the dialog's budget is for new runs."""
     from inceptiongs.commands.train import resumed_config
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
     from inceptiongs.train.job import TrainJob
 
     if run_dir is None or latest_checkpoint(Path(run_dir)) is None:

@@ -21,7 +21,7 @@ from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
-from inceptiongs.train.config import STRATEGY_NAMES, TrainConfig, schedule_length
+from inceptiongs.runs.config import STRATEGY_NAMES, TrainConfig, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES

@@ -13,8 +13,8 @@ from pathlib import Path
 from inceptiongs.bootstrap.job import BootstrapJob
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.report import eval_series, read_metrics
-from inceptiongs.train.checkpoint import list_checkpoints
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.checkpoint import list_checkpoints
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.job import TrainJob
 
 # Held-out groups the panel plots, in this order (evaluation.report names them).

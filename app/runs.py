@@ -13,8 +13,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from inceptiongs.train.checkpoint import latest_checkpoint
-from inceptiongs.train.run_folder import CLI_RUNS_FOLDER, SAVED_SUFFIX, default_run_dir
+from inceptiongs.runs.checkpoint import latest_checkpoint
+from inceptiongs.runs.folder import CLI_RUNS_FOLDER, SAVED_SUFFIX, default_run_dir
 
 # Runs the viewer made in the scene's work folder (the cache) before it wrote where the
 # command line does: still listed and opened.
@@ -45,7 +45,7 @@ def fresh_file(path: Path) -> Path:
 
 def runs_folder(chosen: Path | None = None) -> Path:
     """The folder runs go to, absolute: ``chosen``, else ./runs in the current folder (as the
-    command line's default run folders: train.run_folder.default_run_dir)."""
+    command line's default run folders: runs.folder.default_run_dir)."""
     folder = Path(chosen).expanduser() if chosen is not None else Path.cwd() / CLI_RUNS_FOLDER
     return Path(os.path.abspath(folder))
 

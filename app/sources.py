@@ -108,7 +108,7 @@ def work_dir_runs(work_dir: Path) -> list[Path]:
 def folder_runs(folder: Path, scene_root: Path) -> list[Path]:
     """The runs of the scene at ``scene_root`` in a runs folder the user named (whatever their
     folder names: `inceptiongs train --out DIR/anything`), ``folder`` itself included."""
-    from inceptiongs.train.run_folder import is_run_of  # noqa: PLC0415
+    from inceptiongs.runs.folder import is_run_of  # noqa: PLC0415
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -124,7 +124,7 @@ def scene_runs(scene, runs_dir: Path | None = None) -> list[Path]:
     viewer once kept in the scene's work folder; and the folders beside the scene's own (the
     layout `inceptiongs demo OUT` writes: OUT/scene, OUT/run, OUT/run_bootstrap) — only runs whose
     config names this scene."""
-    from inceptiongs.train.run_folder import cli_run_dirs  # noqa: PLC0415
+    from inceptiongs.runs.folder import cli_run_dirs  # noqa: PLC0415
 
     runs = set(work_dir_runs(scene.work_dir)) | set(cli_run_dirs(scene.root))
     runs |= set(folder_runs(Path(scene.root).parent, scene.root))
@@ -167,7 +167,7 @@ def _cameras_json(path: Path) -> list[Camera]:
 
 def _open_run(run_dir: Path) -> ViewerSource:
     """A trainer run folder: its model (normalised frame) with its scene's cameras."""
-    from inceptiongs.train.run_folder import load_run  # noqa: PLC0415
+    from inceptiongs.runs.load import load_run  # noqa: PLC0415
 
     gaussians, scene, _config = load_run(run_dir)
     model = run_dir / "model.ply"

@@ -225,7 +225,7 @@ def stage1_model(run_dir: Path | None) -> dict | None:
     """The stage-I run's Gaussians (arrays, the normalised frame the viewer shows a run in);
     None when the run cannot be read (moved, deleted)."""
     from inceptiongs.errors import InputError  # noqa: PLC0415
-    from inceptiongs.train.run_folder import load_run  # noqa: PLC0415
+    from inceptiongs.runs.load import load_run  # noqa: PLC0415
 
     if run_dir is None:
         return None

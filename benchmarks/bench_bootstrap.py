@@ -134,7 +134,7 @@ def copy_stage1(source: Path, run_dir: Path) -> None:
     import shutil
 
     from inceptiongs.errors import InputError
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     for name in ("config.json", "split.json", "model.ply"):
         if not (source / name).is_file():
@@ -153,9 +153,9 @@ def copy_stage1(source: Path, run_dir: Path) -> None:
 
 def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int, source: Path | None = None) -> Path:
     from inceptiongs.scene.demo import write_demo_scene
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
     from inceptiongs.train.trainer import train
-    from inceptiongs.train.config import short_run_schedule
+    from inceptiongs.runs.config import short_run_schedule
 
     run_dir = out / name / "run"
     if (run_dir / "model.ply").is_file():
@@ -186,7 +186,7 @@ def train_prior(run_dir: Path, minutes: float, seed: int) -> float:
     from inceptiongs.prior.model import Prior, PriorConfig
     from inceptiongs.prior.trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir
     from inceptiongs.evaluation.protocols import Split
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
 
     seconds_file = prior_dir(run_dir) / "bench_seconds.json"
     if (prior_dir(run_dir) / CHECKPOINT_NAME).is_file() and seconds_file.is_file():

@@ -79,7 +79,7 @@ def main() -> None:
         return
 
     if args.run:
-        from inceptiongs.train.run_folder import load_run
+        from inceptiongs.runs.load import load_run
         gaussians, scene, _ = load_run(args.run)
         cameras, photos = scene.cameras, None
         load_image = scene.load_image
@@ -154,7 +154,7 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
     from inceptiongs.prior.hashgrid import HashGridConfig
     from inceptiongs.prior.joint import training_views
     from inceptiongs.prior.trainer import adam_for
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
 
     gaussians, scene, _ = load_run(run)
     views = training_views(run, scene)

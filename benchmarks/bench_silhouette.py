@@ -175,7 +175,8 @@ def filled_shell(gaussians, background: torch.Tensor, exposure: torch.Tensor):
     """``gaussians`` with each hidden shell Gaussian (background [N] bool; exposure [S] of the
     background ones in order, 0 = hidden: see ``inceptiongs.train.sky.shell_exposure``) filled
     from its nearest shell Gaussians seen as sky (``inceptiongs.train.sky.fill_hidden_shell``)."""
-    from inceptiongs.train.optim import gaussians_from_params, params_from_gaussians
+    from inceptiongs.gaussians import gaussians_from_params
+    from inceptiongs.train.optim import params_from_gaussians
     from inceptiongs.train.sky import fill_hidden_shell
 
     params = {name: t.detach() for name, t in params_from_gaussians(gaussians).items()}

@@ -23,8 +23,8 @@ from pathlib import Path
 import inceptiongs  # noqa: F401  (sets OMP_WAIT_POLICY before torch loads)
 import inceptiongs.train.trainer as trainer_module
 from inceptiongs.errors import InputError
-from inceptiongs.train.checkpoint import list_checkpoints
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.checkpoint import list_checkpoints
+from inceptiongs.runs.config import TrainConfig
 
 
 def main(argv: list[str] | None = None) -> int:

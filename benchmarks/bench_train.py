@@ -38,7 +38,7 @@ def main() -> int:
     args = parser.parse_args()
 
     from inceptiongs.commands.train import photos_to_exclude
-    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGY_NAMES
+    from inceptiongs.runs.config import BUDGET_STEPS_PER_MINUTE_GUESS, STRATEGY_NAMES
 
     strategies = [name.strip() for name in args.strategies.split(",") if name.strip()]
     unknown = [name for name in strategies if name not in STRATEGY_NAMES]
@@ -111,7 +111,7 @@ def _config_for(args: argparse.Namespace, scene: Path, iterations: int, sized: b
                 strategy: str):
     """The TrainConfig one strategy trains with: the CLI's short-run schedule plus the overrides
     given on the command line."""
-    from inceptiongs.train.config import TrainConfig, short_run_schedule
+    from inceptiongs.runs.config import TrainConfig, short_run_schedule
 
     config = short_run_schedule(TrainConfig(
         scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
@@ -210,10 +210,10 @@ def floaters_in_training_views(run: Path) -> tuple[float | None, int]:
 
     from inceptiongs.evaluation.protocols import Split
     from inceptiongs.rasterizer.rasterize import render
-    from inceptiongs.train.checkpoint import latest_checkpoint, load_checkpoint
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.checkpoint import latest_checkpoint, load_checkpoint
+    from inceptiongs.runs.config import TrainConfig
     from inceptiongs.train.free_space import floater_fraction
-    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.gaussians import gaussians_from_params
     from inceptiongs.scene.loader import load_scene
 
     payload = load_checkpoint(latest_checkpoint(run))

@@ -30,7 +30,7 @@ from inceptiongs.errors import InputError
 from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.evaluation.protocols import Split
 from inceptiongs.rasterizer.rasterize import render
-from inceptiongs.train.run_folder import load_run
+from inceptiongs.runs.load import load_run
 
 GROUP_COLOURS = {"train": "#4c72b0", "scarce": "#dd8452", "covered": "#c44e52"}
 

@@ -22,7 +22,7 @@ import inceptiongs  # noqa: F401  (before torch: OMP_WAIT_POLICY, docs/training.
 import torch
 from torch.profiler import ProfilerActivity, profile
 
-from inceptiongs.train.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.trainer import train
 
 

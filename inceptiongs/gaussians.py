@@ -83,3 +83,9 @@ class Gaussians:
         k = (sh_degree + 1) ** 2
         z = lambda *s: torch.zeros(*s, device=device, dtype=dtype)  # noqa: E731
         return Gaussians(z(0, 3), z(0, 3), z(0, 4), z(0), z(0, k, 3))
+
+
+def gaussians_from_params(params: dict[str, torch.Tensor]) -> Gaussians:
+    """The dict as a Gaussians (differentiable: shares the graph with ``params``)."""
+    sh = params["sh_dc"] if "sh_rest" not in params else torch.cat([params["sh_dc"], params["sh_rest"]], 1)
+    return Gaussians(params["means"], params["log_scales"], params["quats"], params["opacity_logits"], sh)

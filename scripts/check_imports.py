@@ -10,7 +10,11 @@ module, never hide a circle). Rules:
 2. Layers run one way: app -> renderer -> library. The library (``inceptiongs`` outside
    ``inceptiongs.app`` and ``inceptiongs.renderer``) imports neither; the renderer does not
    import the app.
-3. ``from X import _name`` is refused when X is another project module: a private name is
+3. Inside the library, packages run one way too, in the order the data flows (LIBRARY_ORDER,
+   the table docs/design.md shows): a module imports only from its own layer or the layers
+   before it. A package's ``__init__`` imports nothing of the project, so importing a package
+   costs no layer.
+4. ``from X import _name`` is refused when X is another project module: a private name is
    private to its module. Tests, benchmarks and scripts are held to this too.
 
     python3 scripts/check_imports.py          # prints the problems, exit status 1 if any
@@ -30,6 +34,25 @@ PACKAGE_DIRS = {"inceptiongs": "inceptiongs", "app": "inceptiongs.app", "rendere
 # Code that is not installed but must still keep to rule 3; its modules are named by path.
 LOOSE_DIRS = ("tests", "benchmarks", "scripts")
 LIBRARY, RENDERER, APP = "inceptiongs", "inceptiongs.renderer", "inceptiongs.app"
+# The library's layers, first to last: a module may import from its own layer and the ones above it
+# in this list. A module belongs to the layer with the longest prefix that names it.
+LIBRARY_ORDER = (
+    ("foundation", ("inceptiongs.constants", "inceptiongs.errors", "inceptiongs.threads", "inceptiongs.live",
+                    "inceptiongs.stop_signals", "inceptiongs.camera", "inceptiongs.pinhole", "inceptiongs.gaussians",
+                    "inceptiongs.io")),
+    ("scene", ("inceptiongs.scene",)),
+    ("rasterizer", ("inceptiongs.rasterizer",)),
+    ("lod", ("inceptiongs.lod",)),
+    ("measures", ("inceptiongs.evaluation.metrics", "inceptiongs.evaluation.networks",
+                  "inceptiongs.evaluation.scoring", "inceptiongs.evaluation.protocols",
+                  "inceptiongs.evaluation.coverage", "inceptiongs.evaluation.report")),
+    ("runs", ("inceptiongs.runs",)),
+    ("train", ("inceptiongs.train",)),
+    ("prior", ("inceptiongs.prior",)),
+    ("bootstrap", ("inceptiongs.bootstrap",)),
+    ("results", ("inceptiongs.evaluation",)),
+    ("commands", ("inceptiongs.commands", "inceptiongs.cli", "inceptiongs.__main__")),
+)
 
 
 @dataclass(frozen=True)
@@ -102,6 +125,27 @@ def layer(module: str) -> str | None:
     return None
 
 
+def library_layer(module: str) -> int | None:
+    """The index in LIBRARY_ORDER of ``module``'s layer (None: not in the table)."""
+    best, best_len = None, -1
+    for index, (_name, prefixes) in enumerate(LIBRARY_ORDER):
+        for prefix in prefixes:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best_len:
+                best, best_len = index, len(prefix)
+    return best
+
+
+def order_problem(module: str, target: str, packages: set[str]) -> str | None:
+    """Why ``module`` importing ``target`` goes against LIBRARY_ORDER (None: it does not)."""
+    if target in packages:
+        return None   # a package's __init__ imports nothing (checked on its own)
+    source_index, target_index = library_layer(module), library_layer(target)
+    if source_index is None or target_index is None or target_index <= source_index:
+        return None
+    return (f"{LIBRARY_ORDER[source_index][0]} layer imports {target} ({LIBRARY_ORDER[target_index][0]} layer); "
+            f"the library's layers run {' -> '.join(name for name, _ in LIBRARY_ORDER)}")
+
+
 ALLOWED = {LIBRARY: {LIBRARY}, RENDERER: {LIBRARY, RENDERER}, APP: {LIBRARY, RENDERER, APP}}
 
 
@@ -142,11 +186,16 @@ def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return result
 
 
-def check() -> list[str]:
+def check(root: Path | None = None) -> list[str]:
+    """Every problem in the project at ``root`` (default: this checkout), one line each."""
+    global ROOT
+    if root is not None:
+        ROOT = Path(root)
     files = project_files()
     named = {f: module_name(f) for f in files}
     installed = {name for f, (name, _) in named.items() if f.relative_to(ROOT).parts[0] in PACKAGE_DIRS}
     all_modules = {name for name, _ in named.values()}
+    packages = {name for f, (name, is_package) in named.items() if is_package and name in installed}
     problems = []
     graph: dict[str, set[str]] = {name: set() for name in installed}
     for path, (module, is_package) in named.items():
@@ -159,7 +208,14 @@ def check() -> list[str]:
                     problems.append(f"{where}:{imp.line}: private name {name} imported from {imp.target}")
             if module not in installed:
                 continue
+            if is_package and targets & installed and layer(module) is not None:
+                problems.append(f"{where}:{imp.line}: a package's __init__ imports nothing of the project "
+                                f"(it imports {imp.target})")
             for target in targets & installed:
+                if layer(module) == LIBRARY and layer(target) == LIBRARY:
+                    why = order_problem(module, target, packages)
+                    if why:
+                        problems.append(f"{where}:{imp.line}: {why}")
                 graph[module].add(target)
                 source_layer, target_layer = layer(module), layer(target)
                 if source_layer and target_layer and target_layer not in ALLOWED[source_layer]:
@@ -178,7 +234,7 @@ def main() -> int:
     if problems:
         print(f"{len(problems)} import problem(s)", file=sys.stderr)
         return 1
-    print("imports: no circles, layers one way, no private names across modules")
+    print("imports: no circles, layers one way (the library's in LIBRARY_ORDER), no private names across modules")
     return 0
 
 

@@ -15,8 +15,8 @@ from inceptiongs.prior.unet import UNetConfig
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.scene.loader import load_scene
-from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.run_folder import to_original_frame
+from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.frames import to_original_frame
 
 TINY = PriorConfig(patch_size=16, batch_size=4, learning_rate=2e-3, num_timesteps=200,
                    unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16),

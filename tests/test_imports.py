@@ -49,3 +49,45 @@ def test_layers_run_one_way():
     assert checker.LIBRARY in checker.ALLOWED[checker.RENDERER]
     assert checker.RENDERER not in checker.ALLOWED[checker.LIBRARY]
     assert checker.APP not in checker.ALLOWED[checker.RENDERER]
+
+
+def copy_of_the_project(tmp_path: Path) -> Path:
+    """The installed folders copied, so a test can plant an import without touching the checkout."""
+    import shutil
+
+    copy = tmp_path / "project"
+    for folder in ("inceptiongs", "app", "renderer", "shaders"):
+        shutil.copytree(ROOT / folder, copy / folder, ignore=shutil.ignore_patterns("__pycache__"))
+    for folder in ("tests", "benchmarks", "scripts"):
+        (copy / folder).mkdir()
+    return copy
+
+
+def test_checker_fails_on_an_import_against_the_library_order(tmp_path):
+    checker = load_checker()
+    copy = copy_of_the_project(tmp_path)
+    assert checker.check(copy) == []
+    hashgrid = copy / "inceptiongs" / "prior" / "hashgrid.py"
+    hashgrid.write_text(hashgrid.read_text() + "\n\ndef f():\n    from ..bootstrap.warp import warp_to_view\n")
+    problems = checker.check(copy)
+    assert len(problems) == 1 and "prior layer imports inceptiongs.bootstrap.warp (bootstrap layer)" in problems[0]
+    # Run-level evaluation sits above the bootstrap; the metrics sit below training.
+    step = copy / "inceptiongs" / "train" / "losses.py"
+    step.write_text(step.read_text() + "\n\ndef g():\n    from ..evaluation.run import evaluate_run\n")
+    assert any("train layer imports inceptiongs.evaluation.run (results layer)" in p for p in checker.check(copy))
+
+
+def test_checker_fails_on_a_package_init_that_imports(tmp_path):
+    checker = load_checker()
+    copy = copy_of_the_project(tmp_path)
+    init = copy / "inceptiongs" / "runs" / "__init__.py"
+    init.write_text(init.read_text() + "\nfrom .config import TrainConfig\n")
+    assert any("a package's __init__ imports nothing" in p for p in checker.check(copy))
+
+
+def test_every_library_module_has_a_place_in_the_order():
+    checker = load_checker()
+    for path in checker.project_files():
+        module, _ = checker.module_name(path)
+        if checker.layer(module) == checker.LIBRARY and module != checker.LIBRARY:
+            assert checker.library_layer(module) is not None, f"{path}: add its package to LIBRARY_ORDER"

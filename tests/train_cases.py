@@ -12,7 +12,7 @@ import torch
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.rasterizer.rasterize import render
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.free_space import ViewStats, near_bounds
 from inceptiongs.train.init_gaussians import scene_extent
 from inceptiongs.train.step import TrainData, state_from_gaussians, train_step

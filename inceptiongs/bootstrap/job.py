@@ -23,7 +23,7 @@ class BootstrapJob:
     overwrite: bool = False  # replace a result already in out_dir (else refused)
 
     def run(self, box: SnapshotBox, control: JobControl) -> None:
-        from ..train.run_folder import next_free_folder
+        from ..runs.folder import next_free_folder
         from .runner import default_out_dir, resolve_targets, run_bootstrap
         from .stage1 import load_stage1
 

@@ -21,16 +21,16 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..evaluation.run import load_torchscript
+from ..evaluation.networks import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
 from ..io.config_json import json_safe
 from ..rasterizer.interface import rasterizer_device
-from ..train.checkpoint import list_checkpoints, save_checkpoint
-from ..train.config import TrainConfig
+from ..runs.checkpoint import list_checkpoints, save_checkpoint
+from ..runs.config import TrainConfig
 from ..train.loop import SaveAttempts, StepLoop, out_of_memory_stops, save_model
-from ..train.optim import gaussians_from_params
-from ..train.run_folder import append_metrics, truncate_metrics
+from ..gaussians import gaussians_from_params
+from ..runs.metrics import append_metrics, truncate_metrics
 from ..train.step import (data_on, evaluate_held_out, prepare_data, restore_state, sh_degree_at,
                           state_from_gaussians, state_on, supported_sh_degree, train_step)
 from .config import BootstrapConfig

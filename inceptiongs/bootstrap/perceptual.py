@@ -1,7 +1,7 @@
 """The perceptual branch of the virtual-view loss.
 
 With user-given LPIPS weights (a TorchScript network loaded by
-inceptiongs.evaluation.run.load_torchscript) the distance is LPIPS. Without them no learned
+inceptiongs.evaluation.networks.load_torchscript) the distance is LPIPS. Without them no learned
 perceptual metric exists here (no weights can be downloaded), so the fallback is a
 weight-free distance named for what it is, "MS-SSIM-G":
 

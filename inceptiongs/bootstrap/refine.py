@@ -22,8 +22,9 @@ import torch
 
 from ..evaluation.metrics import ssim
 from ..train import losses
-from ..train.config import TrainConfig
-from ..train.optim import gaussians_from_params, position_learning_rate, set_learning_rate
+from ..runs.config import TrainConfig
+from ..gaussians import gaussians_from_params
+from ..train.optim import position_learning_rate, set_learning_rate
 from ..train.step import optimizer_step, sh_degree_at
 from .config import BootstrapConfig
 from .generation import VirtualTarget

@@ -15,10 +15,10 @@ from typing import Callable, Sequence
 from ..errors import InputError
 from ..gaussians import Gaussians
 from ..io.flags import FLAGS_FILE_NAME
-from ..io.run_lock import run_folder_lock
+from ..runs.lock import run_folder_lock
 from ..threads import use_torch_threads
 from ..train.loop import StepLoop, default_log, expected_total_steps  # noqa: F401 (expected_total_steps: re-exported)
-from ..train.run_folder import holds_result, next_free_folder
+from ..runs.folder import holds_result, next_free_folder
 from .config import BootstrapConfig
 from .loop import BOOTSTRAP_DIR, Bootstrap, BootstrapResult  # noqa: F401 (BOOTSTRAP_DIR: re-exported)
 from .stage1 import Stage1, as_stage1, load_stage1
@@ -46,7 +46,7 @@ def check_output_folder(out_dir: Path, overwrite: bool) -> None:
 def stopped_bootstrap_step(out_dir: Path) -> int | None:
     """The newest checkpoint's step when ``out_dir`` holds a bootstrap that was stopped (its
     summary says so, or it has none: killed), else None."""
-    from ..train.checkpoint import list_checkpoints
+    from ..runs.checkpoint import list_checkpoints
 
     kept = list_checkpoints(out_dir)
     if not kept:
@@ -61,7 +61,7 @@ def default_flag_files(scene, run_dir: str | Path | None = None) -> list[Path]:
     """Where the viewer's flags.json may be, first found wins: the run folder, ./runs/NAME_saved
     (where the viewer keeps them), the scene's cache folder (older viewers), then (read-only) the
     scene folder's .inceptiongs/ written by older versions."""
-    from ..train.run_folder import default_saved_dir
+    from ..runs.folder import default_saved_dir
 
     found = [Path(run_dir) / FLAGS_FILE_NAME] if run_dir is not None else []
     found.append(default_saved_dir(scene.root) / FLAGS_FILE_NAME)
@@ -96,7 +96,7 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
     """Bootstrap RUN (a loaded :class:`Stage1`, or its folder) into RUN2 (see the module doc).
     ``targets=None`` with an empty pool is the same-time baseline: the stage-I loop continued on
     the photos alone (``baseline_run``). An ``out_dir`` that already holds a result is refused
-    (InputError) unless ``overwrite`` (see ``inceptiongs.train.run_folder.next_free_folder`` for
+    (InputError) unless ``overwrite`` (see ``inceptiongs.runs.folder.next_free_folder`` for
     a fresh name instead). ``resume``: continue the stopped bootstrap in ``out_dir`` from its newest
     checkpoint, with its saved targets (``targets`` is then ignored). ``rasterizer``
     (inceptiongs.rasterizer.interface.Rasterizer) defaults to the one the stage-I run's device
@@ -165,7 +165,7 @@ def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
     same-time baseline); InputError (one line) when there is nothing to continue."""
     import json
 
-    from ..train.checkpoint import latest_checkpoint, load_newest_checkpoint
+    from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint
     from .loop import TARGETS_FILE
     from .targets import targets_from_json
 

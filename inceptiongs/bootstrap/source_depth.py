@@ -25,7 +25,7 @@ import torch
 from ..camera import Camera
 from ..constants import NEAR_PLANE
 from .virtual_views import nearest_training_views
-from .warp import project, relative_pose, unproject
+from ..pinhole import project, relative_pose, unproject
 
 # Holes are closed from splatted pixels at most this far away (pixels): a source ~4x farther
 # from the surface than the virtual camera lands one point per ~4 x 4 virtual pixels.

@@ -9,9 +9,9 @@ from ..errors import InputError
 from ..evaluation.protocols import Split
 from ..gaussians import Gaussians
 from ..scene.loader import Scene
-from ..train.checkpoint import latest_checkpoint, load_checkpoint
-from ..train.config import TrainConfig
-from ..train.run_folder import load_run
+from ..runs.checkpoint import latest_checkpoint, load_checkpoint
+from ..runs.config import TrainConfig
+from ..runs.load import load_run
 
 
 @dataclass

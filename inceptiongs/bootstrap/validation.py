@@ -45,7 +45,7 @@ from .source_depth import depth_from_training_views
 from .supervise import supervise_view
 from .supervision_kinds import ViewContext, ViewSupervision
 from .virtual_views import DEFAULT_K, nearest_training_views
-from .warp import unproject
+from ..pinhole import unproject
 
 # Cells per side of the evidence's extent (its longest axis).
 VOXELS_PER_SIDE = 16

@@ -79,7 +79,7 @@ def run(args) -> int:
                                     resumable, run_bootstrap)
     from ..live import JobControl
     from ..stop_signals import stop_on_signals
-    from ..train.run_folder import next_free_folder
+    from ..runs.folder import next_free_folder
 
     run_dir = Path(args.run)
     if args.out:

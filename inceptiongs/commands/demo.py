@@ -245,7 +245,7 @@ def _target_image(scene, split, run_dirs: list[Path], out_path: Path) -> None:
 
     from ..io.images import write_png
     from ..rasterizer.interface import cpu_rasterizer
-    from ..train.run_folder import load_run
+    from ..runs.load import load_run
 
     camera = scene.cameras[split.target_view]
     panels = []
@@ -329,7 +329,7 @@ def _stage1(args, out: Path, progress: Progress, timings: dict):
     """OUT/scene and OUT/run: the courtyard and stage I on it -> (TrainResult, Stage1)."""
     from ..bootstrap.stage1 import load_stage1
     from ..scene.courtyard import write_courtyard_scene
-    from ..train.config import TrainConfig, short_run_schedule
+    from ..runs.config import TrainConfig, short_run_schedule
     from ..train.trainer import train
 
     progress.stage("writing the courtyard scene")

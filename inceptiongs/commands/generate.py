@@ -50,7 +50,7 @@ def run(args) -> int:
     from ..camera import read_camera_json
     from ..io.images import write_png
     from ..prior.trainer import load_prior, sampling_options
-    from ..train.run_folder import load_run
+    from ..runs.load import load_run
 
     if Path(args.out).suffix.lower() != ".png":
         raise InputError(f"{args.out}: --out must be a .png file")

@@ -94,7 +94,7 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
 def run(args) -> int:
     from ..prior.joint import training_views
     from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
-    from ..train.run_folder import load_run
+    from ..runs.load import load_run
 
     run_dir = Path(args.run)
     for name in ("minutes", "steps", "patch_size", "batch_size", "unet_width", "checkpoint_every",

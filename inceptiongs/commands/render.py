@@ -125,7 +125,7 @@ def load_model_and_camera(args):
     # only checkpointed: --width/--height are the way to another size.
     scene = load_scene(scene_path, require_images=False)
     if run_dir is not None and ply is None:
-        from ..train.run_folder import load_run
+        from ..runs.load import load_run
         gaussians, _, _ = load_run(run_dir)  # newest checkpoint, normalised frame (same normalisation)
     else:
         gaussians = scene.normalization.gaussians_to_normalized(read_ply(ply))

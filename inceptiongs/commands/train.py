@@ -13,7 +13,7 @@ from ..io.config_json import check_seed
 from ..io.paths import contained_path, read_small_text
 from .device import add_device_argument, chosen_rasterizer
 
-from ..train.config import TrainConfig
+from ..runs.config import TrainConfig
 from ..train.strategies import STRATEGIES
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
@@ -73,7 +73,7 @@ def check_arguments(args) -> None:
 
 
 def build_config(args) -> "TrainConfig":
-    from ..train.config import TrainConfig, schedule_length, short_run_schedule
+    from ..runs.config import TrainConfig, schedule_length, short_run_schedule
 
     check_arguments(args)
     iterations, sized = schedule_length(args.iterations, args.minutes)
@@ -134,7 +134,7 @@ def photos_to_exclude(value: str | None) -> list[str]:
 def run(args) -> int:
     from ..live import JobControl
     from ..stop_signals import stop_on_signals
-    from ..train.run_folder import default_run_dir
+    from ..runs.folder import default_run_dir
     from ..train.trainer import train
 
     scene = Path(args.scene)

@@ -113,7 +113,7 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     import torch
 
     from ..rasterizer.interface import cpu_rasterizer
-    from ..train.run_folder import load_run
+    from ..runs.load import load_run
     from .protocols import Split
 
     gaussians, scene, _ = load_run(run_dir)

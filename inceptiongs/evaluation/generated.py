@@ -126,7 +126,7 @@ def evaluate_generated_run(run_dir: str | Path, ddim_steps: tuple[int, ...] = (2
     {"views", "render": {"psnr", "ssim"}, "generated": {...}}}}], "views": [...first count...]}.
     """
     from ..prior.trainer import load_prior, read_prior_checkpoint, sampling_options
-    from ..train.run_folder import load_run
+    from ..runs.load import load_run
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Callable
 
-import torch
 
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.config_json import json_safe
-from ..train.run_folder import load_run
+from ..runs.load import load_run
+from .networks import load_torchscript
 from .protocols import Split
 from .scoring import evaluate_views
 
@@ -31,22 +30,9 @@ UNAVAILABLE_LPIPS = "unavailable (no --lpips-weights given)"
 UNAVAILABLE_FID = "unavailable (no --fid-weights given)"
 
 
-def load_torchscript(path: str | Path, what: str) -> Callable:
-    """A user-given TorchScript network (LPIPS or FID feature extractor), in eval mode."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: {what} weights file does not exist")
-    try:
-        module = torch.jit.load(str(path), map_location="cpu")
-    except (RuntimeError, ValueError, OSError) as exc:
-        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"{path}: not a TorchScript {what} network ({first_line})") from None
-    return module.eval()
-
-
 def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
                  fid_weights: str | Path | None = None, progress: bool = True, rasterizer=None) -> dict:
-    """Evaluate RUN/model (via inceptiongs.train.run_folder.load_run) on RUN/split.json's held-out views.
+    """Evaluate RUN/model (via inceptiongs.runs.load.load_run) on RUN/split.json's held-out views.
 
     Writes RUN/eval/<group>_<index>_<name>.png (render | photo | error) and RUN/eval/eval.json,
     and returns the same dict as eval.json: {"run", "protocol", "seed", "target_view",

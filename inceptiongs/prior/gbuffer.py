@@ -26,7 +26,7 @@ from ..camera import Camera
 from ..constants import (ALPHA_MIN, DILATION_PX, FAR_PLANE, FRUSTUM_CLAMP_MARGIN, LOG_SCALE_MAX, LOG_SCALE_MIN,
                          NEAR_PLANE)
 from ..gaussians import Gaussians
-from ..bootstrap.warp import unproject
+from ..pinhole import unproject
 from ..rasterizer.interface import rasterizer_for
 from .hashgrid import HashGrid
 

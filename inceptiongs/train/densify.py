@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from ..camera import unit_quat_to_rotation
-from .config import TrainConfig
+from ..runs.config import TrainConfig
 from .free_space import nearest_camera_distance
 from .optim import replace_rows, reset_moments
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..live import JobControl, JobPublisher, SnapshotBox
-from .config import TrainConfig
+from ..runs.config import TrainConfig
 
 @dataclass
 class TrainJob:

@@ -24,9 +24,9 @@ from ..gaussians import Gaussians
 from ..io.atomic import OutputError
 from ..io.ply import write_ply
 from ..live import wait_while_paused
-from .config import TrainConfig
-from .optim import gaussians_from_params
-from .run_folder import to_original_frame
+from ..runs.config import TrainConfig
+from ..gaussians import gaussians_from_params
+from ..runs.frames import to_original_frame
 from .step import sh_degree_at, trim_sh
 
 
@@ -41,7 +41,7 @@ def out_of_memory_stops(run_dir: Path, where: Callable[[], tuple[int, int]], res
     except torch.OutOfMemoryError:
         if torch.cuda.is_available():
             torch.cuda.empty_cache()   # the memory goes back before anything else is tried
-        from .checkpoint import latest_checkpoint
+        from ..runs.checkpoint import latest_checkpoint
 
         step, count = where()
         kept = latest_checkpoint(Path(run_dir))

@@ -12,7 +12,7 @@ import math
 import torch
 
 from ..gaussians import Gaussians
-from .config import TrainConfig
+from ..runs.config import TrainConfig
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 
@@ -26,12 +26,6 @@ def params_from_gaussians(gaussians: Gaussians) -> dict[str, torch.Tensor]:
     if gaussians.sh.shape[1] > 1:
         raw["sh_rest"] = gaussians.sh[:, 1:]
     return {name: t.detach().clone().contiguous().requires_grad_(True) for name, t in raw.items()}
-
-
-def gaussians_from_params(params: dict[str, torch.Tensor]) -> Gaussians:
-    """The dict as a Gaussians (differentiable: shares the graph with ``params``)."""
-    sh = params["sh_dc"] if "sh_rest" not in params else torch.cat([params["sh_dc"], params["sh_rest"]], 1)
-    return Gaussians(params["means"], params["log_scales"], params["quats"], params["opacity_logits"], sh)
 
 
 def base_learning_rates(config: TrainConfig, extent: float) -> dict[str, float]:

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
-from .optim import gaussians_from_params
+from ..gaussians import gaussians_from_params
 
 # The shell's radius, in units of the sparse points' far extent (their 99th-percentile
 # distance from the cameras' centroid): far enough that the rig's parallax on it is small.

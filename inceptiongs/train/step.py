@@ -21,7 +21,7 @@ from ..camera import Camera
 from ..errors import InputError
 from ..gaussians import Gaussians
 from . import losses
-from .config import TrainConfig
+from ..runs.config import TrainConfig
 from .densify import DensifyStats, accumulate
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
                          near_a_camera, near_bounds, seen_through, sh_rest_mask, surface_depth,
@@ -30,8 +30,8 @@ from .init_gaussians import gaussians_from_points, gaussians_from_sparse_depth, 
 from .neighbours import neighbour_views
 from .sky import SKY_OPACITY, hold_shell_scales, in_background, shell_log_scale_floor, sky_shell
 from .strategies import strategy_for
-from .optim import (gaussians_from_params, make_optimizer, params_from_gaussians,
-                    position_learning_rate, set_learning_rate)
+from ..gaussians import gaussians_from_params
+from .optim import make_optimizer, params_from_gaussians, position_learning_rate, set_learning_rate
 from .triangulate import training_points
 
 

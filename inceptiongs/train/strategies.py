@@ -32,7 +32,7 @@ from typing import ClassVar
 import torch
 
 from ..gaussians import Gaussians
-from .config import STRATEGY_NAMES, STRATEGY_OPTIONS, DropGaussianOptions, MCMCOptions, TrainConfig
+from ..runs.config import STRATEGY_NAMES, STRATEGY_OPTIONS, DropGaussianOptions, MCMCOptions, TrainConfig
 from .densify import DensifyStats, densify_and_prune, remove_rows, reset_opacity
 from .optim import position_learning_rate
 from .sky import in_background

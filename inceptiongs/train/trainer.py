@@ -20,7 +20,7 @@ from typing import Callable
 from ..errors import InputError
 from ..evaluation.protocols import make_split
 from ..scene.loader import load_scene
-from ..io.run_lock import run_folder_lock
+from ..runs.lock import run_folder_lock
 from ..io.atomic import atomic_write_text, check_writable_dir, remove_stale_temp_files
 from ..gaussians import Gaussians
 from ..rasterizer.interface import rasterizer_device
@@ -28,13 +28,13 @@ from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
                      RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
                      growing_budget_iterations)
-from .checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
-from .config import TrainConfig, sized_schedule
+from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
+from ..runs.config import TrainConfig, sized_schedule
 from .loop import SaveAttempts, StepLoop, default_log, out_of_memory_stops, save_model
-from .optim import gaussians_from_params
+from ..gaussians import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
-from .run_folder import append_metrics, logged_iterations, truncate_metrics
+from ..runs.metrics import append_metrics, logged_iterations, truncate_metrics
 from .step import (add_maintenance_counts, data_on, evaluate_held_out, log_once, new_state, prepare_data,
                    restore_state, state_on, supported_sh_degree, train_step)
 

@@ -342,7 +342,7 @@ def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.runner import baseline_run, resolve_targets, run_bootstrap
     from inceptiongs.evaluation.protocols import Split
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
     from train_cases import tiny_demo_run
 
     run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,

@@ -16,7 +16,7 @@ from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstra
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.errors import InputError
 from viewer_cases import opened
 
@@ -63,7 +63,7 @@ def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
     """0 in "schedule iterations" is `inceptiongs train --minutes M` (sized, re-sized by the
     trainer); a typed length is `--iterations N` (fixed); no budget and 0: the default length."""
     from inceptiongs.commands.train import build_config
-    from inceptiongs.train.config import BUDGET_STEPS_PER_MINUTE_GUESS, TrainConfig
+    from inceptiongs.runs.config import BUDGET_STEPS_PER_MINUTE_GUESS, TrainConfig
 
     def cli(minutes, iterations):
         return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
@@ -179,7 +179,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
 
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
-    from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints
+    from inceptiongs.runs.checkpoint import latest_checkpoint, list_checkpoints
 
     with opened(Viewer, open_source(demo_scene), 900, 1000) as viewer:
         # Where `inceptiongs train SCENE` writes: ./runs/NAME in the current folder, not the scene.
@@ -272,13 +272,13 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
     5000-step schedule was, stopping at a few percent of it."""
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
-    from inceptiongs.train.config import TrainConfig
-    from inceptiongs.train.checkpoint import list_checkpoints
+    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.runs.checkpoint import list_checkpoints
     from inceptiongs.train.budget import BUDGET_FREEZE
     from viewer_cases import click_widget
 
     minutes = 0.2
-    monkeypatch.setattr("inceptiongs.train.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
+    monkeypatch.setattr("inceptiongs.runs.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
     with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
         viewer.jobs.settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
         click_widget(viewer, "train (new run)")
@@ -413,7 +413,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.bootstrap.config import BootstrapConfig
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
     from viewer_cases import click_widget, press_key, type_into
 
     with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
@@ -477,7 +477,7 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.bootstrap.config import BootstrapConfig
-    from inceptiongs.train.checkpoint import list_checkpoints
+    from inceptiongs.runs.checkpoint import list_checkpoints
     from inceptiongs.train.trainer import train
     from viewer_cases import click_widget
 

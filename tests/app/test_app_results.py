@@ -60,12 +60,12 @@ def _stopped_run(scene: Path, run: Path, stop_at: int, minutes: float | None = N
 
 @pytest.mark.gl
 def test_jobs_and_saves_go_where_the_command_line_writes(xvfb, demo_scene, tmp_path, monkeypatch):
-    """"train (new run)" writes ./runs/NAME in the current folder (train.run_folder.default_run_dir,
+    """"train (new run)" writes ./runs/NAME in the current folder (runs.folder.default_run_dir,
     as `inceptiongs train SCENE`), never the cache; F12 and "save PLY" default to ./runs/NAME_saved;
     a runs folder typed into the panel takes the next run."""
     import glfw
 
-    from inceptiongs.train.run_folder import default_run_dir
+    from inceptiongs.runs.folder import default_run_dir
 
     monkeypatch.chdir(tmp_path)
     with opened(_viewer, demo_scene) as viewer:
@@ -167,7 +167,7 @@ def test_flags_are_kept_beside_the_runs_and_the_bootstrap_finds_them(xvfb, demo_
 def test_closing_with_a_job_asks_and_stop_and_save_keeps_the_model(xvfb, demo_scene, tmp_path, monkeypatch):
     import glfw
 
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     monkeypatch.chdir(tmp_path)
     with opened(_viewer, demo_scene) as viewer:
@@ -217,7 +217,7 @@ def test_keep_running_hides_the_window_and_the_job_finishes(xvfb, demo_scene, tm
 def test_sigterm_on_the_viewer_stops_and_saves_the_job(xvfb, demo_scene, tmp_path, monkeypatch):
     import glfw
 
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     monkeypatch.chdir(tmp_path)
     viewer = _viewer(demo_scene)
@@ -245,7 +245,7 @@ def test_sigterm_on_the_viewer_stops_and_saves_the_job(xvfb, demo_scene, tmp_pat
 
 @pytest.mark.gl
 def test_resume_keeps_the_runs_own_budget_and_the_bar_agrees(xvfb, demo_scene, tmp_path):
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     run = _stopped_run(demo_scene, tmp_path / "run", stop_at=4, minutes=0.5, iterations=40)
     stopped_at = int(latest_checkpoint(run).stem.split("_")[-1])

@@ -8,7 +8,7 @@ import torch.nn.functional as F
 
 from inceptiongs.bootstrap.perceptual import (LPIPS_NAME, PERCEPTUAL_NAME, perceptual_distance,
                                               perceptual_name)
-from inceptiongs.evaluation.run import load_torchscript
+from inceptiongs.evaluation.networks import load_torchscript
 
 
 def _texture(h=48, w=64, seed=0) -> torch.Tensor:

@@ -18,7 +18,7 @@ from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.io.atomic import OutputError
 from inceptiongs.live import JobControl
-from inceptiongs.train.checkpoint import list_checkpoints
+from inceptiongs.runs.checkpoint import list_checkpoints
 from train_cases import tiny_demo_run
 
 STEPS = 12

@@ -22,8 +22,8 @@ from inceptiongs.errors import InputError
 from inceptiongs.evaluation.run import evaluate_run
 from inceptiongs.live import SnapshotBox
 from inceptiongs.evaluation.protocols import Split
-from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.run_folder import load_run
+from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.load import load_run
 from inceptiongs.train.trainer import train
 
 # The bootstrap may cost a little on covered views within a handful of steps (one virtual view

@@ -206,7 +206,7 @@ def test_pixels_without_evidence_carry_no_virtual_gradient():
 
     from inceptiongs.bootstrap.generation import VirtualTarget
     from inceptiongs.bootstrap.refine import ViewChoice, render_l1, virtual_loss
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
 
     size = (16, 16)
     target = torch.full((*size, 3), 0.8)

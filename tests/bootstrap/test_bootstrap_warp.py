@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.bootstrap.warp import (DEFAULT_DELTA, DEFAULT_GRAZING_DEG, WarpResult, blend_views,
-                                        warp_geometry, warp_to_view)
+from inceptiongs.bootstrap.warp import (DEFAULT_DELTA, DEFAULT_GRAZING_DEG, WarpResult, blend_views, warp_geometry, warp_to_view)
 from inceptiongs.camera import Camera, look_at
 
 W, H, FOCAL = 64, 48, 60.0

@@ -475,7 +475,7 @@ def _mutate_json_file(path: Path, shared: dict, rng) -> None:
 
 
 def _mutate_checkpoint(run: Path, shared: dict, rng) -> None:
-    from inceptiongs.train.checkpoint import latest_checkpoint
+    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     path = latest_checkpoint(run)
     _unshare(path)

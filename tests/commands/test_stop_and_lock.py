@@ -13,11 +13,11 @@ import pytest
 
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
-from inceptiongs.io.run_lock import LOCK_INFO_FILE, run_folder_lock
+from inceptiongs.runs.lock import LOCK_INFO_FILE, run_folder_lock
 from inceptiongs.live import JobControl
 from inceptiongs.scene.demo import write_demo_scene
 from inceptiongs.stop_signals import stop_on_signals
-from inceptiongs.train.checkpoint import list_checkpoints
+from inceptiongs.runs.checkpoint import list_checkpoints
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_a_stopped_train_saves_model_and_checkpoint_and_resumes(tmp_path, scene,
 
 @pytest.mark.slow
 def test_ctrl_c_during_a_bootstrap_saves_and_resume_continues(tmp_path, scene):
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
     from inceptiongs.train.trainer import train
 
     run, out = tmp_path / "run", tmp_path / "boot"

@@ -14,7 +14,7 @@ from inceptiongs.errors import InputError
 from inceptiongs.rasterizer import interface
 from inceptiongs.rasterizer.backend import numba_installed
 from inceptiongs.rasterizer.interface import device_line, select_rasterizer
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 
 CPU_NAME = "numba" if numba_installed() else "torch"
 

@@ -66,7 +66,7 @@ def write_scene(root, gaussians: Gaussians, cameras: list[Camera]) -> None:
 def write_run(run, scene_root, model: Gaussians, protocol: str = "unstructured", seed: int = 0):
     from inceptiongs.io.ply import write_ply
     from inceptiongs.scene.loader import load_scene
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
 
     run.mkdir(parents=True)
     TrainConfig(scene=str(scene_root), protocol=protocol, seed=seed).save(run / "config.json")

@@ -49,7 +49,7 @@ def test_eval_generated_scores_and_side_by_side_images(run_with_prior, capsys):
     assert [entry["ddim_steps"] for entry in summary["by_steps"]] == [1, 2]
     assert summary["prior"]["backend"] == "tiny" and summary["prior"]["step"] == 3
 
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
     gaussians, scene, _ = load_run(run_with_prior)
     views = summary["views"]
     assert {v["group"] for v in views} == {"scarce", "covered"}

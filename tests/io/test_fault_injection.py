@@ -35,9 +35,10 @@ from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.io import atomic
 from inceptiongs.scene.colmap import write_colmap_binary
-from inceptiongs.train.checkpoint import list_checkpoints, load_checkpoint
-from inceptiongs.train.config import TrainConfig
-from inceptiongs.train.run_folder import load_run, next_free_folder
+from inceptiongs.runs.checkpoint import list_checkpoints, load_checkpoint
+from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.load import load_run
+from inceptiongs.runs.folder import next_free_folder
 from inceptiongs.train.trainer import train
 from scene_cases import known_cameras, known_points, write_images
 
@@ -478,7 +479,7 @@ torch.set_num_threads(1)       # no OpenMP pool exists before fork
 import torch._dynamo           # torch.optim imports it lazily: several seconds, paid once here
 torch.optim.Adam([torch.zeros(1, requires_grad=True)])
 import pycolmap
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train import trainer
 from inceptiongs.rasterizer import rasterize, composite_numba
 from inceptiongs.evaluation import protocols

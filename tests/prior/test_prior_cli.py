@@ -10,7 +10,7 @@ import torch
 from inceptiongs.camera import write_camera_json
 from inceptiongs.cli import main
 from inceptiongs.scene.loader import load_scene
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 
 
 from prior_cases import make_stand_in_run
@@ -73,7 +73,7 @@ def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
     from inceptiongs.prior.model import Prior, PriorConfig
     from inceptiongs.prior.trainer import PriorTrainer
     from inceptiongs.prior.unet import UNetConfig
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
 
     gaussians, scene, _ = load_run(run_dir)
     config = PriorConfig(patch_size=16, batch_size=4, learning_rate=3e-3, num_timesteps=200,
@@ -95,7 +95,7 @@ def test_training_on_the_demo_scene_lowers_the_diffusion_loss(run_dir):
 
 def test_a_prior_without_the_hint_repairs_renders_or_samples_from_noise(tmp_path):
     from inceptiongs.prior.trainer import load_prior
-    from inceptiongs.train.run_folder import load_run
+    from inceptiongs.runs.load import load_run
 
     run = make_stand_in_run(tmp_path)
     base = ["prior", str(run), "--steps", "1", "--patch-size", "16", "--batch-size", "1", "--restart",

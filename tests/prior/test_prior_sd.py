@@ -137,7 +137,7 @@ def test_prior_and_generate_commands_with_the_sd_backend(sd_dir, tmp_path, capsy
     assert "holds a sd prior; --unet-width is for the tiny backend" in capsys.readouterr().err
     out = tmp_path / "g.png"
     from inceptiongs.scene.loader import load_scene
-    from inceptiongs.train.config import TrainConfig
+    from inceptiongs.runs.config import TrainConfig
     view = load_scene(TrainConfig.load(run / "config.json").scene, downscale=4).cameras[1]
     assert main(["generate", str(run), "--view", view.name, "--out", str(out), "--steps", "2", "--window", "16"]) == 0
     import cv2

@@ -100,7 +100,7 @@ def test_a_checkpoint_with_missing_keys_is_one_line(copy):
 
 
 def test_checkpoints_are_written_as_plain_data_that_loads_weights_only(tmp_path):
-    from inceptiongs.train.checkpoint import load_checkpoint, plain_data, save_checkpoint
+    from inceptiongs.runs.checkpoint import load_checkpoint, plain_data, save_checkpoint
 
     payload = {"x": np.arange(3.0), "y": np.float64(2.5), "z": {3, 1}, "t": (1, 2)}
     assert plain_data(payload)["y"] == 2.5 and plain_data(payload)["z"] == [1, 3]

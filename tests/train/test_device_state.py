@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.densify import DensifyStats
 from inceptiongs.train.free_space import ViewStats
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
@@ -93,7 +93,7 @@ def test_a_checkpoint_payload_holds_cpu_tensors_only():
 
 
 def test_a_short_schedule_keeps_the_gaussian_budget_on_cuda_only():
-    from inceptiongs.train.config import short_run_schedule
+    from inceptiongs.runs.config import short_run_schedule
 
     full = TrainConfig().max_gaussians
     cpu = short_run_schedule(TrainConfig(iterations=7000, device="cpu"))

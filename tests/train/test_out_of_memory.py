@@ -12,8 +12,8 @@ from inceptiongs import cli
 from inceptiongs.errors import DeviceMemoryError
 from inceptiongs.scene.courtyard import write_courtyard_scene
 from inceptiongs.train import trainer
-from inceptiongs.train.checkpoint import list_checkpoints
-from inceptiongs.train.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.checkpoint import list_checkpoints
+from inceptiongs.runs.config import TrainConfig, short_run_schedule
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,8 @@ import json
 import pytest
 
 from inceptiongs.errors import InputError
-from inceptiongs.train.run_folder import is_run_of, logged_iterations, truncate_metrics
+from inceptiongs.runs.folder import is_run_of
+from inceptiongs.runs.metrics import logged_iterations, truncate_metrics
 from inceptiongs.train.view_fit import VIEW_FIT_FILE, read_poorly_fit
 
 

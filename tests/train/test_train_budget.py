@@ -11,7 +11,7 @@ import pytest
 from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
 from inceptiongs.scene.demo import write_demo_scene
-from inceptiongs.train.config import TrainConfig, short_run_schedule, sized_schedule
+from inceptiongs.runs.config import TrainConfig, short_run_schedule, sized_schedule
 from inceptiongs.train.budget import budget_iterations
 from inceptiongs.train.trainer import train
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.densify import DensifyStats, RESET_OPACITY, densify_and_prune, reset_opacity
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 

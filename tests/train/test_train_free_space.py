@@ -13,7 +13,7 @@ import train_cases as tc
 from inceptiongs.camera import quat_to_rotation
 from inceptiongs.constants import LOG_SCALE_MAX, LOG_SCALE_MIN, QUAT_NORM_MIN
 from inceptiongs.rasterizer.rasterize import render
-from inceptiongs.train.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
                                           before_near_bound, contains_camera, floater_fraction, near_bounds,
                                           render_surface_depth, seen_through, surface_depth, surface_depth_features)
@@ -174,7 +174,7 @@ def _floater_run(free_space: bool):
     before = np.mean([tc.psnr(render(tc.concat(truth, *floaters), c)["rgb"].clamp(0, 1), images[i])
                       for i, c in enumerate(cameras)])
     tc.run_steps(state, data, cfg, 20)
-    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.gaussians import gaussians_from_params
     model = gaussians_from_params(state.params).detach()
     with torch.no_grad():
         after = np.mean([tc.psnr(render(model, c)["rgb"].clamp(0, 1), images[i]) for i, c in enumerate(cameras)])
@@ -361,7 +361,7 @@ def test_floater_fraction_counts_drawn_pixels_before_the_near_bound():
 def _train_before_a_shell(sky: bool) -> tuple[int, bool]:
     """Ten steps on the faint ball inside the shell (photos of it without the floater), the
     see-through rule only; -> (ball Gaussians left of 400, whether the floater is left)."""
-    from inceptiongs.train.optim import gaussians_from_params
+    from inceptiongs.gaussians import gaussians_from_params
 
     model, cameras, sphere = _faint_ball_before_a_shell()
     truth = model.subset(torch.arange(len(model)) != 400)

@@ -12,12 +12,12 @@ import torch
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.train.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
-from inceptiongs.train.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.init_gaussians import gaussians_from_points, mean_neighbour_distance
 from inceptiongs.train.optim import position_learning_rate
-from inceptiongs.train.run_folder import (append_metrics, to_normalized_frame, to_original_frame,
-                                          truncate_metrics)
+from inceptiongs.runs.metrics import append_metrics, truncate_metrics
+from inceptiongs.runs.frames import to_normalized_frame, to_original_frame
 from inceptiongs.train.step import supported_sh_degree
 
 

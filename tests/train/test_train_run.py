@@ -17,8 +17,8 @@ import pytest
 import torch
 
 from inceptiongs.scene.demo import write_demo_scene
-from inceptiongs.train.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_newest_checkpoint
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_newest_checkpoint
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.live import JobControl
 from inceptiongs.train.job import TrainJob
 from inceptiongs.train.trainer import train
@@ -221,7 +221,7 @@ def test_empty_neighbour_case_is_skipped_with_one_log_line(demo_scene, tmp_path)
 def test_kill_9_then_resume_loses_only_the_steps_since_the_last_checkpoint(demo_scene, tmp_path):
     run = tmp_path / "run"
     config = _config(demo_scene, iterations=24, checkpoint_every=3, eval_every=1000)
-    script = (f"from inceptiongs.train.config import TrainConfig; from inceptiongs.train.trainer import train; "
+    script = (f"from inceptiongs.runs.config import TrainConfig; from inceptiongs.train.trainer import train; "
               f"train(TrainConfig(**{config.to_json_dict()!r}), {str(run)!r}, progress=False)")
     process = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.DEVNULL)
     try:

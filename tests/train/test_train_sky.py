@@ -11,7 +11,7 @@ import torch
 
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.densify import DensifyStats, densify_and_prune
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 from inceptiongs.train.sky import (SKY_GRID, cell_texture, fibonacci_directions, in_background, open_cells,

@@ -10,7 +10,7 @@ import torch
 import train_cases as tc
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.rasterizer.rasterize import render
-from inceptiongs.train.config import TrainConfig
+from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 from inceptiongs.train.strategy import (MCMC_NOISE_K, MCMC_NOISE_X0, drop_gaussians, drop_rate, grow, mcmc_noise,
                                         relocate, relocation_correction)

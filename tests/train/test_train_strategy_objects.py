@@ -14,8 +14,7 @@ import torch
 from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.train.config import (FLAT_STRATEGY_KEYS, STRATEGY_NAMES, STRATEGY_OPTIONS, DropGaussianOptions,
-                                      MCMCOptions, TrainConfig)
+from inceptiongs.runs.config import (FLAT_STRATEGY_KEYS, STRATEGY_NAMES, STRATEGY_OPTIONS, DropGaussianOptions, MCMCOptions, TrainConfig)
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 from inceptiongs.train.strategies import (STRATEGIES, DefaultStrategy, DropGaussianStrategy, MCMCStrategy,
                                           strategy_for)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ...train.config import TrainConfig
+from ...runs.config import TrainConfig
 from ..config import BootstrapConfig
 from ..generation import VirtualTarget
 from ..refine import ViewChoice, virtual_loss

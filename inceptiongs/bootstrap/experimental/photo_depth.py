@@ -30,7 +30,8 @@ import torch.nn.functional as F
 
 from ...camera import Camera
 from ...constants import NEAR_PLANE
-from ..warp import bilinear_taps, relative_pose, sample_bilinear, unproject
+from ..warp import bilinear_taps, sample_bilinear
+from ...pinhole import relative_pose, unproject
 
 # Hypotheses span +-10 % of the stage-I depth: the render's depth passes a 3 % visibility
 # test yet misplaces photos by pixels, and surfaces stage I got badly wrong are not what this

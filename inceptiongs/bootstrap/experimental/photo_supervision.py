@@ -42,7 +42,8 @@ from .inpaint import inpaint
 from .lumigraph import lumigraph_weights
 from .photo_depth import DEFAULT_CONFIDENCE_MIN, DEFAULT_RADIUS, DEFAULT_SEARCH, DEFAULT_STEPS, PhotoDepth, \
     photo_consistent_depth, window_mean
-from ..warp import DEFAULT_DELTA, WarpResult, unproject, warp_to_view
+from ..warp import DEFAULT_DELTA, WarpResult, warp_to_view
+from ...pinhole import unproject
 
 FILLS = ("prior", "inpaint", "render")
 # Depth trust where the sweep found no evidence either way (flat texture, a single source):

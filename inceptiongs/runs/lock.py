@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Iterator
 
 from ..errors import InputError
-from .atomic import ensure_dir, output_error
+from ..io.atomic import ensure_dir, output_error
 
 LOCK_INFO_FILE = ".lock"
 
