@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from .device import add_device_argument, command_device
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -50,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"refinement steps per round (default {d.iterations})")
     parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
+    add_device_argument(parser, reads_run=True, default_help="the stage-I run's device (RUN/config.json)")
 
 
 def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
@@ -94,16 +96,19 @@ def run(args) -> int:
         targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
     else:
         check_output_folder(out_dir, args.overwrite)  # before loading anything
+    device = command_device(args.device, run_dir)   # one that cannot run here: one line before any work
     stage1 = load_stage1(run_dir)
     if not args.resume:
         targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,
                                   run_dir=run_dir)
     names = ", ".join(f"{t.name} ({t.origin})" for t in targets or [])
     print(f"bootstrap {run_dir} -> {out_dir}: {'resumed, ' if args.resume else ''}targets {names or 'none'}")
+    if device.note:
+        print(device.note, file=sys.stderr)
     control = JobControl()
     with stop_on_signals(control) as stopping:
         result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
-                               resume=args.resume)
+                               resume=args.resume, rasterizer=device.rasterizer)
     if stopping.signum is not None:
         print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
               f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
