@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from .device import add_device_argument, command_device
+from .device import recorded_device
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -51,7 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"refinement steps per round (default {d.iterations})")
     parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
-    add_device_argument(parser, reads_run=True, default_help="the stage-I run's device (RUN/config.json)")
 
 
 def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
@@ -80,6 +79,7 @@ def run(args) -> int:
     from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
                                     resumable, run_bootstrap)
     from ..live import JobControl
+    from ..rasterizer.interface import resolve_device
     from ..stop_signals import stop_on_signals
     from ..runs.folder import next_free_folder
 
@@ -96,7 +96,8 @@ def run(args) -> int:
         targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
     else:
         check_output_folder(out_dir, args.overwrite)  # before loading anything
-    device = command_device(args.device, run_dir)   # one that cannot run here: one line before any work
+    # The stage-I run's device (the one device rule); one that cannot run here: one line before any work.
+    device = resolve_device(*recorded_device(run_dir))
     stage1 = load_stage1(run_dir)
     if not args.resume:
         targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,

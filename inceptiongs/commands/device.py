@@ -1,7 +1,8 @@
 """--device auto|cpu|cuda: one flag, one meaning, in every command that renders or runs torch
-models (train, render --backend torch, eval, prior, generate, bootstrap, coverage, demo). Its value
-goes through the one device rule, :func:`inceptiongs.rasterizer.interface.resolve_device`, which
-gives the rasterizer and the torch device together: ``--device cpu`` puts nothing on a GPU."""
+models (train, render --backend torch, eval, prior, generate, coverage, demo; bootstrap, with its
+few flags, runs where its stage-I run ran). Its value goes through the one device rule,
+:func:`inceptiongs.rasterizer.interface.resolve_device`, which gives the rasterizer and the torch
+device together: ``--device cpu`` puts nothing on a GPU."""
 
 from __future__ import annotations
 

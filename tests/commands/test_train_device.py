@@ -98,7 +98,7 @@ def test_cpu_and_the_auto_line_on_a_machine_without_a_gpu(monkeypatch, capsys):
 
 @pytest.mark.parametrize("command", [["prior", "RUN", "--steps", "1"],
                                      ["generate", "RUN", "--view", "x", "--out", "OUT/g.png"],
-                                     ["eval", "RUN", "--generated"], ["eval", "RUN"], ["bootstrap", "RUN"],
+                                     ["eval", "RUN", "--generated"], ["eval", "RUN"],
                                      ["render", "RUN", "--view", "x", "--backend", "torch", "--out", "OUT/r.png"],
                                      ["demo", "OUT/demo"]])
 def test_every_command_refuses_cuda_without_a_gpu_in_one_line_before_any_work(monkeypatch, tmp_path, capsys, command):
@@ -178,7 +178,7 @@ def test_device_cpu_puts_the_prior_and_the_data_on_the_cpu_beside_a_gpu(gpu_that
                  "--device", "cpu"]) == 0
     assert main(["eval", str(run), "--generated", "--ddim-steps", "1", "--device", "cpu", "--json"]) == 0
     assert json.loads((run / "eval" / "eval.json").read_text())["device"] == CPU_RECORD
-    assert main(["bootstrap", str(run), "--out", str(tmp_path / "boot"), "--iterations", "1", "--device", "cpu"]) == 0
+    assert main(["bootstrap", str(run), "--out", str(tmp_path / "boot"), "--iterations", "1"]) == 0   # the run's device
     summary = json.loads((tmp_path / "boot" / "bootstrap" / "summary.json").read_text())
     assert summary["device"] == {"device": "cpu", "rasterizer": CPU_NAME}
     assert "device:" not in capsys.readouterr().err   # an explicit --device prints no choice
@@ -193,11 +193,15 @@ def test_a_runs_recorded_device_is_the_default_and_the_flag_overrides_it(monkeyp
     simulate(monkeypatch, False, False, False)
     refused = f"error: {run / 'config.json'}: device cuda: {NO_GPU}; --device cpu or --device auto runs it here"
     view = ["--view", load_scene_view(run)]
-    for command in (["eval", str(run)], ["bootstrap", str(run)], ["prior", str(run), "--steps", "1"],
+    for command in (["eval", str(run)], ["prior", str(run), "--steps", "1"],
                     ["coverage", str(run), "--out", str(tmp_path / "c.png")],
                     ["render", str(run), *view, "--backend", "torch", "--out", str(tmp_path / "r.png")]):
         assert main(command) == 2, command
         assert capsys.readouterr().err.strip() == refused, command
+    # The bootstrap has no --device (its few flags; it runs where stage I ran): the same line without the way out.
+    assert main(["bootstrap", str(run), "--out", str(tmp_path / "boot")]) == 2
+    assert capsys.readouterr().err.strip() == refused.split("; --device")[0]
+    assert not (tmp_path / "boot").exists()
     assert main(["eval", str(run), "--device", "cpu", "--json"]) == 0
     assert json.loads((run / "eval" / "eval.json").read_text())["device"] == CPU_RECORD
     assert main(["render", str(run), *view, "--backend", "torch", "--device", "cpu", "--out",
