@@ -29,7 +29,7 @@ from inceptiongs.bootstrap.validation import (margin_db, measure_evidence, squar
                                               view_margins)
 from inceptiongs.bootstrap.view_targets import ModelRenders
 from inceptiongs.bootstrap.virtual_views import nearest_training_views
-from inceptiongs.rasterizer.interface import select_rasterizer
+from inceptiongs.rasterizer.interface import resolve_device
 from inceptiongs.threads import use_torch_threads
 from inceptiongs.train.step import prepare_data
 
@@ -77,7 +77,7 @@ def main() -> None:
     if split.target_view is None:
         raise SystemExit(f"{args.run}: the split has no target view j* (protocol unstructured needed)")
     images = prepare_data(scene, split, run.config, lambda message: None).images
-    renders = ModelRenders(run.gaussians, select_rasterizer(run.config.device)[1], (run.payload or {}).get("sky"))
+    renders = ModelRenders(run.gaussians, resolve_device(run.config.device).rasterizer, (run.payload or {}).get("sky"))
     config, cameras, train = BootstrapConfig(k=args.k), list(scene.cameras), list(split.train)
     target = cameras[split.target_view]
     photos = nearest_training_views(target, cameras, validation_photos(target, cameras, train, args.k), args.photos)

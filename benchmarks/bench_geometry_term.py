@@ -57,9 +57,10 @@ def group_figures(run: str, k: int) -> dict:
     from inceptiongs.bootstrap.experimental.multiview import GeometrySource, multiview_consistency
     from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
 
     stage1 = load_stage1(run)
+    render = cpu_rasterizer()   # the CPU's best, through the registry
     scene, split, gaussians = stage1.scene, stage1.split, stage1.gaussians
     cameras = scene.cameras
     greys = {i: torch.as_tensor(np.asarray(scene.load_image(i)), dtype=torch.float32).mean(-1, keepdim=True)

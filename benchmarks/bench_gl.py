@@ -92,9 +92,9 @@ def time_frames(renderer: SplatRenderer, cam: Camera, frames: int) -> dict:
 
 
 def torch_psnr(renderer: SplatRenderer, model: Gaussians, cam: Camera) -> dict:
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
     with torch.no_grad():
-        ref = render(model, cam, outputs=("rgb", "alpha"))
+        ref = cpu_rasterizer()(model, cam, outputs=("rgb", "alpha"))
     return agreement(renderer.render(cam, "rgb"), renderer.render(cam, "alpha"),
                      ref["rgb"].numpy(), ref["alpha"].numpy())
 

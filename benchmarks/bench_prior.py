@@ -6,6 +6,8 @@ synthetic blob (--gaussians N) or a finished run's model (--run RUN).
 
     python benchmarks/bench_prior.py [--steps 20] [--gaussians 20000] [--run RUN] [--device cpu]
 
+--device auto|cpu|cuda follows the commands' one device rule (cuda: gsplat and torch on the GPU).
+
 Quality targets (--quality RUN, a stage-I run of statuette at downscale 4, unstructured
 protocol): trains the prior for --minutes (default 15) with an evaluation every
 --eval-every minutes, scores generated images on the held-out views with 20 and 5 DDIM
@@ -36,6 +38,7 @@ from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.prior.model import Prior, PriorConfig
 from inceptiongs.prior.trainer import PriorTrainer
+from inceptiongs.rasterizer.interface import resolve_device
 
 
 def synthetic_scene(n: int, width: int = 250, height: int = 165):
@@ -56,7 +59,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--gaussians", type=int, default=20000)
     parser.add_argument("--run", default=None, help="use this run's Gaussians and cameras")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="the one device rule of the commands (inceptiongs.rasterizer.interface.resolve_device)")
     parser.add_argument("--train-steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     parser.add_argument("--quality", metavar="RUN", default=None, help="run the quality-target benchmark on RUN")
@@ -86,7 +90,7 @@ def main() -> None:
     else:
         gaussians, cameras, photos = synthetic_scene(args.gaussians)
         load_image = photos.__getitem__
-    device = torch.device(args.device)
+    device = resolve_device(args.device).torch_device
     gaussians = gaussians.to(device)
     prior = Prior.for_gaussians(PriorConfig(), gaussians).to(device)
     camera = cameras[0]
@@ -149,7 +153,7 @@ def hint_only(run: str, minutes: float, levels: int, max_resolution: int) -> Non
     from pathlib import Path
 
     from inceptiongs.evaluation.scoring import group_of
-    from inceptiongs.rasterizer.rasterize import render_rgb
+    from inceptiongs.rasterizer.interface import render_rgb
     from inceptiongs.evaluation.generated import held_out, photo_of, score
     from inceptiongs.prior.hashgrid import HashGridConfig
     from inceptiongs.prior.joint import training_views

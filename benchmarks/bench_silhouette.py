@@ -299,18 +299,18 @@ def load_shell_run(run: str) -> ShellRun:
 
 def render_alpha(gaussians, camera) -> torch.Tensor:
     """[h, w]: the alpha of ``gaussians`` seen from ``camera``, without gradients."""
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
 
     with torch.no_grad():
-        return render(gaussians, camera, outputs=("alpha",))["alpha"][..., 0]
+        return cpu_rasterizer()(gaussians, camera, outputs=("alpha",))["alpha"][..., 0]
 
 
 def render_colour(gaussians, camera) -> torch.Tensor:
     """[h, w, 3]: the colour render of ``gaussians`` from ``camera`` on black, without gradients."""
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
 
     with torch.no_grad():
-        return render(gaussians, camera)["rgb"]
+        return cpu_rasterizer()(gaussians, camera)["rgb"]
 
 
 def training_masks(setup: ShellRun, run: str, dilation: int, truth_masks: bool) -> tuple[list, list, int, int]:
@@ -372,12 +372,12 @@ def report_shell_exposure(setup: ShellRun, train_alphas: list[torch.Tensor],
 def measure_view(setup: ShellRun, view: int, variants: dict, masks: list, samples: int,
                  hidden: torch.Tensor, totals: GroupTotals) -> None:
     """Add one held-out view's squared error [h, w], per pixel set and per variant, to ``totals``."""
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
     from inceptiongs.train.sky import FOREGROUND_ALPHA
 
     camera = setup.scene.cameras[view]
     with torch.no_grad():
-        out = render(setup.gaussians, camera, outputs=("rgb", "depth"))
+        out = cpu_rasterizer()(setup.gaussians, camera, outputs=("rgb", "depth"))
     photo = torch.as_tensor(np.asarray(setup.scene.load_image(view)), dtype=torch.float32)
     error = ((out["rgb"].clamp(0.0, 1.0) - photo) ** 2).mean(-1)                # [h, w]
     totals.view_psnr["render"].append(psnr_of(error.mean()))
@@ -430,7 +430,7 @@ def truth_sets(setup: ShellRun, camera, rgb: torch.Tensor, photo: torch.Tensor, 
                hidden: torch.Tensor, totals: GroupTotals) -> dict[str, torch.Tensor]:
     """The pixel sets [h, w] bool that the demo's ray-traced coverage [h, w] allows (in display
     order); adds the shell's figures on truly-sky edge pixels to ``totals.shell_pool``."""
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
     from inceptiongs.train.sky import FOREGROUND_ALPHA
 
     rendered = alpha > FOREGROUND_ALPHA
@@ -448,7 +448,7 @@ def truth_sets(setup: ShellRun, camera, rgb: torch.Tensor, photo: torch.Tensor, 
     if samples:
         sets["  of which the hull says sky"] = silhouette & sky & (hull == HULL_BG)
     with torch.no_grad():
-        shown = render(setup.shell, camera, outputs=("alpha", "features"), features=hidden)
+        shown = cpu_rasterizer()(setup.shell, camera, outputs=("alpha", "features"), features=hidden)
     # The shell's own alpha is > 0 wherever it is framed; the floor keeps 0/0 out.
     hidden_share = shown["features"][..., 0] / shown["alpha"][..., 0].clamp_min(1e-6)
     sets["  of which the shell there was hidden"] = silhouette & sky & (hidden_share > 0.5)

@@ -90,10 +90,11 @@ def sky_target(camera, training: list, sphere: torch.Tensor | None, clear: float
 def measure(run: str, margin: int, clear: float, at_shell: bool) -> None:
     """Print the figures of the module docstring for ``run``."""
     from inceptiongs.bootstrap.stage1 import load_stage1
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
     from inceptiongs.train.sky import in_background
 
     stage1 = load_stage1(Path(run))
+    render = cpu_rasterizer()   # the CPU's best, through the registry
     scene, split, payload, gaussians = stage1.scene, stage1.split, stage1.payload, stage1.gaussians
     sphere = None if payload is None else payload.get("sky")
     if sphere is None:

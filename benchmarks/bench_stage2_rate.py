@@ -59,7 +59,7 @@ def main() -> int:
     run = load_stage1(args.run)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        device_rasterizer = run_rasterizer(run.config.device, print)
+        device_rasterizer = run_rasterizer(run, print)
         for rasterizer, steps, name in ((device_rasterizer, args.steps, "device"),
                                         (cpu_rasterizer(), args.cpu_steps, "cpu")):
             if args.which not in ("both", name):

@@ -88,12 +88,13 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
     from inceptiongs.bootstrap.virtual_views import nearest_training_views
     from inceptiongs.evaluation.generated import photo_of, score
     from inceptiongs.evaluation.metrics import psnr
-    from inceptiongs.rasterizer.rasterize import render, render_rgb
+    from inceptiongs.rasterizer.interface import cpu_rasterizer, render_rgb
     from inceptiongs.train.free_space import render_surface_depth
 
+    render = cpu_rasterizer()   # the CPU's best, through the registry
     camera = scene.cameras[view]
     photo = photo_of(scene, view)
-    rendered = render_rgb(gaussians, camera)
+    rendered = render_rgb(gaussians, camera, render)
     sources = nearest_training_views(camera, scene.cameras, list(split.train), args.k)
     photos = {i: photo_of(scene, i) for i in sources}
 

@@ -1,9 +1,9 @@
 """Torch rasterizer benchmark: forward and forward+backward time and peak memory.
 
 N random Gaussians in a unit cube in front of the camera, 512x512, 2 torch threads, for the
-"torch" reference (render(backend="torch"): projection, SH colour and composite in torch) and
-(when numba imports) the "numba" fast paths (render(backend="numba"): all three as numba
-kernels). Each (N, backend) runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
+"torch" rasterizer of the registry (inceptiongs.rasterizer.interface: the reference with
+projection, SH colour and composite in torch) and (when numba imports) the "numba" one (the
+numba kernels wherever they cover the case: here all three stages). Each (N, backend) runs in a fresh interpreter so its peak RSS (ru_maxrss) is its own; "peak MB" is that peak
 minus the interpreter's RSS right before the first render (model and imports excluded).
 
     python benchmarks/bench_torch_rasterizer.py [--sizes 10000 100000 1000000] [--repeats 3] [--device cuda]
@@ -33,7 +33,7 @@ WORKER = textwrap.dedent("""
     torch.set_num_threads(2)
     from inceptiongs.camera import Camera, look_at
     from inceptiongs.gaussians import Gaussians
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import get_rasterizer
 
     n, backend, repeats, size, device = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
     cuda = device.startswith("cuda")
@@ -63,8 +63,10 @@ WORKER = textwrap.dedent("""
         if cuda:  # kernels run asynchronously: a timing must wait for them
             torch.cuda.synchronize()
 
+    rasterizer = get_rasterizer(backend)
+
     def forward():
-        return render(g, camera, outputs=outputs, backend=backend)
+        return rasterizer(g, camera, outputs=outputs)
 
     def forward_backward():
         out = forward()
@@ -100,7 +102,7 @@ def numba_available() -> bool:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
-    parser.add_argument("--backends", nargs="+", default=None, help="default: torch, and numba if importable")
+    parser.add_argument("--backends", nargs="+", default=None, help="registry names (default: torch, and numba if importable)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--image", type=int, default=512, help="square image size in pixels")
     parser.add_argument("--device", default="cpu", help="torch device (cuda: the torch backend on the GPU)")

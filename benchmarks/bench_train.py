@@ -209,7 +209,7 @@ def floaters_in_training_views(run: Path) -> tuple[float | None, int]:
     import torch
 
     from inceptiongs.evaluation.protocols import Split
-    from inceptiongs.rasterizer.rasterize import render
+    from inceptiongs.rasterizer.interface import cpu_rasterizer
     from inceptiongs.runs.checkpoint import latest_checkpoint, load_checkpoint
     from inceptiongs.runs.config import TrainConfig
     from inceptiongs.train.free_space import floater_fraction
@@ -226,7 +226,7 @@ def floaters_in_training_views(run: Path) -> tuple[float | None, int]:
     fractions = []
     with torch.no_grad():
         for near, index in zip(payload["near"].tolist(), split.train):
-            depth = render(gaussians, scene.cameras[index], outputs=("depth",))["depth"]
+            depth = cpu_rasterizer()(gaussians, scene.cameras[index], outputs=("depth",))["depth"]
             fractions.append(floater_fraction(depth, near))
     return max(fractions), sum(f > 0.01 for f in fractions)
 

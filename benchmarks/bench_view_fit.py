@@ -29,7 +29,7 @@ import torch
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.evaluation.protocols import Split
-from inceptiongs.rasterizer.rasterize import render
+from inceptiongs.rasterizer.interface import cpu_rasterizer
 from inceptiongs.runs.load import load_run
 
 GROUP_COLOURS = {"train": "#4c72b0", "scarce": "#dd8452", "covered": "#c44e52"}
@@ -45,7 +45,7 @@ def view_scores(run: Path, gaussians, scene) -> list[dict]:
     for index in sorted(group, key=lambda i: scene.cameras[i].name):
         photo = torch.as_tensor(np.asarray(scene.load_image(index), np.float32))
         with torch.no_grad():
-            rgb = render(gaussians, scene.cameras[index], outputs=("rgb",))["rgb"].clamp(0, 1)
+            rgb = cpu_rasterizer()(gaussians, scene.cameras[index], outputs=("rgb",))["rgb"].clamp(0, 1)
         rows.append({"index": index, "name": scene.cameras[index].name, "group": group[index],
                      "psnr": float(psnr(rgb.to(torch.float32), photo))})
     return rows
@@ -77,7 +77,7 @@ def observations_figure(gaussians, scene, config, name: str, path: Path) -> None
             x, y = (np.asarray(point.xy) * factor).astype(int)
             cv2.circle(marked, (int(x), int(y)), 1, (0, 255, 0), -1)
     with torch.no_grad():
-        rgb = render(gaussians, camera, outputs=("rgb",))["rgb"].clamp(0, 1).numpy()
+        rgb = cpu_rasterizer()(gaussians, camera, outputs=("rgb",))["rgb"].clamp(0, 1).numpy()
     panel = np.concatenate([(rgb * 255).astype(np.uint8), marked], 1)
     panel = cv2.resize(panel, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
     if not cv2.imwrite(str(path), cv2.cvtColor(panel, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85]):

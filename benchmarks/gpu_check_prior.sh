@@ -9,6 +9,9 @@
 #
 #     bash benchmarks/gpu_check_prior.sh [OUT]      (default OUT: runs/gpu_check_prior; needs pycolmap)
 #
+# The prior's steps run with --device cuda, which (the one device rule, docs/devices.md) is gsplat
+# and torch on the GPU: they need gsplat (pip install 'inceptiongs[cuda]') and nvcc as well.
+#
 # Each step has its own time limit and a failed step does not stop the next. OUT gets
 # gpu_check.log (every step's whole output), generated.png and generated.json.
 set -u
@@ -25,11 +28,13 @@ step 150 raster_cuda python3 benchmarks/bench_torch_rasterizer.py --device cuda 
 step 90 raster_cpu python3 benchmarks/bench_torch_rasterizer.py --sizes 100000
 step 60 prior_cuda python3 benchmarks/bench_prior.py --device cuda
 step 30 scene python3 -m inceptiongs demo-scene "$work/scene"
-step 120 stage1 python3 -m inceptiongs train "$work/scene" --out "$work/run" --protocol unstructured --minutes 1
-step 100 prior python3 -m inceptiongs prior "$work/run" --minutes 1
+step 120 stage1 python3 -m inceptiongs train "$work/scene" --out "$work/run" --protocol unstructured --minutes 1 \
+    --device cpu
+step 100 prior python3 -m inceptiongs prior "$work/run" --minutes 1 --device cuda
 target=$(python3 -c "import json, sys; s = json.load(open(sys.argv[1])); print(s['view_names'][s['target_view']])" \
     "$work/run/split.json")
-step 60 generate python3 -m inceptiongs generate "$work/run" --view "$target" --out "$out/generated.png"
-step 120 eval_generated python3 -m inceptiongs eval "$work/run" --generated --ddim-steps 20,5
+step 60 generate python3 -m inceptiongs generate "$work/run" --view "$target" --out "$out/generated.png" \
+    --device cuda
+step 120 eval_generated python3 -m inceptiongs eval "$work/run" --generated --ddim-steps 20,5 --device cuda
 cp "$work/run/eval/generated.json" "$out/" 2>/dev/null
 rm -rf "$work"

@@ -22,6 +22,7 @@ import inceptiongs  # noqa: F401  (before torch: OMP_WAIT_POLICY, docs/training.
 import torch
 from torch.profiler import ProfilerActivity, profile
 
+from inceptiongs.rasterizer.interface import resolve_device
 from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.trainer import train
 
@@ -58,7 +59,8 @@ class StepWindow:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scene", type=Path)
-    parser.add_argument("--device", choices=("cpu", "cuda"), default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="the commands' one device rule (inceptiongs.rasterizer.interface.resolve_device)")
     parser.add_argument("--downscale", type=int, default=1)
     parser.add_argument("--iterations", type=int, default=7000, help="the schedule the window sits in")
     parser.add_argument("--warm", type=int, default=2100, help="steps before the window (PGSR terms on, model grown)")
@@ -66,7 +68,7 @@ def main() -> int:
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--trace", type=Path, default=None)
     args = parser.parse_args()
-    cuda = args.device == "cuda"
+    cuda = resolve_device(args.device).torch_device.type == "cuda"   # one that cannot run: one line now
     config = short_run_schedule(TrainConfig(scene=str(args.scene.resolve()), downscale=args.downscale,
                                             protocol="unstructured", iterations=args.iterations,
                                             eval_every=10 ** 9, checkpoint_every=10 ** 9, device=args.device))

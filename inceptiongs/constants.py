@@ -143,5 +143,5 @@ IMAGE_SIDE_MAX = 16384
 # 8-bit copy written out), must fit in the memory the system reports as available.
 RENDER_BYTES_PER_PIXEL = 256
 
-# Where a run renders and trains (--device; inceptiongs.rasterizer.interface.select_rasterizer).
+# Where a command runs (--device; inceptiongs.rasterizer.interface.resolve_device, the one device rule).
 DEVICES = ("auto", "cpu", "cuda")

@@ -25,7 +25,7 @@ from ..evaluation.networks import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     remove_stale_temp_files
 from ..io.config_json import json_safe
-from ..rasterizer.interface import rasterizer_device
+from ..rasterizer.interface import device_record, rasterizer_device
 from ..runs.checkpoint import list_checkpoints, save_checkpoint
 from ..runs.config import TrainConfig
 from ..train.loop import SaveAttempts, StepLoop, out_of_memory_stops, save_model
@@ -217,7 +217,7 @@ class Bootstrap:
                                               else input_scores(out_dir))
         boot.summary = {"run": str(run.run_dir.resolve()), "baseline": targets is None, "start_iteration": start,
                         "targets": [{"name": t.name, "origin": t.origin} for r in rounds for t in r],
-                        "rounds": [], "initial_eval": boot.initial_eval}
+                        "rounds": [], "initial_eval": boot.initial_eval, "device": device_record(rasterizer)}
         if resume is not None:
             boot.summary["resumed_at"] = state.iteration
         if targets is not None:

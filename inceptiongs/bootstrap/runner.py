@@ -111,14 +111,15 @@ def run_bootstrap(run: Stage1 | str | Path, out_dir: str | Path, targets: Sequen
                               rasterizer, overwrite, resume)
 
 
-def run_rasterizer(device: str, log: Callable[[str], None]):
-    """The rasterizer the stage-I run's ``device`` selects; "auto" logs which and why."""
-    from ..rasterizer.interface import device_line, select_rasterizer
+def run_rasterizer(run: Stage1, log: Callable[[str], None]):
+    """The rasterizer the stage-I run's recorded device selects (the one device rule,
+    resolve_device); "auto" logs which and why."""
+    from ..rasterizer.interface import resolve_device
 
-    name, rasterizer, why = select_rasterizer(device)
-    if device == "auto":
-        log(device_line(name, rasterizer, why))
-    return rasterizer
+    device = resolve_device(run.config.device, f"{run.run_dir / 'config.json'}: device")
+    if device.note:
+        log(device.note)
+    return device.rasterizer
 
 
 def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control, on_snapshot, snapshot_every: int,
@@ -130,7 +131,7 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
         check_output_folder(out_dir, overwrite)
     run = as_stage1(run)
     if rasterizer is None:
-        rasterizer = run_rasterizer(run.config.device, log or default_log)
+        rasterizer = run_rasterizer(run, log or default_log)
     baseline = targets is None
     # A time-budgeted run's bar shows the steps its measured rate fits into the budget.
     loop = StepLoop(control, total=config.rounds * config.iterations, desc="baseline" if baseline else "bootstrap",

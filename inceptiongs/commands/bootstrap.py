@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from .device import recorded_device
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -78,6 +79,7 @@ def run(args) -> int:
     from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
                                     resumable, run_bootstrap)
     from ..live import JobControl
+    from ..rasterizer.interface import resolve_device
     from ..stop_signals import stop_on_signals
     from ..runs.folder import next_free_folder
 
@@ -94,16 +96,20 @@ def run(args) -> int:
         targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
     else:
         check_output_folder(out_dir, args.overwrite)  # before loading anything
+    # The stage-I run's device (the one device rule); one that cannot run here: one line before any work.
+    device = resolve_device(*recorded_device(run_dir))
     stage1 = load_stage1(run_dir)
     if not args.resume:
         targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,
                                   run_dir=run_dir)
     names = ", ".join(f"{t.name} ({t.origin})" for t in targets or [])
     print(f"bootstrap {run_dir} -> {out_dir}: {'resumed, ' if args.resume else ''}targets {names or 'none'}")
+    if device.note:
+        print(device.note, file=sys.stderr)
     control = JobControl()
     with stop_on_signals(control) as stopping:
         result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
-                               resume=args.resume)
+                               resume=args.resume, rasterizer=device.rasterizer)
     if stopping.signum is not None:
         print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
               f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
+from .device import add_device_argument, command_device
 
 HELP = ("where a capture is thin: cameras from above, viewing density over a region's hemisphere, "
         "the views whose content is seen least")
@@ -26,6 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene folders without sparse points: triangulate from images this many times "
                              "smaller (default 4)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    add_device_argument(parser, reads_run=True, default_help="the run's device; a scene folder renders nothing")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,7 +46,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out}: the coverage figure must be a .png file")
     log = (lambda message: None) if args.json else (lambda message: print(message, flush=True))
     if (path / "config.json").is_file():
-        result = coverage_map.run_coverage(path, roi=args.roi, log=log)
+        device = command_device(args.device, path)   # what renders the views' depth
+        if device.note:
+            log(device.note)
+        result = coverage_map.run_coverage(path, roi=args.roi, log=log, rasterizer=device.rasterizer)
     else:
         from ..scene.loader import load_scene
 

@@ -23,6 +23,7 @@ import json
 import math
 import time
 from pathlib import Path
+from .device import add_device_argument, command_device
 
 HELP = ("the whole pipeline on the built-in courtyard: scene, stage I, coverage, bootstrap, the same-time "
         "baseline, evaluation, report")
@@ -73,7 +74,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--downscale", type=int, default=DEFAULT_DOWNSCALE,
                         help=f"train on images this many times smaller (default {DEFAULT_DOWNSCALE})")
     parser.add_argument("--seed", type=int, default=0, help="scene, split, training and generation seed")
-    from .device import add_device_argument
     add_device_argument(parser)
     parser.add_argument("--bootstrap-minutes", type=float, default=DEFAULT_BOOTSTRAP_MINUTES,
                         help=f"stage-II wall budget, prior included; the baseline gets the same time "
@@ -238,20 +238,19 @@ def plot_time(curves: dict[str, dict[str, list]], out_path: Path) -> None:
     atomic_write_bytes(out_path, buffer.getvalue())
 
 
-def _target_image(scene, split, run_dirs: list[Path], out_path: Path) -> None:
-    """j*: one render per run (stage I | baseline | bootstrap), then its held-out photo."""
+def _target_image(scene, split, run_dirs: list[Path], out_path: Path, rasterizer) -> None:
+    """j*: one render per run (stage I | baseline | bootstrap) by ``rasterizer``, then its held-out photo."""
     import numpy as np
     import torch
 
     from ..io.images import write_png
-    from ..rasterizer.interface import cpu_rasterizer
     from ..runs.load import load_run
 
     camera = scene.cameras[split.target_view]
     panels = []
     with torch.no_grad():
         for run_dir in run_dirs:
-            panels.append(cpu_rasterizer()(load_run(run_dir)[0], camera)["rgb"].clamp(0, 1).numpy())
+            panels.append(rasterizer(load_run(run_dir)[0], camera)["rgb"].clamp(0, 1).cpu().numpy())
     panels.append(np.asarray(scene.load_image(split.target_view), np.float32))
     write_png(out_path, np.round(np.concatenate(panels, axis=1) * 255.0).astype(np.uint8))
 
@@ -351,19 +350,20 @@ def _stage1(args, out: Path, progress: Progress, timings: dict):
     return result, load_stage1(run_dir)
 
 
-def _coverage(run_dir: Path, out: Path, progress: Progress, timings: dict) -> dict:
+def _coverage(run_dir: Path, out: Path, progress: Progress, timings: dict, rasterizer) -> dict:
     """OUT/coverage.png -> its summary figures."""
     from ..evaluation import coverage_map
 
     progress.stage("coverage of stage I's Gaussians by the training views")
     began = time.perf_counter()
-    coverage = coverage_map.run_coverage(run_dir, max_points=DEMO_COVERAGE_POINTS, depth_width=DEMO_DEPTH_WIDTH)
+    coverage = coverage_map.run_coverage(run_dir, max_points=DEMO_COVERAGE_POINTS, depth_width=DEMO_DEPTH_WIDTH,
+                                         rasterizer=rasterizer)
     coverage_map.plot(coverage, out / "coverage.png", title="demo courtyard: coverage by stage I's training views")
     timings["coverage"] = time.perf_counter() - began
     return coverage_map.summary(coverage)
 
 
-def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings: dict):
+def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings: dict, rasterizer):
     """OUT/run_bootstrap on j*, then OUT/run_baseline for the bootstrap's time -> (boot, baseline) results."""
     from ..bootstrap.config import BootstrapConfig
     from ..bootstrap.runner import baseline_run, run_bootstrap
@@ -381,8 +381,6 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
     began = time.perf_counter()
     boot_dir = out / "run_bootstrap"
     # Stage I said which device it chose; the bootstrap and the baseline use the same one quietly.
-    from ..rasterizer.interface import select_rasterizer
-    rasterizer = select_rasterizer(stage1.config.device)[1]
     # The demo's own output folder: a rerun of the demo replaces its previous demo result.
     boot_result = run_bootstrap(stage1, boot_dir, split_targets(split, scene, 1), boot_config, overwrite=True,
                                 log=lambda message: print(f"      {message}", flush=True), rasterizer=rasterizer)
@@ -399,14 +397,14 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
     return boot_result, base_result
 
 
-def _evaluate(dirs: dict[str, Path], progress: Progress, timings: dict) -> dict:
+def _evaluate(dirs: dict[str, Path], progress: Progress, timings: dict, device) -> dict:
     """Held-out scores of the three runs, printed as tables -> {label: eval}."""
     from ..evaluation.run import evaluate_run
     from ..evaluation.scoring import format_table
 
     progress.stage("evaluating stage I, the baseline and the bootstrap on the held-out views")
     began = time.perf_counter()
-    evals = {label: evaluate_run(path, progress=False) for label, path in dirs.items()}
+    evals = {label: evaluate_run(path, progress=False, device=device) for label, path in dirs.items()}
     for label in RUN_LABELS:
         print(f"{label}\n{format_table(evals[label])}")
     timings["evaluation"] = time.perf_counter() - began
@@ -418,6 +416,9 @@ def run(args) -> int:
     from ..io.atomic import atomic_write_text
 
     _check(args)
+    # The one device for every stage (stage I records it and prints what auto chose); one that
+    # cannot run here is one line before the scene is written.
+    device = command_device(args.device)
     out = Path(args.out)
     boot_s = 60.0 * args.bootstrap_minutes
     progress = Progress([("scene", _FIXED_ESTIMATES_S["scene"]), ("stage I", 60.0 * args.minutes),
@@ -427,13 +428,13 @@ def run(args) -> int:
     timings: dict[str, float] = {}
     stage1_result, stage1 = _stage1(args, out, progress, timings)
     run_dir, scene, split = stage1.run_dir, stage1.scene, stage1.split
-    coverage_figures = _coverage(run_dir, out, progress, timings)
-    boot_result, base_result = _bootstrap_and_baseline(args, stage1, out, progress, timings)
+    coverage_figures = _coverage(run_dir, out, progress, timings, device.rasterizer)
+    boot_result, base_result = _bootstrap_and_baseline(args, stage1, out, progress, timings, device.rasterizer)
     dirs = dict(zip(RUN_LABELS, (run_dir, out / "run_baseline", out / "run_bootstrap")))
-    evals = _evaluate(dirs, progress, timings)
+    evals = _evaluate(dirs, progress, timings, device)
 
     progress.stage("report")
-    _target_image(scene, split, list(dirs.values()), out / "target.png")
+    _target_image(scene, split, list(dirs.values()), out / "target.png", device.rasterizer)
     curves = time_curves(read_metrics(run_dir / "metrics.jsonl"),
                          {label: read_metrics(dirs[label] / "metrics.jsonl") for label in ("baseline", "bootstrap")})
     plot_time(curves, out / "report.png")

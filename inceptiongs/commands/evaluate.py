@@ -5,9 +5,10 @@ the stage-I render's (RUN/eval/generated.json, images render | generated | photo
 from __future__ import annotations
 
 import json
+import sys
 
 from ..errors import InputError
-from .device import add_torch_device_argument, torch_device
+from .device import add_device_argument, command_device
 from .generate import add_sampling_arguments
 
 HELP = "PSNR/SSIM on held-out views, scarce vs covered (LPIPS/FID only with local weights)"
@@ -27,7 +28,7 @@ def add_arguments(parser) -> None:
                              "against-steps curve of `inceptiongs report`)")
     parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
     add_sampling_arguments(parser, "--generated, ")
-    add_torch_device_argument(parser, ' for --generated')
+    add_device_argument(parser, reads_run=True)
 
 
 def parse_steps(text: str) -> tuple[int, ...]:
@@ -46,12 +47,15 @@ def run(args) -> int:
     from ..evaluation.scoring import format_table
 
     steps = parse_steps(args.ddim_steps) if args.generated else None
-    device = torch_device(args.device) if args.generated else None   # an unusable one fails before any work
-    summary = evaluate_run(args.run, lpips_weights=args.lpips_weights, fid_weights=args.fid_weights)
+    # One device for the render and the prior; an unusable one fails before any work.
+    device = command_device(args.device, args.run)
+    if device.note:
+        print(device.note, file=sys.stderr)
+    summary = evaluate_run(args.run, lpips_weights=args.lpips_weights, fid_weights=args.fid_weights, device=device)
     generated = None
     if args.generated:
         from ..evaluation.generated import evaluate_generated_run, format_generated_table
-        generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device, start=args.start,
+        generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device.torch_device, start=args.start,
                                            init=args.init)
     from ..bootstrap.outlook import recorded_outlook
 

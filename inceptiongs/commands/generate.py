@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import argparse
 import io
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from .device import add_torch_device_argument, torch_device
+from .device import add_device_argument, command_device
 
 HELP = "generate an image for any viewpoint with a run's diffusion prior"
 
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
     add_sampling_arguments(parser)
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
-    add_torch_device_argument(parser)
+    add_device_argument(parser, reads_run=True)
 
 
 def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -> None:
@@ -58,8 +59,11 @@ def run(args) -> int:
         raise InputError(f"{args.gbuffer_out}: --gbuffer-out must be a .npy file")
     if args.steps < 1:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
-    device = torch_device(args.device)
     run_dir = Path(args.run)
+    chosen = command_device(args.device, run_dir)   # the prior, its G-buffer and the model on one device
+    device = chosen.torch_device
+    if chosen.note:
+        print(chosen.note, file=sys.stderr)
     prior = load_prior(run_dir, device)  # fails fast, before the scene is loaded
     gaussians, scene, _ = load_run(run_dir)
     if args.camera:

@@ -11,11 +11,12 @@ images on the held-out views every M minutes of training (RUN/prior/metrics.json
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
-from .device import add_torch_device_argument, torch_device
+from .device import add_device_argument, command_device
 
 HELP = "train the scene-adaptive diffusion prior on a run's training photos (tiny or sd backend)"
 DEFAULT_MINUTES = 15.0
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tiny backend: the image a start below 1 noises: the Gaussians' render "
                              "(default: the prior repairs it) or the appearance hint; a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
-    add_torch_device_argument(parser)
+    add_device_argument(parser, reads_run=True)
     parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
     add_backend_arguments(parser)
     parser.add_argument("--eval-every-minutes", type=float, default=None,
@@ -103,7 +104,10 @@ def run(args) -> int:
         if value is not None and value <= 0:
             raise InputError(f"--{name.replace('_', '-')}: must be positive, got {value}")
     minutes = DEFAULT_MINUTES if args.minutes is None and args.steps is None else args.minutes
-    device = torch_device(args.device)
+    chosen = command_device(args.device, run_dir)   # the prior, its G-buffer and the model on one device
+    device = chosen.torch_device
+    if chosen.note:
+        print(chosen.note, file=sys.stderr)
 
     gaussians, scene, _ = load_run(run_dir)
     from ..io.atomic import check_writable_dir

@@ -1,4 +1,9 @@
-"""``inceptiongs render MODEL (--camera cam.json | --view NAME) --backend torch|gl ...``.
+"""``inceptiongs render MODEL (--camera cam.json | --view NAME) --backend gl|torch [--device D] ...``.
+
+``--backend`` picks the renderer: ``gl`` the OpenGL splat renderer (the viewer's pictures),
+``torch`` the library's rasterizer. ``--device`` is where the library's rasterizer runs (the one
+device rule, :mod:`.device`; default: the run's device for a run folder): it belongs to
+``--backend torch`` alone, since GL draws wherever its context runs.
 
 MODEL is a 3DGS PLY or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest PLY
 in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
@@ -29,7 +34,7 @@ from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
-from .device import add_device_argument, chosen_rasterizer
+from .device import add_device_argument, command_device
 
 HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -42,8 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("--view", help="name of a camera (image) of the scene")
     parser.add_argument("--scene", help="scene folder for --view (default: the run's scene)")
     parser.add_argument("--backend", choices=("torch", "gl"), default="gl",
-                        help="gl: the OpenGL splat renderer; torch: the library's rasterizer (see --device)")
-    add_device_argument(parser)
+                        help="which renderer draws: gl, the OpenGL splat renderer (the viewer's pictures; default), "
+                             "or torch, the library's rasterizer (on --device)")
+    add_device_argument(parser, reads_run=True, default_help="the run's device for a run folder, else auto; "
+                                                             "--backend torch only")
     parser.add_argument("--mode", choices=MODES, default="rgb")
     parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
     parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
@@ -226,6 +233,19 @@ def write_output(image: np.ndarray, mode: str, out: Path) -> None:
     write_png(out, to_png_rgb(image, mode))
 
 
+def torch_rasterizer(args):
+    """(the library's rasterizer, the line saying what auto chose or None) for --backend torch,
+    by the one device rule; (None, None) for gl, which takes no --device (one line if given)."""
+    if args.backend != "torch":
+        if args.device is not None:
+            raise InputError(f"--device {args.device}: applies to --backend torch (the library's rasterizer); "
+                             f"--backend {args.backend} draws wherever its OpenGL context runs")
+        return None, None
+    model = Path(args.model)
+    device = command_device(args.device, model if model.is_dir() else None)
+    return device.rasterizer, device.note
+
+
 def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".png", ".npy"):
@@ -234,7 +254,7 @@ def run(args) -> int:
     check_writable_dir(out.parent)  # a bad --out is one line before any work
     if args.width is not None and args.height is not None:
         check_image_size(args.width, args.height, "--width/--height")
-    rasterizer, device_note = chosen_rasterizer(args.device) if args.backend == "torch" else (None, None)
+    rasterizer, device_note = torch_rasterizer(args)
     gaussians, camera = load_model_and_camera(args)
     camera = resized_camera(camera, args.width, args.height)
     check_image_size(camera.width, camera.height, "--width/--height" if args.width or args.height else

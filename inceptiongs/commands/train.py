@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.config_json import check_seed
 from ..io.paths import contained_path, read_small_text
-from .device import add_device_argument, chosen_rasterizer
+from .device import add_device_argument, command_device
 
 from ..runs.config import TrainConfig
 from ..train.strategies import STRATEGIES
@@ -32,7 +32,7 @@ def add_arguments(parser) -> None:
                         help="which views are held out for evaluation (default llff: every 8th view, "
                              "so `eval` works on the run; none: train on all)")
     parser.add_argument("--seed", type=int, default=0)
-    add_device_argument(parser)
+    add_device_argument(parser, reads_run=True, default_help="auto; with --resume the run's device")
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its newest checkpoint")
     parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
@@ -82,7 +82,7 @@ def build_config(args) -> "TrainConfig":
                          minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
                          size_to_minutes=sized, free_space=args.free_space,
                          sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale,
-                         exclude_photos=photos_to_exclude(args.exclude_photos), device=args.device)
+                         exclude_photos=photos_to_exclude(args.exclude_photos), device=args.device or "auto")
     return short_run_schedule(config.validate("command line"))
 
 
@@ -143,12 +143,17 @@ def run(args) -> int:
     out = Path(args.out) if args.out else default_run_dir(scene)
     config = build_config(args)
     stored = out / "config.json"
-    if args.resume and stored.is_file():
+    resuming = args.resume and stored.is_file()
+    if resuming:
         config = resumed_config(out, args.minutes, args.iterations)
+        if args.device is not None:   # checkpoints hold CPU tensors: a run resumes on any device
+            config = dataclasses.replace(config, device=args.device)
     elif stored.is_file() and not args.resume:
         raise InputError(f"{out}: run folder already holds a run (use --resume or another --out)")
-    chosen_rasterizer(config.device)   # --device cuda that cannot run: one line before anything starts
-    joint = joint_prior(args, out, config) if args.prior else None
+    # A device that cannot run here: one line before anything starts. The trainer resolves
+    # config.device by the same rule (and prints what auto chose once its start has succeeded).
+    device = command_device(args.device, out if resuming else None)
+    joint = joint_prior(args, out, config, device.torch_device) if args.prior else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
         result = train(config, out, resume=args.resume, after_step=joint, control=control)
@@ -166,10 +171,9 @@ def run(args) -> int:
     return 0
 
 
-def joint_prior(args, out: Path, config):
-    """The stage-I trainer's after_step hook that trains the prior alongside (--prior)."""
-    import torch
-
+def joint_prior(args, out: Path, config, device):
+    """The stage-I trainer's after_step hook that trains the prior alongside (--prior), on
+    ``device`` (torch.device), the run's."""
     from ..prior.joint import JointPrior
     from ..scene.loader import load_scene
     from .prior import new_prior
@@ -178,7 +182,6 @@ def joint_prior(args, out: Path, config):
         raise InputError(f"--prior-every: must be >= 1, got {args.prior_every}")
     if (args.prior_backend or "tiny") == "sd" and not args.sd_path:
         raise InputError("--prior-backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
     return JointPrior(out, scene, lambda gaussians: new_prior(args.prior_backend, args.sd_path, gaussians.to(device),
                                                               device, out, seed=config.seed),

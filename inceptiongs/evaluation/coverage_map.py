@@ -107,16 +107,20 @@ def scene_coverage(scene, roi=None, max_points: int = MAX_POINTS, seed: int = 0,
 
 
 def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, seed: int = 0,
-                 depth_width: int = DEPTH_WIDTH, log: Callable[[str], None] = lambda message: None) -> Coverage:
+                 depth_width: int = DEPTH_WIDTH, log: Callable[[str], None] = lambda message: None,
+                 rasterizer=None) -> Coverage:
     """Coverage of a run: opaque Gaussian centres, training views as sources, occlusion from
-    each view's depth rendered at ``depth_width`` pixels wide."""
+    each view's depth rendered at ``depth_width`` pixels wide by ``rasterizer`` (default: the
+    one the run's recorded device resolves to, inceptiongs.rasterizer.interface.resolve_device)."""
     import torch
 
-    from ..rasterizer.interface import cpu_rasterizer
+    from ..rasterizer.interface import resolve_device
     from ..runs.load import load_run
     from .protocols import Split
 
-    gaussians, scene, _ = load_run(run_dir)
+    gaussians, scene, config = load_run(run_dir)
+    if rasterizer is None:
+        rasterizer = resolve_device(config.device, f"{Path(run_dir) / 'config.json'}: device").rasterizer
     split = Split.load(Path(run_dir) / "split.json", scene.cameras)
     opacity = torch.sigmoid(gaussians.opacity_logits.reshape(-1)).numpy()
     if not len(opacity):
@@ -128,7 +132,7 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     with torch.no_grad():
         for camera in scene.cameras:
             small = camera.scaled(min(1.0, depth_width / camera.width))
-            depths.append(cpu_rasterizer()(gaussians, small, outputs=("depth",))["depth"][..., 0].numpy())
+            depths.append(rasterizer(gaussians, small, outputs=("depth",))["depth"][..., 0].cpu().numpy())
     sources = np.zeros(len(scene.cameras), bool)
     sources[split.train] = True
     return compute(_subsample(points, max_points, seed), list(scene.cameras), sources, depths,

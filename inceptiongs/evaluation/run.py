@@ -22,30 +22,31 @@ from .protocols import Split
 from .scoring import evaluate_views
 
 
-def auto_rasterizer():
-    from ..rasterizer.interface import select_rasterizer
-    return select_rasterizer("auto")[1]
-
 UNAVAILABLE_LPIPS = "unavailable (no --lpips-weights given)"
 UNAVAILABLE_FID = "unavailable (no --fid-weights given)"
 
 
 def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
-                 fid_weights: str | Path | None = None, progress: bool = True, rasterizer=None) -> dict:
+                 fid_weights: str | Path | None = None, progress: bool = True, device=None) -> dict:
     """Evaluate RUN/model (via inceptiongs.runs.load.load_run) on RUN/split.json's held-out views.
 
     Writes RUN/eval/<group>_<index>_<name>.png (render | photo | error) and RUN/eval/eval.json,
     and returns the same dict as eval.json: {"run", "protocol", "seed", "target_view",
     "groups": {"scarce"|"covered"|"all": {"views", "psnr", "ssim"[, "lpips"][, "fid"]}},
-    "views": [...], "lpips": "computed ..." | "unavailable ...", "fid": ...}.
-    ``rasterizer``: default the one ``--device auto`` selects (scores do not depend on it beyond
-    float rounding).
+    "views": [...], "lpips": "computed ..." | "unavailable ...", "fid": ...,
+    "device": {"asked", "device", "rasterizer", "why"}}. ``device``
+    (inceptiongs.rasterizer.interface.Device): what renders; default the device the run records,
+    by the one device rule (scores do not depend on it beyond float rounding).
     """
+    from ..rasterizer.interface import resolve_device
+
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError(f"{run_dir}: run folder does not exist")
-    gaussians, scene, _config = load_run(run_dir)
+    gaussians, scene, config = load_run(run_dir)
+    if device is None:
+        device = resolve_device(config.device, f"{run_dir / 'config.json'}: device")
     split = Split.load(run_dir / "split.json", scene.cameras)
     if not split.test:
         raise InputError(f"{run_dir / 'split.json'}: the split holds out no views (protocol "
@@ -55,7 +56,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
     eval_dir = run_dir / "eval"
     # The trainer scores its test views on black (the rasterizer's default); so do we.
     result = evaluate_views(gaussians, scene, split, save_dir=eval_dir, lpips_model=lpips_model,
-                            fid_model=fid_model, progress=progress, rasterizer=rasterizer or auto_rasterizer())
+                            fid_model=fid_model, progress=progress, rasterizer=device.rasterizer)
     for view in result["views"]:
         view["image"] = f"eval/{view['image']}"
     groups = result["groups"]
@@ -68,6 +69,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
         "views": result["views"],
         "lpips": f"computed with {lpips_weights}" if lpips_weights else UNAVAILABLE_LPIPS,
         "fid": f"computed with {fid_weights}" if fid_weights else UNAVAILABLE_FID,
+        "device": device.to_json(),
     }
     atomic_write_text(eval_dir / "eval.json", json.dumps(json_safe(summary), indent=1) + "\n")
     return summary

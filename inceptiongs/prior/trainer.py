@@ -266,7 +266,8 @@ def config_from_dict(backend: str, data: dict, source: str = "prior checkpoint")
 
 
 def save_prior(run_dir: str | Path, trainer: PriorTrainer) -> Path:
-    """Write RUN/prior/prior.pt atomically: config, weights, optimiser state, step, losses."""
+    """Write RUN/prior/prior.pt atomically: config, weights, optimiser state, step, losses, and
+    the device it trained on."""
     payload = {
         "backend": trainer.prior.backend,
         "config": trainer.prior.config.to_dict(),
@@ -278,6 +279,7 @@ def save_prior(run_dir: str | Path, trainer: PriorTrainer) -> Path:
         "losses": list(trainer.losses),
         "train_s": trainer.train_s,
         "generator": trainer.generator.get_state(),
+        "device": trainer.prior.device.type,   # where it trained ("cpu", "cuda"): the command's --device
     }
     buffer = io.BytesIO()
     torch.save(payload, buffer)

@@ -1,6 +1,6 @@
 """Rasterizers. ``interface`` is the one way in: the ``Rasterizer`` protocol, its typed result
 (``result.RenderResult``), the registry ``RASTERIZERS`` (torch, numba, gsplat) and
-``select_rasterizer`` (``--device auto|cpu|cuda``).
+``resolve_device``, the one rule that turns ``--device auto|cpu|cuda`` into a ``Device``.
 
 The torch reference: ``projection`` (EWA projection of 3-D Gaussians), ``sh`` (colour from
 spherical harmonics), ``composite`` (tile-binned front-to-back compositing in torch) and

@@ -8,8 +8,9 @@ Every rasterizer is a callable with the signature of the torch reference
 - ``gsplat``: gsplat's fused CUDA kernels (optional extra ``pip install inceptiongs[cuda]``),
   imported only when chosen.
 
-A run chooses one with :func:`select_rasterizer` (``--device auto|cpu|cuda``) and carries the
-object; nothing outside the torch backend calls ``render`` itself.
+A command resolves its ``--device auto|cpu|cuda`` with :func:`resolve_device`, the one device
+rule, into a :class:`Device` (the rasterizer, the torch device, why), and carries it; nothing
+outside the torch backend calls ``render`` itself.
 """
 
 from __future__ import annotations
@@ -93,12 +94,10 @@ def cpu_rasterizer() -> Rasterizer:
 
 
 def rasterizer_for(device) -> Rasterizer:
-    """The rasterizer for tensors on ``device`` when a caller names none: gsplat on a CUDA device
-    when nothing it needs is missing (``cuda_missing``, the rule ``--device auto`` follows; the
-    torch reference also runs there, as the fallback), else the CPU's best."""
-    if torch.device(device).type == "cuda" and cuda_missing() is None:
-        return get_rasterizer("gsplat")
-    return cpu_rasterizer()
+    """The rasterizer for tensors already on ``device`` when a caller names none, by the one
+    device rule (``resolve_device``): CUDA tensors get what "auto" chooses (gsplat when nothing it
+    needs is missing, else the torch reference, which runs there too), host tensors the CPU's best."""
+    return resolve_device("auto" if torch.device(device).type == "cuda" else "cpu").rasterizer
 
 
 def gsplat_installed() -> bool:
@@ -124,31 +123,71 @@ def cuda_missing() -> tuple[str, str] | None:
     return None
 
 
-def select_rasterizer(device: str) -> tuple[str, Rasterizer, str]:
-    """(name, rasterizer, why) for ``device`` "auto", "cpu" or "cuda".
+@dataclass(frozen=True)
+class Device:
+    """What ``--device auto|cpu|cuda`` resolved to: one answer for everything a command runs on
+    (the rasterizer, the run's tensors, the prior and its G-buffer). ``asked``: the value given
+    (or the run's recorded one); ``why``: why this device ("--device cpu", "no CUDA GPU visible")."""
 
-    "cuda" without a usable GPU, gsplat or a CUDA compiler is an InputError naming what is
-    missing and how to get it; "auto" takes gsplat when nothing is missing, else the CPU's best.
+    asked: str
+    rasterizer: Rasterizer
+    why: str
+
+    @property
+    def name(self) -> str:
+        """The rasterizer's registry name (RASTERIZERS): "numba", "torch" or "gsplat"."""
+        return self.rasterizer.name
+
+    @property
+    def torch_device(self) -> torch.device:
+        """Where tensors live: where the rasterizer renders."""
+        return torch.device(rasterizer_device(self.rasterizer))
+
+    @property
+    def line(self) -> str:
+        """Which device and rasterizer, and why: ``device: cpu (numba rasterizer): no CUDA GPU visible``."""
+        return f"device: {rasterizer_device(self.rasterizer)} ({self.name} rasterizer): {self.why}"
+
+    @property
+    def note(self) -> str | None:
+        """The line a command prints once its work has started: only "auto" says what it chose."""
+        return self.line if self.asked == "auto" else None
+
+    def to_json(self) -> dict:
+        """What a run records of the choice."""
+        return {"asked": self.asked, **device_record(self.rasterizer), "why": self.why}
+
+
+def device_record(rasterizer) -> dict:
+    """{"device", "rasterizer"}: where ``rasterizer`` renders and its registry name."""
+    return {"device": rasterizer_device(rasterizer), "rasterizer": getattr(rasterizer, "name", type(rasterizer).__name__)}
+
+
+def resolve_device(asked: str, source: str = "--device", instead: str | None = None) -> Device:
+    """The one device rule: ``asked`` "auto", "cpu" or "cuda" -> the :class:`Device` every part
+    of a command uses.
+
+    "cpu": the CPU's best rasterizer (numba, else the torch reference), torch on the CPU.
+    "cuda": gsplat and torch on the GPU; without a usable GPU, gsplat or a CUDA compiler
+    (``cuda_missing``) an InputError naming what is missing and how to get it. "auto": "cuda"
+    when nothing is missing, else "cpu", saying why. ``source`` names where the value came from
+    in that error and in ``why`` ("--device", or "RUN/config.json: device"); ``instead`` ends the
+    error (what the user can give instead).
     """
-    if device not in DEVICES:
-        raise InputError(f"--device must be one of {', '.join(DEVICES)}, got {device!r}")
-    missing = cuda_missing() if device != "cpu" else None
-    if device == "cuda":
+    if asked not in DEVICES:
+        raise InputError(f"{source} must be one of {', '.join(DEVICES)}, got {asked!r}")
+    missing = cuda_missing() if asked != "cpu" else None
+    if asked == "cuda":
         if missing is not None:
-            raise InputError(f"--device cuda: {missing[0]} ({missing[1]})")
-        return "gsplat", get_rasterizer("gsplat"), "--device cuda"
-    if device == "auto" and missing is None:
-        return "gsplat", get_rasterizer("gsplat"), f"CUDA GPU {torch.cuda.get_device_name()} and gsplat found"
+            raise InputError(f"{source} cuda: {missing[0]} ({missing[1]})" + (f"; {instead}" if instead else ""))
+        return Device(asked, get_rasterizer("gsplat"), f"{source} cuda")
+    if asked == "auto" and missing is None:
+        return Device(asked, get_rasterizer("gsplat"), f"CUDA GPU {torch.cuda.get_device_name()} and gsplat found")
     rasterizer = cpu_rasterizer()
-    why = "--device cpu" if device == "cpu" else missing[0]
+    why = f"{source} cpu" if asked == "cpu" else missing[0]
     if rasterizer.name == "torch":
         why += "; numba is not installed"
-    return rasterizer.name, rasterizer, why
-
-
-def device_line(name: str, rasterizer: Rasterizer, why: str) -> str:
-    """The one line ``--device auto`` prints: which device and rasterizer, and why."""
-    return f"device: {rasterizer.device} ({name} rasterizer): {why}"
+    return Device(asked, rasterizer, why)
 
 
 def render_rgb(gaussians: Gaussians, camera: Camera, rasterizer: Rasterizer | None = None) -> torch.Tensor:

@@ -138,13 +138,6 @@ def finish_outputs(outputs: tuple, blended: dict[str, torch.Tensor], alpha: torc
     return result
 
 
-def render_rgb(gaussians: Gaussians, camera: Camera) -> torch.Tensor:
-    """The colour render [H, W, 3] float32 in [0, 1] on black, without gradients: what
-    evaluation scores and what the prior's sampler starts from."""
-    with torch.no_grad():
-        return render(gaussians, camera, outputs=("rgb",))["rgb"].to(torch.float32).clamp(0.0, 1.0)
-
-
 def _plane_depth(offset: torch.Tensor, normal: torch.Tensor, covered: torch.Tensor,
                  camera: Camera) -> torch.Tensor:
     """PGSR plane depth: blended offset [H, W, 1] / (blended normal [H, W, 3] . K^-1 [u, v, 1]).

@@ -114,7 +114,7 @@ class TrainConfig(SavedConfig):
     # Scenes without sparse points (LLFF): triangulate some from the training photos with
     # the known poses (inceptiongs.train.triangulate) instead of starting from random points.
     triangulate_init: bool = True
-    # Where training runs (inceptiongs.rasterizer.interface.select_rasterizer): "cpu" (numba),
+    # Where training runs (inceptiongs.rasterizer.interface.resolve_device): "cpu" (numba),
     # "cuda" (gsplat) or "auto" (cuda when a GPU, gsplat and a CUDA compiler are all there).
     # Stage II reads the stage-I run's value.
     device: str = "auto"

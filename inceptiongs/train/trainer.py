@@ -57,15 +57,15 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False, progre
     control: object with ``stop`` / ``pause`` threading.Events (JobControl) or None.
     on_snapshot(iteration, detached Gaussians, metrics) every ``snapshot_every`` steps.
     rasterizer (inceptiongs.rasterizer.interface.Rasterizer) defaults to the one ``config.device``
-    selects (select_rasterizer).
+    selects (resolve_device, the one device rule).
     after_step(iteration, detached Gaussians, checkpointed) after every step (e.g. one
     diffusion-prior step, `inceptiongs train --prior`); its time counts as training time.
     """
     device_note = None
     if rasterizer is None:
-        from ..rasterizer.interface import device_line, select_rasterizer
-        name, rasterizer, why = select_rasterizer(config.device)
-        device_note = device_line(name, rasterizer, why) if config.device == "auto" else None
+        from ..rasterizer.interface import resolve_device
+        device = resolve_device(config.device)
+        rasterizer, device_note = device.rasterizer, device.note
     config.validate()
     with run_folder_lock(run_dir):   # one writer per run folder (a second gets one line naming the first)
         return _train(config, Path(run_dir), resume, progress, control, on_snapshot, snapshot_every, rasterizer,

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from inceptiongs.cli import main
-from inceptiongs.rasterizer.rasterize import render_rgb
+from inceptiongs.rasterizer.interface import render_rgb
 from inceptiongs.evaluation.generated import evaluate_generated_run, photo_of, score
 from inceptiongs.evaluation.metrics import psnr
 
