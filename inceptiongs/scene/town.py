@@ -11,7 +11,7 @@ grid over the ground plane. The views:
   degrees;
 - **scarce**: in each courtyard, 4-5.5 m in front of the facade opposite its gateway, looking
   at it. No street view stands in a yard: the streets see a yard only through its gateway,
-  from 25 m or more, and the aerial views from above 60 m. ``demo_scene.json`` names the
+  no closer than about 20 m, and the aerial views from above 60 m. ``demo_scene.json`` names the
   groups (``dense_cameras`` = street + aerial, ``scarce_cameras``) and the yards.
 
 Sparse points are surface points hit by random rays of the dense views that at least two
@@ -292,7 +292,7 @@ def write_town_scene(out_dir: str | Path, views: int = 3000, width: int = 640, h
         "courtyards": [{"yard": list(c.yard), "back_normal": list(c.back), "gate": list(c.gate)}
                        for c in town.courtyards],
         "note": "scarce cameras stand in the courtyards 4-5.5 m from the facade opposite the gateway; the "
-                "dense views see a yard only through its gateway from 25 m or more, or from the air",
+                "dense views see a yard only through its gateway, no closer than about 20 m, or from the air",
     }
     return write_scene_folder(out_dir, cameras, lambda camera: render_town_photo(scene, camera), points, colours,
                               meta, progress=progress, desc="town", jpeg_quality=JPEG_QUALITY)

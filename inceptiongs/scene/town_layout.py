@@ -10,7 +10,7 @@ facades rather than an empty horizon. Blocks are of three kinds:
   inner lot of a 3 x 3 block is a back yard);
 - square: an open paved plaza with a monument (a plinth and a column);
 - courtyard: a ring of buildings around an enclosed yard, entered through one gateway 4 m wide.
-  Seen from the streets only through the gateway (from 25 m or more), or from the air: the
+  Seen from the streets only through the gateway (no closer than about 20 m), or from the air: the
   town's thin regions. Their facades carry the finest detail (shutters, railings).
 
 Everything here is plain numpy; ``town_trace`` renders it.
@@ -215,7 +215,7 @@ def _courtyard_block(rng, x0, y0) -> tuple[list[tuple[tuple, np.ndarray]], Court
         height = _height(rng, style[P_STOREY], 4, 6)
         for rect in (wings[s] if s == side else whole[s]):
             out.append(((rect[0], rect[1], 0.0, rect[2], rect[3], height), style))
-    normal = {0: (0.0, -1.0), 1: (-1.0, 0.0), 2: (0.0, 1.0), 3: (1.0, 0.0)}[side]   # yard -> gateway
+    normal = {0: (0.0, -1.0), 1: (1.0, 0.0), 2: (0.0, 1.0), 3: (-1.0, 0.0)}[side]   # yard -> gateway
     centre = np.array([x0 + mid, y0 + mid])
     gate = centre + np.array(normal) * mid
     yard = Courtyard(yard=(x0 + d, y0 + d, x1 - d, y1 - d), back=normal, gate=(float(gate[0]), float(gate[1])))
