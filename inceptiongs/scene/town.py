@@ -42,8 +42,8 @@ SIDE_MAX = 4096
 SUPERSAMPLE = 2           # 2 x 2 more rays in a pixel on an edge
 EDGE_THRESHOLD = 0.08     # a colour step (any channel, in [0, 1]) that makes a pixel an edge
 JPEG_QUALITY = 92
-# JPEG bytes per pixel measured on the town at 640x480 (quality 92), with a margin: the
-# disk-space check's estimate.
+# The disk-space check's estimate of JPEG bytes a pixel: 0.24 measured on the town at 640x480
+# (quality 92), small photos take more (headers), so with a margin.
 _JPEG_BYTES_PER_PIXEL = 0.45
 _HORIZONTAL_FOV_DEG = 70.0
 _EYE_HEIGHT = 1.65
@@ -51,7 +51,11 @@ _WALK_OFFSET = STREET / 2 - 1.6     # sidewalk walk, 1.6 m from the facades
 _AERIAL_SHARE = 0.02
 _SCARCE_PER_COURTYARD = 5
 _POINTS_PER_VIEW = 64
+_POINT_RAYS_MAX = 400_000   # fewer rays a view beyond ~6,000 views: points for initialisation, not millions
 _WITNESSES = 2
+# Witnesses are sought among the cameras this near in index (a walk's neighbours, the other
+# sidewalk, the aerial views among themselves); it bounds the search for a point none sees.
+_WITNESS_WINDOW = 5000
 # Street views' headings (degrees from the walking direction, positive towards the street's
 # far side) and pitch ranges: along, oblique, across at the facades opposite, towards the
 # near facades, back.
@@ -223,19 +227,21 @@ def _camera_arrays(cameras: list[Camera]):
 
 
 def visibility_counts(town_scene: tuple, points: np.ndarray, source: np.ndarray, cameras: list[Camera],
-                      wanted: int) -> np.ndarray:
-    """points [P, 3], source [P] index into cameras -> [P]: how many of the other cameras see each
-    point unoccluded (counting stops at ``wanted``)."""
+                      wanted: int, window: int = _WITNESS_WINDOW) -> np.ndarray:
+    """points [P, 3], source [P] index into cameras -> [P]: how many of the other cameras (at most
+    ``window`` away in index) see each point unoccluded (counting stops at ``wanted``)."""
     out = np.zeros(len(points), np.int64)
     witness_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(source, np.int64),
-                   *_camera_arrays(cameras), int(wanted), town_scene, out)
+                   *_camera_arrays(cameras), int(wanted), int(window), town_scene, out)
     return out
 
 
 def town_points(town_scene: tuple, cameras: list[Camera], rng: np.random.Generator,
                 per_view: int = _POINTS_PER_VIEW, witnesses: int = _WITNESSES):
-    """Sparse points: hits of ``per_view`` random rays of each camera that at least
-    ``witnesses`` other cameras see. -> (points [P, 3], colours [P, 3] uint8)."""
+    """Sparse points: hits of ``per_view`` random rays of each camera (fewer when that would pass
+    _POINT_RAYS_MAX rays) that at least ``witnesses`` other cameras see.
+    -> (points [P, 3], colours [P, 3] uint8)."""
+    per_view = max(2, min(per_view, _POINT_RAYS_MAX // len(cameras)))
     origins, dirs, source, footprint = [], [], [], []
     for index, camera in enumerate(cameras):
         pixels = rng.uniform(0, 1, (per_view, 2)) * (camera.width, camera.height)

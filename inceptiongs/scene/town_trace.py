@@ -70,11 +70,11 @@ def _hit_box(boxes, k, ox, oy, oz, ix, iy, iz):
     ty1 = (boxes[k, 4] - oy) * iy
     tz0 = (boxes[k, 2] - oz) * iz
     tz1 = (boxes[k, 5] - oz) * iz
-    nx, fx_ = min(tx0, tx1), max(tx0, tx1)
-    ny, fy_ = min(ty0, ty1), max(ty0, ty1)
-    nz, fz_ = min(tz0, tz1), max(tz0, tz1)
+    nx, far_x = min(tx0, tx1), max(tx0, tx1)
+    ny, far_y = min(ty0, ty1), max(ty0, ty1)
+    nz, far_z = min(tz0, tz1), max(tz0, tz1)
     enter = max(nx, max(ny, nz))
-    leave = min(fx_, min(fy_, fz_))
+    leave = min(far_x, min(far_y, far_z))
     if enter > leave or enter <= _EPS:
         return np.inf, -1
     if enter == nx:
@@ -90,7 +90,7 @@ def _hit_box(boxes, k, ox, oy, oz, ix, iy, iz):
 def trace_ray(ox, oy, oz, dx, dy, dz, scene):
     """Nearest hit of the ray o + t d (d need not be unit; t is in units of |d|).
     -> (t, box index or GROUND or SKY, face)."""
-    boxes, params, cell_start, cell_items, cell_top, kinds, noise, meta = scene
+    boxes, _, cell_start, cell_items, cell_top, _, _, meta = scene
     gx0, gy0, cell, n, top = meta[0], meta[1], meta[2], int(meta[3]), meta[6]
     t_ground = np.inf
     if dz < -_TINY:
@@ -247,23 +247,78 @@ def _glass(v0, v1, v, shade):
 
 
 @njit(cache=True)
+def _shop_front(p, u, v, cu, bay, top, r, g, b, shade, fp):
+    """A shop window across the bay under a striped awning in the accent colour; the wall
+    (r, g, b) elsewhere."""
+    if abs(cu) < 0.44 * bay and top - 0.45 < v < top:
+        stripe = _frac(u / 0.5) < 0.5
+        return _mix(0.95, 0.93, 0.88, p[P_ACCENT], p[P_ACCENT + 1], p[P_ACCENT + 2],
+                    0.5 + (0.5 if stripe else -0.5) * _detail(0.5, fp))
+    if abs(cu) < 0.40 * bay and 0.45 < v < top - 0.5:
+        if abs(cu) > 0.40 * bay - 0.08 or abs(v - 0.5) < 0.05:
+            return _mix(r, g, b, p[P_FRAME], p[P_FRAME + 1], p[P_FRAME + 2], _detail(0.12, fp) * 0.8 + 0.2)
+        return _glass(0.45, top - 0.5, v, shade * 0.8)
+    return r, g, b
+
+
+@njit(cache=True)
+def _door(p, cu, v, r, g, b, fp):
+    """A planked door 1.2 m wide in the accent colour; the wall (r, g, b) beside it."""
+    if abs(cu) < 0.6 and v < 2.3:
+        plank = _frac(cu / 0.15) < 0.5
+        s = 0.7 * (1.0 + (0.12 if plank else -0.12) * _detail(0.15, fp))
+        return p[P_ACCENT] * s, p[P_ACCENT + 1] * s, p[P_ACCENT + 2] * s
+    return r, g, b
+
+
+@njit(cache=True)
+def _shutters_and_railing(p, u, cu, cv, half_w, v0, v1, storey_h, inside, r, g, b, shade, fp):
+    """Slatted shutters beside a window and a railing across its lower part: fine, recurring
+    detail only close views resolve. -> (drawn, rgb); not drawn outside them."""
+    if half_w <= abs(cu) < 1.55 * half_w and v0 < cv < v1:
+        slat = _frac(cv / 0.08) < 0.5
+        s = 1.0 + (0.2 if slat else -0.2) * _detail(0.08, fp)
+        return True, p[P_ACCENT] * s, p[P_ACCENT + 1] * s, p[P_ACCENT + 2] * s
+    rail_top = v0 + 0.35 * storey_h
+    if abs(cu) < 1.1 * half_w and v0 - 0.05 < cv < rail_top + 0.05:
+        if abs(cv - rail_top) < 0.05:
+            r, g, b = _mix(r, g, b, 0.08, 0.08, 0.10, 0.9 * _detail(0.1, fp) + 0.1)
+            return True, r, g, b
+        if inside:
+            r, g, b = _glass(v0, v1, cv, shade)
+        d = _detail(0.12, fp)
+        bar = _frac(u / 0.12) < 0.3
+        r, g, b = _mix(r, g, b, 0.08, 0.08, 0.10, (d if bar else 0.0) + (1 - d) * 0.3)
+        return True, r, g, b
+    return False, r, g, b
+
+
+@njit(cache=True)
+def _window(p, cu, cv, half_w, v0, v1, shade, fp):
+    """Glass with a frame around it and a cross mullion, at (cu, cv) inside the window."""
+    edge = min(half_w - abs(cu), min(cv - v0, v1 - cv))
+    mullion = min(abs(cu), abs(cv - (v0 + 0.62 * (v1 - v0))))
+    gr, gg, gb = _glass(v0, v1, cv, shade)
+    fine = _detail(0.12, fp)
+    amount = fine + (1 - fine) * 0.25 if edge < 0.08 or mullion < 0.035 else (1 - fine) * 0.25
+    return _mix(gr, gg, gb, p[P_FRAME], p[P_FRAME + 1], p[P_FRAME + 2], amount)
+
+
+@njit(cache=True)
 def _facade(p, u, v, length, height, noise, fp):
     """Albedo of a building's wall at facade coordinates u in [0, length] (left to right seen
     from outside) and v in [0, height] above the building's base: -> rgb."""
     r, g, b = _wall(p, u, v, noise, fp)
     if p[P_HAS_WINDOWS] < 0.5:
         return r, g, b
-    storey_h = p[P_STOREY]
+    storey_h = p[P_STOREY]                    # >= 3 m
     storeys = max(1, int(math.floor((height - 0.8) / storey_h + 0.5)))
     bays = max(1, int(math.floor(length / p[P_BAY])))
-    bay = length / bays
+    bay = length / bays                       # boxes are longer than 0
     bay_index = min(bays - 1, int(math.floor(u / bay)))
     cu = u - (bay_index + 0.5) * bay          # -bay/2 .. bay/2 across a bay
     storey = int(math.floor(v / storey_h))
     cv = v - storey * storey_h                # 0 .. storey_h within a storey
-    fr, fg, fb = p[P_FRAME], p[P_FRAME + 1], p[P_FRAME + 2]
-    ar, ag, ab = p[P_ACCENT], p[P_ACCENT + 1], p[P_ACCENT + 2]
-    fine = _detail(0.12, fp)
     if storey >= storeys:
         # The parapet above the top storey, with a shadow line under its cornice.
         if v - storeys * storey_h < 0.12:
@@ -272,56 +327,25 @@ def _facade(p, u, v, length, height, noise, fp):
     if v < 0.35:   # plinth
         s = 0.8 + 0.3 * _noise(noise, 8.0 * u + p[P_NOISE], 8.0 * v)
         return 0.38 * s, 0.38 * s, 0.40 * s
-    window_shade = 0.85 + 0.3 * _noise(noise, bay_index * 7.3 + p[P_NOISE], storey * 3.1)
+    shade = 0.85 + 0.3 * _noise(noise, bay_index * 7.3 + p[P_NOISE], storey * 3.1)
     if storey == 0:
-        top = 0.92 * storey_h
         if p[P_GROUND] == GROUND_SHOPS:
-            # A shop front per bay under an awning in the building's accent colour.
-            if abs(cu) < 0.44 * bay and top - 0.45 < v < top:
-                stripe = _frac(u / 0.5) < 0.5
-                return _mix(0.95, 0.93, 0.88, ar, ag, ab, 0.5 + (0.5 if stripe else -0.5) * _detail(0.5, fp))
-            if abs(cu) < 0.40 * bay and 0.45 < v < top - 0.5:
-                if abs(cu) > 0.40 * bay - 0.08 or abs(v - 0.5) < 0.05:
-                    return _mix(r, g, b, fr, fg, fb, fine * 0.8 + 0.2)
-                return _glass(0.45, top - 0.5, v, window_shade * 0.8)
-            return r, g, b
+            return _shop_front(p, u, v, cu, bay, 0.92 * storey_h, r, g, b, shade, fp)
         if bay_index % 3 == 1 or bays == 1:
-            # A planked door.
-            if abs(cu) < 0.6 and v < 2.3:
-                plank = _frac(cu / 0.15) < 0.5
-                s = 1.0 + (0.12 if plank else -0.12) * _detail(0.15, fp)
-                return ar * 0.7 * s, ag * 0.7 * s, ab * 0.7 * s
-            return r, g, b
-        window_v0, window_v1 = 0.9, 0.9 + 0.5 * storey_h
+            return _door(p, cu, v, r, g, b, fp)
+        v0, v1 = 0.9, 0.9 + 0.5 * storey_h
     else:
-        window_v0, window_v1 = 0.28 * storey_h, 0.84 * storey_h
+        v0, v1 = 0.28 * storey_h, 0.84 * storey_h
     half_w = min(0.5 * p[P_WINDOW] * bay, 0.9)
-    inside = abs(cu) < half_w and window_v0 < cv < window_v1
+    inside = abs(cu) < half_w and v0 < cv < v1
     if p[P_FINE] > 0.5 and storey >= 1:
-        # Shutters beside each window and a railing across its lower part: fine, recurring
-        # detail that only close views resolve.
-        if half_w <= abs(cu) < 1.55 * half_w and window_v0 < cv < window_v1:
-            slat = _frac(cv / 0.08) < 0.5
-            s = 1.0 + (0.2 if slat else -0.2) * _detail(0.08, fp)
-            return ar * s, ag * s, ab * s
-        rail_top = window_v0 + 0.35 * storey_h
-        if abs(cu) < 1.1 * half_w and window_v0 - 0.05 < cv < rail_top + 0.05:
-            if abs(cv - rail_top) < 0.05:
-                return _mix(r, g, b, 0.08, 0.08, 0.10, 0.9 * _detail(0.1, fp) + 0.1)
-            if inside:
-                r, g, b = _glass(window_v0, window_v1, cv, window_shade)
-            d = _detail(0.12, fp)
-            bar = _frac(u / 0.12) < 0.3
-            return _mix(r, g, b, 0.08, 0.08, 0.10, (d if bar else 0.0) + (1 - d) * 0.3)
+        drawn, sr, sg, sb = _shutters_and_railing(p, u, cu, cv, half_w, v0, v1, storey_h, inside, r, g, b,
+                                                  shade, fp)
+        if drawn:
+            return sr, sg, sb
     if not inside:
         return r, g, b
-    # Frame around the glass and a cross mullion.
-    edge = min(half_w - abs(cu), min(cv - window_v0, window_v1 - cv))
-    mullion = min(abs(cu), abs(cv - (window_v0 + 0.62 * (window_v1 - window_v0))))
-    gr, gg, gb = _glass(window_v0, window_v1, cv, window_shade)
-    if edge < 0.08 or mullion < 0.035:
-        return _mix(gr, gg, gb, fr, fg, fb, fine + (1 - fine) * 0.25)
-    return _mix(gr, gg, gb, fr, fg, fb, (1 - fine) * 0.25)
+    return _window(p, cu, cv, half_w, v0, v1, shade, fp)
 
 
 @njit(cache=True)
@@ -392,7 +416,7 @@ def _ground(x, y, kinds, noise, half, blocks, fp):
 def shade(ox, oy, oz, dx, dy, dz, t, k, face, footprint_per_m, scene):
     """Colour (rgb in [0, 1]) of the hit (t, k, face) of the unit ray o + t d; the pixel's
     footprint on the surface is t * footprint_per_m (m)."""
-    boxes, params, cell_start, cell_items, cell_top, kinds, noise, meta = scene
+    boxes, params, _, _, _, kinds, noise, meta = scene
     if k == SKY:
         h = math.sqrt(_clamp01(dz))
         return _mix(_HORIZON[0], _HORIZON[1], _HORIZON[2], _ZENITH[0], _ZENITH[1], _ZENITH[2], h)
@@ -510,22 +534,23 @@ def visible_from(px, py, pz, rotation, centre, fx, fy, cx, cy, width, height, sc
     if u < 0.0 or v < 0.0 or u >= width or v >= height:
         return False
     dist = math.sqrt(vx * vx + vy * vy + vz * vz)   # >= zc > 0.05
-    t, k, face = trace_ray(centre[0], centre[1], centre[2], vx / dist, vy / dist, vz / dist, scene)
+    t, _, _ = trace_ray(centre[0], centre[1], centre[2], vx / dist, vy / dist, vz / dist, scene)
     # The ray reaches p's surface unless something nearer stops it; the tolerance absorbs the
     # rounding of two different rays meeting one plane.
     return t >= dist * (1.0 - 1e-6) - 1e-4
 
 
 @njit(parallel=True, cache=True)
-def witness_kernel(points, source, rotations, centres, intrinsics, sizes, wanted, scene, out):
+def witness_kernel(points, source, rotations, centres, intrinsics, sizes, wanted, window, scene, out):
     """out [P] <- how many cameras other than source[p] see points[p] (stopping at ``wanted``),
-    trying cameras nearest in index first (neighbours along a walk see the same things).
-    rotations [C, 3, 3], centres [C, 3], intrinsics [C, 4] (fx, fy, cx, cy), sizes [C, 2]."""
+    trying cameras nearest in index first (neighbours along a walk see the same things) and
+    none further than ``window`` in index. rotations [C, 3, 3], centres [C, 3], intrinsics
+    [C, 4] (fx, fy, cx, cy), sizes [C, 2]."""
     cameras = rotations.shape[0]
     for p in prange(points.shape[0]):
         found = 0
         s = source[p]
-        for step in range(1, 2 * cameras):
+        for step in range(1, 2 * min(cameras, window + 1)):
             offset = (step + 1) // 2 if step % 2 == 1 else -(step // 2)
             j = s + offset
             if j < 0 or j >= cameras:
