@@ -278,10 +278,12 @@ def check_out_dir(out_dir: Path) -> None:
 
 
 def write_scene_folder(out_dir: Path, cameras: list[Camera], photo_fn, points: np.ndarray,
-                       colours: np.ndarray, meta: dict, progress: bool = True, desc: str = "demo scene") -> Path:
+                       colours: np.ndarray, meta: dict, progress: bool = True, desc: str = "demo scene",
+                       jpeg_quality: int = 92) -> Path:
     """images/, sparse/0/*.bin and demo_scene.json, built beside out_dir and renamed into place
     (an interrupted run leaves nothing half-written; a previous demo scene is replaced).
-    photo_fn(camera) -> [H, W, 3] float in [0, 1]."""
+    photo_fn(camera) -> [H, W, 3] float in [0, 1] or uint8, encoded as the camera's file name
+    says (.png, .jpg at ``jpeg_quality``)."""
     check_out_dir(out_dir)
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
@@ -290,9 +292,12 @@ def write_scene_folder(out_dir: Path, cameras: list[Camera], photo_fn, points: n
     try:
         for camera in tqdm(cameras, desc=desc, unit="view", disable=not progress):
             photo = photo_fn(camera)
-            ok, encoded = cv2.imencode(".png", np.round(photo[:, :, ::-1] * 255).astype(np.uint8))
+            pixels = photo if photo.dtype == np.uint8 else np.round(photo * 255).astype(np.uint8)
+            suffix = Path(camera.name).suffix.lower()
+            params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if suffix in (".jpg", ".jpeg") else []
+            ok, encoded = cv2.imencode(suffix, np.ascontiguousarray(pixels[:, :, ::-1]), params)
             if not ok:
-                raise RuntimeError("PNG encoding failed")
+                raise RuntimeError(f"{suffix} encoding failed")
             atomic_write_bytes(staging / "images" / camera.name, encoded.tobytes())
         model = [(c, "PINHOLE", [c.fx, c.fy, c.cx, c.cy]) for c in cameras]
         ensure_dir(staging / "sparse" / "0")
