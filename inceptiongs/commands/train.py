@@ -74,6 +74,10 @@ def check_arguments(args) -> None:
 # What a run gets when neither a flag nor --config gives it, where that differs from TrainConfig's
 # default: held-out views, so that `eval` works on the run.
 COMMAND_LINE_DEFAULTS = {"protocol": "llff"}
+# The settings a flag of `train` sets (each flag's argparse name is the setting's).
+FLAG_SETTINGS = {"iterations": "--iterations", "minutes": "--minutes", "downscale": "--downscale",
+                 "exclude_photos": "--exclude-photos", "protocol": "--protocol", "seed": "--seed",
+                 "device": "--device", "strategy": "--strategy"}
 
 
 def build_config(args) -> "TrainConfig":
@@ -85,20 +89,17 @@ def build_config(args) -> "TrainConfig":
 
     check_arguments(args)
     given = read_settings(args.config) if args.config else {}
-    flags = {"downscale": args.downscale, "protocol": args.protocol, "seed": args.seed,
-             "strategy": args.strategy, "device": args.device,
-             "exclude_photos": None if args.exclude_photos is None else photos_to_exclude(args.exclude_photos)}
-    values = {**COMMAND_LINE_DEFAULTS, **given, **{key: value for key, value in flags.items() if value is not None}}
-    minutes = args.minutes if args.minutes is not None else values.get("minutes")
-    iterations, sized = schedule_length(args.iterations if args.iterations is not None else values.get("iterations"),
-                                        minutes)
+    flags = {path: getattr(args, path) for path in FLAG_SETTINGS if getattr(args, path) is not None}
+    if "exclude_photos" in flags:
+        flags["exclude_photos"] = photos_to_exclude(flags["exclude_photos"])
+    values = {**COMMAND_LINE_DEFAULTS, **given, **flags}
+    iterations, sized = schedule_length(values.get("iterations"), values.get("minutes"))
     milestones = {path: values.pop(path) for path in SCHEDULE_FIELDS if path in values}
     if sized and milestones:
         raise InputError(f"{args.config}: {next(iter(milestones))} is a step of the schedule, which minutes "
                          f"without iterations sizes to the time budget; give iterations too (a fixed schedule) "
                          f"or leave the milestones out")
-    values.update(scene=str(Path(args.scene).resolve()), iterations=iterations, minutes=minutes,
-                  size_to_minutes=sized)
+    values.update(scene=str(Path(args.scene).resolve()), iterations=iterations, size_to_minutes=sized)
     source = f"{args.config} with the command line" if args.config else "command line"
     config = short_run_schedule(with_values(TrainConfig(), values).validate(source))
     return with_values(config, milestones).validate(source)

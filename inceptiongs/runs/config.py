@@ -270,6 +270,8 @@ class TrainConfig(SavedConfig):
     # A run's config.json written before the shell's scale floor was trained with a free shell:
     # without this its shell would be raised at the first step of a bootstrap or a resume.
     LEGACY_VALUES: ClassVar[dict] = {"free_space.sky_min_scale": 0.0}
+    LEGACY_REASONS: ClassVar[dict] = {"free_space.sky_min_scale": "such a run's sky shell trained without "
+                                                                  "the scale floor"}
 
     def __post_init__(self) -> None:
         # A section given as a dict (``TrainConfig(**config.to_json_dict())``) becomes its
