@@ -247,15 +247,6 @@ def setting_paths(cls: type, prefix: str = "") -> list[str]:
     return paths
 
 
-def setting_field(cls: type, path: str) -> tuple[dataclasses.Field, object]:
-    """(the dataclasses.Field, its resolved annotation) of the setting at dotted ``path``."""
-    *sections, name = path.split(".")
-    for part in sections:
-        cls = section_hints(cls)[part]
-    by_name = {f.name: f for f in dataclasses.fields(cls)}
-    return by_name[name], section_hints(cls)[name]
-
-
 def config_value(config, path: str):
     """The value at dotted ``path`` of a config instance."""
     for part in path.split("."):
@@ -316,14 +307,21 @@ def _wanted(kind) -> str:
             type(None): "null"}.get(kind, _type_name(kind))
 
 
+def _shown(value) -> str:
+    """A value as its JSON text (NaN and Infinity too), cut to 60 characters."""
+    try:
+        text = json.dumps(value, allow_nan=True)
+    except TypeError:      # not a JSON value at all (a config built in code)
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def checked_setting(source: str, path: str, kind, value, field: dataclasses.Field):
     """``value`` for the setting at ``path`` when it fits its annotation ``kind`` (an int widened
     to float for a float setting), its range and its choices (the field's metadata); else an
     InputError naming ``source`` and ``path``."""
     if not value_fits(value, kind):
-        shown = json.dumps(value, allow_nan=True)
-        shown = shown if len(shown) <= 60 else shown[:57] + "..."
-        raise InputError(f"{source}: {path} must be {_wanted(kind)}, got {shown}")
+        raise InputError(f"{source}: {path} must be {_wanted(kind)}, got {_shown(value)}")
     if value is None:
         return None
     wants_float = kind is float or (typing.get_origin(kind) in (typing.Union, types.UnionType)
@@ -334,7 +332,7 @@ def checked_setting(source: str, path: str, kind, value, field: dataclasses.Fiel
     if limits is not None and value not in limits:
         raise InputError(f"{source}: {path} must be {limits}"
                          f"{' (' + field.metadata['unit'] + ')' if field.metadata.get('unit', '-') != '-' else ''}"
-                         f", got {value!r}")
+                         f", got {_shown(value)}")
     if choices is not None and value not in choices:
         raise InputError(f"{source}: {path} must be one of {', '.join(map(str, choices))}, got {value!r}")
     return value
@@ -363,7 +361,7 @@ def config_from_dict(cls: type[Config], data: dict, source: str, docs: str = "",
         if is_section(kind):
             if not isinstance(value, dict):
                 raise InputError(f"{source}: {path} must be an object (the {path} section's keys), "
-                                 f"got {json.dumps(value, allow_nan=True)[:60]}")
+                                 f"got {_shown(value)}")
             values[key] = config_from_dict(kind, value, source, docs, aliases, f"{path}.", paths)
         else:
             values[key] = checked_setting(source, path, kind, value, by_name[key])
@@ -379,7 +377,7 @@ def check_settings(config, source: str, prefix: str = "") -> None:
         value, kind, path = getattr(config, f.name), hints[f.name], prefix + f.name
         if is_section(kind):
             if not isinstance(value, kind):
-                raise InputError(f"{source}: {path} must hold the {path} section's settings, got {value!r}"[:200])
+                raise InputError(f"{source}: {path} must hold the {path} section's settings, got {_shown(value)}")
             check_settings(value, source, f"{path}.")
         else:
             checked_setting(source, path, kind, value, f)
