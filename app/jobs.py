@@ -47,7 +47,7 @@ class JobSettings:
     downscale: int = 2
     protocol: str = "unstructured"  # held-out views, so the panel can plot their PSNR
     strategy: str = "default"       # inceptiongs.runs.config.STRATEGY_NAMES
-    sky_shell: bool | None = None   # None: TrainConfig's default (as `inceptiongs train` without the flag)
+    sky_shell: bool | None = None   # None: TrainConfig's default (free_space.sky_shell, as `inceptiongs train`)
     # Photos the next run leaves out (--exclude-photos): the Training panel fills it with the open
     # run's poorly fit photos when the user asks.
     exclude_photos: list[str] = dataclasses.field(default_factory=list)
@@ -65,17 +65,18 @@ class JobSettings:
         """The stage-I config as `inceptiongs train` builds it: a typed length is a fixed schedule
         (--iterations); 0 with a budget starts from the command line's first guess and lets the
         trainer re-size it to the budget (--minutes alone); 0 without one: the default length."""
-        from inceptiongs.runs.config import TrainConfig, schedule_length, short_run_schedule
+        from inceptiongs.io.config_json import with_values
+        from inceptiongs.runs.config import FreeSpace, TrainConfig, schedule_length, short_run_schedule
 
         iterations, sized = schedule_length(self.iterations or None, self.minutes)
-        sky_shell = TrainConfig.sky_shell if self.sky_shell is None else self.sky_shell
+        sky_shell = FreeSpace.sky_shell if self.sky_shell is None else self.sky_shell
         config = TrainConfig(scene=str(Path(scene_root).resolve()), downscale=self.downscale,
                              protocol=self.protocol, iterations=iterations, minutes=self.minutes,
-                             strategy=self.strategy, size_to_minutes=sized, sky_shell=sky_shell,
+                             strategy=self.strategy, size_to_minutes=sized,
                              exclude_photos=list(self.exclude_photos))
-        config = short_run_schedule(config.validate("job settings"))
-        return dataclasses.replace(config, eval_every=VIEWER_EVAL_EVERY,
-                                   log_every=math.gcd(config.log_every, VIEWER_EVAL_EVERY))
+        config = short_run_schedule(with_values(config, {"free_space.sky_shell": sky_shell}).validate("job settings"))
+        return with_values(config, {"output.eval_every": VIEWER_EVAL_EVERY,
+                                    "output.log_every": math.gcd(config.output.log_every, VIEWER_EVAL_EVERY)})
 
     def bootstrap_config(self):
         from inceptiongs.bootstrap.config import BootstrapConfig

@@ -21,7 +21,7 @@ from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
-from inceptiongs.runs.config import STRATEGY_NAMES, TrainConfig, schedule_length
+from inceptiongs.runs.config import STRATEGY_NAMES, FreeSpace, schedule_length
 from inceptiongs.train.view_fit import POOR_FIT_MARGIN_DB
 
 from .settings import EDIT_TOOLS, KEY_BINDINGS, MAX_TRAINING_UTILISATION, PHOTO_VIEWS, RENDER_MODES
@@ -536,7 +536,7 @@ def _job_settings(ui, jobs) -> None:
     changed, index = _combo(ui, "strategy", STRATEGY_NAMES.index(settings.strategy), list(STRATEGY_NAMES))
     if changed:
         settings.strategy = STRATEGY_NAMES[index]
-    sky_on = TrainConfig.sky_shell if settings.sky_shell is None else settings.sky_shell
+    sky_on = FreeSpace.sky_shell if settings.sky_shell is None else settings.sky_shell
     changed, sky_on = imgui.checkbox("sky shell (far backdrop)", sky_on)
     _remember(ui, "sky shell")
     if imgui.is_item_hovered():

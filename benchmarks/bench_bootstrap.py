@@ -156,6 +156,7 @@ def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int,
     from inceptiongs.runs.config import TrainConfig
     from inceptiongs.train.trainer import train
     from inceptiongs.runs.config import short_run_schedule
+    from inceptiongs.io.config_json import with_values
 
     run_dir = out / name / "run"
     if (run_dir / "model.ply").is_file():
@@ -173,9 +174,9 @@ def stage1_run(name: str, out: Path, iterations: int, minutes: float, seed: int,
         if root is None or not (root / name).is_dir():
             raise SystemExit(f"{name}: real data not found (set INCEPTIONGS_DATA or ../shared/data)")
         scene, downscale = root / name, 4
-    config = short_run_schedule(TrainConfig(scene=str(Path(scene).resolve()), downscale=downscale,
-                                            protocol="unstructured", seed=seed, iterations=iterations,
-                                            minutes=minutes, eval_every=max(iterations // 4, 1)))
+    config = short_run_schedule(with_values(
+        TrainConfig(scene=str(Path(scene).resolve()), downscale=downscale, protocol="unstructured", seed=seed,
+                    iterations=iterations, minutes=minutes), {"output.eval_every": max(iterations // 4, 1)}))
     print(f"[{name}] stage I: {iterations} iterations / {minutes:g} min", flush=True)
     train(config, run_dir, progress=False)
     return run_dir

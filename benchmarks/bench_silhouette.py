@@ -3,9 +3,9 @@ disagrees with the render there.
 
     python benchmarks/bench_silhouette.py RUN [--samples 384 | --samples 0] [--dilate 1] [--truth-masks]
 
-RUN must be trained with the sky shell (``--sky-shell``): its checkpoint's sphere splits the
-Gaussians into foreground (inside BACKGROUND_FRACTION of the shell's radius) and background, so
-every render has a foreground alpha. Per held-out group (scarce, covered), pooled over its views:
+RUN must be trained with the sky shell (on by default, ``free_space.sky_shell``): its checkpoint's
+sphere splits the Gaussians into foreground (inside BACKGROUND_FRACTION of the shell's radius) and
+background, so every render has a foreground alpha. Per held-out group (scarce, covered), pooled over its views:
 
 * the share of the squared error (and of the pixels, and the PSNR) within EDGE_BAND px of the
   render's foreground/background edge, inside the foreground, in the background; and, inside the
@@ -289,7 +289,7 @@ def load_shell_run(run: str) -> ShellRun:
     scene, split, payload, gaussians = stage1.scene, stage1.split, stage1.payload, stage1.gaussians
     sphere = None if payload is None else payload.get("sky")
     if sphere is None:
-        raise SystemExit(f"{run}: no sky shell in the checkpoint (train with --sky-shell)")
+        raise SystemExit(f"{run}: no sky shell in the checkpoint (train with the sky shell on: free_space.sky_shell)")
     sphere = sphere.to(torch.float64)
     foreground_sphere = torch.cat([sphere[:3], sphere[3:] * BACKGROUND_FRACTION])
     foreground = gaussians.subset(~in_background(gaussians.means, sphere))

@@ -13,7 +13,6 @@ same checkpoint time the same views: compare them on the same idle machine, one 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import shutil
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import inceptiongs  # noqa: F401  (sets OMP_WAIT_POLICY before torch loads)
 import inceptiongs.train.trainer as trainer_module
 from inceptiongs.errors import InputError
 from inceptiongs.runs.checkpoint import list_checkpoints
+from inceptiongs.io.config_json import with_values
 from inceptiongs.runs.config import TrainConfig
 
 
@@ -46,8 +46,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     start, source = found[-1]
     total = args.warmup + args.steps
-    config = dataclasses.replace(config, iterations=start + total, minutes=None, size_to_minutes=False,
-                                 eval_every=10 ** 9, checkpoint_every=10 ** 9)
+    config = with_values(config, {"iterations": start + total, "minutes": None, "size_to_minutes": False,
+                                  "output.eval_every": 10 ** 9, "output.checkpoint_every": 10 ** 9})
 
     timed: dict[str, float] = {}
     counts: list[int] = []

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import dataclasses
 import io
 import json
 import os
@@ -89,7 +88,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--sky-min-scale", type=float, default=None,
                         help="the shell's axes kept above this fraction of their initial size (default: TrainConfig's)")
     parser.add_argument("--random-background", action="store_true",
-                        help="render each training step over a random colour (TrainConfig.random_background)")
+                        help="render each training step over a random colour (TrainConfig.losses.random_background)")
     parser.add_argument("--sh-spread", type=float, default=None,
                         help="degrees of view spread per SH degree (default: TrainConfig's; 0 = no per-Gaussian limit)")
     parser.add_argument("--prune-large-from", type=int, default=None,
@@ -111,32 +110,31 @@ def _config_for(args: argparse.Namespace, scene: Path, iterations: int, sized: b
                 strategy: str):
     """The TrainConfig one strategy trains with: the CLI's short-run schedule plus the overrides
     given on the command line."""
+    from inceptiongs.io.config_json import with_values
     from inceptiongs.runs.config import TrainConfig, short_run_schedule
 
-    config = short_run_schedule(TrainConfig(
+    config = short_run_schedule(with_values(TrainConfig(
         scene=str(scene.resolve()), protocol=args.protocol, downscale=args.downscale,
         iterations=iterations, minutes=args.minutes, pgsr=not args.no_pgsr, strategy=strategy,
-        size_to_minutes=sized, free_space=args.free_space,
-        sky_shell=args.sky_shell, random_background=args.random_background,
-        exclude_photos=excluded))
-    if args.sh_spread is not None:
-        config = dataclasses.replace(config, sh_spread_deg_per_degree=args.sh_spread)
-    if args.prune_screen_radius is not None:
-        config = dataclasses.replace(config, prune_screen_radius=args.prune_screen_radius)
-    if args.sky_min_scale is not None:
-        config = dataclasses.replace(config, sky_min_scale=args.sky_min_scale)
-    if args.prune_large_from is not None:
-        config = dataclasses.replace(config, prune_large_from=args.prune_large_from)
-    return dataclasses.replace(config, eval_every=args.eval_every, log_every=10,
-                               checkpoint_every=max(args.eval_every, 500))
+        size_to_minutes=sized, exclude_photos=excluded), {
+            "free_space.enabled": args.free_space, "free_space.sky_shell": args.sky_shell,
+            "losses.random_background": args.random_background}))
+    overrides = {"sh.spread_deg_per_degree": args.sh_spread,
+                 "densification.prune_screen_radius": args.prune_screen_radius,
+                 "free_space.sky_min_scale": args.sky_min_scale,
+                 "densification.prune_large_from": args.prune_large_from}
+    config = with_values(config, {path: value for path, value in overrides.items() if value is not None})
+    return with_values(config, {"output.eval_every": args.eval_every, "output.log_every": 10,
+                                "output.checkpoint_every": max(args.eval_every, 500)})
 
 
 def _profile(config, steps: int, out: Path) -> None:
     """Train ``steps`` steps under cProfile and print the 30 most expensive calls (cumulative)."""
     from inceptiongs.train.trainer import train
+    from inceptiongs.io.config_json import with_values
 
-    config = dataclasses.replace(config, iterations=steps, minutes=None,
-                                 size_to_minutes=False, eval_every=10 ** 9, checkpoint_every=10 ** 9)
+    config = with_values(config, {"iterations": steps, "minutes": None, "size_to_minutes": False,
+                                  "output.eval_every": 10 ** 9, "output.checkpoint_every": 10 ** 9})
     shutil.rmtree(out / "profile", ignore_errors=True)
     profiler = cProfile.Profile()
     profiler.enable()

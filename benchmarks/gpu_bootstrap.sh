@@ -40,8 +40,9 @@ if [ "$phase" = all ] || [ "$phase" = stage1 ]; then
     [ "$device" = cpu ] || nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
     [ "$device" = cpu ] || step 240 gsplat_build python3 -c \
         "from gsplat.cuda._backend import _C; assert _C is not None, 'gsplat did not build its CUDA kernels'"
-    step 240 stage1 $inc train "$bonsai" --out "$out/s1" --downscale "$downscale" --strategy mcmc --no-pgsr \
-        --sky-min-scale 0 --protocol unstructured --minutes "$stage1_min" --seed 0 --device "$device"
+    echo '{"pgsr": false, "free_space": {"sky_min_scale": 0}}' >"$out/stage1_settings.json"
+    step 240 stage1 $inc train "$bonsai" --out "$out/s1" --downscale "$downscale" --strategy mcmc \
+        --config "$out/stage1_settings.json" --protocol unstructured --minutes "$stage1_min" --seed 0 --device "$device"
 fi
 [ "$phase" = stage1 ] && exit 0
 [ -f "$out/s1/model.ply" ] || { echo "$out/s1: no stage I here (run the stage1 phase first)"; exit 2; }

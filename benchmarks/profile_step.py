@@ -23,6 +23,7 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 from inceptiongs.rasterizer.interface import resolve_device
+from inceptiongs.io.config_json import with_values
 from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.trainer import train
 
@@ -69,9 +70,10 @@ def main() -> int:
     parser.add_argument("--trace", type=Path, default=None)
     args = parser.parse_args()
     cuda = resolve_device(args.device).torch_device.type == "cuda"   # one that cannot run: one line now
-    config = short_run_schedule(TrainConfig(scene=str(args.scene.resolve()), downscale=args.downscale,
-                                            protocol="unstructured", iterations=args.iterations,
-                                            eval_every=10 ** 9, checkpoint_every=10 ** 9, device=args.device))
+    config = short_run_schedule(with_values(
+        TrainConfig(scene=str(args.scene.resolve()), downscale=args.downscale, protocol="unstructured",
+                    iterations=args.iterations, device=args.device),
+        {"output.eval_every": 10 ** 9, "output.checkpoint_every": 10 ** 9}))
     window = StepWindow(args.warm, args.steps, cuda)
     with tempfile.TemporaryDirectory() as run_dir:
         train(config, run_dir, progress=False, control=window.control, after_step=window, log=lambda _: None)

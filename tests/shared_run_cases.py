@@ -43,5 +43,9 @@ def run_main(argv: list[str]) -> tuple[int, str, str]:
 
 
 def train_one_step(scene: Path, run: Path) -> None:
-    status, _, stderr = run_main(["train", str(scene), "--out", str(run), "--iterations", "1", "--no-sky-shell"])
+    settings = run.parent / f"{run.name}_settings.json"
+    settings.parent.mkdir(parents=True, exist_ok=True)
+    settings.write_text('{"free_space": {"sky_shell": false}}')
+    status, _, stderr = run_main(["train", str(scene), "--out", str(run), "--iterations", "1",
+                                  "--config", str(settings)])
     assert status == 0, stderr

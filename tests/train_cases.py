@@ -3,7 +3,6 @@ its photos rendered from those Gaussians (so a model that equals them is exact).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -11,6 +10,7 @@ import torch
 
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
+from inceptiongs.io.config_json import flat_values, with_values
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.runs.config import TrainConfig
 from inceptiongs.train.free_space import ViewStats, near_bounds
@@ -72,12 +72,20 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return 10 * math.log10(1.0 / max(mse, 1e-12))  # the floor: an exact match reads 120 dB
 
 
+def overridden(config: TrainConfig, **overrides) -> TrainConfig:
+    """``config`` with ``overrides``: top-level settings by name, a section's as a dict of the
+    settings it changes (``free_space={"enabled": False}``; the section's others stay)."""
+    return with_values(config, flat_values(overrides))
+
+
 def config(**overrides) -> TrainConfig:
-    """A stage-I config for these tiny captures: plain 3DGS terms, every rule on a short schedule."""
-    base = TrainConfig(pgsr=False, free_space=True, iterations=40, densify_from=5, densify_every=5, densify_until=30,
-                       prune_large_from=5, opacity_reset_every=10_000, sh_increase_every=5,
-                       max_gaussians=5_000, log_every=10_000)
-    return dataclasses.replace(base, **overrides)
+    """A stage-I config for these tiny captures: plain 3DGS terms, every rule on a short schedule;
+    ``overrides`` as :func:`overridden` takes them."""
+    base = overridden(TrainConfig(pgsr=False, iterations=40),
+                      densification={"densify_from": 5, "densify_every": 5, "densify_until": 30,
+                                     "prune_large_from": 5, "opacity_reset_every": 10_000, "max_gaussians": 5_000},
+                      sh={"increase_every": 5}, output={"log_every": 10_000})
+    return overridden(base, **overrides)
 
 
 def setup(model: Gaussians, cameras: list[Camera], images: dict[int, torch.Tensor], cfg: TrainConfig,
@@ -87,7 +95,7 @@ def setup(model: Gaussians, cameras: list[Camera], images: dict[int, torch.Tenso
     state = state_from_gaussians(model, data, cfg)
     state.iteration = 0
     state.view_stats = ViewStats.zeros(len(model))
-    state.near = torch.tensor(near_bounds(cameras, points, cfg.near_percentile, cfg.near_margin))
+    state.near = torch.tensor(near_bounds(cameras, points, cfg.free_space.near_percentile, cfg.free_space.near_margin))
     return data, state
 
 
@@ -101,7 +109,7 @@ def run_steps(state, data, cfg: TrainConfig, steps: int) -> list[dict]:
 
 def tiny_demo_run(root, **overrides):
     """ROOT/run: a short stage I on the demo scene (written to ROOT/scene) at 48x36 with the
-    unstructured protocol (so j* exists); ``overrides`` replace TrainConfig fields."""
+    unstructured protocol (so j* exists); ``overrides`` as :func:`overridden` takes them."""
     from pathlib import Path
 
     from inceptiongs.scene.demo import write_demo_scene
@@ -109,9 +117,10 @@ def tiny_demo_run(root, **overrides):
 
     root = Path(root)
     scene = write_demo_scene(root / "scene", progress=False)
-    base = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20,
-                       densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
-                       sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
-                       eval_every=20, checkpoint_every=20)
-    train(dataclasses.replace(base, **overrides), root / "run", progress=False)
+    base = overridden(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20),
+                      densification={"densify_from": 10, "densify_every": 10, "densify_until": 15,
+                                     "opacity_reset_every": 1000},
+                      sh={"increase_every": 10}, pgsr_terms={"normal_from": 10, "multiview_from": 1000},
+                      output={"log_every": 10, "eval_every": 20, "checkpoint_every": 20})
+    train(overridden(base, **overrides), root / "run", progress=False)
     return root / "run"

@@ -198,7 +198,7 @@ class Bootstrap:
         boot_dir, start, train_config = (prepare_folder(run, out_dir, config, targets, log) if resume is None
                                          else resume_folder(run, out_dir, config))
         data = prepare_data(run.scene, run.split, train_config, log)
-        sh_max = supported_sh_degree(len(data.train), train_config.sh_degree_max)
+        sh_max = supported_sh_degree(len(data.train), train_config.sh.degree_max)
         if resume is not None:
             state = restore_state(resume, data, train_config)
             truncate_metrics(out_dir, state.iteration)   # the steps after it run (and are logged) again
@@ -544,7 +544,7 @@ class Bootstrap:
         body = state.payload(self.train_config)
         body["bootstrap"] = {"round": round_number, "config": self.config.to_json_dict(),
                              "pose": None if self.sampler.pose is None else self.sampler.pose.tolist()}
-        save_checkpoint(self.out_dir, state.iteration, body, self.train_config.keep_checkpoints)
+        save_checkpoint(self.out_dir, state.iteration, body, self.train_config.output.keep_checkpoints)
 
     # --- finish ------------------------------------------------------------------------------------
     def finish(self) -> BootstrapResult:

@@ -57,15 +57,17 @@ def continuation_config(stage1: TrainConfig, start: int, steps: int, densify: bo
     """
     steps = max(int(steps), 1)
     config = dataclasses.replace(stage1, iterations=max(stage1.iterations, start), minutes=None,
-                                 opacity_reset_every=NO_RESET)
+                                 densification=dataclasses.replace(stage1.densification,
+                                                                   opacity_reset_every=NO_RESET))
     if densify:
-        every = max(1, min(stage1.densify_every, steps // 6))
-        config = dataclasses.replace(
-            config, densify_every=every,
+        every = max(1, min(stage1.densification.densify_every, steps // 6))
+        config = dataclasses.replace(config, densification=dataclasses.replace(
+            config.densification, densify_every=every,
             densify_from=start + max(1, int(steps * DENSIFY_START_FRACTION)),
-            densify_until=start + max(2, int(steps * DENSIFY_END_FRACTION)))
+            densify_until=start + max(2, int(steps * DENSIFY_END_FRACTION))))
     else:
-        config = dataclasses.replace(config, densify_until=min(config.densify_until, start))
+        config = dataclasses.replace(config, densification=dataclasses.replace(
+            config.densification, densify_until=min(config.densification.densify_until, start)))
     return config
 
 
@@ -198,8 +200,8 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
         if view.evidence is not None:   # regions without positive evidence get no virtual gradient
             weights = view.evidence if weights is None else weights * view.evidence
             share = max(float(view.evidence.mean()), MIN_WEIGHTED_SHARE)
-        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.lambda_dssim, lpips, weights,
-                                         share)
+        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.losses.lambda_dssim, lpips,
+                                         weights, share)
         total = config.lambda_virtual * choice.weight * scale * loss
     else:
         # No colour target: the rgb output still enters the graph (at zero weight) so the
@@ -225,7 +227,7 @@ def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int,
     total, out, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, rasterizer, lpips,
                                       scale)
     if train_config.pgsr:
-        total = total + train_config.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
+        total = total + train_config.pgsr_terms.lambda_flatten * losses.flatten_loss(state.params["log_scales"])
     record.update(kind="virtual", loss=float(total.detach()))
     record.update(optimizer_step(step, total, out, view.camera, state, data, train_config))
     return record

@@ -328,6 +328,7 @@ def _stage1(args, out: Path, progress: Progress, timings: dict):
     """OUT/scene and OUT/run: the courtyard and stage I on it -> (TrainResult, Stage1)."""
     from ..bootstrap.stage1 import load_stage1
     from ..scene.courtyard import write_courtyard_scene
+    from ..io.config_json import with_values
     from ..runs.config import TrainConfig, short_run_schedule
     from ..train.trainer import train
 
@@ -340,11 +341,10 @@ def _stage1(args, out: Path, progress: Progress, timings: dict):
     progress.stage(f"stage I: {args.iterations} iterations or {args.minutes:g} min")
     began = time.perf_counter()
     run_dir = out / "run"
-    config = short_run_schedule(TrainConfig(scene=str(scene_dir.resolve()), protocol="unstructured",
-                                            scarce_views=list(meta["scarce_cameras"]), seed=args.seed,
-                                            downscale=args.downscale, iterations=args.iterations,
-                                            minutes=args.minutes, eval_every=DEMO_EVAL_EVERY,
-                                            device=args.device))
+    config = short_run_schedule(with_values(TrainConfig(
+        scene=str(scene_dir.resolve()), protocol="unstructured", scarce_views=list(meta["scarce_cameras"]),
+        seed=args.seed, downscale=args.downscale, iterations=args.iterations, minutes=args.minutes,
+        device=args.device), {"output.eval_every": DEMO_EVAL_EVERY}))
     result = train(config, run_dir)
     timings["stage I"] = time.perf_counter() - began
     return result, load_stage1(run_dir)

@@ -9,81 +9,100 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ..io.config_json import check_seed
+from ..io.config_json import check_seed, with_values
 from ..io.paths import contained_path, read_small_text
 from .device import add_device_argument, command_device
 
-from ..runs.config import TrainConfig
+from ..runs.config import PROTOCOLS, TrainConfig
 from ..train.strategies import STRATEGIES
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
+# Trainer steps per prior step of `train --prior` without a number.
+DEFAULT_PRIOR_EVERY = 10
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("scene", help="scene folder (COLMAP, transforms.json or LLFF)")
     parser.add_argument("--out", help="run folder (default: ./runs/SCENE_NAME in the current folder; "
                                       "never inside the scene folder)")
+    parser.add_argument("--config", metavar="FILE.json",
+                        help="settings of the new run: a JSON object of any of the keys in docs/train_options.md "
+                             "(plain 3DGS, the free-space rules, the sky shell and its scale floor, learning "
+                             "rates, densification, the strategies' options, ...), sections nested, e.g. "
+                             "'{\"pgsr\": false, \"free_space\": {\"sky_min_scale\": 0}}'; the flags given "
+                             "override it (RUN/config.json records the result)")
     budget = parser.add_mutually_exclusive_group()
     budget.add_argument("--minutes", type=float, help="train for this much time: the schedule (learning-rate "
                         "decay, densification, pruning) is sized to it from the measured step rate")
     budget.add_argument("--iterations", type=int, help="number of steps (default 30000)")
-    parser.add_argument("--downscale", type=int, default=1, help="image downscale factor")
-    parser.add_argument("--protocol", choices=("llff", "unstructured", "none"), default="llff",
+    parser.add_argument("--downscale", type=int, help="image downscale factor (default 1)")
+    parser.add_argument("--protocol", choices=PROTOCOLS,
                         help="which views are held out for evaluation (default llff: every 8th view, "
                              "so `eval` works on the run; none: train on all)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, help="seed of the split, the initial points and every random draw "
+                                                 "(default 0)")
     add_device_argument(parser, reads_run=True, default_help="auto; with --resume the run's device")
     parser.add_argument("--resume", action="store_true",
-                        help="continue the run in --out from its newest checkpoint")
-    parser.add_argument("--no-pgsr", action="store_true", help="plain 3DGS: no planar terms")
-    parser.add_argument("--strategy", choices=list(STRATEGIES), default="default",
-                        help="default: 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed budget); "
-                             "dropgaussian: random drops with opacity compensation")
-    parser.add_argument("--free-space", action=argparse.BooleanOptionalAction, default=True,
-                        help="remove Gaussians at and around the training cameras, before their near bounds "
-                             "(from the sparse points) and those every view looks through (default: on; "
-                             "--no-free-space turns the rules off)")
-    parser.add_argument("--sky-shell", action=argparse.BooleanOptionalAction, default=TrainConfig.sky_shell,
-                        help="a shell of far Gaussians where the photos see past every sparse point: a place "
-                             "for the sky and far backdrops (default: on; --no-sky-shell leaves it out; "
-                             "docs/training.md)")
+                        help="continue the run in --out from its newest checkpoint (with its RUN/config.json)")
+    parser.add_argument("--strategy", choices=list(STRATEGIES),
+                        help="default (the default): 3DGS densification; mcmc: 3DGS-MCMC (relocation, fixed "
+                             "budget); dropgaussian: random drops with opacity compensation")
     parser.add_argument("--exclude-photos", default=None, metavar="NAMES|FILE|RUN",
                         help="leave these photos out (neither trained on nor held out): comma-separated image "
                              "names, a text file of names (one per line), or a finished run folder whose "
                              "view_fit.json names the photos it fitted poorly (moved objects, wrong poses)")
-    parser.add_argument("--sky-min-scale", type=float, default=TrainConfig.sky_min_scale,
-                        help="the shell's Gaussians keep every axis above this fraction of their initial size, "
-                             "so the sky stays closed (default: %(default)s; 0 leaves them free)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
-    prior.add_argument("--prior", action="store_true",
-                       help="also train the diffusion prior: one prior step every --prior-every steps "
-                            "(checkpointed with the run in RUN/prior/)")
-    prior.add_argument("--prior-every", type=int, default=10, help="trainer steps per prior step (default 10)")
+    prior.add_argument("--prior", nargs="?", type=int, const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",
+                       help=f"also train the diffusion prior: one prior step every EVERY trainer steps (default "
+                            f"{DEFAULT_PRIOR_EVERY}), checkpointed with the run in RUN/prior/")
     add_backend_arguments(prior, prefix="prior-")
 
 
 def check_arguments(args) -> None:
     """One line (InputError) for values no run can use, before anything is read or written."""
-    check_seed(args.seed, "--seed")
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
     if args.minutes is not None and not 0.0 < args.minutes < math.inf:
         raise InputError(f"--minutes: must be a finite number of minutes > 0, got {args.minutes}")
     if args.iterations is not None and args.iterations < 1:
         raise InputError(f"--iterations: must be >= 1, got {args.iterations}")
+    if args.downscale is not None and args.downscale < 1:
+        raise InputError(f"--downscale: must be >= 1, got {args.downscale}")
+
+
+# What a run gets when neither a flag nor --config gives it, where that differs from TrainConfig's
+# default: held-out views, so that `eval` works on the run.
+COMMAND_LINE_DEFAULTS = {"protocol": "llff"}
+# The settings a flag of `train` sets (each flag's argparse name is the setting's).
+FLAG_SETTINGS = {"iterations": "--iterations", "minutes": "--minutes", "downscale": "--downscale",
+                 "exclude_photos": "--exclude-photos", "protocol": "--protocol", "seed": "--seed",
+                 "device": "--device", "strategy": "--strategy"}
 
 
 def build_config(args) -> "TrainConfig":
-    from ..runs.config import TrainConfig, schedule_length, short_run_schedule
+    """The config of a new run: TrainConfig's defaults, then the --config file's settings, then
+    the flags given. The schedule is sized to the time budget when minutes is given without
+    iterations; the milestones (SCHEDULE_FIELDS) the file does not give are the default schedule
+    scaled to the run's length (short_run_schedule), those it gives are kept as they are."""
+    from ..runs.config import SCHEDULE_FIELDS, read_settings, schedule_length, short_run_schedule
 
     check_arguments(args)
-    iterations, sized = schedule_length(args.iterations, args.minutes)
-    config = TrainConfig(scene=str(Path(args.scene).resolve()), downscale=args.downscale,
-                         protocol=args.protocol, seed=args.seed, iterations=iterations,
-                         minutes=args.minutes, pgsr=not args.no_pgsr, strategy=args.strategy,
-                         size_to_minutes=sized, free_space=args.free_space,
-                         sky_shell=args.sky_shell, sky_min_scale=args.sky_min_scale,
-                         exclude_photos=photos_to_exclude(args.exclude_photos), device=args.device or "auto")
-    return short_run_schedule(config.validate("command line"))
+    given = read_settings(args.config) if args.config else {}
+    flags = {path: getattr(args, path) for path in FLAG_SETTINGS if getattr(args, path) is not None}
+    if "exclude_photos" in flags:
+        flags["exclude_photos"] = photos_to_exclude(flags["exclude_photos"])
+    values = {**COMMAND_LINE_DEFAULTS, **given, **flags}
+    iterations, sized = schedule_length(values.get("iterations"), values.get("minutes"))
+    milestones = {path: values.pop(path) for path in SCHEDULE_FIELDS if path in values}
+    if sized and milestones:
+        raise InputError(f"{args.config}: {next(iter(milestones))} is a step of the schedule, which minutes "
+                         f"without iterations sizes to the time budget; give iterations too (a fixed schedule) "
+                         f"or leave the milestones out")
+    values.update(scene=str(Path(args.scene).resolve()), iterations=iterations, size_to_minutes=sized)
+    source = f"{args.config} with the command line" if args.config else "command line"
+    config = short_run_schedule(with_values(TrainConfig(), values).validate(source))
+    return with_values(config, milestones).validate(source)
 
 
 def resumed_config(run_dir: Path, minutes: float | None = None, iterations: int | None = None,
@@ -141,9 +160,12 @@ def run(args) -> int:
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
     out = Path(args.out) if args.out else default_run_dir(scene)
-    config = build_config(args)
     stored = out / "config.json"
     resuming = args.resume and stored.is_file()
+    if resuming and args.config:
+        raise InputError(f"--config: a resume keeps the settings in {stored} (train a new run with another "
+                         f"--out to change them)")
+    config = build_config(args)
     if resuming:
         config = resumed_config(out, args.minutes, args.iterations)
         if args.device is not None:   # checkpoints hold CPU tensors: a run resumes on any device
@@ -153,7 +175,7 @@ def run(args) -> int:
     # A device that cannot run here: one line before anything starts. The trainer resolves
     # config.device by the same rule (and prints what auto chose once its start has succeeded).
     device = command_device(args.device, out if resuming else None)
-    joint = joint_prior(args, out, config, device.torch_device) if args.prior else None
+    joint = joint_prior(args, out, config, device.torch_device) if args.prior is not None else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
         result = train(config, out, resume=args.resume, after_step=joint, control=control)
@@ -178,11 +200,11 @@ def joint_prior(args, out: Path, config, device):
     from ..scene.loader import load_scene
     from .prior import new_prior
 
-    if args.prior_every < 1:
-        raise InputError(f"--prior-every: must be >= 1, got {args.prior_every}")
+    if args.prior < 1:
+        raise InputError(f"--prior: must be >= 1 trainer steps per prior step, got {args.prior}")
     if (args.prior_backend or "tiny") == "sd" and not args.sd_path:
         raise InputError("--prior-backend sd needs --sd-path DIR (a local Stable Diffusion diffusers folder)")
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
     return JointPrior(out, scene, lambda gaussians: new_prior(args.prior_backend, args.sd_path, gaussians.to(device),
                                                               device, out, seed=config.seed),
-                      every=args.prior_every, restart=not args.resume, device=device)
+                      every=args.prior, restart=not args.resume, device=device)

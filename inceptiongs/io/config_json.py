@@ -4,12 +4,14 @@ back strictly (unknown keys are an error, not silently dropped)."""
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import json
 import math
 import numbers
 import types
 import typing
 from pathlib import Path
+from dataclasses import dataclass
 from typing import ClassVar, TypeVar
 
 import numpy as np
@@ -156,3 +158,226 @@ def json_safe(value):
     if isinstance(value, list):
         return [json_safe(v) for v in value]
     return value
+
+
+# --- documented, nested configs -------------------------------------------------------------------
+# A config made of sections (nested dataclasses) whose every setting carries its meaning, unit,
+# range and choices in its field metadata: the strict reader below checks a JSON object against
+# them, and an options page is generated from the same metadata (scripts/gen_train_options.py).
+
+
+@dataclass(frozen=True)
+class Range:
+    """The numbers a setting may take: ``low`` .. ``high`` (None: unbounded), each end closed
+    unless ``*_open``. ``value in Range(...)``; NaN is in no range."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+
+    def __contains__(self, value) -> bool:
+        if self.low is not None and not (value > self.low if self.low_open else value >= self.low):
+            return False
+        if self.high is not None and not (value < self.high if self.high_open else value <= self.high):
+            return False
+        return True
+
+    def __str__(self) -> str:
+        if self.high is None:
+            return f"{'>' if self.low_open else '>='} {_number(self.low)}"
+        if self.low is None:
+            return f"{'<' if self.high_open else '<='} {_number(self.high)}"
+        return (f"in {'(' if self.low_open else '['}{_number(self.low)}, {_number(self.high)}"
+                f"{')' if self.high_open else ']'}")
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+def at_least(low: float) -> Range:
+    return Range(low=low)
+
+
+def above(low: float) -> Range:
+    return Range(low=low, low_open=True)
+
+
+def within(low: float, high: float, brackets: str = "[]") -> Range:
+    """``brackets``: "[]", "[)", "(]" or "()", as in interval notation."""
+    return Range(low, high, brackets[0] == "(", brackets[1] == ")")
+
+
+def setting(default, meaning: str, unit: str = "-", range: Range | None = None,
+            choices: tuple | None = None):
+    """A config field with its documentation and limits: what it means, its unit ("-": none),
+    the range a number must lie in and the values a string may take (None: any). A list
+    default is copied for every instance."""
+    metadata = {"meaning": meaning, "unit": unit, "range": range, "choices": choices}
+    if isinstance(default, list):
+        return dataclasses.field(default_factory=lambda: list(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def section(cls: type, meaning: str):
+    """A config field holding a section: the dataclass ``cls`` of settings, its defaults by default."""
+    return dataclasses.field(default_factory=cls, metadata={"meaning": meaning})
+
+
+def is_section(kind) -> bool:
+    """Whether the (resolved) annotation ``kind`` is a section: a dataclass type."""
+    return isinstance(kind, type) and dataclasses.is_dataclass(kind)
+
+
+def section_hints(cls: type) -> dict:
+    """Field name -> resolved annotation of the dataclass ``cls``."""
+    return typing.get_type_hints(cls)
+
+
+def setting_paths(cls: type, prefix: str = "") -> list[str]:
+    """Every setting of the config class ``cls`` as a dotted path ("losses.lambda_dssim"), in
+    declaration order, sections' settings in place of the section."""
+    hints, paths = section_hints(cls), []
+    for f in dataclasses.fields(cls):
+        if is_section(hints[f.name]):
+            paths += setting_paths(hints[f.name], f"{prefix}{f.name}.")
+        else:
+            paths.append(prefix + f.name)
+    return paths
+
+
+def config_value(config, path: str):
+    """The value at dotted ``path`` of a config instance."""
+    for part in path.split("."):
+        config = getattr(config, part)
+    return config
+
+
+def with_values(config, values: dict):
+    """A copy of the config instance ``config`` with ``values`` ({dotted path: value}) set,
+    sections copied (dataclasses.replace) along each path; the others are shared."""
+    by_section: dict[str, dict] = {}
+    direct = {}
+    for path, value in values.items():
+        head, _, rest = path.partition(".")
+        if rest:
+            by_section.setdefault(head, {})[rest] = value
+        else:
+            direct[head] = value
+    for head, inner in by_section.items():
+        direct[head] = with_values(getattr(config, head), inner)
+    return dataclasses.replace(config, **direct)
+
+
+def flat_values(data: dict, prefix: str = "") -> dict:
+    """A nested JSON object -> {dotted path: value} of its leaves (non-object values)."""
+    out = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(flat_values(value, f"{prefix}{key}."))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def key_hint(key: str, paths: list[str], aliases: dict[str, str] | None = None) -> str:
+    """' (did you mean ...?)' for an unknown dotted ``key`` among ``paths``: the path an alias
+    (an older spelling) stands for, the setting of the same name in another section, else the
+    closest path; '' when nothing is close."""
+    leaf = key.rsplit(".", 1)[-1]
+    leaves = {path: path.rsplit(".", 1)[-1] for path in paths}
+    close_leaves = difflib.get_close_matches(leaf, list(set(leaves.values())), n=1)
+    close = ([aliases[key]] if aliases and key in aliases else []) \
+        or [path for path, name in leaves.items() if name == leaf] \
+        or difflib.get_close_matches(key, paths, n=1) \
+        or [path for path, name in leaves.items() if name in close_leaves]
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _wanted(kind) -> str:
+    """The JSON type an annotation asks for, in words."""
+    origin = typing.get_origin(kind)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_wanted(option) for option in typing.get_args(kind))
+    if origin in (list, tuple):
+        (item, *_) = typing.get_args(kind) or (None,)
+        return "a list" + (f" of {_wanted(item).removeprefix('a ').removeprefix('an ')}s" if item else "")
+    return {int: "an integer", float: "a finite number", str: "a string", bool: "true or false",
+            type(None): "null"}.get(kind, _type_name(kind))
+
+
+def _shown(value) -> str:
+    """A value as its JSON text (NaN and Infinity too), cut to 60 characters."""
+    try:
+        text = json.dumps(value, allow_nan=True)
+    except TypeError:      # not a JSON value at all (a config built in code)
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def checked_setting(source: str, path: str, kind, value, field: dataclasses.Field):
+    """``value`` for the setting at ``path`` when it fits its annotation ``kind`` (an int widened
+    to float for a float setting), its range and its choices (the field's metadata); else an
+    InputError naming ``source`` and ``path``."""
+    if not value_fits(value, kind):
+        raise InputError(f"{source}: {path} must be {_wanted(kind)}, got {_shown(value)}")
+    if value is None:
+        return None
+    wants_float = kind is float or (typing.get_origin(kind) in (typing.Union, types.UnionType)
+                                    and float in typing.get_args(kind) and int not in typing.get_args(kind))
+    if wants_float and not isinstance(value, bool):
+        value = float(value)
+    limits, choices = field.metadata.get("range"), field.metadata.get("choices")
+    if limits is not None and value not in limits:
+        raise InputError(f"{source}: {path} must be {limits}"
+                         f"{' (' + field.metadata['unit'] + ')' if field.metadata.get('unit', '-') != '-' else ''}"
+                         f", got {_shown(value)}")
+    if choices is not None and value not in choices:
+        raise InputError(f"{source}: {path} must be one of {', '.join(map(str, choices))}, got {value!r}")
+    return value
+
+
+def config_from_dict(cls: type[Config], data: dict, source: str, docs: str = "",
+                     aliases: dict[str, str] | None = None, prefix: str = "",
+                     paths: list[str] | None = None) -> Config:
+    """An instance of the config class ``cls`` (settings and sections) from the JSON object
+    ``data``: any subset of its keys (the others keep their defaults), a section as an object of
+    its own keys. Strict: an unknown key (with the nearest known one, or the path an alias in
+    ``aliases`` stands for), a value of the wrong type, a non-finite number, a number out of its
+    range or a string not among its choices is an InputError, one line naming ``source`` and the
+    key (``docs``: the page listing the keys). Rules between settings are the caller's (the
+    config's ``validate``)."""
+    paths = setting_paths(cls) if paths is None else paths
+    hints = section_hints(cls)
+    by_name = {f.name: f for f in dataclasses.fields(cls)}
+    values = {}
+    for key, value in data.items():
+        path = prefix + str(key)
+        if key not in by_name:
+            listed = f"; {docs} lists the keys" if docs else ""
+            raise InputError(f"{source}: unknown key {path!r}{key_hint(path, paths, aliases)}{listed}")
+        kind = hints[key]
+        if is_section(kind):
+            if not isinstance(value, dict):
+                raise InputError(f"{source}: {path} must be an object (the {path} section's keys), "
+                                 f"got {_shown(value)}")
+            values[key] = config_from_dict(kind, value, source, docs, aliases, f"{path}.", paths)
+        else:
+            values[key] = checked_setting(source, path, kind, value, by_name[key])
+    return cls(**values)
+
+
+def check_settings(config, source: str, prefix: str = "") -> None:
+    """The checks of :func:`config_from_dict` on a config instance (one built in code or from
+    the command line): InputError '<source>: <path> must be ...' for the first setting that does
+    not fit its type, range or choices."""
+    hints = section_hints(type(config))
+    for f in dataclasses.fields(config):
+        value, kind, path = getattr(config, f.name), hints[f.name], prefix + f.name
+        if is_section(kind):
+            if not isinstance(value, kind):
+                raise InputError(f"{source}: {path} must hold the {path} section's settings, got {_shown(value)}")
+            check_settings(value, source, f"{path}.")
+        else:
+            checked_setting(source, path, kind, value, f)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from ..camera import unit_quat_to_rotation
-from ..runs.config import TrainConfig
+from ..runs.config import Densification
 from .free_space import nearest_camera_distance
 from .optim import replace_rows, reset_moments
 
@@ -62,13 +62,13 @@ def _rotation_matrices(quats: torch.Tensor) -> torch.Tensor:
 
 
 def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, stats: DensifyStats,
-                      config: TrainConfig, extent: float, prune_large: bool,
+                      densification: Densification, extent: float, prune_large: bool,
                       generator: torch.Generator, grow: bool = True,
                       carried: dict[str, torch.Tensor] | None = None,
                       background: torch.Tensor | None = None,
                       camera_centers: torch.Tensor | None = None) -> dict[str, int]:
     """Clone / split where the mean gradient exceeds the threshold (only with ``grow``), then
-    prune. In place on ``params`` and the optimizer; every tensor in ``carried`` (per-row
+    prune, by the ``densification`` settings. In place on ``params`` and the optimizer; every tensor in ``carried`` (per-row
     statistics, [N, ...]) is re-selected the same way (a clone or split child copies its
     source's row). ``background`` ([N] bool) marks Gaussians the size rules leave alone (the sky
     shell's: large by design); ``camera_centers`` [C, 3] let far Gaussians be as large as their
@@ -76,12 +76,12 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
     with torch.no_grad():
         mean_grad = stats.grad_sum / stats.count.clamp_min(1.0)  # never-seen Gaussians: 0
         n = params["means"].shape[0]
-        room = max(config.max_gaussians - n, 0)
-        hot = mean_grad >= config.densify_grad_threshold
+        room = max(densification.max_gaussians - n, 0)
+        hot = mean_grad >= densification.densify_grad_threshold
         if not grow:
             hot = torch.zeros_like(hot)
         max_scale = params["log_scales"].exp().amax(1)
-        small = max_scale <= config.percent_dense * extent
+        small = max_scale <= densification.percent_dense * extent
         clone = hot & small
         split = hot & ~small
         # Respect the Gaussian budget: keep the hottest candidates when over it.
@@ -115,7 +115,7 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
                            + [split_rows] * _SPLIT_CHILDREN)
 
         opacity = torch.sigmoid(params["opacity_logits"])
-        prune = opacity < config.prune_opacity
+        prune = opacity < densification.prune_opacity
         if prune_large:
             # New rows have not been rendered yet: no screen size (as in 3DGS). Past the growth
             # window only the world-size rule: what the screen rule removes (a large background
@@ -124,7 +124,7 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
                                                                    device=source.device)])
             exempt = (torch.zeros(len(source), dtype=torch.bool, device=source.device) if background is None
                       else background[source])
-            prune |= oversized(params, radii if grow else None, config, extent, camera_centers) & ~exempt
+            prune |= oversized(params, radii if grow else None, densification, extent, camera_centers) & ~exempt
         # Never remove every Gaussian: an empty model cannot recover.
         if bool(prune.all()):
             prune[torch.argmax(opacity)] = False
@@ -135,7 +135,7 @@ def densify_and_prune(params: dict[str, torch.Tensor], optimizer: torch.optim.Ad
     return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(prune.sum())}
 
 
-def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, config: TrainConfig,
+def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, densification: Densification,
               extent: float, camera_centers: torch.Tensor | None = None) -> torch.Tensor:
     """[N] bool, 3DGS's size rules: a footprint radius above ``prune_screen_radius`` pixels in some
     view since the last densification (max_radii [N]; None or a radius of 0, the default, skips
@@ -148,10 +148,10 @@ def oversized(params: dict[str, torch.Tensor], max_radii: torch.Tensor | None, c
     reach = torch.full_like(scale, extent)
     if camera_centers is not None and camera_centers.shape[0] > 0:
         reach = torch.maximum(reach, nearest_camera_distance(params["means"].detach(), camera_centers))
-    too_big = scale > config.prune_world_fraction * reach
-    if max_radii is None or config.prune_screen_radius <= 0:   # the screen rule is off
+    too_big = scale > densification.prune_world_fraction * reach
+    if max_radii is None or densification.prune_screen_radius <= 0:   # the screen rule is off
         return too_big
-    return too_big | (max_radii > config.prune_screen_radius)
+    return too_big | (max_radii > densification.prune_screen_radius)
 
 
 def remove_rows(params: dict[str, torch.Tensor], optimizer: torch.optim.Adam, remove: torch.Tensor,

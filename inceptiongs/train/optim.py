@@ -29,13 +29,14 @@ def params_from_gaussians(gaussians: Gaussians) -> dict[str, torch.Tensor]:
 
 
 def base_learning_rates(config: TrainConfig, extent: float) -> dict[str, float]:
+    rates = config.learning_rates
     return {
-        "means": config.lr_means * extent,
-        "log_scales": config.lr_log_scales,
-        "quats": config.lr_quats,
-        "opacity_logits": config.lr_opacity,
-        "sh_dc": config.lr_sh_dc,
-        "sh_rest": config.lr_sh_rest,
+        "means": rates.means * extent,
+        "log_scales": rates.log_scales,
+        "quats": rates.quats,
+        "opacity_logits": rates.opacity,
+        "sh_dc": rates.sh_dc,
+        "sh_rest": rates.sh_rest,
     }
 
 
@@ -51,12 +52,13 @@ def make_optimizer(params: dict[str, torch.Tensor], config: TrainConfig, extent:
 
 
 def position_learning_rate(step: int, config: TrainConfig, extent: float) -> float:
-    """Log-linear decay from lr_means to lr_means_final over the run, times the extent.
+    """Log-linear decay from learning_rates.means to .means_final over the schedule, times the extent.
 
-    Both rates are positive (validated), so the logs are defined.
+    Both rates are positive (their range), so the logs are defined.
     """
     t = min(max(step / max(config.iterations, 1), 0.0), 1.0)
-    log_lr = (1 - t) * math.log(config.lr_means) + t * math.log(config.lr_means_final)
+    rates = config.learning_rates
+    log_lr = (1 - t) * math.log(rates.means) + t * math.log(rates.means_final)
     return math.exp(log_lr) * extent
 
 

@@ -43,7 +43,7 @@ def supported_sh_degree(num_train_views: int, cap: int) -> int:
 
 
 def sh_degree_at(step: int, config: TrainConfig, max_degree: int) -> int:
-    return min(max_degree, (step - 1) // config.sh_increase_every)
+    return min(max_degree, (step - 1) // config.sh.increase_every)
 
 
 @dataclass
@@ -79,11 +79,11 @@ def prepare_data(scene, split, config: TrainConfig, log: Callable[[str], None]) 
     intrinsics = {i: torch.tensor(cameras[i].intrinsics, dtype=torch.float32) for i in used}
     neighbours = {}
     if config.pgsr:
-        neighbours = neighbour_views(cameras, list(split.train), config.neighbours_max,
-                                     config.neighbours_max_angle_deg)
+        neighbours = neighbour_views(cameras, list(split.train), config.pgsr_terms.neighbours_max,
+                                     config.pgsr_terms.neighbours_max_angle_deg)
         with_nb = sum(1 for v in neighbours.values() if v)
         log(f"multi-view terms: {with_nb}/{len(split.train)} training views have neighbours "
-            f"within {config.neighbours_max_angle_deg:g} degrees")
+            f"within {config.pgsr_terms.neighbours_max_angle_deg:g} degrees")
     return TrainData(cameras, list(split.train), images, grey, edges, intrinsics, neighbours,
                  scene_extent([cameras[i] for i in split.train]))
 
@@ -180,14 +180,15 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
         gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
     log(message)
     sky = None
-    if config.sky_shell:
+    free_space = config.free_space
+    if free_space.sky_shell:
         gaussians, sky = with_sky_shell(gaussians, cameras, [data.images[i].numpy() for i in data.train], points, log)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)
-    near = torch.tensor(near_bounds(cameras, points, config.near_percentile, config.near_margin))
-    if config.free_space:
-        log(f"free space: near bounds = {config.near_margin:g} x percentile {config.near_percentile:g} of the "
+    near = torch.tensor(near_bounds(cameras, points, free_space.near_percentile, free_space.near_margin))
+    if free_space.enabled:
+        log(f"free space: near bounds = {free_space.near_margin:g} x percentile {free_space.near_percentile:g} of the "
             f"sparse points' depths per camera: median {float(near.median()):.3g}, range {float(near.min()):.3g}.."
             f"{float(near.max()):.3g} (scene units)")
     return TrainState(params, optimizer, DensifyStats.zeros(len(gaussians)), 0, 0.0, 0.0,
@@ -253,7 +254,8 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
         return {}
     nb = neighbours[int(state.view_rng.integers(len(neighbours)))]
     ref_cam, nb_cam = data.cameras[view], data.cameras[nb]
-    small = nb_cam.scaled(1.0 / config.multiview_scale)
+    planar = config.pgsr_terms
+    small = nb_cam.scaled(1.0 / planar.multiview_scale)
     with torch.no_grad():
         # The neighbour's depth is a fixed target: its gradient would double the backward cost.
         nb_depth = rasterizer(gaussians.detach(), small, outputs=("plane_depth",), sh_degree=sh_degree)["plane_depth"]
@@ -263,15 +265,15 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     k_small = torch.tensor(small.intrinsics, dtype=torch.float32, device=device)
     error, valid = losses.reprojection_error(out["plane_depth"], k_ref, nb_depth, k_small, ref_to_nb)
     terms = {}
-    geo = losses.geometric_consistency_loss(error, valid, config.multiview_pixel_noise_max)
+    geo = losses.geometric_consistency_loss(error, valid, planar.multiview_pixel_noise_max)
     if geo is None:
         log_once(state, "geo-empty", "geometric consistency skipped on a step: no pixel reprojects "
                   "consistently yet (logged once)", log)
         return terms
     terms["geo"] = geo
-    mask = (valid & (error < config.multiview_pixel_noise_max)).reshape(-1)
+    mask = (valid & (error < planar.multiview_pixel_noise_max)).reshape(-1)
     candidates = torch.nonzero(mask)[:, 0]
-    pick = candidates[torch.randint(len(candidates), (min(config.ncc_samples, len(candidates)),),
+    pick = candidates[torch.randint(len(candidates), (min(planar.ncc_samples, len(candidates)),),
                                     generator=state.generator).to(device)]
     width = ref_cam.width
     pixels = torch.stack([(pick % width).float() + 0.5, (pick // width).float() + 0.5], -1)
@@ -279,7 +281,7 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     normals = losses.safe_normalize(out["normal"].reshape(-1, 3)[pick])
     weights = torch.exp(-error.detach().reshape(-1)[pick])
     ncc = losses.ncc_loss(data.grey[view], data.grey[nb], pixels, depth, normals, k_ref,
-                          data.intrinsics[nb], ref_to_nb, config.ncc_patch_radius, weights)
+                          data.intrinsics[nb], ref_to_nb, planar.ncc_patch_radius, weights)
     if ncc is not None:
         terms["ncc"] = ncc
     return terms
@@ -309,8 +311,9 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
     sh_degree = sh_degree_at(step, config, sh_max)
     view = next_view(state, data)
     camera = data.cameras[view]
-    want_normal = config.pgsr and step >= config.normal_from
-    want_multiview = (config.pgsr and step >= config.multiview_from and step % config.multiview_every == 0)
+    planar = config.pgsr_terms
+    want_normal = config.pgsr and step >= planar.normal_from
+    want_multiview = (config.pgsr and step >= planar.multiview_from and step % planar.multiview_every == 0)
     outputs = ("rgb",) + (("alpha", "normal", "plane_depth") if (want_normal or want_multiview) else ())
     gaussians = gaussians_from_params(state.params)
     features = None
@@ -322,26 +325,26 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
             features = surface_depth_features(gaussians.means, in_background(gaussians.means.detach(), state.sky),
                                               camera)
     strategy = strategy_for(config)
-    rendered = strategy.prepare_render(step, gaussians, state, config)
+    rendered = strategy.prepare_render(step, gaussians, state, config.iterations)
     # Black (the renderer's default), or with random_background a colour the model cannot predict
     # behind any pixel it leaves partly transparent, so no edge or sky can be fitted by letting
     # the black show through (a transparent shell Gaussian behind a silhouette is otherwise a free
     # way to darken edge pixels).
-    background = torch.rand(3, generator=state.generator) if config.random_background else None
+    background = torch.rand(3, generator=state.generator) if config.losses.random_background else None
     extra = {} if features is None else {"features": features}
     out = rasterizer(rendered, camera, outputs=outputs, background=background, sh_degree=sh_degree, **extra)
     if features is not None:
         # What the view statistics read as "depth" (optimizer_step): the scene's, without the shell.
         out["depth"] = surface_depth(out["features"])
 
-    loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.lambda_dssim)
+    loss, l1 = losses.photometric_loss(out["rgb"], data.images[view], config.losses.lambda_dssim)
     with torch.no_grad():
         mse = (out["rgb"] - data.images[view]).square().mean()
     terms: dict[str, torch.Tensor] = {"l1": l1, "photometric": loss}
     loss = strategy.add_loss_terms(loss, terms, state)
     if config.pgsr:
         terms["flatten"] = losses.flatten_loss(state.params["log_scales"])
-        loss = loss + config.lambda_flatten * terms["flatten"]
+        loss = loss + planar.lambda_flatten * terms["flatten"]
     if want_normal:
         normal = losses.normal_consistency_loss(out["normal"], out["plane_depth"], out["alpha"],
                                                 data.intrinsics[view], data.edge_weights[view])
@@ -350,15 +353,15 @@ def train_step(step: int, state: TrainState, data: TrainData, config: TrainConfi
                       "no pixel (logged once)", log)
         else:
             terms["normal"] = normal
-            loss = loss + config.lambda_normal * normal
+            loss = loss + planar.lambda_normal * normal
     if want_multiview:
         mv = multiview_terms(rasterizer, gaussians, out, view, data, config, state, sh_degree, log)
         if "geo" in mv:
             terms["geo"] = mv["geo"]
-            loss = loss + config.lambda_geo * mv["geo"]
+            loss = loss + planar.lambda_geo * mv["geo"]
         if "ncc" in mv:
             terms["ncc"] = mv["ncc"]
-            loss = loss + config.lambda_ncc * mv["ncc"]
+            loss = loss + planar.lambda_ncc * mv["ncc"]
     terms["loss"] = loss
 
     # Every logged number in one read from the device (each read makes the host wait for the GPU).
@@ -375,7 +378,7 @@ def wants_view_stats(step: int, state: TrainState, config: TrainConfig) -> bool:
     """Whether this step's training render feeds the view statistics (it then renders depth too):
     within stage I's schedule, when a rule needs them."""
     return (state.view_stats is not None and step <= config.iterations
-            and (config.free_space or config.sh_spread_deg_per_degree > 0))
+            and (config.free_space.enabled or config.sh.spread_deg_per_degree > 0))
 
 
 # The counts maintain() reports: they happen on steps that are rarely logging steps, so the
@@ -397,9 +400,10 @@ def maintenance_due(step: int, config: TrainConfig) -> bool:
     ``densify_from``: growing until ``densify_until``, pruning until the end of the run (so a
     short run ends pruned). Stage-II continuations (steps past ``iterations``) only densify
     within their own window."""
-    if step < config.densify_from or step % config.densify_every != 0:
+    window = config.densification
+    if step < window.densify_from or step % window.densify_every != 0:
         return False
-    return step < config.densify_until or step <= config.iterations
+    return step < window.densify_until or step <= config.iterations
 
 
 def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, state: TrainState, data: TrainData,
@@ -409,27 +413,28 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
     Shared with the stage-II refinement (inceptiongs.bootstrap), whose virtual-view steps feed the
     same statistics. Returns densification counts and ``num_gaussians``."""
     loss.backward()
-    tracking = step < config.densify_until or step <= config.iterations
+    tracking = step < config.densification.densify_until or step <= config.iterations
     if tracking and out["means2d"].grad is not None:
         accumulate(state.stats, out["means2d"].grad, out["radii"], camera.width, camera.height)
     if state.view_stats is not None and "depth" in out:
         accumulate_views(state.view_stats, state.params["means"], camera, out["depth"], out["radii"],
-                         config.see_through_tolerance)
-    limit_sh = state.view_stats is not None and config.sh_spread_deg_per_degree > 0 and "sh_rest" in state.params
+                         config.free_space.see_through_tolerance)
+    limit_sh = (state.view_stats is not None and config.sh.spread_deg_per_degree > 0
+                and "sh_rest" in state.params)
     if limit_sh and state.params["sh_rest"].grad is not None:
         # Bands above a Gaussian's allowed degree get no gradient (they are held at 0).
         state.params["sh_rest"].grad.mul_(sh_rest_mask(state.view_stats.sh_degree,
                                                        state.params["sh_rest"].shape[1]))
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
-    if state.sky is not None and config.sky_min_scale > 0:
+    if state.sky is not None and config.free_space.sky_min_scale > 0:
         if state.shell_floor is None:
             state.shell_floor = shell_log_scale_floor(state.sky, [data.cameras[i] for i in data.train],
-                                                      config.sky_min_scale)
+                                                      config.free_space.sky_min_scale)
         hold_shell_scales(state.params["log_scales"], in_background(state.params["means"].detach(), state.sky),
                           state.shell_floor)
     strategy = strategy_for(config)
-    strategy.after_optimizer_step(step, state, data, config)
+    strategy.after_optimizer_step(step, state, config.iterations, position_learning_rate(step, config, data.extent))
 
     record: dict = {}
     if maintenance_due(step, config):
@@ -439,7 +444,7 @@ def optimizer_step(step: int, loss: torch.Tensor, out: dict, camera: Camera, sta
             state.view_stats.reset_window()
             if limit_sh:
                 update_sh_limits(state, config)
-    strategy.after_maintenance(step, state, config)
+    strategy.after_maintenance(step, state)
     record["num_gaussians"] = int(state.params["means"].shape[0])
     return record
 
@@ -449,16 +454,17 @@ def free_space_flags(state: TrainState, data: TrainData, config: TrainConfig, ce
     (inceptiongs.train.free_space)."""
     params = state.params
     flags = torch.zeros(params["means"].shape[0], dtype=torch.bool, device=params["means"].device)
-    if not config.free_space:
+    rules = config.free_space
+    if not rules.enabled:
         return flags
     cameras = [data.cameras[i] for i in data.train]
-    flags |= contains_camera(params["means"], params["log_scales"], params["quats"], centers, config.camera_sigmas)
+    flags |= contains_camera(params["means"], params["log_scales"], params["quats"], centers, rules.camera_sigmas)
     if state.near is not None:
         flags |= before_near_bound(params["means"], cameras, state.near)
-        if config.camera_ball > 0:
-            flags |= near_a_camera(params["means"], centers, config.camera_ball * state.near)
+        if rules.camera_ball > 0:
+            flags |= near_a_camera(params["means"], centers, rules.camera_ball * state.near)
     if state.view_stats is not None:
-        flags |= seen_through(state.view_stats, config.see_through_min_views)
+        flags |= seen_through(state.view_stats, rules.see_through_min_views)
     return flags
 
 
@@ -472,7 +478,8 @@ def maintain(step: int, state: TrainState, data: TrainData, config: TrainConfig)
     flags = free_space_flags(state, data, config, centers) if in_schedule else torch.zeros(
         state.params["means"].shape[0], dtype=torch.bool, device=state.params["means"].device)
     counts: dict = {"free_space": int(flags.sum())}
-    counts.update(strategy_for(config).maintenance(step, state, data, config, flags, carried, centers))
+    counts.update(strategy_for(config).maintenance(step, state, data.extent, config.iterations, flags, carried,
+                                                   centers))
     if state.view_stats is not None:
         state.view_stats = ViewStats(**carried)
     return counts
@@ -482,7 +489,7 @@ def update_sh_limits(state: TrainState, config: TrainConfig) -> None:
     """Re-derive every Gaussian's allowed SH degree from its viewing directions and hold the
     bands above it at 0 (values and Adam moments)."""
     stats = state.view_stats
-    stats.sh_degree = allowed_sh_degree(stats, config.sh_spread_deg_per_degree, config.sh_min_views)
+    stats.sh_degree = allowed_sh_degree(stats, config.sh.spread_deg_per_degree, config.sh.min_views)
     sh_rest = state.params["sh_rest"]
     mask = sh_rest_mask(stats.sh_degree, sh_rest.shape[1]).to(sh_rest.dtype)
     with torch.no_grad():

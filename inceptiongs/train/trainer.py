@@ -10,7 +10,6 @@ and densifies on schedule.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COS
                      RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
                      growing_budget_iterations)
 from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
+from ..io.config_json import with_values
 from ..runs.config import TrainConfig, sized_schedule
 from .loop import SaveAttempts, StepLoop, default_log, out_of_memory_stops, save_model
 from ..gaussians import gaussians_from_params
@@ -80,7 +80,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
         log(device_note)
     config.save(run_dir / "config.json")
     split.save(run_dir / "split.json")
-    sh_max = supported_sh_degree(len(data.train), config.sh_degree_max)
+    sh_max = supported_sh_degree(len(data.train), config.sh.degree_max)
     state = _first_state(config, run_dir, checkpoint, payload, scene, split, data, sh_max, log, rasterizer)
     # The photos, parameters and statistics live where the rasterizer runs: no per-step copies.
     device = rasterizer_device(rasterizer)
@@ -172,17 +172,17 @@ class ScheduleSizer:
         """(new schedule length or None, new Gaussian budget or None) at this check."""
         config = self.config
         self.cost_points.append((self.window.mean_count(count), 1.0 / rate))
-        if step >= config.densify_until:
+        if step >= config.densification.densify_until:
             return budget_iterations(step, config.iterations, rate, remaining_s), None
         # The model still grows: size the schedule at the mean cost of growing to the budget (MCMC
         # does, on its plan; densification may), with the budget where a step costs
         # BUDGET_COST_RATIO times one of the run's first model.
         cost = fit_step_cost(self.cost_points)
         first_count = self.cost_points[0][0]
-        limit = sized_schedule(config, config.iterations).max_gaussians
+        limit = sized_schedule(config, config.iterations).densification.max_gaussians
         budget = min(limit, max(count, affordable_count(
             cost, BUDGET_COST_RATIO * (cost[0] + cost[1] * first_count))))
-        growth_fraction = config.densify_until / max(config.iterations, 1)
+        growth_fraction = config.densification.densify_until / max(config.iterations, 1)
         wanted = growing_budget_iterations(step, cost, count, budget, growth_fraction, remaining_s)
         return far_off(step, config.iterations, wanted), budget
 
@@ -198,11 +198,12 @@ class ScheduleSizer:
                     f"schedule re-sized from {self.config.iterations} to {wanted} iterations")
                 # A budget the time set stays (past the growth window it is not re-planned).
                 resized = sized_schedule(self.config, wanted)
-                self.config = dataclasses.replace(resized, max_gaussians=min(resized.max_gaussians,
-                                                                             self.config.max_gaussians))
-            if grow_budget is not None and grow_budget != self.config.max_gaussians:
-                self.config = dataclasses.replace(self.config, max_gaussians=grow_budget)
-                if abs(grow_budget - before.max_gaussians) > 0.1 * before.max_gaussians:   # >= 1: validated
+                budget = min(resized.densification.max_gaussians, self.config.densification.max_gaussians)
+                self.config = with_values(resized, {"densification.max_gaussians": budget})
+            if grow_budget is not None and grow_budget != self.config.densification.max_gaussians:
+                self.config = with_values(self.config, {"densification.max_gaussians": grow_budget})
+                before_budget = before.densification.max_gaussians
+                if abs(grow_budget - before_budget) > 0.1 * before_budget:   # >= 1: its range
                     log(f"time budget: the model grows to at most {grow_budget} Gaussians (a step at most "
                         f"{BUDGET_COST_RATIO:g}x the cost of the first model's)")
         self.rate_mark = (step, elapsed)
@@ -266,15 +267,15 @@ class StageOne:
         if step == config.iterations:   # the schedule's end: the last step's evaluation sees the fill
             self.fill_shell()
         self.pending_counts = add_maintenance_counts(self.pending_counts, record)
-        if step % config.log_every == 0 or step == config.iterations:
+        if step % config.output.log_every == 0 or step == config.iterations:
             self.log_step(step, record)
         self.loop.snapshot(step, state.params, record)
         # The last step's checkpoint is the final save's, written after the model (below).
-        if step % config.checkpoint_every == 0 and step < config.iterations:
+        if step % config.output.checkpoint_every == 0 and step < config.iterations:
             self.stop_clocks()
-            save_checkpoint(self.run_dir, state.iteration, state.payload(config), config.keep_checkpoints)
+            save_checkpoint(self.run_dir, state.iteration, state.payload(config), config.output.keep_checkpoints)
         if self.after_step is not None:
-            self.after_step(step, gaussians_from_params(state.params).detach(), step % config.checkpoint_every == 0)
+            self.after_step(step, gaussians_from_params(state.params).detach(), step % config.output.checkpoint_every == 0)
         return record
 
     def log_step(self, step: int, record: dict) -> None:
@@ -282,7 +283,7 @@ class StageOne:
         record.update(self.pending_counts)
         self.pending_counts = {}
         record.update(iteration=step, **self.loop.clocks())
-        if step % self.config.eval_every == 0 or step == self.config.iterations:
+        if step % self.config.output.eval_every == 0 or step == self.config.iterations:
             eval_start = time.perf_counter()
             self.last_eval = evaluate_held_out(gaussians_from_params(self.state.params).detach(), self.scene,
                                                self.split, self.data, self.rasterizer)
@@ -341,6 +342,7 @@ class StageOne:
                 attempt(lambda: append_metrics(run_dir, {
                     "iteration": state.iteration, "wall_s": state.wall_s, "train_s": state.train_s,
                     "num_gaussians": len(gaussians), **self.last_eval}))
-        attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config), config.keep_checkpoints))
+        attempt(lambda: save_checkpoint(run_dir, state.iteration, state.payload(config),
+                                        config.output.keep_checkpoints))
         saves.raise_first(self.log)
         return TrainResult(run_dir, state.iteration, self.finished, len(gaussians), self.last_eval)

@@ -345,8 +345,9 @@ def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_
     from inceptiongs.runs.load import load_run
     from train_cases import tiny_demo_run
 
-    run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,
-                        eval_every=10, checkpoint_every=10)
+    run = tiny_demo_run(tmp_path, iterations=10, densification={"densify_from": 1000},
+                        pgsr_terms={"normal_from": 1000},
+                        output={"log_every": 5, "eval_every": 10, "checkpoint_every": 10})
     _, scene, _ = load_run(run)
     targets = resolve_targets(scene, Split.load(run / "split.json", scene.cameras), None, None, 1)
     config = BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained", log_every=1, save_views=0)
@@ -393,8 +394,9 @@ def test_a_stage_i_run_says_its_repair_outlook_before_a_bootstrap_starts(xvfb, t
     from inceptiongs.bootstrap.outlook import run_outlook
     from train_cases import tiny_demo_run
 
-    run = tiny_demo_run(tmp_path, iterations=10, densify_from=1000, normal_from=1000, log_every=5,
-                        eval_every=5, checkpoint_every=10)
+    run = tiny_demo_run(tmp_path, iterations=10, densification={"densify_from": 1000},
+                        pgsr_terms={"normal_from": 1000},
+                        output={"log_every": 5, "eval_every": 5, "checkpoint_every": 10})
     expected = run_outlook(run).line
     assert outlook_before_repair(run) == expected and outlook_before_repair(None) is None
     with opened(Viewer, open_source(run), 900, 1000) as viewer:

@@ -16,7 +16,8 @@ from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstra
                                   train_job_for)
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
-from inceptiongs.runs.config import TrainConfig
+from inceptiongs.io.config_json import with_values
+from inceptiongs.runs.config import FreeSpace, Output, TrainConfig
 from inceptiongs.errors import InputError
 from viewer_cases import opened
 
@@ -42,14 +43,14 @@ def test_job_settings_size_the_schedule_as_the_command_line(tmp_path):
 
     settings = JobSettings(minutes=2.0, iterations=800, downscale=3, protocol="llff", strategy="mcmc")
     ours = settings.train_config(tmp_path)
-    args = argparse.Namespace(scene=str(tmp_path), iterations=800, minutes=2.0, downscale=3, protocol="llff",
-                              seed=0, no_pgsr=False, strategy="mcmc", free_space=True, sky_shell=TrainConfig.sky_shell,
-                              sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None, device="auto")
+    args = argparse.Namespace(scene=str(tmp_path), config=None, iterations=800, minutes=2.0, downscale=3,
+                              protocol="llff", seed=0, strategy="mcmc", exclude_photos=None, device="auto")
     cli = build_config(args)
     # The same schedule as the command line; only evaluated more often, so the panel's curve has points.
-    assert ours == dataclasses.replace(cli, eval_every=VIEWER_EVAL_EVERY, log_every=ours.log_every)
-    assert ours.eval_every % ours.log_every == 0  # the trainer evaluates on logged steps only
-    assert ours.densify_until < 15_000 and ours.minutes == 2.0
+    assert ours == with_values(cli, {"output.eval_every": VIEWER_EVAL_EVERY,
+                                     "output.log_every": ours.output.log_every})
+    assert ours.output.eval_every % ours.output.log_every == 0  # the trainer evaluates on logged steps only
+    assert ours.densification.densify_until < 15_000 and ours.minutes == 2.0
     boot = JobSettings(bootstrap_minutes=1.5, bootstrap_iterations=40, k=2, l=3, prior_minutes=0.5).bootstrap_config()
     assert (boot.minutes, boot.iterations, boot.k, boot.l, boot.prior_minutes) == (1.5, 40, 2, 3, 0.5)
     assert JobSettings().bootstrap_config().k is None  # 0 in the dialog: the bootstrap's own default
@@ -66,16 +67,14 @@ def test_job_settings_size_the_schedule_to_the_budget_by_default(tmp_path):
     from inceptiongs.runs.config import BUDGET_STEPS_PER_MINUTE_GUESS, TrainConfig
 
     def cli(minutes, iterations):
-        return build_config(argparse.Namespace(scene=str(tmp_path), iterations=iterations, minutes=minutes,
-                                               downscale=2, protocol="unstructured", seed=0, no_pgsr=False,
-                                               strategy="default", free_space=True, sky_shell=TrainConfig.sky_shell,
-                                               sky_min_scale=TrainConfig.sky_min_scale, exclude_photos=None,
-                                               device="auto"))
+        return build_config(argparse.Namespace(scene=str(tmp_path), config=None, iterations=iterations,
+                                               minutes=minutes, downscale=2, protocol="unstructured", seed=0,
+                                               strategy="default", exclude_photos=None, device="auto"))
 
     def viewer(**fields):
         config = JobSettings(**fields).train_config(tmp_path)
-        assert config.eval_every == VIEWER_EVAL_EVERY
-        return dataclasses.replace(config, eval_every=TrainConfig.eval_every, log_every=TrainConfig.log_every)
+        assert config.output.eval_every == VIEWER_EVAL_EVERY
+        return dataclasses.replace(config, output=Output())
 
     sized = viewer(minutes=2.5)
     assert JobSettings().iterations == 0 and JobSettings().minutes is not None  # sized by default
@@ -293,7 +292,7 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
         assert stored.iterations < guess / 2  # re-sized to the measured rate
         assert viewer.jobs.training.plan.end_iteration == stored.iterations
         # The milestones were re-sized with it (densification ends inside the run).
-        assert stored.densify_until < stored.iterations
+        assert stored.densification.densify_until < stored.iterations
         last = list_checkpoints(job.run_dir)[-1][0]
         assert last == viewer.jobs.training.progress.iteration
         # Decayed: the schedule's end, or (rate fell late in the run) within the frozen slack.
@@ -428,15 +427,15 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         assert (viewer.jobs.settings.minutes, viewer.jobs.settings.iterations, viewer.jobs.settings.downscale) == (
             1.5, 700, 3)
         click_widget(viewer, "sky shell")  # the checkbox flips the command line's default
-        sky = not TrainConfig.sky_shell
+        sky = not FreeSpace.sky_shell
         assert viewer.jobs.settings.sky_shell is sky
         click_widget(viewer, "train (new run)")
         job = viewer.jobs.training.job
-        assert (job.config.minutes, job.config.iterations, job.config.downscale, job.config.sky_shell) == (
+        assert (job.config.minutes, job.config.iterations, job.config.downscale, job.config.free_space.sky_shell) == (
             1.5, 700, 3, sky)
         _wait(viewer, lambda: (job.run_dir / "config.json").is_file() and viewer.jobs.training.progress.iteration >= 10)
         stored = TrainConfig.load(job.run_dir / "config.json")
-        assert (stored.minutes, stored.iterations, stored.downscale, stored.sky_shell) == (1.5, 700, 3, sky)
+        assert (stored.minutes, stored.iterations, stored.downscale, stored.free_space.sky_shell) == (1.5, 700, 3, sky)
         click_widget(viewer, "stop")
         _wait(viewer, lambda: not viewer.jobs.training.alive)
         assert viewer.jobs.training.error is None, viewer.jobs.training.error
@@ -483,7 +482,7 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
 
     run = tmp_path / "run"
     config = dataclasses.replace(JobSettings(minutes=None, iterations=4, downscale=4).train_config(demo_scene),
-                                 checkpoint_every=2, log_every=2, eval_every=2)
+                                 output=Output(checkpoint_every=2, log_every=2, eval_every=2))
     train(config, run, progress=False)
     assert list_checkpoints(run)
     # A bootstrap's result as run_bootstrap writes it: the run's files plus bootstrap/config.json.

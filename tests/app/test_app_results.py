@@ -5,7 +5,6 @@ what it can do."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import signal
 import threading
@@ -18,6 +17,7 @@ import pytest
 
 from inceptiongs.app.jobs import JobSettings
 from inceptiongs.errors import InputError
+from inceptiongs.io.config_json import with_values
 from viewer_cases import click_widget, opened, press_key, type_into
 
 
@@ -48,8 +48,9 @@ def _stopped_run(scene: Path, run: Path, stop_at: int, minutes: float | None = N
     from inceptiongs.live import JobControl
     from inceptiongs.train.trainer import train
 
-    config = dataclasses.replace(JobSettings(minutes=None, iterations=iterations, downscale=4).train_config(scene),
-                                 minutes=minutes, checkpoint_every=2, log_every=2, eval_every=2)
+    config = with_values(JobSettings(minutes=None, iterations=iterations, downscale=4).train_config(scene),
+                         {"minutes": minutes, "output.checkpoint_every": 2, "output.log_every": 2,
+                          "output.eval_every": 2})
     control = JobControl()
     train(config, run, progress=False, control=control,
           after_step=lambda step, _g, _c: control.stop.set() if step >= stop_at else None)

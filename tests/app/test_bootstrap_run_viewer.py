@@ -15,8 +15,9 @@ pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
-    return tiny_demo_run(tmp_path_factory.mktemp("viewer_bootstrap"), iterations=10, densify_from=1000,
-                         normal_from=1000, log_every=5, eval_every=10, checkpoint_every=10)
+    return tiny_demo_run(tmp_path_factory.mktemp("viewer_bootstrap"), iterations=10,
+                         densification={"densify_from": 1000}, pgsr_terms={"normal_from": 1000},
+                         output={"log_every": 5, "eval_every": 10, "checkpoint_every": 10})
 
 
 def test_bootstrap_button_runs_the_flagged_views_live(xvfb, run_dir):

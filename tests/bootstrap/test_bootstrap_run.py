@@ -22,7 +22,7 @@ from inceptiongs.errors import InputError
 from inceptiongs.evaluation.run import evaluate_run
 from inceptiongs.live import SnapshotBox
 from inceptiongs.evaluation.protocols import Split
-from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.config import Densification, Output, PGSRTerms, SHSchedule, TrainConfig
 from inceptiongs.runs.load import load_run
 from inceptiongs.train.trainer import train
 
@@ -42,9 +42,10 @@ def _tiny_stage1(root: Path, iterations: int, eval_every: int, checkpoint_every:
     """ROOT/run: stage I on the demo scene (written to ROOT/scene) at 48x36, unstructured protocol."""
     scene = write_demo_scene(root / "scene", progress=False)
     config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=iterations,
-                         densify_from=10, densify_every=10, densify_until=15, opacity_reset_every=1000,
-                         sh_increase_every=10, normal_from=10, multiview_from=1000, log_every=10,
-                         eval_every=eval_every, checkpoint_every=checkpoint_every)
+                         densification=Densification(densify_from=10, densify_every=10, densify_until=15,
+                                                     opacity_reset_every=1000),
+                         sh=SHSchedule(increase_every=10), pgsr_terms=PGSRTerms(normal_from=10, multiview_from=1000),
+                         output=Output(log_every=10, eval_every=eval_every, checkpoint_every=checkpoint_every))
     train(config, root / "run", progress=False)
     return root / "run"
 
@@ -188,16 +189,17 @@ def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_superv
 
 
 def test_continuation_schedule_and_sampling_weight():
-    stage1 = TrainConfig(iterations=100, densify_until=50, densify_every=10, opacity_reset_every=30)
+    stage1 = TrainConfig(iterations=100, densification=Densification(densify_until=50, densify_every=10,
+                                                                      opacity_reset_every=30))
     from inceptiongs.train.optim import position_learning_rate
 
     extended = continuation_config(stage1, 100, 60, densify=True)
-    assert 100 < extended.densify_from < extended.densify_until <= 160
+    assert 100 < extended.densification.densify_from < extended.densification.densify_until <= 160
     # The position learning rate stays where stage I ended.
-    assert position_learning_rate(130, extended, 1.0) == pytest.approx(stage1.lr_means_final)
-    assert extended.opacity_reset_every > 10**9  # no opacity reset in a refinement
+    assert position_learning_rate(130, extended, 1.0) == pytest.approx(stage1.learning_rates.means_final)
+    assert extended.densification.opacity_reset_every > 10**9  # no opacity reset in a refinement
     frozen = continuation_config(stage1, 100, 60, densify=False)
-    assert frozen.densify_until <= 100
+    assert frozen.densification.densify_until <= 100
     assert probability(0.0) == 1.0 and probability(0.5) == pytest.approx(np.exp(0.5))
     assert probability(1e9) < np.inf
 
@@ -262,8 +264,8 @@ def test_cli_errors(stage1, tmp_path, capsys):
     # A run without a target view (protocol none) and no flags: told how to give targets.
     config = TrainConfig.load(stage1 / "config.json")
     none_run = tmp_path / "none_run"
-    train(dataclasses.replace(config, protocol="none", iterations=1, eval_every=1, checkpoint_every=1,
-                              log_every=1), none_run, progress=False)
+    train(dataclasses.replace(config, protocol="none", iterations=1,
+                              output=Output(eval_every=1, checkpoint_every=1, log_every=1)), none_run, progress=False)
     assert main(["bootstrap", str(none_run), "--out", str(tmp_path / "o")]) == 2
     assert "--target-view" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

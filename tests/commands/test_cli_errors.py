@@ -205,7 +205,9 @@ def test_console_entry_prints_one_line_and_debug_shows_traceback(tmp_path):
 
 
 def test_train_refuses_a_negative_shell_scale_floor_in_one_line(tmp_path, capsys):
-    assert main(["train", str(tmp_path), "--sky-min-scale", "-1", "--out", str(tmp_path / "run")]) == 2
+    settings = tmp_path / "settings.json"
+    settings.write_text('{"free_space": {"sky_min_scale": -1}}')
+    assert main(["train", str(tmp_path), "--config", str(settings), "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1 and "sky_min_scale" in err
+    assert err.startswith(f"error: {settings}: ") and err.count("\n") == 1 and "free_space.sky_min_scale" in err
     assert not (tmp_path / "run").exists()

@@ -95,12 +95,13 @@ def test_a_stopped_train_saves_model_and_checkpoint_and_resumes(tmp_path, scene,
 
 @pytest.mark.slow
 def test_ctrl_c_during_a_bootstrap_saves_and_resume_continues(tmp_path, scene):
-    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.runs.config import Output, PGSRTerms, TrainConfig
     from inceptiongs.train.trainer import train
 
     run, out = tmp_path / "run", tmp_path / "boot"
-    train(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=10, log_every=5,
-                      eval_every=10, checkpoint_every=10, multiview_from=1000), run, progress=False)
+    train(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=10,
+                      output=Output(log_every=5, eval_every=10, checkpoint_every=10),
+                      pgsr_terms=PGSRTerms(multiview_from=1000)), run, progress=False)
     command = [sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out)]
     process = subprocess.Popen(command + ["--iterations", "5000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)

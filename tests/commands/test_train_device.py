@@ -168,7 +168,7 @@ def test_device_cpu_puts_the_prior_and_the_data_on_the_cpu_beside_a_gpu(gpu_that
     scene = write_demo_scene(tmp_path / "scene", progress=False)
     run = tmp_path / "run"
     assert main(["train", str(scene), "--out", str(run), "--downscale", "4", "--iterations", "2", "--protocol",
-                 "unstructured", "--prior", "--prior-every", "1", "--device", "cpu"]) == 0
+                 "unstructured", "--prior", "1", "--device", "cpu"]) == 0
     assert json.loads((run / "config.json").read_text())["device"] == "cpu"
     assert read_prior_checkpoint(run)["device"] == "cpu"          # train --prior: the prior beside the run
     assert main(["prior", str(run), "--steps", "1", "--device", "cpu"]) == 0

@@ -15,7 +15,6 @@ and the final model equals an uninterrupted run's byte for byte.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import errno
 import json
 import os
@@ -34,6 +33,7 @@ from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.io import atomic
+from inceptiongs.io.config_json import flat_values, with_values
 from inceptiongs.scene.colmap import write_colmap_binary
 from inceptiongs.runs.checkpoint import list_checkpoints, load_checkpoint
 from inceptiongs.runs.config import TrainConfig
@@ -59,11 +59,20 @@ def tiny_scene(root: Path, count: int = 6) -> Path:
     return root
 
 
+def plain_3dgs(folder: Path) -> Path:
+    """FOLDER/plain.json: `train --config` settings without the PGSR terms (cheaper steps)."""
+    path = folder / "plain.json"
+    path.write_text('{"pgsr": false}')
+    return path
+
+
 def tiny_config(scene: Path, **overrides) -> TrainConfig:
-    base = TrainConfig(scene=str(scene), protocol="none", seed=1, iterations=8, pgsr=False, densify_from=2,
-                       densify_every=3, densify_until=100, opacity_reset_every=1000, sh_increase_every=3,
-                       log_every=1, eval_every=1000, checkpoint_every=2)
-    return dataclasses.replace(base, **overrides)
+    """``overrides``: top-level settings by name, a section's as a dict of the settings it changes."""
+    base = with_values(TrainConfig(scene=str(scene), protocol="none", seed=1, iterations=8, pgsr=False), {
+        "densification.densify_from": 2, "densification.densify_every": 3, "densification.densify_until": 100,
+        "densification.opacity_reset_every": 1000, "sh.increase_every": 3, "output.log_every": 1,
+        "output.eval_every": 1000, "output.checkpoint_every": 2})
+    return with_values(base, flat_values(overrides))
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +178,7 @@ def test_enospc_at_the_final_checkpoint_keeps_the_model_and_the_previous_checkpo
     assert (run / "model.ply").read_bytes() == (reference / "model.ply").read_bytes()
     assert [r["iteration"] for r in records(run) if "loss" in r] == list(range(1, config.iterations + 1))
     newest = list_checkpoints(run)[-1]
-    assert newest[0] == config.iterations - config.checkpoint_every
+    assert newest[0] == config.iterations - config.output.checkpoint_every
     load_checkpoint(newest[1])
     assert not list(run.rglob("*.tmp"))
     # --resume continues from it and ends where the uninterrupted run ended.
@@ -182,8 +191,8 @@ def test_enospc_at_the_final_checkpoint_keeps_the_model_and_the_previous_checkpo
 def test_enospc_through_the_cli_is_one_line_and_the_model_survives(scene, tmp_path, capsys, monkeypatch):
     run = tmp_path / "run"
     with failing(monkeypatch, "replace", errno.ENOSPC, lambda src, dst: str(dst).endswith(".pt")):
-        status, lines = cli(["train", scene, "--out", run, "--iterations", "2", "--no-pgsr", "--protocol", "none"],
-                            capsys)
+        status, lines = cli(["train", scene, "--out", run, "--iterations", "2", "--config", plain_3dgs(tmp_path),
+                             "--protocol", "none"], capsys)
     # Besides progress and log lines, exactly one error line.
     assert_one_line(status, [line for line in lines if line.startswith("error")],
                     "step_0000002.pt", "cannot write (no space left on device)")
@@ -208,7 +217,7 @@ def test_a_full_disk_mid_run_stops_with_one_line_and_resume_finishes_identically
                                                                                   capsys, monkeypatch):
     """A real 4 MB tmpfs nearly filled before training (or, without mount rights, a patched
     os.replace raising ENOSPC from the third checkpoint on)."""
-    config = tiny_config(scene, checkpoint_every=1)
+    config = tiny_config(scene, output={"checkpoint_every": 1})
     checkpoint_bytes = (reference / "checkpoints").iterdir().__next__().stat().st_size
     with small_tmpfs(tmp_path / "disk") as mounted:
         run = tmp_path / "disk" / "run"
@@ -259,7 +268,7 @@ def test_read_only_scene_through_every_command(tmp_path, capsys, monkeypatch):
         path.chmod(path.stat().st_mode & ~0o222)
     try:
         assert cli(["info", scene], capsys)[0] == 0
-        status, lines = cli(["train", scene, "--iterations", "3", "--no-pgsr"], capsys)
+        status, lines = cli(["train", scene, "--iterations", "3", "--config", plain_3dgs(tmp_path)], capsys)
         assert status == 0, lines
         run = work / "runs" / "scene"  # the default run folder: under the current folder
         assert (run / "model.ply").is_file()
@@ -322,7 +331,7 @@ def test_cache_dir_flag_and_environment_variable(scene, tmp_path, capsys, monkey
     assert cache_root() == tmp_path / "xdg" / "inceptiongs"
     flag = tmp_path / "flag"
     status, lines = cli(["--cache-dir", flag, "train", scene, "--out", tmp_path / "run", "--iterations", "1",
-                         "--no-pgsr", "--protocol", "none"], capsys)
+                         "--config", plain_3dgs(tmp_path), "--protocol", "none"], capsys)
     assert status == 0, lines
     assert cache_root() == tmp_path / "xdg" / "inceptiongs"  # the flag lasts one command
     # Keyed by path and content: another calibration of the same folder is another cache.
@@ -534,7 +543,7 @@ def test_kill_9_at_random_moments_then_resume_equals_an_uninterrupted_run(scene,
     """Every kill lands at a random moment: a quarter during start-up (loading, restoring), the
     rest a random 0-30 ms after a randomly chosen step was logged (inside the step, its log
     append or its checkpoint write). Each child resumes the folder the previous one left."""
-    config = tiny_config(scene, iterations=10, checkpoint_every=1)
+    config = tiny_config(scene, iterations=10, output={"checkpoint_every": 1})
     server = _ForkServer(config)
     rng = np.random.default_rng(18)
     run = tmp_path / "run"

@@ -20,7 +20,7 @@ def test_train_with_prior_alternates_and_checkpoints(tmp_path):
     scene = write_demo_scene(tmp_path / "scene", progress=False)
     run = tmp_path / "run"
     assert main(["train", str(scene), "--out", str(run), "--downscale", "4", "--iterations", "4",
-                 "--protocol", "unstructured", "--prior", "--prior-every", "2"]) == 0
+                 "--protocol", "unstructured", "--prior", "2"]) == 0
     payload = read_prior_checkpoint(run)
     assert payload["step"] == 2 and len(payload["losses"]) == 2  # steps 2 and 4
     assert payload["backend"] == "tiny" and payload["train_s"] > 0
@@ -29,7 +29,7 @@ def test_train_with_prior_alternates_and_checkpoints(tmp_path):
     assert split["train"] and split.get("scarce_test") is not None
     assert (run / "model.ply").is_file()
 
-    assert main(["train", str(scene), "--out", str(tmp_path / "r2"), "--prior", "--prior-every", "0"]) == 2
+    assert main(["train", str(scene), "--out", str(tmp_path / "r2"), "--prior", "0"]) == 2
     assert main(["train", str(scene), "--out", str(tmp_path / "r3"), "--prior", "--prior-backend", "sd"]) == 2
 
 

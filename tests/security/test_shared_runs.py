@@ -179,11 +179,11 @@ def test_appends_and_atomic_writes_below_a_named_folder_refuse_symlinks(tmp_path
 
 
 # --- 8. one line instead of a traceback ---------------------------------------------------------------
-@pytest.mark.parametrize("key, value, words", [("iterations", "abc", "iterations must be int"),
-                                               ("scene", 5, "scene must be str"),
-                                               ("downscale", "4", "downscale must be int"),
+@pytest.mark.parametrize("key, value, words", [("iterations", "abc", "iterations must be an integer"),
+                                               ("scene", 5, "scene must be a string"),
+                                               ("downscale", "4", "downscale must be an integer"),
                                                ("downscale", 1000, "at least 11"),
-                                               ("seed", -1, "seed must be an integer")])
+                                               ("seed", -1, "seed must be in [0, 4294967295]")])
 def test_config_json_with_wrong_values_is_one_line(copy, key, value, words):
     config = copy["run"] / "config.json"
     data = json.loads(config.read_text())

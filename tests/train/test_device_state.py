@@ -95,10 +95,10 @@ def test_a_checkpoint_payload_holds_cpu_tensors_only():
 def test_a_short_schedule_keeps_the_gaussian_budget_on_cuda_only():
     from inceptiongs.runs.config import short_run_schedule
 
-    full = TrainConfig().max_gaussians
-    cpu = short_run_schedule(TrainConfig(iterations=7000, device="cpu"))
-    auto = short_run_schedule(TrainConfig(iterations=7000))
-    cuda = short_run_schedule(TrainConfig(iterations=7000, device="cuda"))
+    full = TrainConfig().densification.max_gaussians
+    cpu = short_run_schedule(TrainConfig(iterations=7000, device="cpu")).densification
+    auto = short_run_schedule(TrainConfig(iterations=7000)).densification
+    cuda = short_run_schedule(TrainConfig(iterations=7000, device="cuda")).densification
     assert cpu.max_gaussians == auto.max_gaussians < full     # a CPU step's cost grows with the count
     assert cuda.max_gaussians == full
     assert (cuda.densify_until, cuda.densify_every) == (cpu.densify_until, cpu.densify_every)

@@ -13,7 +13,7 @@ from inceptiongs.errors import DeviceMemoryError
 from inceptiongs.scene.courtyard import write_courtyard_scene
 from inceptiongs.train import trainer
 from inceptiongs.runs.checkpoint import list_checkpoints
-from inceptiongs.runs.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.config import Output, TrainConfig, short_run_schedule
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +34,8 @@ def _fail_at(monkeypatch, failing_step: int) -> None:
 
 def test_out_of_memory_keeps_the_newest_checkpoint_and_says_what_to_change(scene, tmp_path, monkeypatch):
     _fail_at(monkeypatch, 13)
-    config = short_run_schedule(TrainConfig(scene=str(scene), protocol="unstructured", iterations=40,
-                                            checkpoint_every=5, eval_every=1000, device="cpu"))
+    config = short_run_schedule(TrainConfig(scene=str(scene), protocol="unstructured", iterations=40, device="cpu",
+                                            output=Output(checkpoint_every=5, eval_every=1000)))
     run_dir = tmp_path / "run"
     with pytest.raises(DeviceMemoryError) as caught:
         trainer.train(config, run_dir, progress=False, log=lambda _: None)

@@ -11,7 +11,8 @@ import pytest
 from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
 from inceptiongs.scene.demo import write_demo_scene
-from inceptiongs.runs.config import TrainConfig, short_run_schedule, sized_schedule
+from inceptiongs.io.config_json import with_values
+from inceptiongs.runs.config import Densification, TrainConfig, short_run_schedule, sized_schedule
 from inceptiongs.train.budget import budget_iterations
 from inceptiongs.train.trainer import train
 
@@ -26,7 +27,7 @@ def test_minutes_alone_sizes_the_schedule_and_the_strategy_is_recorded():
     config = train_command.build_config(_args("--minutes", "3", "--strategy", "mcmc"))
     assert config.size_to_minutes and config.minutes == 3 and config.strategy == "mcmc"
     assert config.iterations == 210            # the first plan; the trainer re-sizes it
-    assert config.densify_until == short_run_schedule(TrainConfig(iterations=210)).densify_until
+    assert config.densification == short_run_schedule(TrainConfig(iterations=210)).densification
     fixed = train_command.build_config(_args("--iterations", "500"))
     assert not fixed.size_to_minutes and fixed.strategy == "default"
     with pytest.raises(InputError, match="strategy must be one of"):
@@ -42,9 +43,10 @@ def test_budget_iterations_resizes_only_when_the_rate_is_far_off():
 
 
 def test_sized_schedule_rescales_the_milestones_from_the_defaults():
-    config = short_run_schedule(TrainConfig(iterations=3000, lambda_dssim=0.3))
+    config = short_run_schedule(with_values(TrainConfig(iterations=3000), {"losses.lambda_dssim": 0.3}))
     resized = sized_schedule(config, 600)
-    assert resized == short_run_schedule(TrainConfig(iterations=600, lambda_dssim=0.3))
+    assert resized == short_run_schedule(with_values(TrainConfig(iterations=600), {"losses.lambda_dssim": 0.3}))
+    assert resized.losses.lambda_dssim == 0.3 and resized.densification.densify_until == 300
 
 
 @pytest.fixture(scope="module")
@@ -55,14 +57,15 @@ def demo_scene(tmp_path_factory):
 def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path, demo_scene):
     scene = demo_scene
     # 5000 steps in 5 seconds is out of reach on any machine: the trainer must re-size.
-    config = short_run_schedule(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000,
-                                            minutes=0.08, size_to_minutes=True, pgsr=False, eval_every=10_000,
-                                            checkpoint_every=10_000))
+    config = short_run_schedule(with_values(
+        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.08,
+                    size_to_minutes=True, pgsr=False),
+        {"output.eval_every": 10_000, "output.checkpoint_every": 10_000}))
     messages = []
     result = train(config, tmp_path / "run", progress=False, log=messages.append)
     stored = json.loads((tmp_path / "run" / "config.json").read_text())
     assert any("schedule re-sized from 5000" in m for m in messages)
-    assert stored["iterations"] < 1000 and stored["densify_until"] < 500
+    assert stored["iterations"] < 1000 and stored["densification"]["densify_until"] < 500
     assert result.iteration <= stored["iterations"]
 
 
@@ -106,17 +109,20 @@ def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene, m
 
     monkeypatch.setattr(trainer_module, "fit_step_cost", lambda points: (0.0, 1e-5))
     scene = demo_scene
-    config = short_run_schedule(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000,
-                                            minutes=0.1, size_to_minutes=True, pgsr=False, eval_every=10_000,
-                                            checkpoint_every=10_000, strategy="mcmc"))
+    config = short_run_schedule(with_values(
+        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.1,
+                    size_to_minutes=True, pgsr=False, strategy="mcmc"),
+        {"output.eval_every": 10_000, "output.checkpoint_every": 10_000}))
     messages = []
     result = train(config, tmp_path / "run", progress=False, log=messages.append)
     stored = json.loads((tmp_path / "run" / "config.json").read_text())
-    unbudgeted = sized_schedule(TrainConfig(**{**stored, "max_gaussians": TrainConfig().max_gaussians}),
-                                stored["iterations"]).max_gaussians
+    budget = stored["densification"]["max_gaussians"]
+    unbudgeted = sized_schedule(with_values(TrainConfig(**stored),
+                                            {"densification.max_gaussians": Densification.max_gaussians}),
+                                stored["iterations"]).densification.max_gaussians
     assert any("grows to at most" in m for m in messages), messages
-    assert stored["max_gaussians"] < unbudgeted
-    assert result.num_gaussians <= stored["max_gaussians"]
+    assert budget < unbudgeted
+    assert result.num_gaussians <= budget
 
 
 def test_a_rate_measured_while_the_model_grew_is_fitted_at_the_window_mean_count():

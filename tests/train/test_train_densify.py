@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import pytest
 import torch
 
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.config import Densification, TrainConfig
 from inceptiongs.train.densify import DensifyStats, RESET_OPACITY, densify_and_prune, reset_opacity
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 
@@ -38,15 +37,15 @@ def _stepped_optimizer(params, config):
 
 
 def test_densify_clones_splits_prunes_and_keeps_adam_moments_with_their_rows():
-    config = dataclasses.replace(TrainConfig(), densify_grad_threshold=1e-3, percent_dense=0.01,
-                                 prune_opacity=0.005)
+    config = TrainConfig(densification=Densification(densify_grad_threshold=1e-3, percent_dense=0.01,
+                                                     prune_opacity=0.005))
     params = params_from_gaussians(_model())
     optimizer = _stepped_optimizer(params, config)
     before = {name: (t.detach().clone(), optimizer.state[t]["exp_avg"].clone(),
                      optimizer.state[t]["exp_avg_sq"].clone()) for name, t in params.items()}
     # Gaussians 0 (small) and 3 (large) are hot; the others are not.
     stats = DensifyStats(torch.tensor([5e-3, 0, 0, 5e-3, 0, 0]), torch.ones(6), torch.zeros(6))
-    counts = densify_and_prune(params, optimizer, stats, config, EXTENT, prune_large=False,
+    counts = densify_and_prune(params, optimizer, stats, config.densification, EXTENT, prune_large=False,
                                generator=torch.Generator().manual_seed(1))
     assert counts == {"cloned": 1, "split": 1, "pruned": 1}
     # Kept: 0, 1, 2, 4 (3 was split, 5 pruned); appended: clone of 0, two children of 3.
@@ -74,10 +73,10 @@ def test_densify_clones_splits_prunes_and_keeps_adam_moments_with_their_rows():
 
 
 def test_densify_never_removes_every_gaussian():
-    config = dataclasses.replace(TrainConfig(), prune_opacity=0.99)
+    config = TrainConfig(densification=Densification(prune_opacity=0.99))
     params = params_from_gaussians(_model())
     optimizer = _stepped_optimizer(params, config)
-    densify_and_prune(params, optimizer, DensifyStats.zeros(6), config, EXTENT, prune_large=True,
+    densify_and_prune(params, optimizer, DensifyStats.zeros(6), config.densification, EXTENT, prune_large=True,
                       generator=torch.Generator().manual_seed(0))
     assert params["means"].shape[0] == 1
 
@@ -98,7 +97,7 @@ def test_the_world_size_rule_lets_far_gaussians_be_as_large_as_their_distance():
     from inceptiongs.train.densify import oversized
     from inceptiongs.train.free_space import nearest_camera_distance
 
-    config = dataclasses.replace(TrainConfig(), prune_world_fraction=0.1)
+    config = Densification(prune_world_fraction=0.1)
     # Three Gaussians 0.5 wide: in the rig (distance 1), and far beyond it (distance 20 and 4).
     means = torch.tensor([[1.0, 0, 0], [20.0, 0, 0], [0.0, 4.0, 0]])
     params = {"means": means, "log_scales": torch.full((3, 3), math.log(0.5))}
@@ -118,11 +117,11 @@ def test_the_screen_size_rule_is_off_by_default_and_prunes_wide_footprints_when_
     # Two Gaussians small in the world (0.01 wide, extent 1); footprints of 5 and 30 pixels.
     params = {"means": torch.zeros(2, 3), "log_scales": torch.full((2, 3), math.log(0.01))}
     radii = torch.tensor([5.0, 30.0])
-    assert TrainConfig().prune_screen_radius == 0.0
-    assert oversized(params, radii, TrainConfig(), 1.0).tolist() == [False, False]
-    on = dataclasses.replace(TrainConfig(), prune_screen_radius=20.0)
+    assert TrainConfig().densification.prune_screen_radius == 0.0
+    assert oversized(params, radii, Densification(), 1.0).tolist() == [False, False]
+    on = Densification(prune_screen_radius=20.0)
     assert oversized(params, radii, on, 1.0).tolist() == [False, True]
     assert oversized(params, None, on, 1.0).tolist() == [False, False]   # no radii: no screen rule
     for bad in (-1.0, float("nan")):
-        with pytest.raises(InputError, match="prune_screen_radius"):
-            dataclasses.replace(TrainConfig(), prune_screen_radius=bad).validate()
+        with pytest.raises(InputError, match="densification.prune_screen_radius must be (>= 0|a finite number)"):
+            TrainConfig(densification=Densification(prune_screen_radius=bad)).validate()

@@ -50,7 +50,7 @@ def test_gaussian_at_a_camera_centre_and_one_before_the_near_bound_are_removed()
     assert bool(contains_camera(model.means, model.log_scales, model.quats,
                                 torch.tensor(np.stack([c.center for c in cameras])), 3.0)[-2])
     assert bool(before_near_bound(model.means, cameras, state.near)[-1])
-    counts = maintain(cfg.densify_from, state, data, cfg)
+    counts = maintain(cfg.densification.densify_from, state, data, cfg)
     means = state.params["means"].detach()
     assert counts["free_space"] == 2
     assert not _has_mean(means, at_camera) and not _has_mean(means, in_front)
@@ -140,10 +140,10 @@ def test_gaussian_behind_a_camera_within_its_ball_is_removed_and_one_beyond_it_s
     # Flat and small, off every camera's centre: only the ball rule can see it.
     model = tc.concat(truth, tc.blob(close, 0.01), tc.blob(far, 0.01))
     for camera_ball, expect_close in ((0.5, False), (0.0, True)):
-        cfg = tc.config(camera_ball=camera_ball)
+        cfg = tc.config(free_space={"camera_ball": camera_ball})
         data, state = tc.setup(model, cameras, tc.photos(truth, cameras), cfg, truth.means.numpy())
-        assert 0.4 < float(cfg.camera_ball * state.near[1]) < 0.6 or camera_ball == 0.0
-        maintain(cfg.densify_from, state, data, cfg)
+        assert 0.4 < float(cfg.free_space.camera_ball * state.near[1]) < 0.6 or camera_ball == 0.0
+        maintain(cfg.densification.densify_from, state, data, cfg)
         means = state.params["means"].detach()
         assert _has_mean(means, close) == expect_close, camera_ball
         assert _has_mean(means, far)
@@ -153,9 +153,9 @@ def test_free_space_rules_can_be_switched_off():
     cameras = tc.ring_cameras(6)
     truth = tc.ball(300)
     model = tc.concat(truth, tc.blob(cameras[0].center.tolist(), 0.05))
-    cfg = tc.config(free_space=False)
+    cfg = tc.config(free_space={"enabled": False})
     data, state = tc.setup(model, cameras, tc.photos(truth, cameras), cfg, truth.means.numpy())
-    maintain(cfg.densify_from, state, data, cfg)
+    maintain(cfg.densification.densify_from, state, data, cfg)
     assert state.params["means"].shape[0] == len(truth) + 1
 
 
@@ -168,8 +168,8 @@ def _floater_run(free_space: bool):
                 for c in cameras]
     # No densification and no size rule (it would catch these wide floaters too): the test is
     # about the free-space rules alone.
-    cfg = tc.config(free_space=free_space, iterations=20, densify_until=15, densify_grad_threshold=1.0,
-                    prune_large_from=1_000)
+    cfg = tc.config(free_space={"enabled": free_space}, iterations=20,
+                    densification={"densify_until": 15, "densify_grad_threshold": 1.0, "prune_large_from": 1_000})
     data, state = tc.setup(tc.concat(truth, *floaters), cameras, images, cfg, truth.means.numpy())
     before = np.mean([tc.psnr(render(tc.concat(truth, *floaters), c)["rgb"].clamp(0, 1), images[i])
                       for i, c in enumerate(cameras)])
@@ -310,7 +310,7 @@ def _sh_run(spread_deg: float) -> torch.Tensor:
     truth = tc.ball(300)
     # The photos have view-dependent colour everywhere, so unconstrained bands would fit it.
     truth.sh[:, 1:4] = 0.6
-    cfg = tc.config(iterations=30, densify_until=1, sh_increase_every=1)
+    cfg = tc.config(iterations=30, densification={"densify_until": 1}, sh={"increase_every": 1})
     data, state = tc.setup(tc.ball(300), cameras, tc.photos(truth, cameras), cfg, truth.means.numpy())
     tc.run_steps(state, data, cfg, 30)
     return state.params["sh_rest"].detach()
@@ -323,20 +323,22 @@ def test_gaussian_seen_from_one_direction_keeps_sh_degree_0():
     assert torch.count_nonzero(around[:, :3]) > 0     # seen from many sides: degree 1 is fitted
 
 
-def _size_run(**overrides) -> tuple[float, list[dict], float, int]:
+def _size_run(**densification) -> tuple[float, list[dict], float, int]:
     cameras = tc.ring_cameras(4)
     truth = tc.ball(80)
     # 0.5 units: more than 10 % of the scene extent (3.3), well inside the ring.
     big = tc.blob([0.0, 0.0, 0.0], 0.5, opacity=0.5)
     # The CLI's schedule for 300 steps, without growth (the ball is exact; splits only cost time).
-    cfg = dataclasses.replace(short_run_schedule(TrainConfig(pgsr=False, iterations=300, free_space=False,
-                                                             log_every=10_000, densify_grad_threshold=1.0)),
-                              **overrides)
-    assert cfg.opacity_reset_every > 300
+    cfg = tc.overridden(short_run_schedule(tc.overridden(TrainConfig(pgsr=False, iterations=300),
+                                                         free_space={"enabled": False}, output={"log_every": 10_000},
+                                                         densification={"densify_grad_threshold": 1.0})),
+                        densification=densification)
+    assert cfg.densification.opacity_reset_every > 300
     data, state = tc.setup(tc.concat(truth, big), cameras, tc.photos(truth, cameras), cfg, truth.means.numpy())
     records = tc.run_steps(state, data, cfg, 300)
     scales = state.params["log_scales"].detach().exp().amax(1)
-    return float(scales.max()), records, cfg.prune_world_fraction * data.extent, cfg.densify_until
+    return (float(scales.max()), records, cfg.densification.prune_world_fraction * data.extent,
+            cfg.densification.densify_until)
 
 
 def test_oversized_gaussians_are_pruned_in_a_300_step_run_without_an_opacity_reset(one_torch_thread):
@@ -366,8 +368,10 @@ def _train_before_a_shell(sky: bool) -> tuple[int, bool]:
     model, cameras, sphere = _faint_ball_before_a_shell()
     truth = model.subset(torch.arange(len(model)) != 400)
     images = tc.photos(truth, cameras)
-    cfg = tc.config(densify_from=10, densify_every=10, densify_until=0, prune_large_from=10_000,
-                    camera_sigmas=0.0, camera_ball=0.0, near_margin=0.0, prune_opacity=0.0, see_through_min_views=1)
+    cfg = tc.config(densification={"densify_from": 10, "densify_every": 10, "densify_until": 0,
+                                   "prune_large_from": 10_000, "prune_opacity": 0.0},
+                    free_space={"camera_sigmas": 0.0, "camera_ball": 0.0, "near_margin": 0.0,
+                                "see_through_min_views": 1})
     data, state = tc.setup(model, cameras, images, cfg, truth.means.numpy())
     state.sky = sphere if sky else None
     tc.run_steps(state, data, cfg, 10)

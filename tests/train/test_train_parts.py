@@ -13,7 +13,7 @@ from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
 from inceptiongs.runs.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
-from inceptiongs.runs.config import TrainConfig, short_run_schedule
+from inceptiongs.runs.config import LearningRates, TrainConfig, short_run_schedule
 from inceptiongs.train.init_gaussians import gaussians_from_points, mean_neighbour_distance
 from inceptiongs.train.optim import position_learning_rate
 from inceptiongs.runs.metrics import append_metrics, truncate_metrics
@@ -26,7 +26,7 @@ def test_config_round_trip_and_bad_files(tmp_path):
     config.save(tmp_path / "config.json")
     assert TrainConfig.load(tmp_path / "config.json") == config
     (tmp_path / "bad.json").write_text(json.dumps({"iterations": 5, "bogus": 1}))
-    with pytest.raises(InputError, match="bad.json: unknown config keys bogus"):
+    with pytest.raises(InputError, match="bad.json: unknown key 'bogus'"):
         TrainConfig.load(tmp_path / "bad.json")
     (tmp_path / "proto.json").write_text(json.dumps({"protocol": "random"}))
     with pytest.raises(InputError, match="proto.json: protocol must be one of"):
@@ -35,19 +35,22 @@ def test_config_round_trip_and_bad_files(tmp_path):
 
 def test_short_schedule_keeps_milestone_fractions():
     config = short_run_schedule(TrainConfig(iterations=3000))
-    assert config.densify_until == 1500 and config.normal_from == 700
-    assert config.densify_from == 100 and config.densify_every == 25
+    window = config.densification
+    assert window.densify_until == 1500 and config.pgsr_terms.normal_from == 700
+    assert window.densify_from == 100 and window.densify_every == 25
+    assert config.pgsr_terms.multiview_from == 700 and config.sh.increase_every == 100
+    assert window.prune_large_from == 800        # half-way through the densification window
     # No opacity reset within a run this short; a Gaussian budget that shrinks with the run.
-    assert config.opacity_reset_every > config.iterations
-    assert config.max_gaussians == 200_000
-    assert short_run_schedule(TrainConfig(iterations=500)).max_gaussians == 100_000
-    longer = short_run_schedule(TrainConfig(iterations=12_000))
+    assert window.opacity_reset_every > config.iterations
+    assert window.max_gaussians == 200_000
+    assert short_run_schedule(TrainConfig(iterations=500)).densification.max_gaussians == 100_000
+    longer = short_run_schedule(TrainConfig(iterations=12_000)).densification
     assert longer.opacity_reset_every == 3000 and longer.max_gaussians == 800_000
     assert short_run_schedule(TrainConfig(iterations=30_000)) == TrainConfig(iterations=30_000)
 
 
 def test_position_lr_decays_log_linearly_and_scales_with_extent():
-    config = TrainConfig(iterations=100, lr_means=1e-3, lr_means_final=1e-5)
+    config = TrainConfig(iterations=100, learning_rates=LearningRates(means=1e-3, means_final=1e-5))
     assert position_learning_rate(0, config, 2.0) == pytest.approx(2e-3)
     assert position_learning_rate(50, config, 2.0) == pytest.approx(2e-4)
     assert position_learning_rate(100, config, 2.0) == pytest.approx(2e-5)

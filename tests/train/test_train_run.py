@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import signal
@@ -24,6 +23,7 @@ from inceptiongs.train.job import TrainJob
 from inceptiongs.train.trainer import train
 from inceptiongs.train.view_fit import VIEW_FIT_FILE
 from inceptiongs.live import SnapshotBox
+from train_cases import overridden
 
 
 @pytest.fixture(scope="module")
@@ -32,13 +32,16 @@ def demo_scene(tmp_path_factory) -> Path:
 
 
 def _config(scene: Path, **overrides) -> TrainConfig:
+    """``overrides``: top-level settings by name, a section's as a dict of the settings it changes."""
     # Everything happens within a few steps: densification, normal and multi-view terms,
     # SH increase, a checkpoint, an evaluation.
-    base = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=3, iterations=16,
-                       densify_from=4, densify_every=4, densify_until=100, opacity_reset_every=1000,
-                       sh_increase_every=5, normal_from=1, multiview_from=1, multiview_every=2,
-                       ncc_samples=256, log_every=1, eval_every=8, checkpoint_every=4)
-    return dataclasses.replace(base, **overrides)
+    base = overridden(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=3, iterations=16),
+                      densification={"densify_from": 4, "densify_every": 4, "densify_until": 100,
+                                     "opacity_reset_every": 1000},
+                      sh={"increase_every": 5},
+                      pgsr_terms={"normal_from": 1, "multiview_from": 1, "multiview_every": 2, "ncc_samples": 256},
+                      output={"log_every": 1, "eval_every": 8, "checkpoint_every": 4})
+    return overridden(base, **overrides)
 
 
 def _records(run: Path) -> list[dict]:
@@ -50,8 +53,9 @@ def test_short_run_loss_falls_and_psnr_rises(demo_scene, tmp_path):
     run = tmp_path / "run"
     # No sky shell: it paints the sky from the first step (10.6 dB at step 0 against 7.1), so 40
     # steps of this tiny run would measure the scene's first densification, not learning.
-    config = _config(demo_scene, iterations=40, eval_every=40, checkpoint_every=40, densify_every=10,
-                     multiview_every=4, sky_shell=False)
+    config = _config(demo_scene, iterations=40, output={"eval_every": 40, "checkpoint_every": 40},
+                     densification={"densify_every": 10}, pgsr_terms={"multiview_every": 4},
+                     free_space={"sky_shell": False})
     result = train(config, run, progress=False)
     records = _records(run)
     losses = [r["photometric"] for r in records if "photometric" in r]
@@ -94,8 +98,8 @@ def test_resume_reproduces_the_uninterrupted_run(demo_scene, tmp_path, strategy,
     # Every strategy's random draws (drops, MCMC noise and relocation, random backgrounds) and its
     # per-Gaussian statistics live in the checkpoint, so a resumed run repeats the uninterrupted
     # one exactly; so does the sky shell's sphere (the size rules read it).
-    config = _config(demo_scene, strategy=strategy, free_space=True, sky_shell=sky_shell,
-                     random_background=random_background)
+    config = _config(demo_scene, strategy=strategy, free_space={"enabled": True, "sky_shell": sky_shell},
+                     losses={"random_background": random_background})
     straight = train(config, tmp_path / "straight", progress=False)
     stopper = _StopAt(8)
     half = train(config, tmp_path / "resumed", progress=False, control=stopper.control,
@@ -141,8 +145,8 @@ def test_training_renders_draw_a_random_background_only_when_asked(demo_scene, t
         seen.append(background)
         return rasterizer(gaussians, camera, outputs=outputs, background=background, **kwargs)
 
-    config = _config(demo_scene, iterations=6, pgsr=False, eval_every=100, checkpoint_every=100,
-                     random_background=random_background)
+    config = _config(demo_scene, iterations=6, pgsr=False, output={"eval_every": 100, "checkpoint_every": 100},
+                     losses={"random_background": random_background})
     train(config, tmp_path / "run", progress=False, rasterizer=spy)
     drawn = [b for b in seen if b is not None]
     if not random_background:
@@ -163,7 +167,7 @@ def test_the_shell_behind_the_scene_is_filled_at_the_end(demo_scene, tmp_path):
     from inceptiongs.scene.loader import load_scene
 
     lines: list[str] = []
-    config = _config(demo_scene, iterations=8, sky_shell=True, free_space=True)
+    config = _config(demo_scene, iterations=8, free_space={"enabled": True, "sky_shell": True})
     train(config, tmp_path / "run", progress=False, log=lines.append)
     filled = [line for line in lines if "no training view saw" in line]
     assert len(filled) == 1 and int(filled[0].split()[2]) > 0, lines
@@ -210,7 +214,8 @@ def test_job_publishes_snapshots_and_stops_with_a_checkpoint(demo_scene, tmp_pat
 
 def test_empty_neighbour_case_is_skipped_with_one_log_line(demo_scene, tmp_path):
     messages = []
-    config = _config(demo_scene, iterations=6, neighbours_max_angle_deg=0.0, eval_every=100)
+    config = _config(demo_scene, iterations=6, pgsr_terms={"neighbours_max_angle_deg": 0.0},
+                     output={"eval_every": 100})
     train(config, tmp_path / "run", progress=False, log=messages.append)
     skipped = [m for m in messages if "multi-view terms skipped" in m]
     assert len(skipped) == 1
@@ -220,7 +225,7 @@ def test_empty_neighbour_case_is_skipped_with_one_log_line(demo_scene, tmp_path)
 @pytest.mark.slow
 def test_kill_9_then_resume_loses_only_the_steps_since_the_last_checkpoint(demo_scene, tmp_path):
     run = tmp_path / "run"
-    config = _config(demo_scene, iterations=24, checkpoint_every=3, eval_every=1000)
+    config = _config(demo_scene, iterations=24, output={"checkpoint_every": 3, "eval_every": 1000})
     script = (f"from inceptiongs.runs.config import TrainConfig; from inceptiongs.train.trainer import train; "
               f"train(TrainConfig(**{config.to_json_dict()!r}), {str(run)!r}, progress=False)")
     process = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.DEVNULL)
@@ -252,8 +257,9 @@ def test_metrics_keep_densification_counts_of_steps_that_are_not_logged(demo_sce
     totals = []
     for log_every in (1, 5):
         run = tmp_path / f"log{log_every}"
-        train(_config(demo_scene, iterations=12, log_every=log_every, eval_every=10 ** 6,
-                      checkpoint_every=10 ** 6), run, progress=False)
+        train(_config(demo_scene, iterations=12,
+                      output={"log_every": log_every, "eval_every": 10 ** 6, "checkpoint_every": 10 ** 6}),
+              run, progress=False)
         records = _records(run)
         totals.append({key: sum(r.get(key, 0) for r in records) for key in MAINTENANCE_COUNTS})
     assert sum(totals[0].values()) > 0  # something was densified
@@ -268,7 +274,7 @@ def test_excluded_photos_are_never_trained_on_nor_scored(demo_scene, tmp_path):
 
     names = [camera.name for camera in load_scene(demo_scene, downscale=4).cameras]
     left_out = names[1:4]
-    config = _config(demo_scene, iterations=30, pgsr=False, eval_every=30, checkpoint_every=30,
+    config = _config(demo_scene, iterations=30, pgsr=False, output={"eval_every": 30, "checkpoint_every": 30},
                      exclude_photos=left_out)
     train(config, tmp_path / "run", progress=False)
     split = Split.load(tmp_path / "run" / "split.json")

@@ -11,7 +11,7 @@ import torch
 
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.runs.config import TrainConfig
+from inceptiongs.runs.config import Densification, FreeSpace, TrainConfig
 from inceptiongs.train.densify import DensifyStats, densify_and_prune
 from inceptiongs.train.optim import make_optimizer, params_from_gaussians
 from inceptiongs.train.sky import (SKY_GRID, cell_texture, fibonacci_directions, in_background, open_cells,
@@ -142,11 +142,11 @@ def test_background_gaussians_survive_the_size_rules_and_scene_ones_do_not():
     background = in_background(means, sphere)
     assert background.tolist() == [False, False, True, True]
     assert not in_background(means, None).any()
-    config = dataclasses.replace(TrainConfig(), prune_world_fraction=0.1)
+    config = TrainConfig(densification=Densification(prune_world_fraction=0.1))
     for exempt, survivors in ((background, 3), (None, 1)):
         params = params_from_gaussians(gaussians)
         optimizer = make_optimizer(params, config, 1.0)
-        densify_and_prune(params, optimizer, DensifyStats.zeros(n), config, 1.0, prune_large=True,
+        densify_and_prune(params, optimizer, DensifyStats.zeros(n), config.densification, 1.0, prune_large=True,
                           generator=torch.Generator().manual_seed(0), background=exempt)
         assert params["means"].shape[0] == survivors
 
@@ -260,7 +260,7 @@ def test_training_with_sky_min_scale_keeps_the_shell_closed():
     for fraction in (0.0, 1.0):
         model, sphere = with_sky_shell(ball(200, seed=1, sh_degree=0), cameras,
                                        [images[i].numpy() for i in range(len(cameras))], points, lambda m: None)
-        cfg = config(sky_min_scale=fraction, lr_log_scales=0.05)
+        cfg = config(free_space={"sky_min_scale": fraction}, learning_rates={"log_scales": 0.05})
         data, state = setup(model, cameras, images, cfg, points)
         state.sky = sphere
         run_steps(state, data, cfg, 30)
@@ -278,9 +278,9 @@ def test_a_negative_or_non_finite_scale_floor_is_refused_with_its_name():
     from inceptiongs.errors import InputError
 
     for bad in (-0.5, float("nan"), float("inf")):
-        with pytest.raises(InputError, match="sky_min_scale"):
-            dataclasses.replace(TrainConfig(), sky_min_scale=bad).validate()
-    dataclasses.replace(TrainConfig(), sky_min_scale=0.5).validate()
+        with pytest.raises(InputError, match="free_space.sky_min_scale"):
+            TrainConfig(free_space=FreeSpace(sky_min_scale=bad)).validate()
+    TrainConfig(free_space=FreeSpace(sky_min_scale=0.5)).validate()
 
 
 def test_a_run_written_before_the_floor_loads_without_it(tmp_path):
@@ -289,11 +289,16 @@ def test_a_run_written_before_the_floor_loads_without_it(tmp_path):
     and a saved value is kept."""
     import json
 
-    assert TrainConfig().sky_min_scale == 1.0
-    saved = dataclasses.replace(TrainConfig(), sky_min_scale=0.5)
+    assert TrainConfig().free_space.sky_min_scale == 1.0
+    saved = TrainConfig(free_space=FreeSpace(sky_min_scale=0.5))
     saved.save(tmp_path / "new.json")
-    assert TrainConfig.load(tmp_path / "new.json").sky_min_scale == 0.5
-    old = json.loads((tmp_path / "new.json").read_text())
-    del old["sky_min_scale"]
-    (tmp_path / "old.json").write_text(json.dumps(old))
-    assert TrainConfig.load(tmp_path / "old.json").sky_min_scale == 0.0
+    assert TrainConfig.load(tmp_path / "new.json").free_space.sky_min_scale == 0.5
+    without = json.loads((tmp_path / "new.json").read_text())
+    del without["free_space"]["sky_min_scale"]
+    (tmp_path / "without.json").write_text(json.dumps(without))
+    assert TrainConfig.load(tmp_path / "without.json").free_space.sky_min_scale == 0.0
+    # A flat file (every setting at the top level) of those runs: the same.
+    (tmp_path / "old.json").write_text(json.dumps({"scene": "/x", "free_space": True, "sky_shell": True,
+                                                   "camera_ball": 0.25}))
+    old = TrainConfig.load(tmp_path / "old.json").free_space
+    assert (old.sky_min_scale, old.enabled, old.sky_shell, old.camera_ball) == (0.0, True, True, 0.25)

@@ -1,5 +1,5 @@
-"""The strategies as objects: one registry of names, options nested in the config (old flat
-config.json files migrate on load), and the hooks a training step calls."""
+"""The strategies as objects: one registry of names, each strategy holding its own sections of the
+config (old flat config.json files migrate on load), and the hooks a training step calls."""
 
 from __future__ import annotations
 
@@ -14,8 +14,9 @@ import torch
 from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
 from inceptiongs.gaussians import Gaussians
-from inceptiongs.runs.config import (FLAT_STRATEGY_KEYS, STRATEGY_NAMES, STRATEGY_OPTIONS, DropGaussianOptions, MCMCOptions, TrainConfig)
-from inceptiongs.train.optim import make_optimizer, params_from_gaussians
+from inceptiongs.runs.config import (FLAT_KEYS, STRATEGY_NAMES, STRATEGY_OPTIONS, Densification, DropGaussianOptions,
+                                     MCMCOptions, TrainConfig)
+from inceptiongs.train.optim import make_optimizer, params_from_gaussians, position_learning_rate
 from inceptiongs.train.strategies import (STRATEGIES, DefaultStrategy, DropGaussianStrategy, MCMCStrategy,
                                           strategy_for)
 from inceptiongs.train.strategy import drop_gaussians
@@ -44,17 +45,21 @@ def test_the_registry_the_config_and_the_command_line_name_the_same_strategies()
     for name, cls in STRATEGIES.items():
         assert cls.NAME == name
         options = STRATEGY_OPTIONS[name]
-        if options is not None:   # the strategy owns its options' fields and the config holds them by name
-            assert issubclass(cls, options)
+        assert isinstance(cls().densification, Densification)   # every strategy holds the densification section
+        if options is not None:   # and its own options, which the config holds by the strategy's name
+            assert isinstance(cls().options, options)
             assert isinstance(getattr(TrainConfig(), name), options)
 
 
 def test_strategy_for_builds_the_named_strategy_with_the_configs_options():
-    assert isinstance(strategy_for(TrainConfig()), DefaultStrategy)
-    mcmc = strategy_for(TrainConfig(strategy="mcmc", mcmc=MCMCOptions(noise_lr=7.0, growth=0.2)))
-    assert isinstance(mcmc, MCMCStrategy) and mcmc.noise_lr == 7.0 and mcmc.growth == 0.2
+    window = Densification(densify_until=123, max_gaussians=456)
+    default = strategy_for(TrainConfig(densification=window))
+    assert isinstance(default, DefaultStrategy) and default.densification == window
+    mcmc = strategy_for(TrainConfig(strategy="mcmc", mcmc=MCMCOptions(noise_lr=7.0, growth=0.2), densification=window))
+    assert isinstance(mcmc, MCMCStrategy) and mcmc.options == MCMCOptions(noise_lr=7.0, growth=0.2)
+    assert mcmc.densification == window
     drop = strategy_for(TrainConfig(strategy="dropgaussian", dropgaussian=DropGaussianOptions(rate_max=0.3)))
-    assert isinstance(drop, DropGaussianStrategy) and drop.rate_max == 0.3
+    assert isinstance(drop, DropGaussianStrategy) and drop.options.rate_max == 0.3
 
 
 def test_an_old_flat_config_json_loads_into_the_nested_options(tmp_path):
@@ -64,7 +69,9 @@ def test_an_old_flat_config_json_loads_into_the_nested_options(tmp_path):
                            dropgaussian=DropGaussianOptions(rate_max=0.25))
     flat = expected.to_json_dict()
     del flat["mcmc"], flat["dropgaussian"]
-    for key, (strategy, option) in FLAT_STRATEGY_KEYS.items():
+    for key in ("mcmc_noise_lr", "mcmc_opacity_reg", "mcmc_scale_reg", "mcmc_dead_opacity", "mcmc_growth",
+                "drop_rate_max"):
+        strategy, option = FLAT_KEYS[key].split(".")
         flat[key] = getattr(getattr(expected, strategy), option)
     (tmp_path / "config.json").write_text(json.dumps(flat))
     assert TrainConfig.load(tmp_path / "config.json") == expected
@@ -84,9 +91,9 @@ def test_a_flat_file_without_strategy_keys_gets_the_defaults(tmp_path):
 
 @pytest.mark.parametrize("content, message", [
     ({"drop_rate_max": 0.2, "dropgaussian": {"rate_max": 0.3}}, "drop_rate_max and dropgaussian.rate_max both"),
-    ({"mcmc": {"noise_lr": 1.0, "cap": 5}}, "unknown mcmc options keys cap"),
+    ({"mcmc": {"noise_lr": 1.0, "cap": 5}}, "unknown key 'mcmc.cap'"),
     ({"mcmc": 3}, "mcmc must be an object"),
-    ({"drop_rate_max": 1.0}, "dropgaussian.rate_max must be in"),
+    ({"drop_rate_max": 1.0}, r"dropgaussian.rate_max must be in \[0, 1\)"),
     ({"mcmc": {"dead_opacity": -0.1}}, "mcmc.dead_opacity must be in"),
 ])
 def test_bad_strategy_options_name_the_file(tmp_path, content, message):
@@ -97,15 +104,15 @@ def test_bad_strategy_options_name_the_file(tmp_path, content, message):
 
 def test_dropgaussian_renders_a_dropped_copy_and_the_default_the_model_itself():
     model = _model([0.5] * 200)
-    config = TrainConfig(iterations=100)
     state = SimpleNamespace(generator=torch.Generator().manual_seed(3))
-    assert DefaultStrategy().prepare_render(100, model, state, config) is model
-    dropped = DropGaussianStrategy(rate_max=0.4).prepare_render(100, model, state, config)
+    assert DefaultStrategy().prepare_render(100, model, state, 100) is model
+    drop = DropGaussianStrategy(options=DropGaussianOptions(rate_max=0.4))
+    dropped = drop.prepare_render(100, model, state, 100)
     expected = drop_gaussians(model, 0.4, torch.Generator().manual_seed(3))
     assert torch.equal(dropped.opacity_logits, expected.opacity_logits)
     assert not torch.equal(dropped.opacity_logits, model.opacity_logits)
     # At step 0 the rate is 0: nothing dropped.
-    assert DropGaussianStrategy(rate_max=0.4).prepare_render(0, model, state, config) is model
+    assert drop.prepare_render(0, model, state, 100) is model
 
 
 def test_mcmc_adds_its_weighted_regularisers_and_the_default_adds_nothing():
@@ -113,7 +120,7 @@ def test_mcmc_adds_its_weighted_regularisers_and_the_default_adds_nothing():
     loss = torch.tensor(1.0)
     terms: dict = {}
     assert DefaultStrategy().add_loss_terms(loss, terms, state) is loss and not terms
-    total = MCMCStrategy(opacity_reg=0.5, scale_reg=0.25).add_loss_terms(loss, terms, state)
+    total = MCMCStrategy(options=MCMCOptions(opacity_reg=0.5, scale_reg=0.25)).add_loss_terms(loss, terms, state)
     opacity = float(torch.sigmoid(state.params["opacity_logits"].detach()).mean())
     scale = float(torch.exp(state.params["log_scales"].detach()).mean())
     assert float(terms["opacity_reg"].detach()) == pytest.approx(opacity)
@@ -122,38 +129,37 @@ def test_mcmc_adds_its_weighted_regularisers_and_the_default_adds_nothing():
 
 def test_mcmc_noise_runs_within_the_schedule_only():
     config = TrainConfig(iterations=10)
-    data = SimpleNamespace(extent=1.0)
     state = _state([0.001, 0.9])
     before = state.params["means"].detach().clone()
-    MCMCStrategy().after_optimizer_step(11, state, data, config)      # a stage-II continuation
+    MCMCStrategy().after_optimizer_step(11, state, 10, position_learning_rate(11, config, 1.0))   # stage II
     assert torch.equal(state.params["means"], before)
-    MCMCStrategy().after_optimizer_step(5, state, data, config)
+    MCMCStrategy().after_optimizer_step(5, state, 10, position_learning_rate(5, config, 1.0))
     moved = (state.params["means"].detach() - before).norm(dim=-1)
     assert moved[0] > 0 and moved[0] > 100 * moved[1]                 # the transparent one moves
 
 
 def test_mcmc_relocates_and_grows_in_the_window_and_removes_the_dead_after_it():
-    config = TrainConfig(iterations=1000, densify_until=500, densify_every=100, max_gaussians=40)
-    data = SimpleNamespace(extent=1.0)
+    mcmc = MCMCStrategy(Densification(densify_until=500, densify_every=100, max_gaussians=40))
     opacities = [0.9, 0.001, 0.7, 0.5] * 5
     flags = torch.tensor([False, False, False, True] * 5)               # free-space flags
     state = _state(opacities)
-    counts = MCMCStrategy().maintenance(100, state, data, config, flags, {}, torch.zeros(1, 3))
+    counts = mcmc.maintenance(100, state, 1.0, 1000, flags, {}, torch.zeros(1, 3))
     assert counts["relocated"] == 10 and counts["added"] > 0
     assert state.params["means"].shape[0] == 20 + counts["added"] <= 40
     assert float(torch.sigmoid(state.params["opacity_logits"].detach()).min()) > 0.005   # none left dead
     state = _state(opacities)
-    counts = MCMCStrategy().maintenance(600, state, data, config, flags, {}, torch.zeros(1, 3))
+    counts = mcmc.maintenance(600, state, 1.0, 1000, flags, {}, torch.zeros(1, 3))
     assert counts == {"pruned": 10} and state.params["means"].shape[0] == 10
 
 
 def test_the_opacity_reset_belongs_to_the_3dgs_strategies():
-    config = TrainConfig(densify_until=500, opacity_reset_every=100)
-    for strategy, resets in ((DefaultStrategy(), True), (DropGaussianStrategy(), True), (MCMCStrategy(), False)):
+    window = Densification(densify_until=500, opacity_reset_every=100)
+    for strategy, resets in ((DefaultStrategy(window), True), (DropGaussianStrategy(window), True),
+                             (MCMCStrategy(window), False)):
         state = _state([0.9, 0.8])
         before = state.params["opacity_logits"].detach().clone()
-        strategy.after_maintenance(200, state, config)
+        strategy.after_maintenance(200, state)
         assert (not torch.equal(state.params["opacity_logits"], before)) == resets, strategy
         state = _state([0.9, 0.8])
-        strategy.after_maintenance(250, state, config)                  # not a reset step
+        strategy.after_maintenance(250, state)                          # not a reset step
         assert torch.equal(state.params["opacity_logits"], before)

@@ -56,7 +56,7 @@ def test_a_photo_that_disagrees_with_the_others_is_reported_after_training():
     moved = dataclasses.replace(truth, means=truth.means + torch.tensor([0.0, 0.0, 0.8]))
     with torch.no_grad():
         images[5] = render(moved, cameras[5])["rgb"].clamp(0, 1)
-    cfg = tc.config(iterations=120, free_space=False)
+    cfg = tc.config(iterations=120, free_space={"enabled": False})
     data, state = tc.setup(tc.ball(300, seed=1), cameras, images, cfg, truth.means.numpy())
     tc.run_steps(state, data, cfg, 120)
     assert sorted(state.view_mse) == list(range(8))       # every view rendered at least once
