@@ -1,0 +1,239 @@
+"""Model formats (inceptiongs.io.models): each round trip within its stated error
+(docs/scene_io.md), degrees a format cannot hold dropped with a note, and truncated or garbage
+files refused with one line naming the file."""
+
+from __future__ import annotations
+
+import gzip
+import struct
+
+import numpy as np
+import pytest
+import torch
+
+from inceptiongs.errors import InputError
+from inceptiongs.gaussians import Gaussians
+from inceptiongs.io.model_error import model_error
+from inceptiongs.io.models import open_model, read_model, write_format, write_model
+from inceptiongs.io.ply import ply_field_names
+
+# The stated round-trip error per format (docs/scene_io.md, "Model formats"): max of
+# positions (fraction of the scene extent), colour (8-bit levels), opacity, log scale,
+# rotation (degrees), SH rest, on models whose values lie inside the formats' ranges.
+# Compressed PLY's position, colour and scale bounds are half a step of a chunk's range; here
+# bounded by the whole model's (the worst chunk), which is what the figures below assume:
+# colours span at most [0, 1] (0.5 levels) and log scales [-5, -1] (4 / 2046).
+STATED = {
+    "ply": {"position": 0.0, "colour": 0.0, "opacity": 0.0, "log_scale": 0.0, "rotation": 1e-4, "sh_rest": 0.0},
+    "compressed.ply": {"position": 1 / 2046, "colour": 0.5, "opacity": 1 / 510, "log_scale": 4 / 2046,
+                       "rotation": 0.3, "sh_rest": 1 / 64},
+    "splat": {"position": 0.0, "colour": 0.5, "opacity": 1 / 510, "log_scale": 1e-6, "rotation": 1.0,
+              "sh_rest": 0.0},
+    "spz": {"position": 2e-7, "colour": 0.95, "opacity": 1 / 510, "log_scale": 1 / 32, "rotation": 0.3,
+            "sh_rest": 1 / 256},
+}
+# Floating-point slack on top of a quantisation bound (float32 decode arithmetic).
+SLACK = 1e-5
+
+
+def random_model(count: int, degree: int, seed: int = 0) -> Gaussians:
+    """Values inside every format's ranges: colours 0.5 + SH_C0 * f_dc within [0.08, 0.92]."""
+    rng = np.random.default_rng(seed)
+    k = (degree + 1) ** 2
+    sh = np.concatenate([rng.uniform(-1.5, 1.5, (count, 1, 3)), rng.uniform(-0.9, 0.9, (count, k - 1, 3))], axis=1)
+    return Gaussians.from_numpy({
+        "means": rng.uniform(-3.0, 3.0, (count, 3)) + np.array([10.0, -2.0, 0.5]),
+        "log_scales": rng.uniform(-5.0, -1.0, (count, 3)),
+        "quats": rng.normal(size=(count, 4)) * rng.uniform(0.5, 2.0, (count, 1)),  # not unit: formats normalise
+        "opacity_logits": rng.uniform(-5.0, 5.0, count),
+        "sh": sh,
+    })
+
+
+def round_trip(tmp_path, model: Gaussians, suffix: str):
+    path = tmp_path / f"model.{suffix}"
+    written = write_model(path, model)
+    back = open_model(path)
+    reference = model if written.order is None else model.subset(torch.as_tensor(written.order))
+    return written, back, model_error(reference, back.gaussians)
+
+
+@pytest.mark.parametrize("degree", [3, 0])
+@pytest.mark.parametrize("suffix", list(STATED))
+def test_round_trip_is_within_the_stated_error(tmp_path, suffix, degree):
+    model = random_model(700, degree, seed=degree)  # 3 chunks of a compressed PLY, the last partial
+    written, back, error = round_trip(tmp_path, model, suffix)
+    assert len(back.gaussians) == len(model)
+    for key, bound in STATED[suffix].items():
+        assert error[key][0] <= bound + SLACK, (suffix, key, error[key], bound)
+    expected_degree = 0 if suffix == "splat" else degree
+    assert back.gaussians.sh_degree == expected_degree
+    # A lossy format is lossy: the figures are not zero by accident of comparing a thing with itself.
+    if suffix != "ply":
+        assert error["opacity"][0] > 1e-4
+
+
+def test_ply_round_trip_is_bit_exact_and_splat_drops_sh_rest_with_a_note(tmp_path):
+    model = random_model(50, 3)
+    written = write_model(tmp_path / "m.ply", model)
+    assert written.notes == [] and written.order is None
+    back = read_model(tmp_path / "m.ply")
+    for name, tensor in model.tensors().items():
+        assert torch.equal(tensor, back.tensors()[name]), name
+    written = write_model(tmp_path / "m.splat", model)
+    assert len(written.notes) == 1 and "SH degree 3 written as degree 0" in written.notes[0]
+    assert written.notes[0].startswith(str(tmp_path / "m.splat"))
+    assert write_model(tmp_path / "d0.splat", random_model(5, 0)).notes == []
+
+
+def test_compressed_ply_is_written_in_morton_order_and_read_from_a_plain_ply_name(tmp_path):
+    model = random_model(4096, 1)
+    written = write_model(tmp_path / "m.compressed.ply", model)
+    assert written.format == "compressed-ply"
+    assert sorted(written.order.tolist()) == list(range(4096)) and written.order.tolist() != list(range(4096))
+    # Consecutive splats in the file are spatial neighbours: a typical chunk of 256 (1/16 of a
+    # uniform cube) lies in a box of half the cube's side (chunks straddling a Z-order cell
+    # boundary are larger), where the model's own order spans the whole cube.
+    means = model.means.numpy()[written.order]
+    chunk_sides = [np.ptp(means[i:i + 256], axis=0).max() for i in range(0, 4096, 256)]
+    assert np.median(chunk_sides) < 0.55 * np.ptp(means, axis=0).max()
+    assert np.ptp(model.means.numpy()[:256], axis=0).max() > 0.9 * np.ptp(means, axis=0).max()
+    plain_name = tmp_path / "renamed.ply"
+    plain_name.write_bytes((tmp_path / "m.compressed.ply").read_bytes())
+    assert open_model(plain_name).format == "compressed-ply"
+
+
+def test_spz_flips_to_right_up_back_and_back(tmp_path):
+    """On disk SPZ is RUB: y and z of the means are negated (read independently of the reader)."""
+    model = random_model(20, 0)
+    write_model(tmp_path / "m.spz", model)
+    raw = gzip.decompress((tmp_path / "m.spz").read_bytes())
+    _, version, count, degree, bits, _, _ = struct.unpack("<IIIBBBB", raw[:16])
+    assert (version, count, degree) == (3, 20, 0)
+    fixed = np.frombuffer(raw[16:16 + 9 * count], np.uint8).reshape(count, 3, 3).astype(np.int64)
+    value = fixed[..., 0] | (fixed[..., 1] << 8) | (fixed[..., 2] << 16)
+    value = np.where(value >= 1 << 23, value - (1 << 24), value) / float(1 << bits)
+    expected = model.means.numpy() * np.array([1, -1, -1])
+    assert np.abs(value - expected).max() <= 2.0 ** -bits
+
+
+def test_spz_sh_signs_are_the_basis_under_the_frame_flip():
+    from inceptiongs.io.spz import SH_REST_SIGNS
+    from inceptiongs.rasterizer.sh import sh_basis
+
+    directions = torch.nn.functional.normalize(torch.randn(64, 3, dtype=torch.float64), dim=1)
+    flipped = directions * torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64)
+    basis, basis_flipped = sh_basis(directions, 3), sh_basis(flipped, 3)
+    signs = torch.cat([torch.ones(1, dtype=torch.float64), torch.as_tensor(SH_REST_SIGNS, dtype=torch.float64)])
+    assert torch.allclose(basis_flipped, basis * signs, atol=1e-12)
+
+
+def test_spz_notes_antialiasing_and_clamped_values(tmp_path):
+    model = random_model(10, 1)
+    model.sh[0, 1, 0] = 5.0  # beyond SPZ's SH rest range [-1, 1)
+    written = write_model(tmp_path / "m.spz", model)
+    assert any("1 of 90 SH rest values" in note for note in written.notes)
+    raw = bytearray(gzip.decompress((tmp_path / "m.spz").read_bytes()))
+    raw[14] = 0x1  # the antialiased flag
+    (tmp_path / "aa.spz").write_bytes(gzip.compress(bytes(raw)))
+    notes = open_model(tmp_path / "aa.spz").notes
+    assert len(notes) == 1 and "antialiasing" in notes[0] and notes[0].startswith(str(tmp_path / "aa.spz"))
+
+
+def test_ascii_ply_reads_like_the_binary_one(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    rng = np.random.default_rng(3)
+    names = ply_field_names(2)
+    record = np.zeros(9, [(name, "f4") for name in names])
+    for name in names:
+        record[name] = rng.standard_normal(9).astype(np.float32)
+    PlyData([PlyElement.describe(record, "vertex")], text=True).write(str(tmp_path / "a.ply"))
+    PlyData([PlyElement.describe(record, "vertex")], text=False).write(str(tmp_path / "b.ply"))
+    ascii_model, binary_model = open_model(tmp_path / "a.ply"), open_model(tmp_path / "b.ply")
+    assert (ascii_model.format, binary_model.format) == ("ply-ascii", "ply")
+    assert ascii_model.gaussians.sh_degree == 2
+    for name, tensor in binary_model.gaussians.tensors().items():
+        assert torch.equal(tensor, ascii_model.gaussians.tensors()[name]), name
+
+
+def _truncate(path, keep: float = 0.6):
+    data = path.read_bytes()
+    path.write_bytes(data[:int(len(data) * keep) - 13])  # 13: not a whole number of .splat records
+
+
+@pytest.mark.parametrize("suffix", ["ply", "ascii.ply", "compressed.ply", "splat", "spz"])
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
+def test_damaged_files_are_one_line_errors_naming_the_file(tmp_path, suffix, damage):
+    path = tmp_path / f"m.{suffix}"
+    if suffix == "ascii.ply":
+        from plyfile import PlyData, PlyElement
+
+        record = np.zeros(40, [(name, "f4") for name in ply_field_names(0)])
+        PlyData([PlyElement.describe(record, "vertex")], text=True).write(str(path))
+    else:
+        write_model(path, random_model(300, 1))
+    if damage == "truncated":
+        _truncate(path)
+    elif damage == "garbage":
+        path.write_bytes(np.random.default_rng(1).integers(0, 256, 32 * 97, dtype=np.uint8).tobytes())
+    else:
+        path.write_bytes(b"")
+    if suffix == "splat" and damage == "empty":
+        assert len(read_model(path)) == 0  # zero records is an empty model, not an error
+        return
+    with pytest.raises(InputError) as info:
+        read_model(path)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(str(path)), message
+
+
+@pytest.mark.parametrize("problem, match", [
+    ("old_layout", "older SuperSplat layout"),
+    ("chunk_count", "declares 1 chunks for 300 splats"),
+    ("sh_count", "not an SH degree 1-3"),
+])
+def test_compressed_ply_layout_problems_are_named(tmp_path, problem, match):
+    path = tmp_path / "m.compressed.ply"
+    write_model(path, random_model(300, 1))
+    data = path.read_bytes()
+    end = data.index(b"end_header\n")
+    header, body = data[:end].decode(), data[end:]
+    if problem == "old_layout":
+        for bound in ("min", "max"):
+            for channel in "rgb":
+                header = header.replace(f"property float {bound}_{channel}\n", "")
+    elif problem == "chunk_count":
+        header = header.replace("element chunk 2", "element chunk 1")
+    else:
+        header = header.replace("property uchar f_rest_8\n", "")
+    path.write_bytes(header.encode() + body)
+    with pytest.raises(InputError, match=match):
+        read_model(path)
+
+
+@pytest.mark.parametrize("version, match", [(5, "version 5 is not supported"), (3, None)])
+def test_spz_header_checks(tmp_path, version, match):
+    write_model(tmp_path / "m.spz", random_model(4, 0))
+    raw = bytearray(gzip.decompress((tmp_path / "m.spz").read_bytes()))
+    raw[4:8] = struct.pack("<I", version)
+    raw[8:12] = struct.pack("<I", 40)  # more splats than the arrays hold
+    (tmp_path / "bad.spz").write_bytes(gzip.compress(bytes(raw)))
+    with pytest.raises(InputError, match=match or "truncated or corrupt SPZ"):
+        read_model(tmp_path / "bad.spz")
+
+
+def test_model_names(tmp_path):
+    assert [write_format(name) for name in ("a.ply", "a.Compressed.PLY", "a.splat", "a.spz")] == \
+        ["ply", "compressed-ply", "splat", "spz"]
+    for name in ("a.txt", "a.ksplat", "a"):
+        with pytest.raises(InputError, match="not a model file name"):
+            write_format(name)
+    (tmp_path / "a.txt").write_text("x")
+    with pytest.raises(InputError, match="not a model file"):
+        read_model(tmp_path / "a.txt")
+    with pytest.raises(InputError, match="does not exist"):
+        read_model(tmp_path / "missing.spz")
+    (tmp_path / "folder.splat").mkdir()
+    with pytest.raises(InputError, match="not a file"):
+        read_model(tmp_path / "folder.splat")
