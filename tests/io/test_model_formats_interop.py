@@ -12,7 +12,7 @@ import torch
 
 from inceptiongs.io.model_error import model_error, scene_extent
 from inceptiongs.io.models import open_model, read_model
-from test_model_formats import SLACK, STATED
+from model_cases import SLACK, STATED
 
 FIXTURES = Path(__file__).resolve().parents[1] / "golden" / "formats"
 
