@@ -6,7 +6,7 @@ f_rest[c * (K - 1) + k] is coefficient k + 1 of colour channel c. On read the SH
 from the number of f_rest fields, other properties (normals, extras) are ignored, and the
 float32 values are kept as they are so a read/write round trip is bit-exact.
 
-Read also: ASCII PLY with the same properties (parsed by the plyfile library), and SuperSplat's
+Read also: ASCII PLY with the same properties (the body parsed by numpy's text reader), and SuperSplat's
 compressed PLY, recognised by its header (a ``chunk`` element and ``packed_*`` vertex
 properties; :mod:`.ply_compressed`).
 """
@@ -137,6 +137,7 @@ def read_ply_with_format(path: str | Path) -> tuple[Gaussians, str]:
 def _read_standard_ply(path: Path, header_len: int, byte_order: str, elements) -> Gaussians:
     """The standard 3DGS vertex layout, binary (either byte order) or ASCII."""
     offset = header_len
+    rows_before = 0  # in an ASCII PLY every element row is one line
     vertex = None
     for name, count, props in elements:
         dtype = np.dtype([(prop, ("<" if byte_order == ASCII else byte_order) + code) for prop, code in props])
@@ -144,6 +145,7 @@ def _read_standard_ply(path: Path, header_len: int, byte_order: str, elements) -
             vertex = (count, dtype, offset)
             break
         offset += count * dtype.itemsize  # fixed-size elements before the vertices are skipped
+        rows_before += count
     if vertex is None:
         raise InputError(f"{path}: PLY has no 'vertex' element")
     count, dtype, offset = vertex
@@ -165,7 +167,7 @@ def _read_standard_ply(path: Path, header_len: int, byte_order: str, elements) -
     check_allocation(3 * count * (14 + rest_count) * 4, str(path), f"{count} declared vertices")
     k_rest = rest_count // 3
     if byte_order == ASCII:
-        matrix = _ascii_vertex_matrix(path, used)
+        matrix = _ascii_vertex_matrix(path, header_len, rows_before, count, [dtype.names.index(n) for n in used])
         column_of = {name: i for i, name in enumerate(used)}
     elif all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
         # The usual case, every property a little-endian float32: the vertices are one
@@ -213,21 +215,27 @@ def _read_standard_ply(path: Path, header_len: int, byte_order: str, elements) -
                         for name, a in arrays.items()})
 
 
-def _ascii_vertex_matrix(path: Path, used: list[str]) -> np.ndarray:
-    """The ``used`` vertex properties of an ASCII PLY as an [N, len(used)] float32 matrix,
-    parsed by plyfile; a malformed or truncated body is an InputError naming the file."""
-    from plyfile import PlyData, PlyParseError
-
+def _ascii_vertex_matrix(path: Path, header_len: int, rows_before: int, count: int,
+                         columns: list[int]) -> np.ndarray:
+    """The vertex rows of an ASCII PLY -> [count, len(columns)] float32 matrix of the given
+    property columns, parsed by numpy's text reader. The header is parsed already and list
+    properties are refused there, so every element row is one line: the ``rows_before`` lines
+    of earlier elements are skipped. A malformed or truncated body is an InputError naming the file."""
+    if count == 0:
+        return np.zeros((0, len(columns)), np.float32)
     try:
-        data = PlyData.read(str(path))
-        vertices = data["vertex"].data
-    except PlyParseError as exc:
-        raise InputError(f"{path}: ASCII PLY body is malformed or truncated ({exc})") from None
-    except (ValueError, KeyError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: ASCII PLY cannot be parsed ({exc})") from None
-    if not len(vertices):
-        return np.zeros((0, len(used)), np.float32)
-    return np.stack([np.asarray(vertices[name], np.float32) for name in used], axis=1)
+        with open(path, "rb") as handle:
+            handle.seek(header_len)
+            matrix = np.loadtxt(handle, dtype=np.float32, comments=None, skiprows=rows_before, max_rows=count,
+                                usecols=columns, ndmin=2, encoding="ascii")
+    except (ValueError, UnicodeDecodeError) as exc:
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise InputError(f"{path}: ASCII PLY body is malformed ({reason})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    if len(matrix) != count:
+        raise InputError(f"{path}: truncated ASCII PLY: header declares {count} vertices, the file has {len(matrix)}")
+    return matrix
 
 
 def ply_field_names(sh_degree: int) -> list[str]:

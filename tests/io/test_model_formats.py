@@ -17,6 +17,7 @@ from inceptiongs.io.models import open_model, read_model, write_format, write_mo
 from inceptiongs.io.ply import ply_field_names
 from model_cases import SLACK, STATED, random_model
 
+
 def round_trip(tmp_path, model: Gaussians, suffix: str):
     path = tmp_path / f"model.{suffix}"
     written = write_model(path, model)
@@ -122,6 +123,29 @@ def test_ascii_ply_reads_like_the_binary_one(tmp_path):
     assert ascii_model.gaussians.sh_degree == 2
     for name, tensor in binary_model.gaussians.tensors().items():
         assert torch.equal(tensor, ascii_model.gaussians.tensors()[name]), name
+
+
+def _ascii_ply_text(rows: list[list[str]], before: str = "") -> str:
+    names = ply_field_names(0)
+    return ("ply\r\nformat ascii 1.0\r\n" + before + f"element vertex {len(rows)}\r\n"
+            + "".join(f"property float {name}\r\n" for name in names) + "end_header\r\n"
+            + "".join(" ".join(row) + "\r\n" for row in rows))
+
+
+def test_ascii_ply_skips_earlier_elements_and_names_a_bad_value(tmp_path):
+    width = len(ply_field_names(0))
+    rows = [[str(float(i * width + j)) for j in range(width)] for i in range(3)]
+    path = tmp_path / "a.ply"
+    # An element before the vertices: its rows are lines to skip, not vertices.
+    path.write_bytes(_ascii_ply_text(rows, "element extra 2\r\nproperty float a\r\n").replace(
+        "end_header\r\n", "end_header\r\n7\r\n8\r\n").encode())
+    means = read_model(path).means.numpy()
+    assert means.tolist() == [[float(i * width + j) for j in range(3)] for i in range(3)]
+    rows[1][6] = "abc"  # f_dc_0
+    path.write_text(_ascii_ply_text(rows))
+    with pytest.raises(InputError, match="ASCII PLY body is malformed") as info:
+        read_model(path)
+    assert "\n" not in str(info.value) and str(info.value).startswith(str(path))
 
 
 def _truncate(path, keep: float = 0.6):

@@ -140,7 +140,7 @@ def _valid_file(tmp_path, n=4, degree=0):
     ("truncated", "truncated PLY"),
     ("no_end_header", "no end_header"),
     ("not_ply", "not a PLY"),
-    ("ascii_truncated", "ASCII PLY body is malformed or truncated"),
+    ("ascii_truncated", "truncated ASCII PLY"),
     ("nan", "NaN/Inf"),
     ("inf", "NaN/Inf"),
     ("bad_rest_count", "f_rest fields"),
