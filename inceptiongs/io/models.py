@@ -107,12 +107,13 @@ def write_model(path: str | Path, gaussians: Gaussians) -> ModelWritten:
         write_ply(gaussians, path)
         return ModelWritten(PLY)
     if format_name == COMPRESSED_PLY:
-        from .ply_compressed import SH_REST_RANGE, encode_compressed_ply
+        from .ply_compressed import LOG_SCALE_RANGE, SH_REST_RANGE, encode_compressed_ply
         from .quantise import clamped_note
 
         data, order = encode_compressed_ply(gaussians)
-        notes = [note for note in [clamped_note(gaussians.sh[:, 1:].detach().cpu().numpy(), *SH_REST_RANGE,
-                                                "SH rest values")] if note]
+        arrays = gaussians.numpy()
+        notes = [note for note in [clamped_note(arrays["sh"][:, 1:], *SH_REST_RANGE, "SH rest values"),
+                                   clamped_note(arrays["log_scales"], *LOG_SCALE_RANGE, "log scales")] if note]
     elif format_name == SPLAT:
         from .splat import encode_splat
 
@@ -123,7 +124,7 @@ def write_model(path: str | Path, gaussians: Gaussians) -> ModelWritten:
     else:
         from .spz import encode_spz
 
-        data, clamped = encode_spz(gaussians)
+        data, clamped = encode_spz(gaussians, path)
         notes = clamped
     atomic_write_bytes(path, data)
     return ModelWritten(format_name, [note if note.startswith(str(path)) else f"{path}: {note}" for note in notes],

@@ -40,6 +40,8 @@ CHUNK_PROPERTIES = [f"{bound}_{name}" for bound in ("min", "max") for name in ("
 VERTEX_PROPERTIES = ["packed_position", "packed_rotation", "packed_scale", "packed_color"]
 # What the layout's 8-bit SH rest covers: (byte - 127.5) / 32 for bytes 0..255.
 SH_REST_RANGE = (-127.5 / 32, 127.5 / 32)
+# The chunk bounds of log scales are clamped to this range (SuperSplat's and gsply's rule).
+LOG_SCALE_RANGE = (-20.0, 20.0)
 # Bits of the Morton code per axis: 3 x 10 bits fit an int64 with room, and 1024 cells a side
 # put ~1 splat per cell for a million splats: finer would not change which 256 share a chunk.
 MORTON_BITS = 10

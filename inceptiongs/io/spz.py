@@ -163,22 +163,23 @@ def read_spz(path: str | Path) -> tuple[Gaussians, list[str]]:
     return Gaussians.from_numpy(flip_frame(arrays)), header_notes(header, path)
 
 
-def fractional_bits_for(means: np.ndarray) -> int:
+def fractional_bits_for(means: np.ndarray, target: str | Path = "SPZ") -> int:
     """The most fractional bits that keep every coordinate of ``means`` ([N, 3]) inside the
-    24-bit range; InputError when even one bit does not."""
+    24-bit range; InputError naming ``target`` when even one bit does not."""
     largest = float(np.max(np.abs(means))) if means.size else 0.0
     low, high = FRACTIONAL_BITS_RANGE
     if largest == 0.0:
         return high
     bits = min(high, math.floor(math.log2(POSITION_LIMIT / largest)))
     if bits < low:
-        raise InputError(f"a coordinate of {largest:g} is beyond SPZ's 24-bit positions "
+        raise InputError(f"{target}: a coordinate of {largest:g} is beyond SPZ's 24-bit positions "
                          f"(at most {POSITION_LIMIT / 2 ** low:g})")
     return bits
 
 
-def encode_spz(gaussians: Gaussians) -> tuple[bytes, list[str]]:
-    """-> (the bytes of a version-3 SPZ file of ``gaussians``, notes on clamped values)."""
+def encode_spz(gaussians: Gaussians, target: str | Path = "SPZ") -> tuple[bytes, list[str]]:
+    """-> (the bytes of a version-3 SPZ file of ``gaussians``, notes on clamped values);
+    ``target`` names the file in errors."""
     import gsply
 
     arrays = flip_frame(gaussians.numpy())
@@ -198,6 +199,7 @@ def encode_spz(gaussians: Gaussians) -> tuple[bytes, list[str]]:
     # gsply writes SPZ only to a path: a private temporary folder, read back, so the file the
     # user named is written by the one atomic write path.
     with tempfile.TemporaryDirectory(prefix="inceptiongs-spz-") as folder:
-        target = Path(folder) / "model.spz"
-        gsply.write_spz(target, data, version=WRITE_VERSION, fractional_bits=fractional_bits_for(arrays["means"]))
-        return target.read_bytes(), notes
+        temporary = Path(folder) / "model.spz"
+        gsply.write_spz(temporary, data, version=WRITE_VERSION,
+                        fractional_bits=fractional_bits_for(arrays["means"], target))
+        return temporary.read_bytes(), notes

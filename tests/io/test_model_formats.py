@@ -260,3 +260,14 @@ def test_mutated_files_read_or_fail_with_one_line(tmp_path, suffix):
             assert "\n" not in str(exc) and str(exc).startswith(str(path)), (case, str(exc))
         else:
             assert all(bool(t.isfinite().all()) for t in model.tensors().values()), case
+
+
+def test_values_beyond_a_format_are_noted_or_refused_naming_the_file(tmp_path):
+    model = random_model(10, 0)
+    model.log_scales[0, 0] = -30.0  # below the compressed PLY's [-20, 20]
+    notes = write_model(tmp_path / "m.compressed.ply", model).notes
+    assert notes == [f"{tmp_path / 'm.compressed.ply'}: 1 of 30 log scales lie outside [-20, 20] and are clamped"]
+    model.means[0, 0] = 1e7  # beyond SPZ's 24-bit positions even with 1 fractional bit
+    with pytest.raises(InputError, match=r"m.spz: a coordinate of 1e\+07 is beyond SPZ's 24-bit positions"):
+        write_model(tmp_path / "m.spz", model)
+    assert not (tmp_path / "m.spz").exists()
