@@ -1,5 +1,6 @@
 """What the viewer opens: a scene folder (its newest trained model, else its sparse points as
-small splats), a model PLY, or a training run folder. Everything else is an InputError."""
+small splats), a model file (.ply, .compressed.ply, .splat, .spz), or a training run folder.
+Everything else is an InputError."""
 
 from __future__ import annotations
 
@@ -82,9 +83,10 @@ def newest_ply(folder: Path) -> Path | None:
 
 
 def _read_ply(path: Path):
-    from inceptiongs.io.ply import read_ply  # noqa: PLC0415 - keeps `--help` fast
+    """Any model file (inceptiongs.io.models), whatever its format."""
+    from inceptiongs.io.models import read_model  # noqa: PLC0415 - keeps `--help` fast
 
-    return read_ply(path)
+    return read_model(path)
 
 
 def _read_ply_arrays(path: Path) -> dict:
@@ -206,8 +208,10 @@ def _open_source(path: Path, runs_dir: Path | None) -> ViewerSource:
     if not path.exists():
         raise InputError(f"{path}: does not exist")
     if path.is_file():
-        if path.suffix.lower() != ".ply":
-            raise InputError(f"{path}: not a scene folder, a .ply model or a run folder")
+        from inceptiongs.io.models import is_model_file  # noqa: PLC0415
+
+        if not is_model_file(path):
+            raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
         # The folder beside a user's PLY is input too: flags and screenshots go to the cache.
         return ViewerSource("ply", path, _read_ply_arrays(path), [], scene_cache_dir(path, [path]),
                             model_path=path)

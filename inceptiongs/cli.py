@@ -33,6 +33,7 @@ COMMANDS = {
     "coverage": "coverage",
     "demo-scene": "demo_scene",
     "render": "render",
+    "convert": "convert",
     "train": "train",
     "prior": "prior",
     "generate": "generate",

@@ -5,8 +5,9 @@
 device rule, :mod:`.device`; default: the run's device for a run folder): it belongs to
 ``--backend torch`` alone, since GL draws wherever its context runs.
 
-MODEL is a 3DGS PLY or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest PLY
-in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
+MODEL is a model file (a 3DGS PLY, binary, ASCII or compressed, a .splat or a .spz:
+:mod:`inceptiongs.io.models`) or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest
+PLY in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
 in the model file's own (original) frame; with --view the camera comes from the scene (the
 run's config names it, or --scene), in the scene's normalised frame, and the model is moved
 into that frame with the scene's normalisation.
@@ -36,12 +37,12 @@ from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
 
-HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
+HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", help="a 3DGS .ply or a run folder")
+    parser.add_argument("model", help="a model file (.ply, .compressed.ply, .splat, .spz) or a run folder")
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--camera", help="camera JSON {width, height, fx, fy, cx, cy, world_to_camera}")
     which.add_argument("--view", help="name of a camera (image) of the scene")
@@ -112,7 +113,7 @@ def _run_scene_path(run_dir: Path) -> str | None:
 
 def load_model_and_camera(args):
     """-> (Gaussians, Camera) in one frame, per the rules in the module docstring."""
-    from ..io.ply import read_ply
+    from ..io.models import read_model
 
     model = Path(args.model)
     if not model.exists():
@@ -122,7 +123,7 @@ def load_model_and_camera(args):
     if args.camera:
         if ply is None:
             raise InputError(f"{model}: no .ply model in the run folder (--camera needs one)")
-        return read_ply(ply), read_camera_json(args.camera)
+        return read_model(ply), read_camera_json(args.camera)
     from ..scene.loader import load_scene
 
     scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
@@ -135,7 +136,7 @@ def load_model_and_camera(args):
         from ..runs.load import load_run
         gaussians, _, _ = load_run(run_dir)  # newest checkpoint, normalised frame (same normalisation)
     else:
-        gaussians = scene.normalization.gaussians_to_normalized(read_ply(ply))
+        gaussians = scene.normalization.gaussians_to_normalized(read_model(ply))
     return gaussians, scene.camera_by_name(args.view)
 
 

@@ -122,3 +122,14 @@ def check_read_inside_named_folder(path: str | Path) -> None:
         if not is_inside(resolved(target, str(path)), resolved(root, root)):
             raise InputError(f"{path}: a symlink that leads outside {root}; files of a run or scene folder "
                              f"are read only from inside it")
+
+
+def check_readable_file(path: Path, what: str) -> None:
+    """InputError '<path>: ...' unless ``path`` is a regular file (through a working symlink)
+    that may be read: no dangling symlink or loop, no escape from a named folder."""
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
+    if not path.is_file():
+        raise InputError(f"{path}: {what} file does not exist" if not path.exists() else f"{path}: not a file")
+    check_read_inside_named_folder(path)
