@@ -24,7 +24,7 @@ from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.bootstrap.source_depth import depth_from_training_views
 from inceptiongs.bootstrap.stage1 import load_stage1
 from inceptiongs.bootstrap.supervise import supervise_view
-from inceptiongs.bootstrap.supervision_kinds import ViewContext
+from inceptiongs.bootstrap.view_supervision import ViewContext
 from inceptiongs.bootstrap.validation import (margin_db, measure_evidence, squared_error, validation_photos,
                                               view_margins)
 from inceptiongs.bootstrap.view_targets import ModelRenders
