@@ -19,7 +19,8 @@ DENSIFY_END_FRACTION = 0.7
 
 @dataclass(frozen=True)
 class Densify(Variant):
-    """The refinement densifies between 10 % and 70 % of its steps."""
+    """The refinement densifies the Gaussians between 10 % and 70 % of its steps (the default
+    continuation freezes their number)."""
 
     NAME: ClassVar[str] = "densify"
 

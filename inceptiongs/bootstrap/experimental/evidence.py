@@ -29,7 +29,9 @@ def mark_view(grid: EvidenceGrid | None, min_fraction: float, entry: VirtualTarg
 
 @dataclass(frozen=True)
 class EvidencePlacement(Variant):
-    """Virtual views where the leave-one-out estimate says the blend beats the render."""
+    """Virtual views where the leave-one-out estimate says the blend beats the render (validation.py,
+    placement.py); a view's pixels without that evidence carry no virtual loss, and this replaces
+    the agreement gate."""
 
     NAME: ClassVar[str] = "evidence"
 

@@ -30,7 +30,9 @@ def geometry_sources(sources: Sequence[int], photos: dict, cameras: Sequence[Cam
 
 @dataclass(frozen=True)
 class Geometry(Variant):
-    """The multi-view geometry term at virtual views (multiview.py)."""
+    """The multi-view geometry term at virtual views: 1 - NCC of the view's source photos mapped
+    through the rendered depth and planar normal (experimental/multiview.py), added to a virtual
+    view's loss."""
 
     NAME: ClassVar[str] = "geometry"
 

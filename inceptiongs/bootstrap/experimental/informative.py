@@ -36,9 +36,10 @@ def informative_loss(rgb: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
 
 @dataclass(frozen=True)
 class Informative(Variant):
-    """A virtual view's loss only where the photos contradict the render: the photo supervision
-    returns the informative mask as the view's mask (photo_supervision.photo_supervision), a view
-    with too few such pixels is not sampled, and the loss is :func:`informative_loss` on them."""
+    """A virtual view's loss only where the photos contradict the render by more than they disagree
+    among themselves: the photo supervision returns that informative mask as the view's mask
+    (photo_supervision.informative_mask), a view with fewer than 16 such pixels is not sampled,
+    and the loss is the mask-weighted L1 of 5 x 5 box means (informative.informative_loss)."""
 
     NAME: ClassVar[str] = "informative"
     REQUIRES: ClassVar[tuple[str, ...]] = ("photo_supervision",)

@@ -257,7 +257,7 @@ def photo_supervision(context: ViewContext) -> ViewSupervision:
 @dataclass(frozen=True)
 class PhotoSupervision(Variant):
     """I* from the photo-consistent depth, exposure-matched warps, lumigraph weights and a soft
-    mask instead of the default blend (this module)."""
+    mask instead of the default blend (experimental/photo_supervision.py)."""
 
     NAME: ClassVar[str] = "photo_supervision"
 
