@@ -107,7 +107,7 @@ def option_rows(cls=BootstrapConfig, role: bool = True) -> list[str]:
     for f in dataclasses.fields(cls):
         if "meaning" not in f.metadata:
             raise ValueError(f"{cls.__name__}.{f.name} has no meaning: declare it with option(...)")
-        kind = "object" if f.name == "variants" and cls is BootstrapConfig else json_type(f.type)
+        kind = "object" if f.name == "variants" else json_type(f.type)   # {variant name: its options}
         rows.append(f"| `{f.name}` | {kind} | `{cell(default_text(f))}` | {cell(f.metadata['unit'])} "
                     + (f"| {f.metadata['role']} " if role else "") + f"| {cell(f.metadata['meaning'])} |")
     return rows
