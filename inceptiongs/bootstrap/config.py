@@ -276,7 +276,8 @@ def sections_from_flat_keys(data: dict, source: str) -> dict:
     FLAT_SWITCHES, FLAT_OPTIONS; ``"fill": "inpaint"``) moved into its variant's section under
     "variants". A flat key's value is checked as before (type, allowed values); the option of a
     variant the file does not choose had no effect and is dropped once its range is checked.
-    A flat key and its section both setting the same option is an error."""
+    A flat key and the variant's section both setting the same option is an error, unless the
+    flat key holds its old default (files of the time hold every key)."""
     data = dict(data)
     sections = data.get("variants", {})
     if not isinstance(sections, dict):
@@ -299,11 +300,14 @@ def sections_from_flat_keys(data: dict, source: str) -> dict:
             if value != off:
                 sections.setdefault(name, {})
                 options.setdefault(name, {})[option_name] = (key, value)
+    defaults = set()                    # (variant, option) a flat key gives at its default then
     for key, (kind, name, option_name, default) in FLAT_OPTIONS.items():
         if key in data:
             value = checked_value(source, key, kind, data.pop(key))
             if value != default or name in sections:
                 options.setdefault(name, {})[option_name] = (key, value)
+            if value == default:
+                defaults.add((name, option_name))
     if options.get("geometry", {}).get("colour", (None, True))[1] is False and "geometry" not in sections:
         raise InputError(f"{source}: virtual_colour off needs a geometry_weight > 0 (else a virtual view carries no loss)")
     for name, given in options.items():
@@ -318,6 +322,8 @@ def sections_from_flat_keys(data: dict, source: str) -> dict:
             continue                    # refused with its own message when the sections are read
         for option_name, (key, value) in given.items():
             if option_name in sections[name]:
+                if (name, option_name) in defaults:
+                    continue            # a file of the time holds every key: its default says nothing
                 raise InputError(f"{source}: {key} and variants.{name}.{option_name} both given; keep one")
             sections[name][option_name] = value
     if sections:

@@ -65,6 +65,10 @@ def test_flat_keys_choose_their_variants_with_their_options(tmp_path):
     config.save(tmp_path / "saved.json")
     assert BootstrapConfig.load(tmp_path / "saved.json") == config
     assert not set(json.loads((tmp_path / "saved.json").read_text())) & {"supervision", "align_px", "placement"}
+    # A file of the time with a section added: the flat keys' old defaults give way to the section.
+    mixed = {**FLAT_FILE, "variants": {"evidence": {"photos": 3}}}
+    config = BootstrapConfig.load(write(tmp_path / "mixed.json", mixed))
+    assert config.to_json_dict()["variants"] == {"evidence": {"min_fraction": 0.05, "photos": 3}}
 
 
 def test_a_checkpoints_flat_config_loads_into_the_sections():
