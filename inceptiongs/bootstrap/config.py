@@ -14,7 +14,7 @@ metadata (options.option); docs/bootstrap_options.md is generated from them
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import InputError
