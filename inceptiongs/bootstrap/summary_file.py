@@ -1,5 +1,5 @@
 """RUN2/bootstrap/summary.json, what a bootstrap says about itself: written by
-:class:`.loop.Bootstrap`, read by the stopped-run check (:mod:`.runner`), the repair outlook that
+:mod:`.loop`, read by the stopped-run check (:mod:`.runner`), the repair outlook that
 ``eval`` shows (:mod:`.outlook`) and the viewer's verdict. Light: no torch, so readers stay cheap."""
 
 from __future__ import annotations

@@ -325,7 +325,7 @@ def test_commands_that_read_a_run_open_a_flat_run_folder(tmp_path, capsys):
     (run / "config.json").write_text(json.dumps(flat, indent=2, sort_keys=True))
     gaussians, _, config = load_run(run)
     assert config == nested and len(gaussians) > 0
-    assert continuation_config(config, 1, 10, densify=False) == continuation_config(nested, 1, 10, densify=False)
+    assert continuation_config(config, 1, 10) == continuation_config(nested, 1, 10)
     view = load_run(run)[1].cameras[0].name
     assert main(["render", str(run), "--view", view, "--backend", "torch", "--out", str(tmp_path / "v.png")]) == 0
     assert (tmp_path / "v.png").is_file()
