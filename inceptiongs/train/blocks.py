@@ -194,6 +194,10 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
         return result   # no barrier: a stopped rank ends now; the same command later continues it
     barrier(ranks)
     if ranks.rank == 0:
+        missing = [i for i in range(count) if not block_finished(block_dir(run_dir, i))]
+        if missing:
+            raise InputError(f"{run_dir}: block(s) {', '.join(str(i) for i in missing)} not finished; run the "
+                             f"same command again to train them")
         if merged_up_to_date(run_dir, len(plan.cells)):
             log(f"{run_dir}: every block finished and merged earlier; nothing to do")
         else:
@@ -213,27 +217,31 @@ def merged_up_to_date(run_dir: Path, count: int) -> bool:
                                                         for path in done)
 
 
-def merge_blocks(config: TrainConfig, run_dir: Path, plan: BlockPlan, log: Callable[[str], None]) -> int:
+def merge_blocks(config: TrainConfig, run_dir: Path, plan: BlockPlan, log: Callable[[str], None],
+                 sources: Sequence[Path] | None = None, record: dict | None = None) -> int:
     """RUN/model.ply from the finished blocks: each block's Gaussians whose centre lies in its
-    own cell (half-open cells: none twice, none lost), SH padded to the highest degree; RUN's
-    split.json is the whole scene's. Returns the number of Gaussians."""
+    own cell (half-open cells: none twice, none lost), rows as the block wrote them, SH padded to
+    the highest degree; RUN's split.json is the whole scene's. ``sources``: the folder each block's
+    model.ply is read from (default RUN/blocks/block_NN); ``record``: more for blocks.json.
+    Returns the number of Gaussians."""
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
-    missing = [i for i in range(len(plan.cells)) if not block_finished(block_dir(run_dir, i))]
+    sources = [block_dir(run_dir, i) for i in range(len(plan.cells))] if sources is None else list(sources)
+    missing = [str(folder) for folder in sources if not (folder / "model.ply").is_file()]
     if missing:
-        raise InputError(f"{run_dir}: block(s) {', '.join(str(i) for i in missing)} not finished; run the same "
-                         f"command again to train them")
+        raise InputError(f"{missing[0]}: the block has no model.ply; run the same command again to train it")
     parts, kept = [], []
-    for index, cell in enumerate(plan.cells):
-        model = read_ply(block_dir(run_dir, index) / "model.ply")
+    for cell, folder in zip(plan.cells, sources):
+        model = read_ply(folder / "model.ply")
         coords = plan.plane.coordinates(scene.normalization.to_normalized(model.means.double().numpy()))
         inside = torch.from_numpy(cell.contains(coords))
         parts.append(model.subset(inside))
         kept.append(int(inside.sum()))
     merged = concatenate(parts)
+    ensure_dir(run_dir)
     write_ply(merged, run_dir / "model.ply")
     split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
     split.save(run_dir / "split.json")
-    data = {**plan.to_json(), "kept_gaussians": kept}
+    data = {**plan.to_json(), **(record or {}), "kept_gaussians": kept}
     atomic_write_text(run_dir / PLAN_FILE, json.dumps(data, indent=1) + "\n")
     config.save(run_dir / "config.json")
     if config.iterations not in logged_iterations(run_dir):

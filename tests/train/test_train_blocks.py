@@ -111,12 +111,13 @@ def test_a_restricted_split_keeps_the_whole_runs_held_out_views(tmp_path):
 
 @pytest.fixture(scope="module")
 def blocks_run(tmp_path_factory):
-    """A tiny demo scene trained in 2 blocks, one thread (ONE_THREAD), in one process."""
+    """A tiny town (48 views of 96x72) trained in 2 blocks, one thread (ONE_THREAD), in one process."""
     root = tmp_path_factory.mktemp("blocks")
-    scene = write_demo_scene(root / "scene", size="small", progress=False)
+    scene = root / "town"
+    assert main(["demo-scene", str(scene), "--scene", "town", "--views", "48", "--size", "tiny"]) == 0
     run = root / "run"
     command = [sys.executable, "-m", "inceptiongs", "train", str(scene), "--out", str(run), "--iterations",
-               str(ITERATIONS), "--downscale", "4", "--protocol", "unstructured", "--blocks", "2"]
+               str(ITERATIONS), "--protocol", "unstructured", "--blocks", "2"]
     subprocess.run(command, env={**os.environ, **ONE_THREAD}, check=True, capture_output=True, timeout=600)
     return scene, run, command
 
@@ -129,14 +130,14 @@ def test_a_blocks_run_is_an_ordinary_run_merged_from_its_cells(blocks_run, capsy
     kept = json.loads((run / PLAN_FILE).read_text())["kept_gaussians"]
     assert sum(kept) == len(merged) and all(kept)
     # Each block gave exactly its Gaussians inside its own cell, rows as the block wrote them.
-    normalization = load_scene(scene, downscale=4).normalization
+    normalization = load_scene(scene).normalization
     first = read_ply(block_dir(run, 0) / "model.ply")
     inside = plan.cells[0].contains(plan.plane.coordinates(normalization.to_normalized(first.means.double().numpy())))
     assert np.array_equal(merged.means[:kept[0]].numpy(), first.means[inside].numpy())
     # The merged run opens as any run does.
     assert main(["eval", str(run), "--json"]) == 0
     scores = json.loads(capsys.readouterr().out)
-    assert scores["groups"]["all"]["views"] == len(make_split(load_scene(scene, downscale=4), "unstructured").test)
+    assert scores["groups"]["all"]["views"] == len(make_split(load_scene(scene), "unstructured").test)
     assert main(["render", str(run), "--view", load_scene(scene).cameras[0].name, "--out",
                  str(run.parent / "r.png")]) == 0
 
@@ -221,3 +222,44 @@ def test_a_plan_with_a_block_no_photo_sees_is_one_line(blocks_run, tmp_path, cap
     assert main(["train", str(scene), "--out", str(out), "--blocks", "2", "--iterations", str(ITERATIONS)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "block.photos names no photo" in err[0]
+
+
+def test_a_bootstrap_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path):
+    from inceptiongs.bootstrap.blocks import blocks_holding
+    from inceptiongs.bootstrap.targets import Target
+
+    scene_dir, run, _ = blocks_run
+    scene = load_scene(scene_dir)
+    plan = read_plan(run)
+    # A view that sees one block's cell only (most views of this small scene see both).
+    flagged = next(camera for camera in scene.cameras
+                   if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 1)
+    out = tmp_path / "boot"
+    settings = tmp_path / "virtual.json"
+    settings.write_text(json.dumps({"follow_outlook": False}))
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
+                             "--iterations", "8", "--config", str(settings), "--target-view", flagged.name],
+                            env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    plan = json.loads((out / PLAN_FILE).read_text())
+    refined = plan["refined"]
+    assert len(refined) == 1
+    before, after = read_ply(run / "model.ply"), read_ply(out / "model.ply")
+    kept_before = json.loads((run / PLAN_FILE).read_text())["kept_gaussians"]
+    start_before = start_after = 0
+    for index, (count_before, count_after) in enumerate(zip(kept_before, plan["kept_gaussians"])):
+        rows_before = slice(start_before, start_before + count_before)
+        rows_after = slice(start_after, start_after + count_after)
+        if index not in refined:      # the blocks nobody flagged: the same rows, bit for bit
+            for name in ("means", "log_scales", "quats", "opacity_logits"):
+                assert np.array_equal(getattr(before, name)[rows_before].numpy(),
+                                      getattr(after, name)[rows_after].numpy())
+            # SH bit for bit; zeros above when the refined block reached a higher degree.
+            bands = before.sh.shape[1]
+            assert np.array_equal(before.sh[rows_before].numpy(), after.sh[rows_after, :bands].numpy())
+            assert not after.sh[rows_after, bands:].any()
+        else:                         # the refined block changed
+            assert not np.array_equal(before.sh[rows_before].numpy()[:10], after.sh[rows_after].numpy()[:10])
+        start_before, start_after = start_before + count_before, start_after + count_after
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["blocks_refined"] == refined and summary["virtual_steps"] > 0
