@@ -91,6 +91,8 @@ def run(args) -> int:
     else:  # the default name never lands on an earlier result: the next free one is chosen
         out_dir = next_free_folder(default_out_dir(run_dir))
     config = config_from_args(args, out_dir if args.resume else None)
+    if run_in_blocks(run_dir):
+        return run_blocks(args, run_dir, out_dir, config)
     targets = None
     if args.resume:
         targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
@@ -129,4 +131,48 @@ def run(args) -> int:
             print(f"{group:>8} PSNR {before:6.2f} -> {after:6.2f} dB   SSIM "
                   f"{result.initial_eval[f'{group}_ssim']:.4f} -> {result.last_eval[f'{group}_ssim']:.4f}")
     print(f"wrote {out_dir}")
+    return 0
+
+
+def run_in_blocks(run_dir: Path) -> bool:
+    """Whether RUN was trained in blocks (`train --blocks`; its config.json says how many)."""
+    from ..runs.config import TrainConfig
+
+    stored = run_dir / "config.json"
+    return stored.is_file() and TrainConfig.load(stored).blocks > 0
+
+
+def run_blocks(args, run_dir: Path, out_dir: Path, config) -> int:
+    """Stage II on a run in blocks: only the blocks the flagged views see are refined
+    (inceptiongs.bootstrap.blocks); the others stay as they are."""
+    from ..bootstrap.blocks import bootstrap_blocks
+    from ..bootstrap.runner import check_output_folder, load_stage1, resolve_targets, run_bootstrap
+    from ..live import JobControl
+    from ..rasterizer.interface import resolve_device
+    from ..stop_signals import stop_on_signals
+
+    if args.resume:
+        raise InputError(f"{out_dir}: a bootstrap of a run in blocks is not resumed; run it again (--overwrite "
+                         f"replaces the stopped one)")
+    check_output_folder(out_dir, args.overwrite)
+    device = resolve_device(*recorded_device(run_dir))
+    stage1 = load_stage1(run_dir)
+    targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,
+                              run_dir=run_dir)
+    print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
+    control = JobControl()
+    say = lambda line: print(line, file=sys.stderr)  # noqa: E731
+    with stop_on_signals(control) as stopping:
+        result = bootstrap_blocks(stage1, out_dir, targets, config,
+                                  lambda run, out, block_targets, block_config: run_bootstrap(
+                                      run, out, block_targets, block_config, control=control,
+                                      overwrite=args.overwrite, rasterizer=device.rasterizer, log=say), say)
+    if stopping.signum is not None:
+        print(f"{out_dir}: stopped; the refined blocks so far are merged into model.ply", file=sys.stderr)
+        return stopping.exit_status
+    for index, block in zip(result.refined, result.results):
+        print(f"block {index + 1}: iterations {block.start_iteration}..{block.iteration}, {block.virtual_views} "
+              f"virtual views, {block.wall_s:.1f} s")
+    print(f"wrote {out_dir}: {result.num_gaussians} Gaussians, blocks {', '.join(str(i + 1) for i in result.refined)} "
+          f"refined (inceptiongs eval {out_dir})")
     return 0
