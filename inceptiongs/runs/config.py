@@ -224,8 +224,8 @@ STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
 @dataclass(frozen=True)
 class Block:
     """This run is one block of a larger one (`train --blocks`, inceptiongs.train.blocks): it
-    trains on the photos that see its cell of the ground plane, starts from the sparse points in
-    the cell and its margin, and holds out the whole run's held-out views among its photos."""
+    trains on the photos that see its cell of the ground plane, starts from the sparse points
+    those photos see and the cell and its margin hold, and holds out the whole run's held-out views among its photos."""
 
     count: int = setting(0, "blocks of the whole run; 0: this run is not a block", "blocks", at_least(0))
     index: int = setting(0, "this block's index, 0 .. count - 1", "-", at_least(0))

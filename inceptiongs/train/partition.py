@@ -231,8 +231,9 @@ def block_plane(block) -> GroundPlane:
 
 def as_block(scene, split, block):
     """(scene, split) as the block ``block`` (runs.config.Block, count > 0) sees them: the split
-    among its photos (Split.restricted) and the sparse points in its cell widened by its margin
-    (the points the block's Gaussians start from and its near bounds are measured with). A photo
+    among its photos (Split.restricted) and the sparse points its training photos see or its cell
+    widened by its margin holds (the points the block's Gaussians start from and its near bounds
+    are measured with). A photo
     the block names that the scene lacks is an InputError."""
     import dataclasses
 
@@ -247,6 +248,11 @@ def as_block(scene, split, block):
     points = np.asarray(scene.points, np.float64).reshape(-1, 3)
     if len(points):
         keep = Cell(*block.cell).contains(block_plane(block).coordinates(points), block.margin)
+        # Everything the block's photos see starts as Gaussians too: with the cell's points alone,
+        # the photos' other content is fitted by Gaussians densified inside the cell, which the
+        # merge keeps, and which float in front of every view that is not the block's.
+        for view in restricted.train:
+            keep |= visible_points(scene.cameras[view], points)
         colours = None if scene.point_colors is None else np.asarray(scene.point_colors)[keep]
         scene = dataclasses.replace(scene, points=points[keep].astype(scene.points.dtype, copy=False),
                                     point_colors=colours)

@@ -109,6 +109,31 @@ def test_a_restricted_split_keeps_the_whole_runs_held_out_views(tmp_path):
     assert part.num_views == split.num_views
 
 
+def test_a_block_starts_from_every_point_its_photos_see_not_only_its_cells(tmp_path):
+    """Content of the block's photos outside its cell must start as Gaussians outside the cell:
+    otherwise it is fitted by Gaussians densified inside the cell, which the merge keeps."""
+    from inceptiongs.runs.config import Block
+    from inceptiongs.train.partition import as_block
+
+    scene = load_scene(write_demo_scene(tmp_path / "scene", size="small", progress=False))
+    split = make_split(scene, "unstructured", 0)
+    plane = ground_plane(scene.cameras)
+    points = np.asarray(scene.points, np.float64)
+    coords = plane.coordinates(points)
+    median = float(np.median(coords[:, 0]))
+    cell = Cell(-1e9, median, -1e9, 1e9)
+    photos = [scene.cameras[i].name for i in split.train[:4]]
+    block = Block(count=2, index=0, photos=photos, origin=list(plane.origin), u=list(plane.u), v=list(plane.v),
+                  cell=[cell.u0, cell.u1, cell.v0, cell.v1], margin=0.0)
+    block_scene, block_split = as_block(scene, split, block)
+    seen = np.zeros(len(points), bool)
+    for view in block_split.train:
+        seen |= visible_points(scene.cameras[view], points)
+    expected = seen | cell.contains(coords)
+    assert (seen & ~cell.contains(coords)).any(), "the case needs photos that see past the cell"
+    assert len(block_scene.points) == int(expected.sum())
+
+
 @pytest.fixture(scope="module")
 def blocks_run(tmp_path_factory):
     """A tiny town (48 views of 96x72) trained in 2 blocks, one thread (ONE_THREAD), in one process."""
