@@ -17,7 +17,7 @@ from inceptiongs.bootstrap.runner import baseline_run, expected_total_steps, res
 from inceptiongs.bootstrap.targets import Target, round_targets
 from inceptiongs.io.flags import read_flag_cameras
 from inceptiongs.cli import main
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.run import evaluate_run
 from inceptiongs.live import SnapshotBox
@@ -40,7 +40,7 @@ def stage1(tmp_path_factory) -> Path:
 
 def _tiny_stage1(root: Path, iterations: int, eval_every: int, checkpoint_every: int) -> Path:
     """ROOT/run: stage I on the demo scene (written to ROOT/scene) at 48x36, unstructured protocol."""
-    scene = write_demo_scene(root / "scene", progress=False)
+    scene = copy_of_demo_scene(root / "scene")
     config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=iterations,
                          densification=Densification(densify_from=10, densify_every=10, densify_until=15,
                                                      opacity_reset_every=1000),

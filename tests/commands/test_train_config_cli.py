@@ -173,9 +173,9 @@ def test_milestones_the_file_gives_are_kept_the_others_scale(tmp_path):
 
 
 def test_the_resolved_config_is_written_nested_to_the_run_folder(tmp_path):
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     settings = _settings(tmp_path, {"pgsr": False, "free_space": {"sky_shell": False},
                                     "output": {"eval_every": 1}})
     run = tmp_path / "run"
@@ -312,9 +312,9 @@ def test_commands_that_read_a_run_open_a_flat_run_folder(tmp_path, capsys):
     from inceptiongs.runs.load import load_run
     from shared_run_cases import train_one_step
 
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     run = tmp_path / "run"
     train_one_step(scene, run)
     nested = TrainConfig.load(run / "config.json")

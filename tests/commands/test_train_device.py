@@ -162,10 +162,10 @@ CPU_RECORD = {"asked": "cpu", "device": "cpu", "rasterizer": CPU_NAME, "why": "-
 @pytest.mark.slow
 def test_device_cpu_puts_the_prior_and_the_data_on_the_cpu_beside_a_gpu(gpu_that_must_not_be_used, tmp_path, capsys):
     from inceptiongs.prior.trainer import read_prior_checkpoint
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
     from inceptiongs.scene.loader import load_scene
 
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     run = tmp_path / "run"
     assert main(["train", str(scene), "--out", str(run), "--downscale", "4", "--iterations", "2", "--protocol",
                  "unstructured", "--prior", "1", "--device", "cpu"]) == 0
@@ -220,9 +220,9 @@ def load_scene_view(run) -> str:
 
 
 def test_train_resume_takes_the_runs_device_unless_told(monkeypatch, tmp_path, capsys):
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     run = tmp_path / "run"
     train = ["train", str(scene), "--out", str(run), "--downscale", "4", "--iterations", "1", "--protocol", "none"]
     assert main(train + ["--device", "cpu"]) == 0

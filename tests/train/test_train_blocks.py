@@ -20,7 +20,7 @@ from inceptiongs.camera import Camera, look_at
 from inceptiongs.cli import main
 from inceptiongs.evaluation.protocols import make_split
 from inceptiongs.io.ply import read_ply
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.blocks import BLOCK_DONE, PLAN_FILE, block_dir, read_plan
 from inceptiongs.train.distributed import assign, ranks_from_environment
@@ -100,7 +100,7 @@ def test_blocks_go_to_ranks_largest_first_and_the_same_on_every_rank():
 
 
 def test_a_restricted_split_keeps_the_whole_runs_held_out_views(tmp_path):
-    scene = load_scene(write_demo_scene(tmp_path / "scene", size="small", progress=False))
+    scene = load_scene(copy_of_demo_scene(tmp_path / "scene", size="small"))
     split = make_split(scene, "unstructured", 0)
     keep = split.train[::2] + split.test[::2]
     part = split.restricted(keep)
