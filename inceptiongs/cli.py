@@ -14,6 +14,7 @@ import sys
 from .errors import InputError
 from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+from .io.values import bind_flags
 
 # The arguments that name a run, output or input folder of a command.
 WRITE_ROOT_ARGUMENTS = ("run", "runs", "out", "path", "model", "scene")
@@ -71,6 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     help="cache folder (default $INCEPTIONGS_CACHE_DIR, else "
                                          "$XDG_CACHE_HOME/inceptiongs)")
         module.add_arguments(command_parser)
+        bind_flags(command_parser)      # every numeric flag checked by its rule (io/values.py)
         command_parser.set_defaults(_run=module.run)
     return parser
 

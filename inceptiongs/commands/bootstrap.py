@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .device import recorded_device
+from ..io.values import flag
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -45,12 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a JSON object of bootstrap settings (docs/bootstrap_options.md lists every key; "
                              "RUN2/bootstrap/config.json of an earlier result is one); flags given here override it")
     # default None: a flag not given leaves the --config file's value (else the default) in place
-    parser.add_argument("--rounds", type=int, default=None, help=f"bootstrap rounds (default {d.rounds})")
-    parser.add_argument("--minutes", type=float, default=None,
+    parser.add_argument("--rounds", type=flag("count"), default=None, help=f"bootstrap rounds (default {d.rounds})")
+    parser.add_argument("--minutes", type=flag("minutes"), default=None,
                         help="wall budget for the whole bootstrap (prior, generation, refinement)")
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=flag("steps"), default=None,
                         help=f"refinement steps per round (default {d.iterations})")
-    parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
+    parser.add_argument("--seed", type=flag("seed"), default=None, help=f"generation and sampling seed (default {d.seed})")
 
 
 def config_from_args(args: argparse.Namespace, resumed: Path | None = None):

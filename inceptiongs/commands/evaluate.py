@@ -10,6 +10,7 @@ import sys
 from ..errors import InputError
 from .device import add_device_argument, command_device
 from .generate import add_sampling_arguments
+from ..io.values import flag
 
 HELP = "PSNR/SSIM on held-out views, scarce vs covered (LPIPS/FID only with local weights)"
 
@@ -26,7 +27,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ddim-steps", default="20", metavar="N[,N...]",
                         help="DDIM step counts for --generated (default 20; several give the quality-"
                              "against-steps curve of `inceptiongs report`)")
-    parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
+    parser.add_argument("--seed", type=flag("seed"), default=0, help="generation seed for --generated")
     add_sampling_arguments(parser, "--generated, ")
     add_device_argument(parser, reads_run=True)
 
