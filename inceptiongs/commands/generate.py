@@ -78,6 +78,11 @@ def run(args) -> int:
     stride = args.stride
     if stride is not None and not 1 <= stride <= window:
         raise InputError(f"--stride: must be in 1..{window}, got {stride}")
+    if prior.backend == "tiny":      # refused before the canvas is allocated
+        from ..prior.footprint import check_sampling_fits
+        from ..prior.model import denoiser_cond_channels
+        check_sampling_fits(prior.config.unet, denoiser_cond_channels(prior.config), camera.height, camera.width,
+                            window, f"--window {window}", device)
     options = sampling_options(prior, args.start, args.init, run_dir)
     rgb, gbuffer = prior.generate(gaussians.to(device), camera, steps=args.steps, seed=args.seed,
                                   window=window, stride=stride, progress=True, **options)

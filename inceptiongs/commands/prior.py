@@ -84,11 +84,17 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                     raise InputError(f"--{name.replace('_', '-')} is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
-        from ..prior.model import Prior, PriorConfig
+        from ..prior.footprint import check_training_fits
+        from ..prior.model import Prior, PriorConfig, denoiser_cond_channels
         from ..prior.unet import UNetConfig
         if "unet_width" in overrides:
             overrides["unet"] = UNetConfig(base_width=overrides.pop("unet_width"))
-        return Prior.for_gaussians(replace(PriorConfig(), **overrides), gaussians).to(device)
+        config = replace(PriorConfig(), **overrides)
+        # Refused before the denoiser is built: the sizes the flags set must fit the device.
+        sizes = f"--unet-width {config.unet.base_width} --batch-size {config.batch_size} --patch-size {config.patch_size}"
+        check_training_fits(config.unet, denoiser_cond_channels(config), config.patch_size, config.batch_size,
+                            sizes, device)
+        return Prior.for_gaussians(config, gaussians, sizes).to(device)
     except ValueError as exc:
         raise InputError(f"{where}: {exc}") from None
 
