@@ -21,10 +21,17 @@ import math
 import numbers
 from dataclasses import dataclass, replace
 
+from ..constants import IMAGE_SIDE_MAX
 from ..errors import InputError
 
 # Seeds numpy and torch both take: 0 .. 2**32 - 1.
 SEED_MAX = 2**32 - 1
+# Intrinsics past these are no camera: a focal length of 10^7 pixels is a field of view of a
+# thousandth of a degree across the largest image, and every projection stays far from overflow.
+FOCAL_MAX = 1e7
+PRINCIPAL_POINT_MAX = 1e7
+# Scene coordinates (camera centres, translations): the largest geo-referenced frames are ~10^7 m.
+COORDINATE_MAX = 1e9
 # Integers above this are refused as counts: every size derived from one (pixels, steps, bytes)
 # stays far inside int64, and a count this large is a typo, never a plan.
 COUNT_MAX = 2**40
@@ -149,6 +156,10 @@ RULES: dict[str, Rule] = {
     "steps": Rule(int, within(1, COUNT_MAX), "steps"),
     "pixels": Rule(int, within(1, COUNT_MAX), "pixels"),
     "factor": Rule(int, within(1, 1024)),
+    "image side": Rule(int, within(1, IMAGE_SIDE_MAX), "pixels"),
+    "focal length": Rule(float, within(0, FOCAL_MAX, "(]"), "pixels"),
+    "principal point": Rule(float, within(-PRINCIPAL_POINT_MAX, PRINCIPAL_POINT_MAX), "pixels"),
+    "coordinate": Rule(float, within(-COORDINATE_MAX, COORDINATE_MAX)),
     "minutes": Rule(float, Range(0.0, 1e7, low_open=True), "minutes"),
     "fraction": Rule(float, within(0, 1)),
     "start": Rule(float, within(0, 1, "(]")),
