@@ -91,6 +91,8 @@ def run(args) -> int:
         out_dir = default_out_dir(run_dir)
     else:  # the default name never lands on an earlier result: the next free one is chosen
         out_dir = next_free_folder(default_out_dir(run_dir))
+    if out_dir.resolve() == run_dir.resolve():     # said first: no other word about the folder applies
+        raise InputError(f"{out_dir}: --out must differ from the input run (the bootstrap writes a new run folder)")
     config = config_from_args(args, out_dir if args.resume else None)
     if run_in_blocks(run_dir):
         return run_blocks(args, run_dir, out_dir, config)

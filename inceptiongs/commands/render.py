@@ -36,7 +36,7 @@ from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
-from ..io.values import flag
+from ..io.values import flag, shown
 
 HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -107,9 +107,12 @@ def _run_scene_path(run_dir: Path) -> str | None:
     if not config.is_file():
         return None
     try:
-        return json.loads(read_small_text(config, "run config")).get("scene") or None
+        scene = json.loads(read_small_text(config, "run config")).get("scene") or None
     except (OSError, json.JSONDecodeError, AttributeError):
         raise InputError(f"{config}: not a readable run config") from None
+    if scene is not None and not isinstance(scene, str):
+        raise InputError(f"{config}: scene must be a string (the scene folder), got {shown(scene)}")
+    return scene
 
 
 def load_model_and_camera(args):

@@ -151,10 +151,10 @@ def photos_to_exclude(value: str | None) -> list[str]:
         print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
         return names
     if is_file:
-        try:
-            value = path.read_text().replace("\n", ",")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc})") from None
+        try:     # of a list's size (a huge or sparse file is refused before it is read)
+            value = read_small_text(path, "list of photos to exclude").replace("\n", ",")
+        except FileNotFoundError as exc:
+            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc.strerror})") from None
     return [name.strip() for name in value.split(",") if name.strip()]
 
 
