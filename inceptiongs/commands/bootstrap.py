@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from .device import recorded_device
 from ..io.values import flag
 
@@ -113,8 +114,15 @@ def run(args) -> int:
         print(device.note, file=sys.stderr)
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
-                               resume=args.resume, rasterizer=device.rasterizer)
+        try:
+            result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
+                                   resume=args.resume, rasterizer=device.rasterizer)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out_dir, stopping.exit_status,
+                                            f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume")
     if stopping.signum is not None:
         print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
               f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from ..io.config_json import check_seed, with_values
 from ..io.paths import contained_path, read_small_text
 from ..train.distributed import ranks_from_environment
@@ -191,7 +192,14 @@ def run(args) -> int:
     joint = joint_prior(args, out, config, device.torch_device) if args.prior is not None else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        try:
+            result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out, stopping.exit_status,
+                                            f"inceptiongs train {args.scene} --out {out} --resume")
     if joint is not None:
         saved = joint.finish()
         if saved is not None:
