@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
-from ..errors import InputError
+from ..errors import InputError, one_line
 from ..gaussians import Gaussians
 from .gbuffer import crop_candidates, gaussian_features, render_gbuffer, render_geometry, surface_features
 from .footprint import check_training_fits
@@ -302,7 +302,7 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
         return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"], str(path))}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
-        raise InputError(f"{path}: not a readable prior checkpoint ({type(exc).__name__}: {exc})") from None
+        raise InputError(f"{path}: not a readable prior checkpoint ({one_line(exc)})") from None
 
 
 def load_prior(run_dir: str | Path, device=None) -> Prior:
