@@ -302,6 +302,9 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
         return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"], str(path))}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
+        if "Weights only load failed" in str(exc):   # torch's advice to load it unsafely is not repeated
+            raise InputError(f"{path}: refused: it holds Python objects other than tensors and plain data "
+                             "(loading it could run code; a prior checkpoint never does)") from None
         raise InputError(f"{path}: not a readable prior checkpoint ({one_line(exc)})") from None
 
 

@@ -220,13 +220,25 @@ def test_a_huge_sparse_exclude_photos_file_is_one_line_not_read(copy):
 
 
 # --- messages that were unclear -----------------------------------------------------------------------
-def test_a_corrupt_prior_checkpoint_is_one_plain_line(copy):
+class _Payload:
+    def __reduce__(self):
+        return (os.getcwd, ())
+
+
+@pytest.mark.parametrize("damage", ["truncated", "payload"])
+def test_a_corrupt_or_payload_prior_checkpoint_is_one_plain_line(copy, damage):
+    import pickle
+
     prior = copy["run"] / "prior" / "prior.pt"
-    prior.write_bytes(prior.read_bytes()[:3000])
+    if damage == "truncated":
+        prior.write_bytes(prior.read_bytes()[:3000])
+    else:
+        prior.write_bytes(pickle.dumps(_Payload(), protocol=0))
     status, stderr = run_cli(["generate", str(copy["run"]), "--view", copy["names"][1], "--out",
                               str(copy["root"] / "g.png"), "--device", "cpu"])
-    one_error_line(status, stderr, "prior.pt", "not a readable prior checkpoint")
+    line = one_error_line(status, stderr, "prior.pt")
     assert "\x1b" not in stderr and len(stderr.strip().splitlines()) == 1
+    assert "weights_only" not in line             # torch's advice to load it unsafely is not passed on
 
 
 def test_a_short_write_without_an_error_number_on_a_full_disk_says_no_space(tmp_path, monkeypatch):
