@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--height", type=flag("pixels"), help="output height (intrinsics rescaled)")
     parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
     lod = parser.add_mutually_exclusive_group()
-    lod.add_argument("--lod", type=flag("positive"), metavar="GRANULARITY_PX",
+    lod.add_argument("--lod", type=flag("length in pixels"), metavar="GRANULARITY_PX",
                      help="draw a level-of-detail cut: nodes of the model's LOD hierarchy down to this projected "
                           "size in pixels (0: every leaf; default: the exact model, no hierarchy)")
     lod.add_argument("--lod-budget", type=flag("count"), metavar="SPLATS",

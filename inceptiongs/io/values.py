@@ -165,6 +165,7 @@ RULES: dict[str, Rule] = {
     "start": Rule(float, within(0, 1, "(]")),
     "weight": Rule(float, at_least(0)),
     "positive": Rule(float, above(0)),
+    "length in pixels": Rule(float, at_least(0), "pixels"),
 }
 
 
