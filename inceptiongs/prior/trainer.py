@@ -302,9 +302,14 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
         return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"], str(path))}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
-        if "Weights only load failed" in str(exc):   # torch's advice to load it unsafely is not repeated
-            raise InputError(f"{path}: refused: it holds Python objects other than tensors and plain data "
-                             "(loading it could run code; a prior checkpoint never does)") from None
+        text = str(exc)
+        if "Weights only load failed" in text:   # torch's advice to load it unsafely is not repeated
+            if "GLOBAL" in text or "global" in text:
+                raise InputError(f"{path}: refused: it holds Python objects other than tensors and plain data "
+                                 "(loading it could run code; a prior checkpoint never does)") from None
+            after = text.split("WeightsUnpickler error:", 1)[-1] if "WeightsUnpickler error:" in text else ""
+            detail = next((line.strip() for line in after.splitlines() if line.strip()), "not a torch checkpoint")
+            raise InputError(f"{path}: not a readable prior checkpoint ({detail[:200]})") from None
         raise InputError(f"{path}: not a readable prior checkpoint ({one_line(exc)})") from None
 
 

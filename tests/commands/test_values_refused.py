@@ -290,3 +290,12 @@ def test_a_fifo_image_and_a_looping_images_folder_are_named_as_such(copy):
     status, stderr = run_cli(["train", str(copy["scene"]), "--out", str(copy["root"] / "r2"), "--iterations", "1"])
     one_error_line(status, stderr, "symlink loop")
     assert "does not exist" not in stderr
+
+
+@pytest.mark.parametrize("key", ["k", "l"])
+def test_virtual_view_counts_past_the_memory_are_one_line_before_any_pose_is_made(tmp_path, key):
+    from inceptiongs.bootstrap.config import BootstrapConfig
+
+    BootstrapConfig(**{key: 1000}).validate("x.json")      # large but fits: a long, fine-grained path
+    with pytest.raises(InputError, match=rf"x.json: k x l = \d+ virtual view poses per target needs about"):
+        BootstrapConfig(**{key: 10**12}).validate("x.json")
