@@ -69,8 +69,10 @@ def add_backend_arguments(parser: argparse.ArgumentParser, prefix: str = "") -> 
                         help="local diffusers folder with unet/ and vae/ (see docs/prior.md)")
 
 
-def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path, **overrides):
-    """A fresh prior of ``backend`` fitted to ``gaussians``; overrides: config fields (None = default)."""
+def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path, patch_limit: int | None = None,
+              **overrides):
+    """A fresh prior of ``backend`` fitted to ``gaussians``; overrides: config fields (None = default).
+    ``patch_limit``: the smallest training image side (patches shrink to it when training)."""
     overrides = {k: v for k, v in overrides.items() if v is not None}
     try:
         if (backend or "tiny") == "sd":
@@ -92,8 +94,8 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
         config = replace(PriorConfig(), **overrides)
         # Refused before the denoiser is built: the sizes the flags set must fit the device.
         sizes = f"--unet-width {config.unet.base_width} --batch-size {config.batch_size} --patch-size {config.patch_size}"
-        check_training_fits(config.unet, denoiser_cond_channels(config), config.patch_size, config.batch_size,
-                            sizes, device)
+        patch = min(config.patch_size, patch_limit or config.patch_size)
+        check_training_fits(config.unet, denoiser_cond_channels(config), patch, config.batch_size, sizes, device)
         return Prior.for_gaussians(config, gaussians, sizes).to(device)
     except ValueError as exc:
         raise InputError(f"{where}: {exc}") from None
@@ -144,7 +146,8 @@ def run(args) -> int:
         sample_start = args.sample_start
         if sample_start is None and args.appearance_weight == 0 and args.sample_init == "hint":
             sample_start = 1.0  # no hint to start from: sample from pure noise
-        prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
+        prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir,
+                          patch_limit=min(min(c.width, c.height) for c in cameras), patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
                           high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
                           sample_start=sample_start, sample_init=args.sample_init, unet_width=args.unet_width)

@@ -109,11 +109,22 @@ def copy(world, tmp_path):
 
 
 # --- sizes with a ceiling from the memory --------------------------------------------------------------
-@pytest.mark.parametrize("flag, value", [("--unet-width", "1000000"), ("--batch-size", "100000000"),
-                                         ("--patch-size", "1000000")])
+@pytest.mark.parametrize("flag, value", [("--unet-width", "1000000"), ("--batch-size", "100000000")])
 def test_a_prior_too_large_for_the_memory_is_refused_before_it_is_built(copy, flag, value):
     status, stderr = run_cli(["prior", str(copy["run"]), "--restart", "--steps", "1", "--device", "cpu", flag, value])
     one_error_line(status, stderr, flag, "needs about", "available")
+
+
+def test_a_patch_larger_than_the_photos_is_no_memory_problem(copy, monkeypatch):
+    import inceptiongs.prior.trainer as prior_trainer
+
+    def reached(self, **_kwargs):
+        raise Reached()                          # checked and built: the training itself is not needed
+
+    monkeypatch.setattr(prior_trainer.PriorTrainer, "train", reached)
+    status, stderr = run_cli(["prior", str(copy["run"]), "--restart", "--steps", "1", "--device", "cpu",
+                              "--unet-width", "8", "--patch-size", "1000000"])
+    assert status == 0, stderr                  # patches shrink to the photos, as they always did
 
 
 def test_a_generation_window_too_large_for_the_memory_is_refused_before_sampling(copy):
