@@ -19,13 +19,18 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io.config_json import SavedConfig, check_field_types, read_json_object
+from ..io.limits import check_allocation
 from .options import (ABLATION, BOOKKEEPING, DEFAULT_PATH, PRIOR_FILL, check_finite, checked_value,  # noqa: F401
                       option, read_options)
 from .variants import Variant, chosen_variants
+from .virtual_views import DEFAULT_K, DEFAULT_L
 
 SAMPLING = ("langevin", "uniform")
 VIRTUAL_DEPTHS = ("render", "sources", "both", "auto")
 FILLS = ("render", "prior")
+# One candidate virtual view in memory: its camera (a 4x4 float64 pose, intrinsics, a name) and
+# its record, rounded up generously (measured about 1 KiB with Python's object overheads).
+VIRTUAL_VIEW_BYTES = 2048
 
 
 @dataclass
@@ -181,6 +186,10 @@ class BootstrapConfig(SavedConfig):
             value = getattr(self, name)
             if value is not None and value <= 0:
                 raise InputError(f"{source}: {name} must be > 0, got {value}")
+        # k x l candidate poses are made per target before max_virtual_views keeps the first:
+        # their memory is checked before a single one is built.
+        poses = (DEFAULT_K if self.k is None else self.k) * (DEFAULT_L if self.l is None else self.l)
+        check_allocation(poses * VIRTUAL_VIEW_BYTES, source, f"k x l = {poses} virtual view poses per target")
         if self.sampling not in SAMPLING:
             raise InputError(f"{source}: sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
         if self.prior not in ("trained", "untrained"):

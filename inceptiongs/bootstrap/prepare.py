@@ -16,9 +16,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..errors import InputError
 from ..evaluation.networks import load_torchscript
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
-    remove_stale_temp_files
+    output_error, remove_stale_temp_files
 from ..rasterizer.interface import device_record, rasterizer_device
 from ..runs.checkpoint import list_checkpoints
 from ..runs.config import TrainConfig
@@ -58,6 +59,9 @@ def prepare_folder(run: Stage1, out_dir: Path, config: BootstrapConfig, targets:
     """RUN2 made ready for this run -> RUN2/bootstrap. Only reached for a fresh folder or with
     overwrite (the user said so)."""
     check_writable_dir(out_dir)
+    if (out_dir / "checkpoints").is_symlink():   # refused before anything is written or discarded
+        raise InputError(f"{out_dir / 'checkpoints'}: a symlink inside {out_dir}; InceptionGS never writes or deletes "
+                         "through a symlink in a run folder (remove the link or give another --out)")
     remove_stale_temp_files(out_dir, max_age_s=0.0)
     boot_dir = ensure_dir(out_dir / BOOTSTRAP_DIR)
     config.save(boot_dir / "config.json")
@@ -71,7 +75,10 @@ def prepare_folder(run: Stage1, out_dir: Path, config: BootstrapConfig, targets:
     if kept:
         log(f"{out_dir}: discarding the earlier bootstrap's checkpoints (newest at step {kept[-1][0]}; "
             f"`bootstrap --resume` would have continued it)")
-        shutil.rmtree(out_dir / "checkpoints")
+        try:
+            shutil.rmtree(out_dir / "checkpoints")
+        except OSError as exc:
+            raise output_error(out_dir / "checkpoints", exc) from None
     return boot_dir
 
 

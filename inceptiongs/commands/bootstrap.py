@@ -13,7 +13,9 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from .device import recorded_device
+from ..io.values import flag
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -45,12 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a JSON object of bootstrap settings (docs/bootstrap_options.md lists every key; "
                              "RUN2/bootstrap/config.json of an earlier result is one); flags given here override it")
     # default None: a flag not given leaves the --config file's value (else the default) in place
-    parser.add_argument("--rounds", type=int, default=None, help=f"bootstrap rounds (default {d.rounds})")
-    parser.add_argument("--minutes", type=float, default=None,
+    parser.add_argument("--rounds", type=flag("count"), default=None, help=f"bootstrap rounds (default {d.rounds})")
+    parser.add_argument("--minutes", type=flag("minutes"), default=None,
                         help="wall budget for the whole bootstrap (prior, generation, refinement)")
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=flag("steps"), default=None,
                         help=f"refinement steps per round (default {d.iterations})")
-    parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
+    parser.add_argument("--seed", type=flag("seed"), default=None, help=f"generation and sampling seed (default {d.seed})")
 
 
 def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
@@ -90,6 +92,8 @@ def run(args) -> int:
         out_dir = default_out_dir(run_dir)
     else:  # the default name never lands on an earlier result: the next free one is chosen
         out_dir = next_free_folder(default_out_dir(run_dir))
+    if out_dir.resolve() == run_dir.resolve():     # said first: no other word about the folder applies
+        raise InputError(f"{out_dir}: --out must differ from the input run (the bootstrap writes a new run folder)")
     config = config_from_args(args, out_dir if args.resume else None)
     if run_in_blocks(run_dir):
         return run_blocks(args, run_dir, out_dir, config)
@@ -110,8 +114,15 @@ def run(args) -> int:
         print(device.note, file=sys.stderr)
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
-                               resume=args.resume, rasterizer=device.rasterizer)
+        try:
+            result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
+                                   resume=args.resume, rasterizer=device.rasterizer)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out_dir, stopping.exit_status,
+                                            f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume")
     if stopping.signum is not None:
         print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
               f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)

@@ -10,6 +10,7 @@ import sys
 from ..errors import InputError
 from .device import add_device_argument, command_device
 from .generate import add_sampling_arguments
+from ..io.values import flag, rule
 
 HELP = "PSNR/SSIM on held-out views, scarce vs covered (LPIPS/FID only with local weights)"
 
@@ -26,18 +27,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ddim-steps", default="20", metavar="N[,N...]",
                         help="DDIM step counts for --generated (default 20; several give the quality-"
                              "against-steps curve of `inceptiongs report`)")
-    parser.add_argument("--seed", type=int, default=0, help="generation seed for --generated")
+    parser.add_argument("--seed", type=flag("seed"), default=0, help="generation seed for --generated")
     add_sampling_arguments(parser, "--generated, ")
     add_device_argument(parser, reads_run=True)
 
 
 def parse_steps(text: str) -> tuple[int, ...]:
-    try:
-        steps = tuple(int(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        raise InputError(f"--ddim-steps: expected comma-separated integers, got {text!r}") from None
-    if not steps or any(s < 1 for s in steps):
-        raise InputError(f"--ddim-steps: every count must be >= 1, got {text!r}")
+    """--ddim-steps N[,N...]: each N by the "steps" rule (io/values.py)."""
+    steps = tuple(rule("steps").parse(part, "--ddim-steps") for part in text.split(",") if part.strip())
+    if not steps:
+        raise InputError(f"--ddim-steps: expected comma-separated integers, got {text!r}")
     return steps
 
 

@@ -36,6 +36,7 @@ from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
+from ..io.values import flag, shown
 
 HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -54,14 +55,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                              "--backend torch only")
     parser.add_argument("--mode", choices=MODES, default="rgb")
     parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
-    parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
-    parser.add_argument("--height", type=int, help="output height (intrinsics rescaled)")
+    parser.add_argument("--width", type=flag("pixels"), help="output width (intrinsics rescaled)")
+    parser.add_argument("--height", type=flag("pixels"), help="output height (intrinsics rescaled)")
     parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
     lod = parser.add_mutually_exclusive_group()
-    lod.add_argument("--lod", type=float, metavar="GRANULARITY_PX",
+    lod.add_argument("--lod", type=flag("length in pixels"), metavar="GRANULARITY_PX",
                      help="draw a level-of-detail cut: nodes of the model's LOD hierarchy down to this projected "
                           "size in pixels (0: every leaf; default: the exact model, no hierarchy)")
-    lod.add_argument("--lod-budget", type=int, metavar="SPLATS",
+    lod.add_argument("--lod-budget", type=flag("count"), metavar="SPLATS",
                      help="draw the finest level-of-detail cut of at most this many splats")
 
 
@@ -106,9 +107,12 @@ def _run_scene_path(run_dir: Path) -> str | None:
     if not config.is_file():
         return None
     try:
-        return json.loads(read_small_text(config, "run config")).get("scene") or None
+        scene = json.loads(read_small_text(config, "run config")).get("scene") or None
     except (OSError, json.JSONDecodeError, AttributeError):
         raise InputError(f"{config}: not a readable run config") from None
+    if scene is not None and not isinstance(scene, str):
+        raise InputError(f"{config}: scene must be a string (the scene folder), got {shown(scene)}")
+    return scene
 
 
 def load_model_and_camera(args):

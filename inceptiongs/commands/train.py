@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from ..io.config_json import check_seed, with_values
 from ..io.paths import contained_path, read_small_text
 from ..train.distributed import ranks_from_environment
@@ -17,6 +18,7 @@ from .device import add_device_argument, command_device
 from ..runs.config import PROTOCOLS, TrainConfig
 from ..train.partition import PHOTOS_PER_BLOCK
 from ..train.strategies import STRATEGIES
+from ..io.values import flag
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 # Trainer steps per prior step of `train --prior` without a number.
@@ -34,14 +36,14 @@ def add_arguments(parser) -> None:
                              "'{\"pgsr\": false, \"free_space\": {\"sky_min_scale\": 0}}'; the flags given "
                              "override it (RUN/config.json records the result)")
     budget = parser.add_mutually_exclusive_group()
-    budget.add_argument("--minutes", type=float, help="train for this much time: the schedule (learning-rate "
+    budget.add_argument("--minutes", type=flag("minutes"), help="train for this much time: the schedule (learning-rate "
                         "decay, densification, pruning) is sized to it from the measured step rate")
-    budget.add_argument("--iterations", type=int, help="number of steps (default 30000)")
-    parser.add_argument("--downscale", type=int, help="image downscale factor (default 1)")
+    budget.add_argument("--iterations", type=flag("steps"), help="number of steps (default 30000)")
+    parser.add_argument("--downscale", type=flag("factor"), help="image downscale factor (default 1)")
     parser.add_argument("--protocol", choices=PROTOCOLS,
                         help="which views are held out for evaluation (default llff: every 8th view, "
                              "so `eval` works on the run; none: train on all)")
-    parser.add_argument("--seed", type=int, help="seed of the split, the initial points and every random draw "
+    parser.add_argument("--seed", type=flag("seed"), help="seed of the split, the initial points and every random draw "
                                                  "(default 0)")
     add_device_argument(parser, reads_run=True, default_help="auto; with --resume the run's device")
     parser.add_argument("--resume", action="store_true",
@@ -60,7 +62,7 @@ def add_arguments(parser) -> None:
                              "the ranks share the blocks (docs/large_scenes.md)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
-    prior.add_argument("--prior", nargs="?", type=int, const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",
+    prior.add_argument("--prior", nargs="?", type=flag("steps"), const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",
                        help=f"also train the diffusion prior: one prior step every EVERY trainer steps (default "
                             f"{DEFAULT_PRIOR_EVERY}), checkpointed with the run in RUN/prior/")
     add_backend_arguments(prior, prefix="prior-")
@@ -150,10 +152,10 @@ def photos_to_exclude(value: str | None) -> list[str]:
         print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
         return names
     if is_file:
-        try:
-            value = path.read_text().replace("\n", ",")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc})") from None
+        try:     # of a list's size (a huge or sparse file is refused before it is read)
+            value = read_small_text(path, "list of photos to exclude").replace("\n", ",")
+        except FileNotFoundError as exc:
+            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc.strerror})") from None
     return [name.strip() for name in value.split(",") if name.strip()]
 
 
@@ -190,7 +192,14 @@ def run(args) -> int:
     joint = joint_prior(args, out, config, device.torch_device) if args.prior is not None else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        try:
+            result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out, stopping.exit_status,
+                                            f"inceptiongs train {args.scene} --out {out} --resume")
     if joint is not None:
         saved = joint.finish()
         if saved is not None:

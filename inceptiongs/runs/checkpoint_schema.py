@@ -38,6 +38,9 @@ def params_problem(params) -> str | None:
         return f"unknown params {', '.join(map(str, unknown))}"
     if not all(isinstance(t, torch.Tensor) and t.is_floating_point() for t in params.values()):
         return "params are not all floating-point tensors"
+    other = sorted({str(t.dtype).removeprefix("torch.") for t in params.values()} - {"float32"})
+    if other:   # the model, its optimizer and the losses are float32 throughout
+        return f"params are {', '.join(other)}, not float32"
     n = params["means"].shape[0] if params["means"].ndim else -1
     for name, tail in PARAM_SHAPES.items():
         if tuple(params[name].shape) != (n, *tail):

@@ -24,7 +24,8 @@ from typing import ClassVar
 
 from ..constants import DEVICES
 from ..errors import InputError
-from ..io.config_json import (SEED_MAX, SavedConfig, above, at_least, check_settings, config_from_dict,
+from ..io.values import rule as named_rule
+from ..io.config_json import (SavedConfig, above, at_least, check_settings, config_from_dict,
                               config_value, flat_values, read_json_object, section, setting, setting_paths,
                               with_values, within)
 
@@ -246,7 +247,8 @@ class TrainConfig(SavedConfig):
     CONFIG_KIND = "train config"
 
     scene: str = setting("", "scene folder (absolute path); `train` takes it from its SCENE argument", "path")
-    downscale: int = setting(1, "photos are read at 1/downscale of their size", "factor", at_least(1))
+    downscale: int = setting(1, "photos are read at 1/downscale of their size", "factor",
+                             rule=named_rule("factor"))
     max_width: int | None = setting(None, "every photo is scaled down further so that the widest is at most this "
                                           "wide; null: no cap", "pixels", at_least(1))
     protocol: str = setting("none", "which views are held out for evaluation (inceptiongs.evaluation.protocols): "
@@ -254,15 +256,15 @@ class TrainConfig(SavedConfig):
                                     "a few of every other), \"none\"; `train` defaults to \"llff\"",
                             choices=PROTOCOLS)
     seed: int = setting(0, "seeds the view order, the initial points and every random draw of the strategies",
-                        range=within(0, SEED_MAX))
+                        rule=named_rule("seed"))
     scarce_views: list[str] = setting([], "unstructured protocol: these views (names) form the scarce cluster "
                                           "instead of a seeded random one")
     exclude_photos: list[str] = setting([], "photos (names) left out entirely: neither trained on nor held out "
                                             "(`train --exclude-photos`, inceptiongs.train.view_fit)")
     iterations: int = setting(30_000, "length of the schedule; the milestones (steps) not given scale with it "
-                                      "(short_run_schedule)", "steps", at_least(1))
+                                      "(short_run_schedule)", rule=named_rule("steps"))
     minutes: float | None = setting(None, "wall-clock budget: stops the loop early; given without iterations, "
-                                          "the schedule is sized to it; null: no budget", "minutes", above(0))
+                                          "the schedule is sized to it; null: no budget", rule=named_rule("minutes"))
     size_to_minutes: bool = setting(False, "the trainer sizes iterations (and the schedule) to the time budget "
                                            "from the measured step rate, and re-sizes it when the rate changes "
                                            "a lot; `train` sets it when minutes is given without iterations")

@@ -211,4 +211,4 @@ def test_a_non_finite_flag_is_refused_too(tmp_path, capsys):
     capsys.readouterr()
     assert main(["bootstrap", str(tmp_path / "run"), "--minutes", "nan", "--out", str(tmp_path / "out")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "arguments: minutes must be float | None (a finite number)" in lines[0], lines
+    assert len(lines) == 1 and "--minutes must be a finite number" in lines[0], lines
