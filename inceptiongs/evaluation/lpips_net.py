@@ -17,13 +17,13 @@ summed.
 
 from __future__ import annotations
 
-import pickletools
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 
 from ..errors import InputError
+from ..io.pickles import file_names_code
 
 # LPIPS's input normalisation (per channel, for images in [-1, 1]).
 SHIFT = (-0.030, -0.088, -0.188)
@@ -116,26 +116,16 @@ def read_weights(path: str | Path, what: str = "LPIPS weights") -> dict[str, tor
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a foreign file
-        if _is_pickle(path):
+        if file_names_code(path, str(exc)):
             raise InputError(f"{path}: holds Python objects, not only tensors; {what} are read as plain "
                              f"tensors and this file is refused") from None
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if "Weights only load failed" in first:   # torch's advice to load it unsafely is not repeated
+            first = "the weights-only loader refused it"
         raise InputError(f"{path}: not a {what} file ({first[:200]})") from None
     if not isinstance(data, dict) or not all(isinstance(v, torch.Tensor) for v in data.values()):
         raise InputError(f"{path}: {what} must be a dict of tensors")
     return data
-
-
-def _is_pickle(path: Path) -> bool:
-    """A raw pickle stream (any protocol) rather than torch's zip format."""
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(1 << 16)
-        for _ in pickletools.genops(head):
-            pass
-        return True
-    except Exception:  # noqa: BLE001 - anything unparsable is not a (complete) pickle
-        return head[:1] == b"\x80"
 
 
 def load_lpips(path: str | Path) -> Lpips:
