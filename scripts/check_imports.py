@@ -47,7 +47,7 @@ LIBRARY_ORDER = (
     ("scene", ("inceptiongs.scene",)),
     ("rasterizer", ("inceptiongs.rasterizer",)),
     ("lod", ("inceptiongs.lod",)),
-    ("measures", ("inceptiongs.evaluation.metrics", "inceptiongs.evaluation.networks",
+    ("measures", ("inceptiongs.evaluation.metrics", "inceptiongs.evaluation.networks", "inceptiongs.evaluation.lpips_net",
                   "inceptiongs.evaluation.scoring", "inceptiongs.evaluation.protocols",
                   "inceptiongs.evaluation.coverage", "inceptiongs.evaluation.report")),
     ("runs", ("inceptiongs.runs",)),

@@ -112,8 +112,9 @@ class BootstrapConfig(SavedConfig):
     generated_weight: float = option(1.0, "loss weight of a virtual view's untrusted (fill) pixels against "
                                           "the pixels trusted from warped photos; 1: the paper's loss on I*; "
                                           "lower trusts a weak fill less", "weight, in [0, 1]")
-    lpips_weights: str | None = option(None, "a TorchScript LPIPS file for the perceptual loss; null: MS-SSIM-G "
-                                             "(weight-free)", "path")
+    lpips_weights: str | None = option(None, "AlexNet-LPIPS weights as plain tensors (scripts/lpips_weights.py "
+                                             "makes them; TorchScript is refused) for the perceptual loss; null: "
+                                             "MS-SSIM-G (weight-free)", "path")
     # The conscience (conscience.py) keeps the virtual views from pulling well observed regions down.
     conscience_tolerance: float | None = option(0.05, "every `conscience_every` steps the L1 of the training "
                                                       "photos nearest the targets is measured; above its start "

@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InputError
-from ..evaluation.networks import load_torchscript
+from ..evaluation.lpips_net import load_lpips
 from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
     output_error, remove_stale_temp_files
 from ..rasterizer.interface import device_record, rasterizer_device
@@ -194,8 +194,8 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
             plan = plan_following(plan, photo_first_s(outlook), summary, log)
         prior, prior_hash, prior_text, summary["prior"] = obtain_fill(run, out_dir, config, plan, clock, rasterizer,
                                                                       cpu_photos, log)
-    # The one place the LPIPS weights are loaded (a TorchScript file; null: MS-SSIM-G, perceptual.py).
-    lpips = load_torchscript(config.lpips_weights, "LPIPS") if config.lpips_weights else None
+    # The one place the LPIPS weights are loaded (plain tensors, lpips_net; null: MS-SSIM-G, perceptual.py).
+    lpips = load_lpips(config.lpips_weights) if config.lpips_weights else None
     summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
     cache = GenerationCache(boot_dir / "cache")
     sampler = ViewSampler(config.seed)

@@ -72,8 +72,11 @@ def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
         base = BootstrapConfig()
     given = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name) is not None}
     config = dataclasses.replace(base, **given).validate("arguments")
-    if config.lpips_weights is not None and not Path(config.lpips_weights).is_file():
-        raise InputError(f"{args.config}: lpips_weights {config.lpips_weights}: LPIPS weights file does not exist")
+    if config.lpips_weights is not None:
+        if not Path(config.lpips_weights).is_file():
+            raise InputError(f"{args.config}: lpips_weights {config.lpips_weights}: LPIPS weights file does not exist")
+        from ..evaluation.lpips_net import load_lpips
+        load_lpips(config.lpips_weights)   # refused here, before any work: TorchScript, objects, wrong keys
     return config
 
 

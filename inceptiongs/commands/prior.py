@@ -102,6 +102,17 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
 
 
 def run(args) -> int:
+    from ..runs.lock import run_folder_lock
+
+    if not Path(args.run).is_dir():
+        return train_prior(args)   # its one line names what is wrong with the path
+    # One writer per run: two priors at once interleaved prior/metrics.jsonl and lost one's work,
+    # and a `train --resume` would change the model under the prior.
+    with run_folder_lock(args.run):
+        return train_prior(args)
+
+
+def train_prior(args) -> int:
     from ..prior.joint import training_views
     from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
     from ..runs.load import load_run

@@ -49,6 +49,10 @@ def params_problem(params) -> str | None:
     if rest is not None and (rest.ndim != 3 or rest.shape[0] != n or rest.shape[2] != 3
                              or rest.shape[1] + 1 not in (4, 9, 16)):
         return f"params sh_rest has shape {tuple(rest.shape)}"
+    for name, tensor in params.items():
+        # A resume from NaN or inf trains nothing and writes a model.ply every reader refuses.
+        if not bool(torch.isfinite(tensor).all()):
+            return f"params {name} holds {int((~torch.isfinite(tensor)).sum())} non-finite values"
     return None
 
 

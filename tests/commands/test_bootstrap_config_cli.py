@@ -148,6 +148,25 @@ def test_a_missing_lpips_file_named_in_the_config_is_refused(tmp_path):
         config_from_args(parse("--config", str(settings)))
 
 
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_a_torchscript_lpips_file_named_in_a_shared_config_is_refused_before_it_loads(tmp_path, monkeypatch):
+    """A config (or a stopped bootstrap's saved one) may come from someone else: a TorchScript
+    file it names can create and overwrite files when loaded and run, so it is never loaded."""
+    import torch
+
+    class Distance(torch.nn.Module):
+        def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+            return (a - b).abs().mean()
+
+    torch.jit.script(Distance()).save(str(tmp_path / "lpips.pt"))
+    loads = []
+    monkeypatch.setattr(torch.jit, "load", lambda *args, **kwargs: loads.append(args))
+    settings = write(tmp_path / "settings.json", json.dumps({"lpips_weights": str(tmp_path / "lpips.pt")}))
+    with pytest.raises(InputError, match="TorchScript"):
+        config_from_args(parse("--config", str(settings)))
+    assert loads == []
+
+
 def test_the_saved_config_reads_back_as_a_config_file(tmp_path):
     """RUN2/bootstrap/config.json is written by BootstrapConfig.save: every field, and it loads
     through --config to the same config (also with every optional field set)."""

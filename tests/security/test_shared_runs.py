@@ -99,6 +99,33 @@ def test_a_checkpoint_with_missing_keys_is_one_line(copy):
     one_error_line(status, stderr, str(path), "not an InceptionGS training checkpoint")
 
 
+@pytest.mark.parametrize("protocol", range(pickle.HIGHEST_PROTOCOL + 1))
+def test_a_payload_of_every_pickle_protocol_is_refused_not_skipped_as_damaged(copy, protocol):
+    """A payload is never taken for damaged bytes (which would fall back to the older checkpoint
+    beside it with a warning), and the line never advises loading it unsafely."""
+    run = copy["run"]
+    marker = copy["root"] / "PAYLOAD_RAN"
+    planted = run / "checkpoints" / "step_0000099.pt"
+    planted.write_bytes(pickle.dumps({"iteration": 99, "params": _Payload(marker)}, protocol=protocol))
+    status, _, stderr = run_main(["train", str(copy["scene"]), "--out", str(run), "--resume"])
+    line = one_error_line(status, stderr, str(planted), "could run code")
+    assert "weights_only" not in stderr and "warning" not in stderr and not marker.exists(), line
+
+
+def test_non_finite_parameters_in_a_checkpoint_are_refused_on_load(copy):
+    from inceptiongs.runs.checkpoint import list_checkpoints
+
+    run = copy["run"]
+    _, path = list_checkpoints(run)[-1]
+    payload = torch.load(path, weights_only=True)
+    payload["params"]["means"][0, 1] = float("nan")
+    torch.save(payload, path)
+    for _, older in list_checkpoints(run)[:-1]:
+        older.unlink()   # the only checkpoint: nothing to fall back to
+    status, _, stderr = run_main(["train", str(copy["scene"]), "--out", str(run), "--resume"])
+    one_error_line(status, stderr, str(path), "non-finite")
+
+
 def test_checkpoints_are_written_as_plain_data_that_loads_weights_only(tmp_path):
     from inceptiongs.runs.checkpoint import load_checkpoint, plain_data, save_checkpoint
 
