@@ -10,6 +10,7 @@ summary.json, cache/, views/*.png) and RUN2/prior/ when a prior was trained here
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -32,6 +33,16 @@ from .targets import Target, flag_targets, named_target, split_targets
 def default_out_dir(run_dir: str | Path) -> Path:
     run_dir = Path(run_dir)
     return run_dir.with_name(run_dir.name + "_bootstrap")
+
+
+def check_default_out_dir(out_dir: Path) -> Path:
+    """``out_dir`` when it may take a default output: the folder beside the input run belongs
+    to whoever made that bundle, so a symlink there (which could send the model, checkpoints and
+    logs anywhere) is refused in one line; an --out the user gives is their choice."""
+    if out_dir.is_symlink():
+        raise InputError(f"{out_dir}: the default output folder is a symlink (to {os.readlink(out_dir)}); "
+                         f"give --out to choose where the bootstrap writes")
+    return out_dir
 
 
 def check_output_folder(out_dir: Path, overwrite: bool) -> None:

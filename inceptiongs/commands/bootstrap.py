@@ -81,8 +81,8 @@ def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
 
 
 def run(args) -> int:
-    from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
-                                    resumable, run_bootstrap)
+    from ..bootstrap.runner import (check_default_out_dir, check_output_folder, default_out_dir, load_stage1,
+                                    resolve_targets, resumable, run_bootstrap)
     from ..live import JobControl
     from ..rasterizer.interface import resolve_device
     from ..stop_signals import stop_on_signals
@@ -92,9 +92,9 @@ def run(args) -> int:
     if args.out:
         out_dir = Path(args.out)
     elif args.overwrite or args.resume:
-        out_dir = default_out_dir(run_dir)
+        out_dir = check_default_out_dir(default_out_dir(run_dir))
     else:  # the default name never lands on an earlier result: the next free one is chosen
-        out_dir = next_free_folder(default_out_dir(run_dir))
+        out_dir = check_default_out_dir(next_free_folder(check_default_out_dir(default_out_dir(run_dir))))
     if out_dir.resolve() == run_dir.resolve():     # said first: no other word about the folder applies
         raise InputError(f"{out_dir}: --out must differ from the input run (the bootstrap writes a new run folder)")
     config = config_from_args(args, out_dir if args.resume else None)

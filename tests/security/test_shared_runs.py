@@ -126,6 +126,18 @@ def test_non_finite_parameters_in_a_checkpoint_are_refused_on_load(copy):
     one_error_line(status, stderr, str(path), "non-finite")
 
 
+@pytest.mark.parametrize("extra", [[], ["--overwrite"]])
+def test_the_default_bootstrap_output_never_follows_a_planted_sibling_symlink(copy, extra):
+    """A bundle holding run/ and run_bootstrap -> elsewhere must not make a bootstrap write its
+    model, checkpoints and logs elsewhere."""
+    elsewhere = copy["root"] / "elsewhere"
+    elsewhere.mkdir()
+    (copy["root"] / "run_bootstrap").symlink_to(elsewhere)
+    status, _, stderr = run_main(["bootstrap", str(copy["run"]), "--target-view", copy["names"][0], *extra])
+    one_error_line(status, stderr, "run_bootstrap", "symlink", "--out")
+    assert list(elsewhere.iterdir()) == []
+
+
 def test_checkpoints_are_written_as_plain_data_that_loads_weights_only(tmp_path):
     from inceptiongs.runs.checkpoint import load_checkpoint, plain_data, save_checkpoint
 
