@@ -215,8 +215,8 @@ def finish(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state: Lo
     attempt(lambda: save_model(setting.out_dir, gaussians, train.iteration, setting.train_config, setting.sh_max,
                                run.scene.normalization))
     attempt(lambda: write_summary(setting, plan, state, pool))
-    if state.current_round:
-        attempt(lambda: checkpoint(setting, config, state, pool, state.current_round))
+    if state.current_round or not state.finished:   # stopped before round 1 too: `--resume` starts it
+        attempt(lambda: checkpoint(setting, config, state, pool, max(state.current_round, 1)))
     saves.raise_first(setting.log)
     cache = setting.cache
     return BootstrapResult(setting.out_dir, plan.start, train.iteration, state.finished, state.rounds_done,

@@ -47,7 +47,7 @@ def check_default_out_dir(out_dir: Path) -> Path:
 
 def check_output_folder(out_dir: Path, overwrite: bool) -> None:
     """InputError (one line) when ``out_dir`` holds a result and the user did not ask to replace it."""
-    if not holds_result(out_dir) or overwrite:
+    if not holds_result(out_dir) or overwrite or killed_before_first_save(out_dir):
         return
     stopped = stopped_bootstrap_step(out_dir)
     if stopped is not None:
@@ -55,6 +55,15 @@ def check_output_folder(out_dir: Path, overwrite: bool) -> None:
                          f"continue it, --overwrite to replace it, or another --out")
     raise InputError(f"{out_dir}: already holds a result; give --overwrite to replace it, or another "
                      f"--out (e.g. {next_free_folder(out_dir)})")
+
+
+def killed_before_first_save(out_dir: Path) -> bool:
+    """Whether ``out_dir`` holds only the start of a bootstrap killed before it saved anything
+    (no model, no checkpoint): a rerun may start it again, since nothing there is a result."""
+    from ..runs.checkpoint import list_checkpoints
+
+    return ((out_dir / BOOTSTRAP_DIR).is_dir() and not (out_dir / "model.ply").exists()
+            and not list_checkpoints(out_dir))
 
 
 def stopped_bootstrap_step(out_dir: Path) -> int | None:

@@ -127,8 +127,13 @@ def run(args) -> int:
             return stopped_with_failed_save(exc, out_dir, stopping.exit_status,
                                             f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume")
     if stopping.signum is not None:
-        print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
-              f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
+        from ..runs.checkpoint import latest_checkpoint
+        if latest_checkpoint(out_dir) is not None:
+            print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue "
+                  f"with: inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
+        else:   # said as it is: a line promising a checkpoint that is not there sends the user to --resume in vain
+            print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply, no checkpoint (start again "
+                  f"with: inceptiongs bootstrap {run_dir} --out {out_dir} --overwrite)", file=sys.stderr)
         return stopping.exit_status
     print(f"prior: {result.prior}")
     if result.supervised_views is not None and result.supervised_views < result.virtual_views:
