@@ -131,6 +131,8 @@ def train_prior(args) -> int:
 
     gaussians, scene, _ = load_run(run_dir)
     from ..io.atomic import check_writable_dir
+    from ..io.paths import check_inside
+    check_inside(prior_dir(run_dir), run_dir)   # RUN/prior a symlink out of the run: neither read nor written
     check_writable_dir(prior_dir(run_dir))  # one line now, not after the prior's training
     gaussians = gaussians.to(device)
     views = training_views(run_dir, scene)

@@ -26,6 +26,8 @@ import torch
 from tqdm import tqdm
 
 from ..io.atomic import atomic_write_bytes
+from ..io.paths import check_inside
+from ..io.pickles import file_names_code
 from ..camera import Camera
 from ..errors import InputError, one_line
 from ..gaussians import Gaussians
@@ -297,6 +299,7 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
     path = prior_dir(run_dir) / CHECKPOINT_NAME
     if not path.is_file():
         raise InputError(f"{path}: no prior checkpoint (train one with `inceptiongs prior RUN`)")
+    check_inside(path, run_dir)
     try:
         payload = torch.load(path, map_location=device, weights_only=True)
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
@@ -304,7 +307,7 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
         text = str(exc)
         if "Weights only load failed" in text:   # torch's advice to load it unsafely is not repeated
-            if "GLOBAL" in text or "global" in text:
+            if file_names_code(path, text):
                 raise InputError(f"{path}: refused: it holds Python objects other than tensors and plain data "
                                  "(loading it could run code; a prior checkpoint never does)") from None
             after = text.split("WeightsUnpickler error:", 1)[-1] if "WeightsUnpickler error:" in text else ""

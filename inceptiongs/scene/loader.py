@@ -24,7 +24,7 @@ from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
 from ..constants import IMAGE_SIDE_MAX
 from ..errors import InputError
-from ..io.paths import link_problem
+from ..io.paths import link_problem, stays_inside
 from ..gaussians import Gaussians
 from .raw import RawScene
 from .undistort import distortion_key, undistort_image, undistorted_camera
@@ -186,7 +186,10 @@ class Scene:
             cache = self.work_dir / relative
         except InputError:  # no usable cache directory: work without one
             cache = None
-        for cached in (cache, self.legacy_work_dir / relative):
+        legacy = self.legacy_work_dir / relative
+        # Older versions' cache inside the scene is read only where it really lies inside the scene:
+        # a symlink planted there would make every command read (and `eval` copy) any image on the disk.
+        for cached in (cache, legacy if stays_inside(legacy, self.root) else None):
             if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
                 return _to_float_rgb(_read_image(cached), cached)
         image = _read_image(path)

@@ -138,6 +138,47 @@ def test_the_default_bootstrap_output_never_follows_a_planted_sibling_symlink(co
     assert list(elsewhere.iterdir()) == []
 
 
+def test_the_old_cache_folder_inside_a_scene_is_not_followed_out_of_it(copy):
+    """SCENE/.inceptiongs (older versions' cache) planted as a symlink to elsewhere: the image
+    there must not be read (eval would copy it into the run)."""
+    import cv2
+
+    from inceptiongs.scene.loader import load_scene
+
+    scene_dir = copy["scene"]
+    scene = load_scene(scene_dir, downscale=2)   # resized images: the cache path is taken
+    camera = scene.cameras[0]
+    outside = copy["root"] / "outside"
+    planted = outside / "images" / f"{camera.width}x{camera.height}" / f"{camera.name}.png"
+    planted.parent.mkdir(parents=True)
+    red = np.zeros((camera.height, camera.width, 3), np.uint8)
+    red[..., 2] = 255
+    cv2.imwrite(str(planted), red)
+    (scene_dir / ".inceptiongs").symlink_to(outside)
+    image = load_scene(scene_dir, downscale=2).load_image(0)
+    assert not (image[..., 0] > 0.99).all(), "the image outside the scene was read"
+
+
+def test_prior_files_and_generated_scores_are_not_read_through_a_symlink_out_of_the_run(copy):
+    from inceptiongs.errors import InputError
+    from inceptiongs.evaluation.report_prior import generated_by_steps
+    from inceptiongs.prior.trainer import read_prior_checkpoint
+
+    run, outside = copy["run"], copy["root"] / "outside"
+    (outside / "prior").mkdir(parents=True)
+    torch.save({"backend": "tiny"}, outside / "prior" / "prior.pt")
+    (run / "prior").symlink_to(outside / "prior")
+    with pytest.raises(InputError, match="leads outside"):
+        read_prior_checkpoint(run)
+    (outside / "generated.json").write_text(json.dumps({"by_steps": [{"ddim_steps": 4}]}))
+    (run / "eval").mkdir(exist_ok=True)
+    (run / "eval" / "generated.json").symlink_to(outside / "generated.json")
+    with pytest.raises(InputError, match="leads outside"):
+        generated_by_steps(run)
+    status, _, stderr = run_main(["prior", str(run), "--steps", "1"])
+    one_error_line(status, stderr, "leads outside")
+
+
 def test_checkpoints_are_written_as_plain_data_that_loads_weights_only(tmp_path):
     from inceptiongs.runs.checkpoint import load_checkpoint, plain_data, save_checkpoint
 
