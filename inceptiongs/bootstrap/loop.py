@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,8 +26,9 @@ from ..train.loop import SaveAttempts, out_of_memory_stops, save_model
 from ..train.step import evaluate_held_out, sh_degree_at, train_step
 from .config import BootstrapConfig
 from .conscience import photo_loss
-from .plan import RoundPlan
+from .plan import RoundPlan, photo_first_s
 from .pool import ViewPool, in_use, supervised_count
+from .probe import measured_outlook, photo_until
 from .refine import active_views, render_l1, virtual_loss, virtual_step
 from .round_views import add_round_views, open_round, regenerate_pool
 from .state import LoopState, Setting, evaluate, model
@@ -117,7 +119,9 @@ def refine_step(setting: Setting, config: BootstrapConfig, plan: RoundPlan, stat
     its bookkeeping: metrics, snapshot, checkpoint."""
     clock, conscience = state.clock, state.conscience
     clock.mark_first_step()
-    if pool.pending_round is not None and clock.wall_s() >= plan.photo_until_s:
+    if state.probe is not None and state.probe.over(step, clock.wall_s()):
+        end_probe(setting, state)
+    if pool.pending_round is not None and clock.wall_s() >= photo_until(plan, state):
         pending, pool.pending_round = pool.pending_round, None
         add_round_views(setting, config, plan, state, pool, pending, state.summary["rounds"][-1])
     if regeneration_due(config, plan, pool, step, round_end):
@@ -146,6 +150,20 @@ def refine_step(setting: Setting, config: BootstrapConfig, plan: RoundPlan, stat
     clock.snapshot(step, state.train.params, record)
     if (step - plan.start) % config.checkpoint_every == 0:
         checkpoint(setting, config, state, pool, round_index + 1)
+
+
+def end_probe(setting: Setting, state: LoopState) -> None:
+    """The probe's photo steps are done: score the held-out views again and read the outlook from
+    the two scorings (probe.py); from now on the loop follows it."""
+    clock, probe = state.clock, state.probe
+    scores = evaluate(setting, state, {"phase": "probe"})
+    outlook = measured_outlook(setting.initial_eval, scores, clock.train_s() - probe.start_train_s)
+    wait = photo_first_s(outlook)
+    state.probe, state.last_eval = None, scores
+    state.photo_until_s = clock.wall_s() + wait            # inf stays inf: every step on the photos
+    state.summary["outlook"] = {**outlook.to_json(), "measured": True}
+    state.summary["photo_first_s"] = None if math.isinf(wait) else state.photo_until_s
+    setting.log(outlook.line)
 
 
 def virtual_or_photo_step(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool,

@@ -32,6 +32,7 @@ from .generation import GenerationCache, ImagePrior, obtain_prior, prior_version
 from .outlook import run_outlook
 from .perceptual import perceptual_name
 from .plan import RoundPlan, following_line, photo_first_s, plan_rounds
+from .probe import can_probe, plan_probe
 from .pool import ViewPool
 from .refine import ViewSampler, continuation_config
 from .stage1 import Stage1
@@ -186,14 +187,25 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
     if resume is not None:
         summary["resumed_at"] = train.iteration
     prior, prior_hash, prior_text = None, "", "none (baseline: no virtual views)"
+    probe = None
     if targets is not None:
         outlook = run_outlook(run.run_dir)   # what stage I's curve says before any work is spent
         log(outlook.line)
         summary["outlook"] = outlook.to_json()
-        if config.follow_outlook:
-            plan = plan_following(plan, photo_first_s(outlook), summary, log)
+        probing = config.follow_outlook and outlook.verdict == "unknown" and can_probe(initial)
+        if config.follow_outlook and not probing:
+            plan = plan_following(plan, within_budget(photo_first_s(outlook), config), summary, log)
         prior, prior_hash, prior_text, summary["prior"] = obtain_fill(run, out_dir, config, plan, clock, rasterizer,
                                                                       cpu_photos, log)
+        if probing:
+            probe = plan_probe(train.iteration, plan.start + len(plan.rounds) * plan.steps - train.iteration,
+                               None if config.minutes is None else 60.0 * config.minutes, clock.wall_s(),
+                               clock.train_s())
+            summary["probe"] = {"until_step": probe.until_step,
+                                "until_s": None if math.isinf(probe.until_s) else probe.until_s}
+            log(f"measuring the repair outlook instead: photo steps up to step {probe.until_step}"
+                + ("" if math.isinf(probe.until_s) else f" or {probe.until_s:.0f} s") +
+                ", then the held-out views are scored again (follow_outlook: false makes virtual views from the start)")
     # The one place the LPIPS weights are loaded (plain tensors, lpips_net; null: MS-SSIM-G, perceptual.py).
     lpips = load_lpips(config.lpips_weights) if config.lpips_weights else None
     summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
@@ -207,7 +219,15 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
         else None
     setting = Setting(run, out_dir, boot_dir, train_config, data, cpu_photos, sh_max, rasterizer, log, cache, prior,
                       prior_hash, prior_text, lpips, watched, initial)
-    return setting, plan, LoopState(train, clock, conscience, summary, initial), ViewPool(sampler)
+    return setting, plan, LoopState(train, clock, conscience, summary, initial, probe=probe), ViewPool(sampler)
+
+
+def within_budget(photo_until_s: float, config: BootstrapConfig) -> float:
+    """``photo_until_s``, or math.inf when it reaches past the time budget: then no virtual view
+    could be used, and making them (and a fill) would only take time from the photo steps."""
+    if config.minutes is not None and photo_until_s >= 60.0 * config.minutes:
+        return math.inf
+    return photo_until_s
 
 
 def plan_following(plan: RoundPlan, photo_until_s: float, summary: dict, log: Callable[[str], None]) -> RoundPlan:

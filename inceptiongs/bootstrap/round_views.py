@@ -16,6 +16,7 @@ from .config import BootstrapConfig
 from .generation import VirtualTarget
 from .plan import RoundPlan
 from .pool import ViewPool, evidence_share, on_device, supervised_count
+from .probe import photo_until
 from .state import LoopState, Setting, model
 from .targets import Target
 from .variants import PlacedViews, PlacementRequest
@@ -63,9 +64,10 @@ def open_round(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state
     goal = plan.rounds[round_index]
     round_info = {"round": round_index + 1, "targets": [t.name for t in goal], "views": []}
     state.summary["rounds"].append(round_info)
-    if state.clock.wall_s() < plan.photo_until_s:
-        round_info["deferred"] = "every step on the photos" if math.isinf(plan.photo_until_s) else \
-            f"until {plan.photo_until_s:.0f} s"
+    until = photo_until(plan, state)
+    if state.clock.wall_s() < until:
+        round_info["deferred"] = ("until the probe has measured the outlook" if state.probe is not None else
+                                  "every step on the photos" if math.isinf(until) else f"until {until:.0f} s")
         pool.pending_round = round_index
         return
     add_round_views(setting, config, plan, state, pool, round_index, round_info)

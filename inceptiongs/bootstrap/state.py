@@ -19,6 +19,7 @@ from ..train.loop import StepLoop
 from ..train.step import TrainData, TrainState, evaluate_held_out
 from .conscience import Conscience
 from .generation import GenerationCache, ImagePrior
+from .probe import Probe
 from .stage1 import Stage1
 
 # What each refinement step was, as summary.json counts them ("additive": a photo step carrying
@@ -61,7 +62,8 @@ class LoopState:
     clock: the clocks, pause/stop control and progress bar; counts: steps per kind (STEP_KINDS);
     conscience: the photos' watch (None: off); summary: what summary.json will say;
     last_eval: the newest held-out scores; current_round: the (1-based) round being refined (0:
-    none yet); rounds_done; finished: False once stopped or out of time."""
+    none yet); rounds_done; finished: False once stopped or out of time; probe, photo_until_s: the
+    outlook measured while the bootstrap runs (probe.py)."""
 
     train: TrainState
     clock: StepLoop
@@ -72,6 +74,8 @@ class LoopState:
     current_round: int = 0
     rounds_done: int = 0
     finished: bool = True
+    probe: Probe | None = None              # the outlook being measured (probe.py); None: known
+    photo_until_s: float | None = None      # the photo-first time a probe measured (None: the plan's)
 
 
 def model(state: TrainState) -> Gaussians:
