@@ -136,7 +136,9 @@ def data_root() -> Path | None:
 def copy_stage1(source: Path, run_dir: Path) -> None:
     """An existing stage-I run copied to ``run_dir`` (read-only input stays untouched: a prior
     trained for the benchmark is written beside the copy). Copies config.json, split.json,
-    model.ply and the newest checkpoint (its Adam moments are what the continuation resumes)."""
+    model.ply, metrics.jsonl (stage I's held-out curve: the repair outlook reads it; without it the
+    bootstrap must measure the outlook first) and the newest checkpoint (its Adam moments are what
+    the continuation resumes)."""
     import shutil
 
     from inceptiongs.errors import InputError
@@ -149,8 +151,9 @@ def copy_stage1(source: Path, run_dir: Path) -> None:
     if tmp.exists():
         shutil.rmtree(tmp)
     (tmp / "checkpoints").mkdir(parents=True)
-    for name in ("config.json", "split.json", "model.ply"):
-        shutil.copy2(source / name, tmp / name)
+    for name in ("config.json", "split.json", "model.ply", "metrics.jsonl"):
+        if (source / name).is_file():
+            shutil.copy2(source / name, tmp / name)
     checkpoint = latest_checkpoint(source)
     if checkpoint is not None:
         shutil.copy2(checkpoint, tmp / "checkpoints" / checkpoint.name)
