@@ -20,6 +20,7 @@ from . import detail as level_of_detail
 from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
 from .editing import box_handles
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
+from .gizmo import gizmo_handles, gizmo_segments
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
 from .reference import ReferenceWorker, error_heatmap, side_by_side
@@ -61,6 +62,9 @@ CROP_HANDLE_SIZE = 9.0  # pixels: the face handles one drags
 # drawn (frustums.away_from): around the eye their lines run across the whole window.
 FLAG_HIDE_DISTANCE = 4.0
 SELECTION_COLOR = (1.0, 0.2, 0.9)
+# The gizmo's x, y, z handles, coloured as the usual axis colours; the tips drawn large to grab.
+GIZMO_COLORS = np.array([[1.0, 0.25, 0.25], [0.3, 1.0, 0.3], [0.35, 0.5, 1.0]])
+GIZMO_HANDLE_SIZE = 14.0
 
 
 def next_moving_scale(scale: float, costs: dict) -> float:
@@ -367,9 +371,10 @@ class FrameDrawer:
         return worker.error is not None or (self.reference_shown is not None
                                             and self.reference_shown[0] is worker.result())
 
-    def draw_overlays(self, view, flag_book, poorly_fit, screen: moderngl.Framebuffer) -> None:
+    def draw_overlays(self, view, flag_book, poorly_fit, screen: moderngl.Framebuffer, gizmo=None) -> None:
         """Over the scene: training cameras (``poorly_fit``: image names drawn apart), the
-        flags of ``flag_book`` (flags.FlagBook), the crop box and the selection."""
+        flags of ``flag_book`` (flags.FlagBook), the crop box, the selection and the gizmo
+        (``gizmo``: (pivot [3], handle length) or None)."""
         settings, edit, flags = view.settings, view.edit, flag_book.items
         camera = view.current_camera()
         screen.use()
@@ -397,6 +402,9 @@ class FrameDrawer:
                                      size=CROP_HANDLE_SIZE)
         if edit.selected.any():
             self.overlay.draw_points(camera, edit.base["means"][edit.selected], SELECTION_COLOR)
+        if gizmo is not None:
+            self.overlay.draw_segments(camera, gizmo_segments(*gizmo), GIZMO_COLORS)
+            self.overlay.draw_points(camera, gizmo_handles(*gizmo), GIZMO_COLORS, size=GIZMO_HANDLE_SIZE)
 
     def training_frustums(self, cameras: list, poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
         """frustums.drawn_training_frustums for ``cameras``, the poorly fit photos kept; computed

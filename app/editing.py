@@ -21,6 +21,10 @@ from .runs import fresh_file, saved_dir
 
 # A crop-box handle is grabbed within this many pixels of the cursor.
 CROP_HANDLE_PIXELS = 12.0
+# "visible rectangle": a Gaussian counts as seen when its mean lies no deeper than the rendered
+# surface at its pixel by this share of that depth, or by this many of its own sizes.
+VISIBLE_DEPTH_SHARE = 0.03
+VISIBLE_EXTENT_SIGMAS = 2.0
 
 
 def project_means(means: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -48,6 +52,28 @@ def select_rectangle(pixels: np.ndarray, corner_a: tuple[float, float],
     with np.errstate(invalid="ignore"):
         return ((pixels[:, 0] >= x0) & (pixels[:, 0] <= x1) &
                 (pixels[:, 1] >= y0) & (pixels[:, 1] <= y1))
+
+
+def select_visible(pixels: np.ndarray, depth: np.ndarray, extent: np.ndarray, surface: np.ndarray,
+                   origin: tuple[int, int]) -> np.ndarray:
+    """The Gaussians seen at their pixel, not hidden behind a surface there.
+    pixels: [N, 2] framebuffer positions; depth: [N] camera z; extent: [N] each Gaussian's
+    largest size (scene units); surface: [h, w] the rendered depth of a window of the frame
+    whose top-left pixel is ``origin`` (x, y), 0 where nothing was drawn -> bool [N]: inside
+    the window and no deeper than the surface at its pixel by more than
+    max(VISIBLE_DEPTH_SHARE * surface, VISIBLE_EXTENT_SIGMAS * extent) (a Gaussian on the
+    surface has its mean up to about its size behind the blended depth)."""
+    height, width = surface.shape
+    selected = np.zeros(len(pixels), bool)
+    with np.errstate(invalid="ignore"):
+        column = np.floor(pixels[:, 0] - origin[0])
+        row = np.floor(pixels[:, 1] - origin[1])
+        inside = (column >= 0) & (column < width) & (row >= 0) & (row < height) & (depth > NEAR_PLANE)
+    index = np.flatnonzero(inside)
+    seen = surface[row[index].astype(int), column[index].astype(int)]
+    slack = np.maximum(VISIBLE_DEPTH_SHARE * seen, VISIBLE_EXTENT_SIGMAS * extent[index])
+    selected[index] = (seen > 0) & (depth[index] <= seen + slack)
+    return selected
 
 
 def select_brush(pixels: np.ndarray, center: tuple[float, float], radius: float) -> np.ndarray:
@@ -138,6 +164,16 @@ def combine_selection(current: np.ndarray, new: np.ndarray, mode: str) -> np.nda
 
 
 @dataclass
+class RowsEdit:
+    """One undo step of a move: ``rows`` int [K] and their values before and after
+    (key -> [K, ...])."""
+
+    rows: np.ndarray
+    before: dict
+    after: dict
+
+
+@dataclass
 class EditState:
     """Deletions over fixed base arrays. ``alive``: bool [N]; ``selected``: bool [N] (only
     alive Gaussians can be selected). ``version`` changes whenever the shown set changes."""
@@ -199,7 +235,10 @@ class EditState:
         """Keep only Gaussians whose mean lies inside the box."""
         return self._apply(self.alive & inside_box(self.base["means"], box_min, box_max))
 
-    def _restore(self, entry) -> None:
+    def _restore(self, entry, undoing: bool) -> None:
+        if isinstance(entry, RowsEdit):
+            self.set_rows(entry.rows, entry.before if undoing else entry.after)
+            return
         alive, selected = entry
         if not np.array_equal(alive, self.alive):
             self.version += 1
@@ -209,16 +248,46 @@ class EditState:
         """Take back the last deletion, crop or selection change."""
         if not self.undo_stack:
             return False
-        self.redo_stack.append((self.alive, self.selected.copy()))
-        self._restore(self.undo_stack.pop())
+        entry = self.undo_stack.pop()
+        self.redo_stack.append(entry if isinstance(entry, RowsEdit) else (self.alive, self.selected.copy()))
+        self._restore(entry, undoing=True)
         return True
 
     def redo(self) -> bool:
         if not self.redo_stack:
             return False
-        self.undo_stack.append((self.alive, self.selected.copy()))
-        self._restore(self.redo_stack.pop())
+        entry = self.redo_stack.pop()
+        self.undo_stack.append(entry if isinstance(entry, RowsEdit) else (self.alive, self.selected.copy()))
+        self._restore(entry, undoing=False)
         return True
+
+    def set_rows(self, rows: np.ndarray, values: dict) -> None:
+        """Write ``values`` (key -> [K, ...]) into ``rows`` (int [K]) of the base arrays, copying
+        each changed array first: the loaded arrays may be shared (the LOD hierarchy), so they
+        are never written in place. No undo step: see :meth:`commit_rows`."""
+        base = dict(self.base)
+        for key, value in values.items():
+            array = base[key].copy()
+            array[rows] = value
+            base[key] = array
+        self.base = base
+        self.version += 1
+
+    def commit_rows(self, rows: np.ndarray, before: dict) -> bool:
+        """Record the change of ``rows`` from ``before`` (key -> [K, ...]) to their values now as
+        one undo step; False (nothing recorded) when nothing changed."""
+        after = {key: self.base[key][rows].copy() for key in before}
+        if all(np.array_equal(before[key], after[key]) for key in before):
+            return False
+        self.undo_stack.append(RowsEdit(rows, before, after))
+        self.redo_stack.clear()
+        return True
+
+    def transform_selected(self, values: dict, rows: np.ndarray) -> bool:
+        """Replace ``rows`` with ``values`` as one undo step (the keyboard's moves)."""
+        before = {key: self.base[key][rows].copy() for key in values}
+        self.set_rows(rows, values)
+        return self.commit_rows(rows, before)
 
     def visible_arrays(self) -> dict:
         """The alive Gaussians, keyed like Gaussians.numpy()."""
@@ -240,11 +309,28 @@ class Editor:
     def projected_means(self):
         return project_means(self.view.edit.base["means"], self.view.current_camera())
 
-    def rectangle_select(self, corner_a, corner_b) -> None:
-        pixels, _ = self.projected_means()
-        a = self.view.window_to_framebuffer(*corner_a)
-        b = self.view.window_to_framebuffer(*corner_b)
-        self.view.edit.select(select_rectangle(pixels, a, b), self.view.settings.selection_mode)
+    def rectangle_select(self, corner_a, corner_b, visible_only: bool = False) -> None:
+        """Select inside the rectangle: every Gaussian there (straight through the model), or with
+        ``visible_only`` only those seen: the model's depth is rendered for the rectangle's
+        pixels and a Gaussian behind that surface is left out."""
+        view = self.view
+        pixels, depth = self.projected_means()
+        a, b = view.window_to_framebuffer(*corner_a), view.window_to_framebuffer(*corner_b)
+        if not visible_only:
+            view.edit.select(select_rectangle(pixels, a, b), view.settings.selection_mode)
+            return
+        camera = view.current_camera()
+        x0, y0 = max(int(np.floor(min(a[0], b[0]))), 0), max(int(np.floor(min(a[1], b[1]))), 0)
+        x1 = min(int(np.ceil(max(a[0], b[0]))), camera.width)
+        y1 = min(int(np.ceil(max(a[1], b[1]))), camera.height)
+        mask = np.zeros(len(pixels), bool)
+        if x1 > x0 and y1 > y0:
+            surface = view.renderer.render(camera.cropped(x0, y0, x1 - x0, y1 - y0), mode="depth")[..., 0]
+            # log scales are clamped on load; the min keeps exp finite for any array handed in
+            extent = np.exp(np.minimum(view.edit.base["log_scales"].max(axis=1), LOG_SCALE_MAX))
+            mask = select_visible(pixels, depth, extent, surface, (x0, y0))
+        view.edit.select(mask, view.settings.selection_mode)
+        self.status.text = f"{int(view.edit.selected.sum())} visible Gaussians selected"
 
     def lasso_select(self, points) -> None:
         """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""

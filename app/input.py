@@ -146,11 +146,13 @@ class InputController:
         view, editor = viewer.view, viewer.editor
         if self.dragging_button == glfw.MOUSE_BUTTON_LEFT:
             tool = view.settings.edit_tool
-            if self.crop_handle is not None:
+            if viewer.mover.drag is not None:
+                viewer.mover.move_to(x, y)
+            elif self.crop_handle is not None:
                 editor.drag_crop_handle(self.crop_handle, previous, (x, y))
             elif tool == "brush":
                 editor.brush_select(x, y, stroke_start=False)
-            elif tool == "rectangle":
+            elif tool in ("rectangle", "visible rectangle", "gizmo"):
                 pass  # the rectangle is applied on release (the panels draw it meanwhile)
             elif tool == "lasso":
                 last = self.lasso[-1] if self.lasso else (math.inf, math.inf)
@@ -175,8 +177,10 @@ class InputController:
         if action == glfw.RELEASE:
             if (button == glfw.MOUSE_BUTTON_LEFT and self.dragging_button == button and self.drag_start is not None
                     and self.crop_handle is None):
-                if view.settings.edit_tool == "rectangle":
-                    editor.rectangle_select(self.drag_start, (x, y))
+                if viewer.mover.drag is not None:
+                    viewer.mover.end()
+                elif view.settings.edit_tool in ("rectangle", "visible rectangle"):
+                    editor.rectangle_select(self.drag_start, (x, y), view.settings.edit_tool == "visible rectangle")
                 elif view.settings.edit_tool == "lasso":
                     editor.lasso_select(self.lasso + [(x, y)])
             self.lasso = []
@@ -196,6 +200,10 @@ class InputController:
         if button == glfw.MOUSE_BUTTON_LEFT:
             self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:
+                return
+            axis = viewer.mover.handle_at(x, y)
+            if axis is not None:
+                viewer.mover.begin(axis, x, y)
                 return
             then, px, py = self.last_click
             now = time.perf_counter()

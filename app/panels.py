@@ -12,6 +12,7 @@ from imgui_bundle import imgui
 
 from . import detail as level_of_detail
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
+from .gizmo import GIZMO_MODES
 from .jobs import SIZED_TO_BUDGET
 from .notifications import draw_notification
 from .plots import draw_plots
@@ -45,7 +46,7 @@ def draw_tool_feedback(view, controls) -> None:
     draw = imgui.get_foreground_draw_list()
     color = imgui.get_color_u32(imgui.ImVec4(*SELECTION_COLOR, 1.0))
     dragging = controls.dragging_button is not None and controls.drag_start is not None
-    if tool == "rectangle" and dragging:
+    if tool in ("rectangle", "visible rectangle") and dragging:
         (x0, y0), (x1, y1) = controls.drag_start, cursor
         draw.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), color,
                       0.0, TOOL_LINE_WIDTH)
@@ -643,6 +644,10 @@ def _edit(ui, editor) -> None:
     changed, index = _combo(ui, "selection", modes.index(settings.selection_mode), modes)
     if changed:
         settings.selection_mode = modes[index]
+    if settings.edit_tool == "gizmo":  # what dragging a handle at the selection's centre does
+        changed, index = _combo(ui, "gizmo drag", GIZMO_MODES.index(settings.gizmo_mode), list(GIZMO_MODES))
+        if changed:
+            settings.gizmo_mode = GIZMO_MODES[index]
     if settings.edit_tool == "brush":
         _fit("brush radius px")
         _, settings.brush_radius = imgui.slider_float("brush radius px", settings.brush_radius, 2.0, 200.0)

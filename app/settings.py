@@ -15,7 +15,7 @@ GL_MODE_NAMES = {"rgb": "rgb", "depth": "depth", "normal": "normal", "opacity": 
 MAX_TRAINING_UTILISATION = 0.98
 
 
-EDIT_TOOLS = ("none", "rectangle", "brush", "lasso")
+EDIT_TOOLS = ("none", "rectangle", "visible rectangle", "brush", "lasso", "gizmo")
 # How the photo of the nearest training camera is shown with the rgb render (as SIBR does).
 PHOTO_VIEWS = ("off", "blended", "beside")
 # What the keys and buttons do (input.py), shown by the help overlay (H / F1) and --help.
@@ -63,6 +63,7 @@ class ViewSettings:
     show_panel: bool = True  # Tab: the scene alone, the edit tools' outlines still drawn
     orbit: bool = False
     edit_tool: str = "none"  # one of EDIT_TOOLS
+    gizmo_mode: str = "translate"  # one of gizmo.GIZMO_MODES: what dragging a gizmo handle does
     brush_radius: float = 30.0
     selection_mode: str = "replace"
     crop_enabled: bool = False

@@ -30,6 +30,7 @@ from .flags import FlagBook
 from .images import visualize
 from .input import InputController
 from .jobs import Jobs
+from .moving import SelectionMover
 from .runs import saved_dir
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
@@ -79,6 +80,7 @@ class Viewer:
         self.flags = FlagBook(saved_dir(source, source.runs_dir) / flag_io.FLAGS_FILE_NAME, self.view,
                               self.status_line, earlier=flag_io.flags_path(source.work_dir))
         self.editor = Editor(self.view, self.status_line)
+        self.mover = SelectionMover(self.view, self.status_line)  # the gizmo tool
         # job_factory: source -> job; None: the job dialog's stage-I training.
         self.jobs = Jobs(self.view, self.flags, self.status_line, self.update_title, job_factory)
         self.ui = PanelState()
@@ -188,7 +190,7 @@ class Viewer:
             # Later frames skip this full-window pass: the scene blit overwrites every pixel.
             screen.clear(*self.view.settings.background, 1.0)
         self.drawing.draw_scene(self.view, self.stats, self.jobs.last_snapshot_time, screen)
-        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit, screen)
+        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit, screen, self.mover.pivot_and_length())
         if self.imgui_impl is not None:
             self.draw_ui()
         if self.capture_requested:
