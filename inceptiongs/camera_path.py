@@ -210,7 +210,12 @@ def path_to_json_dict(path: CameraPath) -> dict:
 def write_path_json(path: CameraPath, out: str | Path) -> Path:
     """The path as JSON at ``out`` (atomic: a reader never sees half a file)."""
     check_path(path, str(out))
-    atomic_write_text(out, json.dumps(path_to_json_dict(path), indent=1) + "\n")
+    data = path_to_json_dict(path)
+    keys = data.pop("keyframes")
+    head = json.dumps(data, indent=1)[:-2]  # the object without its closing brace
+    # One keyframe a line: a person reads and edits the file by keyframe.
+    lines = ",\n  ".join(json.dumps(key) for key in keys)
+    atomic_write_text(out, f'{head},\n "keyframes": [\n  {lines}\n ]\n}}\n')
     return Path(out)
 
 
