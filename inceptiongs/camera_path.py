@@ -194,7 +194,7 @@ def orbit_path(cameras: list[Camera], model_center: np.ndarray, model_radius: fl
     for index in range(keyframes + 1):  # the last closes the circle where it began
         angle = 2.0 * math.pi * index / keyframes
         eye = target + radius * (math.cos(angle) * across + math.sin(angle) * side) + height_above * up
-        keys.append(Keyframe(seconds * index / keyframes, look_at(eye, target, -up), fov_y_deg))
+        keys.append(Keyframe(seconds * index / keyframes, look_at(eye, target, up), fov_y_deg))
     return CameraPath(tuple(keys), int(width), int(height), float(fps))
 
 
