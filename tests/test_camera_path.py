@@ -123,7 +123,8 @@ def test_orbit_circles_what_the_cameras_look_at():
     assert len(frames) == 41
     for camera in frames:
         pixel = camera.intrinsics @ (camera.rotation @ target + camera.world_to_camera[:3, 3])
-        np.testing.assert_allclose(pixel[:2] / pixel[2], [80, 60], atol=1e-6)  # the target in the middle
+        # The target in the middle: exactly at the orbit's keyframes, within half a pixel between.
+        np.testing.assert_allclose(pixel[:2] / pixel[2], [80, 60], atol=0.5)
         offset = camera.center - target
         # Up is the cameras' mean image up, tilted a little as they look down at the target.
         assert np.linalg.norm(offset - (offset @ up) * up) == pytest.approx(3.0, rel=0.01)
