@@ -129,7 +129,7 @@ def test_orbit_circles_what_the_cameras_look_at():
         # At the cameras' distance; a little above the target, as they are (the orbit's up is their
         # mean image up, tilted a little as they look down at it).
         assert np.linalg.norm(offset) == pytest.approx(math.hypot(3.0, 0.5), rel=0.01)
-        assert 0.3 < offset @ up < 0.7
+        assert 0.1 < offset @ up < 0.7
         assert camera.rotation[1] @ up < -0.9  # upright: the image's down is the world's down
     np.testing.assert_allclose(frames[0].center, frames[-1].center, atol=1e-9)  # one whole turn
     headings = [math.atan2(*(c.center - target)[[2, 0]]) for c in frames]
