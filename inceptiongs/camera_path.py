@@ -162,6 +162,22 @@ def looked_at_point(cameras: list[Camera], fallback: np.ndarray) -> np.ndarray:
     return np.linalg.solve(system, rhs)
 
 
+def orbit_up(cameras: list[Camera]) -> np.ndarray:
+    """[3] unit world up for an orbit: the cameras' mean image up; but when their centres lie
+    near a plane that is clearly a plane (a ring around the object: its thinnest spread under
+    a tenth of the next), that plane's normal on the same side, since cameras looking down at
+    the object tilt their image up towards it and a tilted orbit would rise and fall."""
+    up = -np.mean([c.rotation[1] for c in cameras], axis=0)
+    up = up / max(np.linalg.norm(up), 1e-12)
+    centers = np.stack([c.center for c in cameras])
+    if len(centers) >= 3:
+        values, vectors = np.linalg.eigh(np.cov((centers - centers.mean(0)).T))
+        if values[1] > 0 and values[0] < 0.1 * values[1]:
+            normal = vectors[:, 0]
+            return normal if normal @ up >= 0 else -normal
+    return up
+
+
 def orbit_path(cameras: list[Camera], model_center: np.ndarray, model_radius: float, width: int = 1280,
                height: int = 720, seconds: float = 8.0, fps: float = DEFAULT_FPS,
                fov_y_deg: float = 50.0, keyframes: int = 24) -> CameraPath:
@@ -171,8 +187,7 @@ def orbit_path(cameras: list[Camera], model_center: np.ndarray, model_radius: fl
     around ``model_center`` at 2.5 ``model_radius``, up -y (the 3DGS convention)."""
     if cameras:
         target = looked_at_point(cameras, model_center)
-        up = -np.mean([c.rotation[1] for c in cameras], axis=0)
-        up = up / max(np.linalg.norm(up), 1e-12)
+        up = orbit_up(cameras)
         offsets = np.stack([c.center for c in cameras]) - target
         height_above = float(np.mean(offsets @ up))
         flat = offsets - np.outer(offsets @ up, up)

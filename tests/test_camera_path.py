@@ -126,10 +126,10 @@ def test_orbit_circles_what_the_cameras_look_at():
         # The target in the middle: exactly at the orbit's keyframes, within half a pixel between.
         np.testing.assert_allclose(pixel[:2] / pixel[2], [80, 60], atol=0.5)
         offset = camera.center - target
-        # At the cameras' distance; a little above the target, as they are (the orbit's up is their
-        # mean image up, tilted a little as they look down at it).
-        assert np.linalg.norm(offset) == pytest.approx(math.hypot(3.0, 0.5), rel=0.01)
-        assert 0.1 < offset @ up < 0.7
+        # At the cameras' distance and height above the target (their ring's plane gives the up:
+        # their image up tilts towards the target as they look down at it).
+        assert np.linalg.norm(offset - (offset @ up) * up) == pytest.approx(3.0, rel=0.01)
+        assert offset @ up == pytest.approx(0.5, abs=1e-6)
         assert camera.rotation[1] @ up < -0.9  # upright: the image's down is the world's down
     np.testing.assert_allclose(frames[0].center, frames[-1].center, atol=1e-9)  # one whole turn
     headings = [math.atan2(*(c.center - target)[[2, 0]]) for c in frames]
