@@ -22,11 +22,11 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_open
 
-# suffix -> (container, codec, codec options). CRF 18 (H.264) and 24 (VP9) are visually
+# suffix -> (container, codec, codec options). CRF 18 (H.264) and 15 (VP9) are visually
 # lossless for rendered frames; "b": "0" puts libvpx in constant-quality mode.
 VIDEO_FORMATS = {
     ".mp4": ("mp4", "libx264", {"crf": "18", "preset": "medium"}),
-    ".webm": ("webm", "libvpx-vp9", {"crf": "24", "b": "0", "row-mt": "1"}),
+    ".webm": ("webm", "libvpx-vp9", {"crf": "15", "b": "0", "row-mt": "1"}),
 }
 
 
