@@ -20,6 +20,7 @@ from .textfit import middle_ellipsis
 from .verdict import draw_verdict, outlook_before_repair
 from .navigation import UP_AXES, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
+from .camera_path_panel import draw_camera_path
 from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
 from inceptiongs.runs.config import STRATEGY_NAMES, FreeSpace, schedule_length
@@ -92,6 +93,8 @@ def draw_panels(viewer) -> None:
         _training(ui, viewer.jobs)
     if _header(ui, "Edit"):
         _edit(ui, viewer.editor)
+    if _header(ui, "Camera path"):
+        draw_camera_path(ui, viewer.paths)
     ui.layout = _layout()
     imgui.end()
     draw_notification(ui, viewer.status_line, panel_shown=True)

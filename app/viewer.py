@@ -23,6 +23,7 @@ from inceptiongs.io import flags as flag_io
 from inceptiongs.io.images import write_image
 
 from . import closing as closing_question
+from .camera_path import PathEditor
 from .closing import Closing
 from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
 from .editing import Editor
@@ -81,6 +82,7 @@ class Viewer:
                               self.status_line, earlier=flag_io.flags_path(source.work_dir))
         self.editor = Editor(self.view, self.status_line)
         self.mover = SelectionMover(self.view, self.status_line)  # the gizmo tool
+        self.paths = PathEditor(self.view, self.status_line)  # keyframes, preview, video (camera_path.py)
         # job_factory: source -> job; None: the job dialog's stage-I training.
         self.jobs = Jobs(self.view, self.flags, self.status_line, self.update_title, job_factory)
         self.ui = PanelState()
@@ -178,6 +180,7 @@ class Viewer:
         seconds = min(now - self._last_frame_time, 0.25)  # a stalled frame must not teleport
         self._last_frame_time = now
         self.input.update_fly(seconds)
+        self.paths.update()
         self.take_points()
         self.jobs.take_snapshot()
         if self.jobs.verdict_images_due:
@@ -245,6 +248,8 @@ class Viewer:
             return False  # a paused job is idle: it publishes nothing
         if self.points_worker is not None:
             return False  # the triangulated points are to come
+        if self.paths.busy():
+            return False  # a path preview flies, or a video's progress is to show
         if self.drawing.detail_busy():
             return False  # a level-of-detail tree or cut is to come
         return self.view.settings.mode != "reference" or self.drawing.reference_settled()
@@ -276,6 +281,8 @@ class Viewer:
             glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
         elif self.points_worker is not None and still:
             glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
+        elif self.paths.render is not None and self.paths.render.running() and still:
+            glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the video's child process needs the CPU
         elif self.drawing.detail_busy() and still:
             glfw.wait_events_timeout(DETAIL_WAIT_SECONDS)  # the LOD thread needs the CPU; its cut is soon due
         return True
@@ -318,6 +325,7 @@ class Viewer:
         if self.jobs.training is not None:
             self.jobs.training.stop(timeout=60.0 if wait_for_job else 0)
         self.drawing.close()
+        self.paths.close()
         self.jobs.set_verdict(None)  # its GL textures
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending

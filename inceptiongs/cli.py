@@ -33,7 +33,7 @@ COMMANDS = {
     "info": "info",
     "coverage": "coverage",
     "demo-scene": "demo_scene",
-    "render": "render",
+    "render": "render_video",  # images (render.py) and videos
     "convert": "convert",
     "train": "train",
     "prior": "prior",

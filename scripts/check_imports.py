@@ -42,7 +42,7 @@ LIBRARY, RENDERER, APP = "inceptiongs", "inceptiongs.renderer", "inceptiongs.app
 # in this list. A module belongs to the layer with the longest prefix that names it.
 LIBRARY_ORDER = (
     ("foundation", ("inceptiongs.constants", "inceptiongs.errors", "inceptiongs.threads", "inceptiongs.live",
-                    "inceptiongs.stop_signals", "inceptiongs.camera", "inceptiongs.pinhole", "inceptiongs.gaussians",
+                    "inceptiongs.stop_signals", "inceptiongs.camera", "inceptiongs.camera_path", "inceptiongs.pinhole", "inceptiongs.gaussians",
                     "inceptiongs.io")),
     ("scene", ("inceptiongs.scene",)),
     ("rasterizer", ("inceptiongs.rasterizer",)),

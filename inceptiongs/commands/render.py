@@ -12,6 +12,9 @@ in the model file's own (original) frame; with --view the camera comes from the 
 run's config names it, or --scene), in the scene's normalised frame, and the model is moved
 into that frame with the scene's normalisation.
 
+``--path path.json`` / ``--orbit`` render a video instead (:mod:`.render_video`, which is the
+command's entry: it hands single images to :func:`run`).
+
 ``--lod GRANULARITY_PX`` / ``--lod-budget SPLATS`` draw a level-of-detail cut of the model
 (:mod:`inceptiongs.lod`, the hierarchy cached by the model's content), each node blended towards
 its parent near the threshold (:mod:`inceptiongs.lod.blend`); without them the model is drawn
@@ -36,7 +39,7 @@ from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
-from ..io.values import flag, shown
+from ..io.values import flag, shown, within
 
 HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -47,6 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--camera", help="camera JSON {width, height, fx, fy, cx, cy, world_to_camera}")
     which.add_argument("--view", help="name of a camera (image) of the scene")
+    which.add_argument("--path", help="camera path JSON (the viewer's Camera path panel saves one): renders a "
+                                      "video to --out .mp4 (H.264) or .webm (VP9)")
+    which.add_argument("--orbit", action="store_true",
+                       help="render a video of one turn around what the training cameras look at (a model "
+                            "without cameras: around its middle)")
+    parser.add_argument("--fps", type=flag("positive", range=within(0, 240, "(]")), help="video frames per second (default: the path's, 30 for --orbit)")
+    parser.add_argument("--seconds", type=flag("positive"), default=8.0, help="--orbit: how long one turn lasts (default 8)")
     parser.add_argument("--scene", help="scene folder for --view (default: the run's scene)")
     parser.add_argument("--backend", choices=("torch", "gl"), default="gl",
                         help="which renderer draws: gl, the OpenGL splat renderer (the viewer's pictures; default), "
@@ -54,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_device_argument(parser, reads_run=True, default_help="the run's device for a run folder, else auto; "
                                                              "--backend torch only")
     parser.add_argument("--mode", choices=MODES, default="rgb")
-    parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
+    parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32); "
+                                                     "with --path/--orbit a video .mp4 or .webm")
     parser.add_argument("--width", type=flag("pixels"), help="output width (intrinsics rescaled)")
     parser.add_argument("--height", type=flag("pixels"), help="output height (intrinsics rescaled)")
     parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
@@ -102,7 +113,7 @@ def find_model_ply(run_dir: Path) -> Path | None:
     return plies[-1] if plies else None
 
 
-def _run_scene_path(run_dir: Path) -> str | None:
+def run_scene_path(run_dir: Path) -> str | None:
     config = run_dir / "config.json"
     if not config.is_file():
         return None
@@ -130,7 +141,7 @@ def load_model_and_camera(args):
         return read_model(ply), read_camera_json(args.camera)
     from ..scene.loader import load_scene
 
-    scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
+    scene_path = args.scene or (run_scene_path(run_dir) if run_dir else None)
     if not scene_path:
         raise InputError(f"{model}: --view needs --scene (or a run folder whose config names its scene)")
     # The camera at the scene's stated (full) size, whether the run finished (model.ply) or
