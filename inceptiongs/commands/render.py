@@ -39,7 +39,7 @@ from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
-from ..io.values import flag, shown, within
+from ..io.values import flag, shown
 
 HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("--orbit", action="store_true",
                        help="render a video of one turn around what the training cameras look at (a model "
                             "without cameras: around its middle)")
-    parser.add_argument("--fps", type=flag("positive", range=within(0, 240, "(]")), help="video frames per second (default: the path's, 30 for --orbit)")
+    parser.add_argument("--fps", type=flag("frames per second"), help="video frames per second (default: the path's, 30 for --orbit)")
     parser.add_argument("--seconds", type=flag("positive"), default=8.0, help="--orbit: how long one turn lasts (default 8)")
     parser.add_argument("--scene", help="scene folder for --view (default: the run's scene)")
     parser.add_argument("--backend", choices=("torch", "gl"), default="gl",

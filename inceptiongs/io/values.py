@@ -166,6 +166,7 @@ RULES: dict[str, Rule] = {
     "weight": Rule(float, at_least(0)),
     "positive": Rule(float, above(0)),
     "length in pixels": Rule(float, at_least(0), "pixels"),
+    "frames per second": Rule(float, within(0, 240, "(]"), "frames a second"),
 }
 
 
