@@ -126,5 +126,9 @@ class FlagBook:
         self.status.text = f"flag deleted; {left} flag{'s' if left != 1 else ''} left"
 
     def jump_to(self, index: int) -> None:
-        self.view.look_from(self.items[index].camera)
-        self.status.text = f"looking from flag {self.items[index].name!r}"
+        """Stand at flag ``index``'s view; the message says so while the camera stays there."""
+        view = self.view
+        view.look_from(self.items[index].camera)
+        pose = view.nav.world_to_camera.copy()
+        self.status.say(f"looking from flag {self.items[index].name!r}",
+                        holds=lambda: bool(np.allclose(view.nav.world_to_camera, pose)))

@@ -18,6 +18,7 @@ from inceptiongs.io.images import image_encoding, write_image
 
 from .images import visualize
 from .navigation import default_view, estimate_up
+from .points import point_colours, render_points
 from .sources import ViewerSource
 
 DEFAULT_SIZE = (1280, 720)
@@ -100,6 +101,10 @@ def take_screenshot(source: ViewerSource, out_path: str | Path, camera_path: str
     image_encoding(out_path)  # a bad extension fails before any rendering
     gaussians = shown_model(source)
     camera = screenshot_camera(source, camera_path, size)
+    if source.sparse_points or source.points_pending:   # points, as the window draws them
+        raw = render_points(gaussians["means"], point_colours(gaussians), camera, mode)
+        write_image(out_path, visualize(raw, mode))
+        return Path(out_path)
     ctx, cleanup = _context()
     try:
         renderer = SplatRenderer(ctx)

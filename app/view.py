@@ -18,7 +18,7 @@ from inceptiongs.lod.hierarchy import GAUSSIAN_FIELDS
 
 from . import flags as flagging
 from .editing import EditState
-from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up, statistics_sample
+from .navigation import NavigationState, default_view, estimate_up, forward_facing, framed, leveled, model_up
 from .settings import StatusLine, ViewSettings
 
 
@@ -26,8 +26,10 @@ class View:
     """The camera on one window and the model it shows. ``window``: the GLFW window (its sizes);
     ``renderer``: the splat renderer (depth under the cursor); ``status``: the status line."""
 
-    def __init__(self, source, window, renderer, status: StatusLine) -> None:
+    def __init__(self, source, window, renderer, status: StatusLine, covered_left: float = 0.0) -> None:
         self.window, self.renderer, self.status = window, renderer, status
+        # Window pixels the panel covers at the window's left (Home and the first view avoid them).
+        self.covered_left = covered_left
         self.settings = ViewSettings()
         self.source = source
         self.edit = EditState(source.gaussians)  # the model shown, with its deletions and selection
@@ -41,7 +43,6 @@ class View:
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
-        self.covered_left = 0.0  # window pixels the panel covers at the window's left (Home avoids them)
         self.last_motion = -1e9  # when the camera or the model last moved (drawing's moving size)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
 
@@ -76,16 +77,35 @@ class View:
 
     # --- the camera ----------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
+        """Where the window opens: with cameras around the scene, framed on what they look at as
+        Home frames it, seen from the first camera's heading (a capture's first camera may face
+        away from the scene: bonsai's showed a black window); with cameras that all face one way
+        (navigation.forward_facing: fern), or without a model yet, at the first camera, which
+        looks at the scene as they all do; without cameras, navigation.default_view."""
         width, height = self.framebuffer_size
-        means = self.source.gaussians["means"]
+        means = self.edit.base["means"]
         if self.cameras:
             first = self.cameras[0]
             centers = np.stack([c.center for c in self.cameras])
             spread = float(np.linalg.norm(centers.max(0) - centers.min(0))) if len(centers) > 1 else 1.0
             nav = NavigationState.from_camera(first, up=self.up, speed=max(spread * 0.5, 1e-3))
-            nav.pivot = np.median(statistics_sample(means), axis=0) if len(means) else nav.pivot
-            return nav
+            if len(means) == 0 or forward_facing(self.cameras):
+                return nav
+            covered, _ = self.window_to_framebuffer(self.covered_left, 0.0)
+            return framed(nav, means, width, height, covered, self.cameras)
         return default_view(means, width, height, up=self.up)
+
+    def untouched(self) -> bool:
+        """The camera is still where the window opened (the user has not moved it)."""
+        return bool(np.allclose(self.nav.world_to_camera, self.home.world_to_camera))
+
+    def open_at_model(self) -> None:
+        """A model arrived for a window opened without one (triangulated points): unless the
+        user moved meanwhile, open where it is (initial_view) and make that the home view."""
+        if self.untouched():
+            self.nav = self.initial_view()
+            self.home = self.nav.copy()
+            self.moved()
 
     @property
     def framebuffer_size(self) -> tuple[int, int]:

@@ -15,8 +15,8 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (click_at, click_widget, open_grid_viewer, scroll_panel_to, opened, press_key, synthetic_gaussians,
-                          write_grid_model)
+from viewer_cases import (click_at, click_widget, open_grid_viewer, opened, press_key, scroll_panel_to,
+                          start_job, synthetic_gaussians, write_grid_model)
 
 pytestmark = pytest.mark.gl
 
@@ -133,7 +133,7 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
 
         stale = Verdict(tmp_path / "earlier_result", None, _scores(10.0, 11.0), _scores(10.5, 11.0))
         viewer.jobs.set_verdict(stale)
-        click_widget(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
         assert viewer.jobs.verdict is not stale      # an earlier result's verdict goes when the job starts
         deadline = time.time() + 60
         while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
@@ -182,7 +182,7 @@ def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb,
         _frames(viewer)
         for header in ("View", "Inspect", "Flags"):
             click_widget(viewer, header)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         viewer.jobs.training.plan = JobPlan(metrics=metrics)
         viewer.jobs.training.refresh_scores(force=True)
         time.sleep(0.3)

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import (GOLDEN, MovingGridJob, click_widget, front_camera, open_grid_viewer, opened,
-                          write_grid_model)
+from viewer_cases import (click_widget, front_camera, GOLDEN, MovingGridJob, open_grid_viewer, opened,
+                          start_job, write_grid_model)
 
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
@@ -290,7 +290,7 @@ def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
     job = MovingGridJob()
     with opened(open_grid_viewer, model, 900, 900, job_factory=lambda source: job) as viewer:
         viewer.step()
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         assert viewer.jobs.training is not None and viewer.jobs.training.alive
         click_widget(viewer, "pause")
         assert viewer.jobs.training.state == "paused"
