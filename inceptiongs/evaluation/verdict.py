@@ -177,3 +177,29 @@ def verdict_line(verdict: BootstrapVerdict) -> str:
     elif baseline is None:
         parts.append("part of the change may be the extra training alone")
     return "; ".join(parts)
+
+
+def verdict_json(verdict: BootstrapVerdict) -> dict:
+    """The verdict as `inceptiongs eval --json` prints it: the sentence, the same-time baseline's
+    folder (None: none), the baselines refused and why, the bootstrap's seconds, the scores."""
+    return {"line": verdict_line(verdict), "same_time_baseline": None if verdict.baseline_dir is None
+            else str(verdict.baseline_dir), "refused": [{"folder": str(folder), "why": why}
+                                                        for folder, why in verdict.refused],
+            "seconds": verdict.seconds, "stage1": verdict.before, "bootstrap": verdict.after,
+            "baseline": verdict.baseline}
+
+
+def report_verdicts(run_dirs: list) -> list[str]:
+    """For each bootstrap result among ``run_dirs``: "NAME: <verdict sentence>", its baseline
+    looked for among the given runs and beside it (baseline_places); [] when none is one."""
+    lines = []
+    for run_dir in run_dirs:
+        data = read_summary(run_dir)
+        if data is None or data.get("baseline") is True:
+            continue
+        stage1 = Path(data["run"]) if isinstance(data.get("run"), str) else None
+        folders = sorted({Path(r) for r in run_dirs} | set(baseline_places(Path(run_dir), stage1)))
+        verdict = read_bootstrap_verdict(Path(run_dir), folders)
+        if verdict is not None:
+            lines.append(f"{Path(run_dir).name}: {verdict_line(verdict)}")
+    return lines
