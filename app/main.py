@@ -1,4 +1,4 @@
-"""``inceptiongs-viewer SCENE_DIR | MODEL.ply | RUN_DIR [--runs DIR] [--screenshot PATH [--camera cam.json] [--size WxH]]``"""
+"""``inceptiongs-viewer SCENE_DIR | MODEL (.ply, .splat, .spz) | RUN_DIR [--runs DIR] [--screenshot PATH [--camera cam.json] [--size WxH]]``"""
 
 from __future__ import annotations
 
@@ -18,7 +18,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="View, inspect, flag, train and edit a Gaussian-splat scene.",
         epilog="keys and mouse in the window (also H / F1 there):\n" + bindings_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("source", help="a scene folder, a model .ply or a training run folder")
+    parser.add_argument("source", help="a scene folder, a model file (.ply, .compressed.ply, .splat, .spz) or a "
+                                       "training run folder")
     parser.add_argument("--screenshot", metavar="PATH", help="render one frame without UI to PATH (format from its extension: .png, .jpg, ...) and exit")
     parser.add_argument("--camera", metavar="JSON", help="camera for --screenshot (default: first training camera)")
     parser.add_argument("--size", metavar="WxH", help="image size for --screenshot / window size")

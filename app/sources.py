@@ -1,5 +1,6 @@
 """What the viewer opens: a scene folder (its newest trained model, else its sparse points as
-small splats), a model PLY, or a training run folder. Everything else is an InputError."""
+small splats), a model file (.ply, .compressed.ply, .splat, .spz), or a training run folder.
+Everything else is an InputError."""
 
 from __future__ import annotations
 
@@ -82,9 +83,10 @@ def newest_ply(folder: Path) -> Path | None:
 
 
 def _read_ply(path: Path):
-    from inceptiongs.io.ply import read_ply  # noqa: PLC0415 - keeps `--help` fast
+    """Any model file (inceptiongs.io.models), whatever its format."""
+    from inceptiongs.io.models import read_model  # noqa: PLC0415 - keeps `--help` fast
 
-    return read_ply(path)
+    return read_model(path)
 
 
 def _read_ply_arrays(path: Path) -> dict:
@@ -205,16 +207,17 @@ def open_source(path: str | Path, runs_dir: Path | None = None, say=None) -> Vie
 
 def check_openable(path: str | Path) -> None:
     """InputError (the line open_source would give) when ``path`` is clearly nothing the viewer
-    opens: missing, a file that is not a .ply, a folder that is neither a run, a scene nor holds
+    opens: missing, a file that is no model file, a folder that is neither a run, a scene nor holds
     a .ply. Cheap (no model is read), so bad input is one line before any window opens."""
+    from inceptiongs.io.models import is_model_file  # noqa: PLC0415
     from inceptiongs.scene.loader import detect_format  # noqa: PLC0415
 
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: does not exist")
     if path.is_file():
-        if path.suffix.lower() != ".ply":
-            raise InputError(f"{path}: not a scene folder, a .ply model or a run folder")
+        if not is_model_file(path):
+            raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
         return
     if (path / "config.json").is_file():
         return
@@ -233,11 +236,13 @@ def _megabytes(path: Path) -> str:
 
 
 def _open_source(path: Path, runs_dir: Path | None, say) -> ViewerSource:
+    from inceptiongs.io.models import is_model_file  # noqa: PLC0415
+
     if not path.exists():
         raise InputError(f"{path}: does not exist")
     if path.is_file():
-        if path.suffix.lower() != ".ply":
-            raise InputError(f"{path}: not a scene folder, a .ply model or a run folder")
+        if not is_model_file(path):
+            raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
         say(f"reading the model {path.name} ({_megabytes(path)})")
         # The folder beside a user's PLY is input too: flags and screenshots go to the cache.
         return ViewerSource("ply", path, _read_ply_arrays(path), [], scene_cache_dir(path, [path]),

@@ -39,12 +39,17 @@ from inceptiongs.threads import use_torch_threads
 REPO = Path(__file__).resolve().parents[1]
 # The paper's loop: the render's depth, every view used, alternating steps at weight 0.5.
 PAPER_LOOP = {"virtual_depth": "render", "agreement_min_db": None, "virtual_every": 2, "lambda_virtual": 0.5}
-# The informative pixels (photo supervision only), added to photo steps, views drawn uniformly.
-INFORMATIVE_ADDITIVE = {"supervision": "photo", "virtual_pixels": "informative", "virtual_mode": "additive",
-                        "sampling": "uniform"}
-# Only the geometry term at virtual views (no colour target), added to photo steps, drawn uniformly.
-GEOMETRY_ONLY = {"virtual_colour": False, "virtual_mode": "additive", "sampling": "uniform"}
-# Each variant: the BootstrapConfig fields it changes from the default, named after them.
+# The informative pixels (with the photo supervision), added to photo steps, views drawn uniformly.
+INFORMATIVE_ADDITIVE = {"variants": {"photo_supervision": {}, "informative": {}, "additive": {}}, "sampling": "uniform"}
+
+
+def geometry_only(weight: float) -> dict:
+    """Only the geometry term at virtual views (no colour target), added to photo steps, drawn uniformly."""
+    return {"variants": {"geometry": {"weight": weight, "colour": False}, "additive": {}}, "sampling": "uniform"}
+
+
+# Each variant: the BootstrapConfig fields it changes from the default (the experimental ones are
+# chosen in "variants", each with its options: docs/bootstrap_options.md), named after them.
 VARIANTS = {
     # The default: the blend over the render, warped with the depth splatted from the training
     # views (or the render's, whichever places more photos), views the render outvotes left out,
@@ -52,17 +57,17 @@ VARIANTS = {
     "default": {},
     # The paper's I*: the warps (render depth, binary mask, uniform mean) over the prior's image,
     # every view used, every 2nd step at 0.5.
-    "paper-loop": {"supervision": "blend", "fill": "prior", **PAPER_LOOP},
+    "paper-loop": {"fill": "prior", **PAPER_LOOP},
     # The paper's ablations.
     "no-blending": {"blending": False},
     "uniform-sampling": {"sampling": "uniform"},
-    "paper-loop-untrained-prior": {"prior": "untrained", "supervision": "blend", "fill": "prior", **PAPER_LOOP},
+    "paper-loop-untrained-prior": {"prior": "untrained", "fill": "prior", **PAPER_LOOP},
     # Photo supervision (photo-consistent depth, exposure matching, lumigraph weights, soft mask)
     # over the render, in the paper's loop.
-    "photo-supervision": {"supervision": "photo", **PAPER_LOOP},
+    "photo-supervision": {"variants": {"photo_supervision": {}}, **PAPER_LOOP},
     # One ingredient of the default changed at a time.
     "fill-prior": {"fill": "prior"},
-    "fill-inpaint": {"fill": "inpaint"},
+    "fill-inpaint": {"variants": {"inpaint": {}}},
     "no-conscience": {"conscience_tolerance": None},
     "render-depth": {"virtual_depth": "render"},
     "no-agreement-gate": {"agreement_min_db": None},
@@ -72,30 +77,31 @@ VARIANTS = {
     "generated-weight-0": {"generated_weight": 0.0},
     # Generated pixels weighted 0.2 against photo-trusted ones in the paper's loop (a weak
     # CPU-trained prior paints noise where no photo is trusted).
-    "paper-loop-generated-weight-0.2": {"supervision": "blend", "fill": "prior", "generated_weight": 0.2,
-                                        **PAPER_LOOP},
+    "paper-loop-generated-weight-0.2": {"fill": "prior", "generated_weight": 0.2, **PAPER_LOOP},
     # Each warp moved onto the render by optical flow before the blend (experimental/align.py).
-    "flow-alignment-3px": {"align_px": 3.0},
+    "flow-alignment-3px": {"variants": {"align": {"max_shift_px": 3.0}}},
     # Virtual steps learn only where the photos contradict the render (photo_supervision
     # .informative_mask), and only views with such pixels are sampled; no informative view: a photo step.
-    "informative-pixels": {"supervision": "photo", "virtual_pixels": "informative"},
+    "informative-pixels": {"variants": {"photo_supervision": {}, "informative": {}}},
     # ... with uniform sampling (no pose gradient per virtual step: cheaper).
-    "informative-pixels-uniform": {"supervision": "photo", "virtual_pixels": "informative", "sampling": "uniform"},
+    "informative-pixels-uniform": {"variants": {"photo_supervision": {}, "informative": {}}, "sampling": "uniform"},
     # ... added to a photo step's gradient instead of replacing the photo step ...
     "informative-pixels-additive": INFORMATIVE_ADDITIVE,
     # ... at virtual weight 1 (an informative pixel pulls as hard as a photo's) ...
     "informative-pixels-additive-weight-1": {**INFORMATIVE_ADDITIVE, "lambda_virtual": 1.0},
     # ... and a residual floor of 0.1 (only where the render is grossly wrong).
-    "informative-pixels-additive-floor-0.1": {**INFORMATIVE_ADDITIVE, "lambda_virtual": 1.0, "residual_floor": 0.1},
+    "informative-pixels-additive-floor-0.1": {
+        **INFORMATIVE_ADDITIVE, "lambda_virtual": 1.0,
+        "variants": {**INFORMATIVE_ADDITIVE["variants"], "informative": {"residual_floor": 0.1}}},
     # The geometry term (experimental/multiview.py): 1 - NCC of the source photos mapped through
     # the rendered depth and normal at each virtual view, on top of the default, at weight 0.15
     # (stage I's lambda_ncc) and 0.6 ...
-    "geometry-term-0.15": {"geometry_weight": 0.15},
-    "geometry-term-0.6": {"geometry_weight": 0.6},
+    "geometry-term-0.15": {"variants": {"geometry": {"weight": 0.15}}},
+    "geometry-term-0.6": {"variants": {"geometry": {"weight": 0.6}}},
     # ... and alone (no colour target at virtual views) at 0.15, 0.6 and 2.4.
-    "geometry-only-0.15": {"geometry_weight": 0.15, **GEOMETRY_ONLY},
-    "geometry-only-0.6": {"geometry_weight": 0.6, **GEOMETRY_ONLY},
-    "geometry-only-2.4": {"geometry_weight": 2.4, **GEOMETRY_ONLY},
+    "geometry-only-0.15": geometry_only(0.15),
+    "geometry-only-0.6": geometry_only(0.6),
+    "geometry-only-2.4": geometry_only(2.4),
 }
 # The variants' names in the runs docs/bootstrap.md records, still accepted by --variants.
 RECORDED_NAMES = {
@@ -130,7 +136,9 @@ def data_root() -> Path | None:
 def copy_stage1(source: Path, run_dir: Path) -> None:
     """An existing stage-I run copied to ``run_dir`` (read-only input stays untouched: a prior
     trained for the benchmark is written beside the copy). Copies config.json, split.json,
-    model.ply and the newest checkpoint (its Adam moments are what the continuation resumes)."""
+    model.ply, metrics.jsonl (stage I's held-out curve: the repair outlook reads it; without it the
+    bootstrap must measure the outlook first) and the newest checkpoint (its Adam moments are what
+    the continuation resumes)."""
     import shutil
 
     from inceptiongs.errors import InputError
@@ -143,8 +151,9 @@ def copy_stage1(source: Path, run_dir: Path) -> None:
     if tmp.exists():
         shutil.rmtree(tmp)
     (tmp / "checkpoints").mkdir(parents=True)
-    for name in ("config.json", "split.json", "model.ply"):
-        shutil.copy2(source / name, tmp / name)
+    for name in ("config.json", "split.json", "model.ply", "metrics.jsonl"):
+        if (source / name).is_file():
+            shutil.copy2(source / name, tmp / name)
     checkpoint = latest_checkpoint(source)
     if checkpoint is not None:
         shutil.copy2(checkpoint, tmp / "checkpoints" / checkpoint.name)

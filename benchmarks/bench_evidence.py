@@ -1,4 +1,4 @@
-"""Does the leave-one-out estimate (inceptiongs/bootstrap/validation.py) predict where the blend
+"""Does the leave-one-out estimate (inceptiongs/bootstrap/experimental/validation.py) predict where the blend
 beats the render? Scored at a stage-I run's held-out views, treated as virtual views.
 
     python benchmarks/bench_evidence.py RUN [--k 3] [--photos 6] [--covered 6]
@@ -24,9 +24,9 @@ from inceptiongs.bootstrap.config import BootstrapConfig
 from inceptiongs.bootstrap.source_depth import depth_from_training_views
 from inceptiongs.bootstrap.stage1 import load_stage1
 from inceptiongs.bootstrap.supervise import supervise_view
-from inceptiongs.bootstrap.supervision_kinds import ViewContext
-from inceptiongs.bootstrap.validation import (margin_db, measure_evidence, squared_error, validation_photos,
-                                              view_margins)
+from inceptiongs.bootstrap.view_supervision import ViewContext
+from inceptiongs.bootstrap.experimental.validation import (margin_db, measure_evidence, squared_error,
+                                                           validation_photos, view_margins)
 from inceptiongs.bootstrap.view_targets import ModelRenders
 from inceptiongs.bootstrap.virtual_views import nearest_training_views
 from inceptiongs.rasterizer.interface import resolve_device

@@ -13,7 +13,7 @@ each ingredient on its own:
   (align.py; shifts beyond ``--align-px`` untrusted); ``splat+flow``: the same for ``splat``;
 - ``splat``: the same blend, the view's depth splatted from its nearest training views' depths
   (source_depth.py, ``--virtual-depth sources``); ``splat+inp``: and the blend inpainted into
-  the pixels no photo reaches (``--fill inpaint``);
+  the pixels no photo reaches (the variant ``inpaint``);
 - ``+depth``: the same warps placed with the photo-consistent depth (photo_depth.py), uniform
   mean, soft mask, over the render;
 - ``+lumi``: lumigraph weights instead of the uniform mean;
@@ -21,10 +21,10 @@ each ingredient on its own:
 - ``inpaint``: the full photo supervision with the inpainting fill;
 - ``+inform``: the blend only on the informative pixels (trusted, depth confirmed, the photos
   disagreeing with the render by more than among themselves), the render elsewhere: what a
-  virtual step with ``virtual_pixels="informative"`` pulls towards;
+  virtual step with the variant ``informative`` pulls towards;
 - ``repair``: the prior's repair of the render (needs a prior: RUN/prior/prior.pt or --prior-run);
 - ``I*blend``: the bootstrap's default I*: the paper's blending over the repair;
-- ``I*photo``: the photo supervision over the repair (``--supervision photo --fill prior``).
+- ``I*photo``: the photo supervision over the repair (the variant ``photo_supervision``, fill ``prior``).
 
 Trusted-pixel columns compare the photos with the render *on the pixels the supervision
 trusts* (binary mask > 0 for blend, soft mask >= 0.5 for photo): the warps must beat the render
@@ -106,7 +106,7 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
         return depths[cam.name]
 
     def blend(base, virtual_depth: str = "render", **fields):
-        config = BootstrapConfig(supervision="blend", virtual_depth=virtual_depth, delta=args.delta, **fields)
+        config = BootstrapConfig(virtual_depth=virtual_depth, delta=args.delta, **fields)
         out = supervise_view(ViewContext(config, camera, base.numpy(), sources, scene.cameras, photos, render_depth,
                                          source_depth=lambda: splatted))
         return out.image, out.mask
@@ -121,10 +121,11 @@ def scores_at(view: int, scene, split, gaussians, prior, args, depths: dict, sky
     began = time.perf_counter()
     images = {"render": rendered}
     images["blend"], blend_mask = blend(rendered)
-    images["blend+flow"], blend_flow_mask = blend(rendered, align_px=args.align_px)
+    flow = {"align": {"max_shift_px": args.align_px}}       # the variant "align"
+    images["blend+flow"], blend_flow_mask = blend(rendered, variants=flow)
     images["splat"], splat_mask = blend(rendered, "sources")
-    images["splat+flow"], splat_flow_mask = blend(rendered, "sources", align_px=args.align_px)
-    images["splat+inp"], _ = blend(rendered, "sources", fill="inpaint")
+    images["splat+flow"], splat_flow_mask = blend(rendered, "sources", variants=flow)
+    images["splat+inp"], _ = blend(rendered, "sources", variants={"inpaint": {}})
     images["+depth"] = photo_run(fill="render", lumigraph=False, exposure=False).target
     images["+lumi"] = photo_run(fill="render", exposure=False).target
     full = photo_run(fill="render")

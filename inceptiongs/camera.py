@@ -17,6 +17,7 @@ import numpy as np
 from .io.atomic import atomic_write_text
 from .io.config_json import read_json_object
 from .io.limits import check_image_size
+from .io.values import COORDINATE_MAX, rule
 from .constants import NEAR_PLANE
 from .errors import InputError
 
@@ -264,18 +265,20 @@ def camera_from_json_dict(data: dict, source: str = "<camera json>") -> Camera:
     missing = [key for key in required if key not in data]
     if missing:
         raise InputError(f"{source}: camera JSON is missing {', '.join(missing)}")
+    width, height = (rule("image side").check(data[key], f"{source}: {key}") for key in ("width", "height"))
+    values = [rule("focal length" if key in ("fx", "fy") else "principal point").check(data[key], f"{source}: {key}")
+              for key in ("fx", "fy", "cx", "cy")]
     try:
         pose = np.asarray(data["world_to_camera"], dtype=np.float64)
-        values = [float(data[key]) for key in ("fx", "fy", "cx", "cy")]
-        width, height = int(data["width"]), int(data["height"])
-    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: int(inf)
-        raise InputError(f"{source}: camera JSON has a malformed value ({exc})") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"{source}: world_to_camera has a malformed value ({exc})") from None
     if pose.shape != (4, 4):
         raise InputError(f"{source}: world_to_camera must be a 4x4 matrix, got shape {pose.shape}")
-    if not np.all(np.isfinite(pose)) or not all(math.isfinite(v) for v in values):
-        raise InputError(f"{source}: camera JSON contains NaN or Inf")
-    if width <= 0 or height <= 0 or values[0] <= 0 or values[1] <= 0:
-        raise InputError(f"{source}: width, height, fx and fy must be positive")
+    if not np.all(np.isfinite(pose)):
+        raise InputError(f"{source}: world_to_camera contains NaN or Inf")
+    if np.abs(pose).max() > COORDINATE_MAX:
+        raise InputError(f"{source}: world_to_camera holds {np.abs(pose).max():g}, beyond the {COORDINATE_MAX:g} "
+                         "a scene coordinate may reach")
     check_image_size(width, height, source)
     rotation = pose[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or np.linalg.det(rotation) < 0:

@@ -14,6 +14,7 @@ import sys
 from .errors import InputError
 from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+from .io.values import bind_flags
 
 # The arguments that name a run, output or input folder of a command.
 WRITE_ROOT_ARGUMENTS = ("run", "runs", "out", "path", "model", "scene")
@@ -33,6 +34,7 @@ COMMANDS = {
     "coverage": "coverage",
     "demo-scene": "demo_scene",
     "render": "render",
+    "convert": "convert",
     "train": "train",
     "prior": "prior",
     "generate": "generate",
@@ -55,12 +57,20 @@ def available_commands() -> dict[str, object]:
     return modules
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's refusals (a missing argument, a choice it does not know, too few values) as
+    the one line every bad input gets (InputError, exit status 2), not a usage block."""
+
+    def error(self, message: str):
+        raise InputError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="inceptiongs", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="inceptiongs", description=__doc__.splitlines()[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     parser.add_argument("--cache-dir", metavar="DIR", default=None,
                         help="cache folder (default $INCEPTIONGS_CACHE_DIR, else $XDG_CACHE_HOME/inceptiongs)")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     for name, module in available_commands().items():
         command_parser = sub.add_parser(name, help=module.HELP, description=module.HELP)
@@ -70,6 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     help="cache folder (default $INCEPTIONGS_CACHE_DIR, else "
                                          "$XDG_CACHE_HOME/inceptiongs)")
         module.add_arguments(command_parser)
+        bind_flags(command_parser)      # every numeric flag checked by its rule (io/values.py)
         command_parser.set_defaults(_run=module.run)
     return parser
 

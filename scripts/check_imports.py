@@ -16,6 +16,10 @@ module, never hide a circle). Rules:
    costs no layer.
 4. ``from X import _name`` is refused when X is another project module: a private name is
    private to its module. Tests, benchmarks and scripts are held to this too.
+5. Stage II's experimental variants (SEALED) are imported only from inside their folder: the
+   installed code reaches them by name through one door (inceptiongs/bootstrap/variants.py,
+   importlib), so the default path never loads them. Tests and benchmarks of a variant may
+   import it.
 
     python3 scripts/check_imports.py          # prints the problems, exit status 1 if any
 """
@@ -43,7 +47,7 @@ LIBRARY_ORDER = (
     ("scene", ("inceptiongs.scene",)),
     ("rasterizer", ("inceptiongs.rasterizer",)),
     ("lod", ("inceptiongs.lod",)),
-    ("measures", ("inceptiongs.evaluation.metrics", "inceptiongs.evaluation.networks",
+    ("measures", ("inceptiongs.evaluation.metrics", "inceptiongs.evaluation.networks", "inceptiongs.evaluation.lpips_net",
                   "inceptiongs.evaluation.scoring", "inceptiongs.evaluation.protocols",
                   "inceptiongs.evaluation.coverage", "inceptiongs.evaluation.report")),
     ("runs", ("inceptiongs.runs",)),
@@ -147,6 +151,21 @@ def order_problem(module: str, target: str, packages: set[str]) -> str | None:
 
 
 ALLOWED = {LIBRARY: {LIBRARY}, RENDERER: {LIBRARY, RENDERER}, APP: {LIBRARY, RENDERER, APP}}
+# Packages only their own modules import (rule 5).
+SEALED = ("inceptiongs.bootstrap.experimental",)
+
+
+def inside(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def sealed_problem(module: str, target: str) -> str | None:
+    """Why ``module`` importing ``target`` breaks rule 5 (None: it does not)."""
+    for package in SEALED:
+        if inside(target, package) and not inside(module, package):
+            return (f"{module} imports {target}: {package} is reached only by name, through "
+                    f"inceptiongs/bootstrap/variants.py")
+    return None
 
 
 def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -211,6 +230,10 @@ def check(root: Path | None = None) -> list[str]:
             if is_package and targets & installed and layer(module) is not None:
                 problems.append(f"{where}:{imp.line}: a package's __init__ imports nothing of the project "
                                 f"(it imports {imp.target})")
+            # One line per import, also for ``from package import experimental``.
+            sealed = [why for candidate in (imp.target, *(f"{imp.target}.{n}" for n in imp.names))
+                      if (why := sealed_problem(module, candidate))]
+            problems += [f"{where}:{imp.line}: {why}" for why in sealed[:1]]
             for target in targets & installed:
                 if layer(module) == LIBRARY and layer(target) == LIBRARY:
                     why = order_problem(module, target, packages)
@@ -234,7 +257,8 @@ def main() -> int:
     if problems:
         print(f"{len(problems)} import problem(s)", file=sys.stderr)
         return 1
-    print("imports: no circles, layers one way (the library's in LIBRARY_ORDER), no private names across modules")
+    print("imports: no circles, layers one way (the library's in LIBRARY_ORDER), no private names across modules, "
+          "experimental variants only through their door")
     return 0
 
 

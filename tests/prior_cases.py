@@ -13,7 +13,7 @@ from inceptiongs.prior.hashgrid import HashGridConfig
 from inceptiongs.prior.model import PriorConfig
 from inceptiongs.prior.unet import UNetConfig
 from inceptiongs.rasterizer.rasterize import render
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.runs.config import TrainConfig
 from inceptiongs.runs.frames import to_original_frame
@@ -46,7 +46,7 @@ def make_stand_in_run(root, protocol: str | None = None):
     """A run folder as stage I leaves it (config.json + model.ply, and split.json when a
     protocol is given), with Gaussians standing in for a trained model: the demo scene's points
     as small isotropic splats."""
-    scene_dir = write_demo_scene(root / "scene", progress=False)
+    scene_dir = copy_of_demo_scene(root / "scene")
     config = TrainConfig(scene=str(scene_dir), downscale=4, protocol=protocol or "none")
     run = root / "run"
     run.mkdir()

@@ -184,13 +184,20 @@ def test_camera_json_round_trip(tmp_path):
     ('{"width": 4, "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, "world_to_camera": [[1, 0], [0, 1]]}',
      "4x4"),
     ('{"width": 4, "height": 4, "fx": NaN, "fy": 1, "cx": 2, "cy": 2, '
-     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "NaN or Inf"),
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "fx must be a finite number"),
     ('{"width": 0, "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, '
-     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "positive"),
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', r"width must be in \[1, 16384\]"),
     ('{"width": 4, "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, '
      '"world_to_camera": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "not a proper rotation"),
     ('{"width": "wide", "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, '
-     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "malformed value"),
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "width must be an integer"),
+    # A width given as text or with a fraction is no pixel count (it was read as int("64") / int(64.5)).
+    ('{"width": "64", "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, '
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', 'width must be an integer .*got "64"'),
+    ('{"width": 64.5, "height": 4, "fx": 1, "fy": 1, "cx": 2, "cy": 2, '
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', "width must be an integer .*got 64.5"),
+    ('{"width": 64, "height": 48, "fx": 1e308, "fy": 1, "cx": 2, "cy": 2, '
+     '"world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', r"fx must be in \(0, 10000000\]"),
 ])
 def test_bad_camera_json(tmp_path, content, match):
     path = tmp_path / "bad.json"

@@ -91,3 +91,18 @@ def test_every_library_module_has_a_place_in_the_order():
         module, _ = checker.module_name(path)
         if checker.layer(module) == checker.LIBRARY and module != checker.LIBRARY:
             assert checker.library_layer(module) is not None, f"{path}: add its package to LIBRARY_ORDER"
+
+
+def test_checker_fails_on_an_import_of_an_experimental_variant_outside_its_folder(tmp_path):
+    """The variants are reached by name through bootstrap/variants.py; a direct import, even one
+    deferred into a function, is refused (inside experimental/ they may import each other)."""
+    checker = load_checker()
+    copy = copy_of_the_project(tmp_path)
+    refine = copy / "inceptiongs" / "bootstrap" / "refine.py"
+    refine.write_text(refine.read_text() + "\n\ndef f():\n    from .experimental.align import align_warp\n")
+    problems = checker.check(copy)
+    assert len(problems) == 1 and "inceptiongs.bootstrap.experimental.align" in problems[0] \
+        and "variants.py" in problems[0], problems
+    refine.write_text(refine.read_text().replace("from .experimental.align import align_warp", "pass"))
+    informative = copy / "inceptiongs" / "bootstrap" / "experimental" / "informative.py"
+    assert "from .photo_supervision import" in informative.read_text() and checker.check(copy) == []

@@ -112,11 +112,11 @@ def tiny_demo_run(root, **overrides):
     unstructured protocol (so j* exists); ``overrides`` as :func:`overridden` takes them."""
     from pathlib import Path
 
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
     from inceptiongs.train.trainer import train
 
     root = Path(root)
-    scene = write_demo_scene(root / "scene", progress=False)
+    scene = copy_of_demo_scene(root / "scene")
     base = overridden(TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=20),
                       densification={"densify_from": 10, "densify_every": 10, "densify_until": 15,
                                      "opacity_reset_every": 1000},

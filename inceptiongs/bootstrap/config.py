@@ -2,39 +2,35 @@
 
 The stage-I TrainConfig of the input run is kept as it is in RUN2/config.json (so the output
 is a run folder every reader understands); everything that belongs to the bootstrap loop lives
-here. Each field carries its meaning, unit and role in its metadata (``option``);
-docs/bootstrap_options.md is generated from them (scripts/gen_bootstrap_options.py).
-``BootstrapConfig.load`` reads such a file strictly: `inceptiongs bootstrap --config FILE.json`.
+here: the default path's settings, and the experimental variants chosen with their own options
+(``variants``; the door: variants.py). Each setting carries its meaning, unit and role in its
+metadata (options.option); docs/bootstrap_options.md is generated from them
+(scripts/gen_bootstrap_options.py). ``BootstrapConfig.load`` reads such a file strictly:
+`inceptiongs bootstrap --config FILE.json`. Files written before the variants had sections
+(flat keys such as ``"supervision": "photo"`` or ``"align_px": 2.0``) are read into them
+(:func:`sections_from_flat_keys`).
 """
 
 from __future__ import annotations
 
-import difflib
-import json
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..io.config_json import SavedConfig, read_json_object
 from ..errors import InputError
+from ..io.config_json import SavedConfig, check_field_types, read_json_object
+from ..io.limits import check_allocation
+from .options import (ABLATION, BOOKKEEPING, DEFAULT_PATH, PRIOR_FILL, check_finite, checked_value,  # noqa: F401
+                      option, read_options)
+from .variants import Variant, chosen_variants
+from .virtual_views import DEFAULT_K, DEFAULT_L
 
 SAMPLING = ("langevin", "uniform")
 VIRTUAL_DEPTHS = ("render", "sources", "both", "auto")
-PLACEMENTS = ("paths", "evidence")
-
-# A field's role (docs/bootstrap_options.md explains them).
-DEFAULT_PATH = "default path"           # its value shapes a run with every default
-EXPERIMENTAL = "experimental variant"   # read only when a non-default variant is chosen (the meaning says which)
-ABLATION = "ablation"                   # one of the paper's ablations; off by default
-BOOKKEEPING = "bookkeeping"             # logs, evaluations, checkpoints, saved images: never the model
-ROLES = (DEFAULT_PATH, EXPERIMENTAL, ABLATION, BOOKKEEPING)
-
-
-def option(default, meaning: str, unit: str = "-", role: str = DEFAULT_PATH):
-    """A BootstrapConfig field with its documentation: what it means, its unit ("-": none) and
-    its role (one of ROLES)."""
-    assert role in ROLES, role
-    return field(default=default, metadata={"meaning": meaning, "unit": unit, "role": role})
+FILLS = ("render", "prior")
+# One candidate virtual view in memory: its camera (a 4x4 float64 pose, intrinsics, a name) and
+# its record, rounded up generously (measured about 1 KiB with Python's object overheads).
+VIRTUAL_VIEW_BYTES = 2048
 
 
 @dataclass
@@ -57,16 +53,6 @@ class BootstrapConfig(SavedConfig):
                                  "(null: virtual_views.DEFAULT_L, 4)", "poses")
     max_virtual_views: int = option(64, "at most this many virtual views per round; the rest are dropped", "views")
     # The view the user flagged is where the repair matters most.
-    placement: str = option("paths", "where the virtual views go: \"paths\" (default: k * l poses on the paths "
-                                     "from each target to its k nearest photos, gated by `agreement_min_db`) or "
-                                     "\"evidence\" (experimental: poses near the target where the leave-one-out "
-                                     "estimate says the blend beats the render, validation.py and placement.py; "
-                                     "pixels without that evidence carry no virtual loss; replaces the agreement gate)")
-    evidence_min_fraction: float = option(0.05, "placement \"evidence\" only: a virtual view is used when at "
-                                                "least this share of its pixels with depth lie on regions of "
-                                                "positive evidence", "fraction, in (0, 1]", EXPERIMENTAL)
-    evidence_photos: int = option(6, "placement \"evidence\" only: training photos near the targets at which "
-                                     "the leave-one-out estimate is measured each round", "views", EXPERIMENTAL)
     include_target: bool = option(True, "also supervise the target pose itself (t = 0) with the repair of its "
                                         "render; false: exactly k * l virtual views per target")
     # A stage with nothing to do is left out; photo steps come first while they gain more.
@@ -81,12 +67,12 @@ class BootstrapConfig(SavedConfig):
                         role=ABLATION)
     prior_minutes: float = option(2.0, "budget of the short prior training when a prior is used (fill "
                                        "\"prior\" or blending off) and the run has none; at most half of "
-                                       "what is left of `minutes`", "minutes", EXPERIMENTAL)
+                                       "what is left of `minutes`", "minutes", PRIOR_FILL)
     prior_steps: int | None = option(None, "the short prior training also stops after this many steps, "
                                            "whichever of it and prior_minutes ends first; null: the minutes alone",
-                                       "steps", EXPERIMENTAL)
+                                       "steps", PRIOR_FILL)
     ddim_steps: int = option(10, "DDIM denoising steps per generated image (a prior is used only with fill "
-                                 "\"prior\" or blending off)", "steps", EXPERIMENTAL)
+                                 "\"prior\" or blending off)", "steps", PRIOR_FILL)
     regenerate_every: int = option(50, "every this many refinement steps, I* of every virtual view is made "
                                        "again from the current Gaussians (their render is what is repaired); "
                                        "0: once per round", "steps")
@@ -99,64 +85,36 @@ class BootstrapConfig(SavedConfig):
                                        "(null: warp.DEFAULT_DELTA, 0.03)", "relative")
     save_views: int = option(4, "virtual views whose I*, mask and generated image are saved as PNGs in "
                                 "RUN2/bootstrap/views", "views", BOOKKEEPING)
-    supervision: str = option("blend", "\"blend\" (default): the warped photos' uniform mean under a binary "
-                                       "trust mask; \"photo\" (experimental): photo-consistent depth, exposure "
-                                       "matching, lumigraph weights and a soft mask (experimental/photo_supervision.py)")
     fill: str = option("render", "what fills the pixels no photo covers: \"render\" (default: the model's "
-                                 "own render, no prior is trained or generated), \"inpaint\" (the blend "
-                                 "inpainted) or \"prior\" (the generated image; the paper's, with blend)")
+                                 "own render, no prior is trained or generated) or \"prior\" (the generated "
+                                 "image; the paper's, with blend); the variant \"inpaint\" inpaints the blend "
+                                 "over the render instead")
     virtual_depth: str = option("auto", "the depth the photos are warped into a virtual view with: \"render\" "
                                         "(the model's surface depth there), \"sources\" (the nearest "
                                         "`splat_views` training views' surface depths splatted into it, "
                                         "source_depth.py), \"both\" (blend only: the render's where its "
                                         "warps are trusted, else the splatted) or \"auto\" (default; blend "
-                                        "only: per view, whichever places more photos; the photo "
-                                        "supervision uses the splatted one)")
+                                        "only: per view, whichever places more photos; the variant "
+                                        "photo_supervision uses the splatted one)")
     agreement_min_db: float | None = option(-1.0, "a virtual view whose warped photos agree with each other "
                                                   "worse than with the render by more than this is left out "
                                                   "of the refinement (agreement.py); null: every view is used",
                                             "dB")
     splat_views: int = option(8, "training views whose surface depths are splatted into a virtual view "
                                  "(virtual_depth \"sources\", \"both\", \"auto\")", "views")
-    align_px: float | None = option(None, "blend only: each warped photo is first moved onto the render by "
-                                          "optical flow, shifts beyond this untrusted (experimental/align.py); null: off",
-                                    "px", EXPERIMENTAL)
 
     # --- refinement ----------------------------------------------------------------------------
-    virtual_every: int = option(4, "every n-th refinement step is a virtual view (virtual_mode "
+    virtual_every: int = option(4, "every n-th refinement step is a virtual view (the variant "
                                    "\"additive\": carries one)", "steps")
     lambda_virtual: float = option(1.0, "loss weight of a virtual view against a photo's", "weight")
     tau: float = option(0.2, "a virtual view's loss is perceptual when its SSIM loss (1 - SSIM) <= tau, "
                              "else L1 + D-SSIM", "SSIM loss, in [0, 2]")
-    densify: bool = option(False, "densify the Gaussians during the refinement", role=EXPERIMENTAL)
     generated_weight: float = option(1.0, "loss weight of a virtual view's untrusted (fill) pixels against "
                                           "the pixels trusted from warped photos; 1: the paper's loss on I*; "
                                           "lower trusts a weak fill less", "weight, in [0, 1]")
-    virtual_pixels: str = option("all", "which pixels of a virtual view carry loss: \"all\" (default: "
-                                        "trusted pixels 1, the fill `generated_weight`) or \"informative\" "
-                                        "(experimental, supervision \"photo\" only: the trusted pixels where "
-                                        "the photos contradict the render by more than they disagree among "
-                                        "themselves, experimental/photo_supervision.informative_mask; a view without any is "
-                                        "not sampled)")
-    residual_floor: float | None = option(None, "virtual_pixels \"informative\" only: the smallest "
-                                                "photo - render residual that counts (null: "
-                                                "experimental/photo_supervision.RESIDUAL_FLOOR, 4/255); higher keeps only "
-                                                "grossly wrong pixels", "colour, in [0, 1]", EXPERIMENTAL)
-    virtual_mode: str = option("alternate", "\"alternate\" (default): a virtual step replaces a photo "
-                                            "step; \"additive\" (experimental): that step is a photo step "
-                                            "whose gradient also holds the virtual view's loss (one Adam "
-                                            "step, so the photos lose no step)")
-    geometry_weight: float = option(0.0, "weight of the geometry term at virtual views (experimental/multiview.py): 1 - NCC "
-                                         "of the k source photos' patches mapped through the rendered depth "
-                                         "and planar normal, into the Gaussians' geometry; 0: off (stage I's "
-                                         "lambda_ncc, PGSR's weight of the same measure, is 0.15)",
-                                    "weight", EXPERIMENTAL)
-    geometry_samples: int = option(4096, "pixels per evaluation of the geometry term "
-                                         "(multiview.DEFAULT_SAMPLES)", "pixels", EXPERIMENTAL)
-    virtual_colour: bool = option(True, "the colour loss at virtual views (I* or the informative blend); "
-                                        "false (experimental): only the geometry term, which must then be on")
-    lpips_weights: str | None = option(None, "a TorchScript LPIPS file for the perceptual loss; null: MS-SSIM-G "
-                                             "(weight-free)", "path", EXPERIMENTAL)
+    lpips_weights: str | None = option(None, "AlexNet-LPIPS weights as plain tensors (scripts/lpips_weights.py "
+                                             "makes them; TorchScript is refused) for the perceptual loss; null: "
+                                             "MS-SSIM-G (weight-free)", "path")
     # The conscience (conscience.py) keeps the virtual views from pulling well observed regions down.
     conscience_tolerance: float | None = option(0.05, "every `conscience_every` steps the L1 of the training "
                                                       "photos nearest the targets is measured; above its start "
@@ -181,16 +139,37 @@ class BootstrapConfig(SavedConfig):
                                 "each round", "steps", BOOKKEEPING)
     checkpoint_every: int = option(200, "refinement steps between checkpoints", "steps", BOOKKEEPING)
 
+    # --- variants --------------------------------------------------------------------------------
+    # The experimental variants chosen, each with its own options (variants.py; none by default).
+    variants: dict[str, Variant] = field(default_factory=dict, metadata={
+        "meaning": "the experimental variants chosen, by name, each with its own options (listed below); "
+                   "{}: none, the default path", "unit": "-", "role": DEFAULT_PATH})
+
+    def __post_init__(self) -> None:
+        # A variant given as a mapping of its options (a test, a benchmark, the reader) becomes
+        # its options dataclass, and the chosen ones stand in the table's order (their hooks' order).
+        self.variants = chosen_variants(self.variants)
+
     @classmethod
     def load(cls, path: str | Path) -> "BootstrapConfig":
-        """The config in the JSON object at ``path``: any subset of the field names (the others
-        keep their defaults), read strictly (``read_bootstrap_config``)."""
+        """The config in the JSON object at ``path``: any subset of the keys (the others keep
+        their defaults), read strictly (``read_bootstrap_config``)."""
         return read_bootstrap_config(path)
+
+    @classmethod
+    def from_json(cls, data: dict, source: str) -> "BootstrapConfig":
+        """The config of a JSON object already read (a checkpoint's "bootstrap"/"config"),
+        flat keys of older files included; errors name ``source``."""
+        return config_from_json(data, source)
+
+    def colour_target(self) -> bool:
+        """Whether a virtual view carries a colour loss (and I* is built): a variant may drop it."""
+        return all(variant.colour_target() for variant in self.variants.values())
 
     def needs_prior(self) -> bool:
         """Whether any I* uses a generated image (False: no prior is trained or loaded)."""
-        if not self.virtual_colour:
-            return False        # no I* at all: the virtual views carry only the geometry term
+        if not self.colour_target():
+            return False        # no I* at all: the virtual views carry another loss only
         return not self.blending or self.fill == "prior"
 
     def validate(self, source: str = "bootstrap config") -> "BootstrapConfig":
@@ -208,6 +187,10 @@ class BootstrapConfig(SavedConfig):
             value = getattr(self, name)
             if value is not None and value <= 0:
                 raise InputError(f"{source}: {name} must be > 0, got {value}")
+        # k x l candidate poses are made per target before max_virtual_views keeps the first:
+        # their memory is checked before a single one is built.
+        poses = (DEFAULT_K if self.k is None else self.k) * (DEFAULT_L if self.l is None else self.l)
+        check_allocation(poses * VIRTUAL_VIEW_BYTES, source, f"k x l = {poses} virtual view poses per target")
         if self.sampling not in SAMPLING:
             raise InputError(f"{source}: sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
         if self.prior not in ("trained", "untrained"):
@@ -218,37 +201,14 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
         if not 0 <= self.generated_weight <= 1:
             raise InputError(f"{source}: generated_weight must be in [0, 1], got {self.generated_weight}")
-        if self.supervision not in ("blend", "photo"):
-            raise InputError(f"{source}: supervision must be 'blend' or 'photo', got {self.supervision!r}")
-        if self.fill not in ("prior", "inpaint", "render"):
-            raise InputError(f"{source}: fill must be 'prior', 'inpaint' or 'render', got {self.fill!r}")
+        if self.fill not in FILLS:
+            raise InputError(f"{source}: fill must be 'render' or 'prior' (the inpainting fill is the variant "
+                             f"\"inpaint\"), got {self.fill!r}")
         if self.agreement_min_db is not None and not math.isfinite(self.agreement_min_db):
             raise InputError(f"{source}: agreement_min_db must be a finite number (or null: off), got {self.agreement_min_db}")
-        if self.align_px is not None and not (math.isfinite(self.align_px) and self.align_px > 0):
-            raise InputError(f"{source}: align_px must be a positive number of pixels (or null: off), got {self.align_px}")
-        if self.placement not in PLACEMENTS:
-            raise InputError(f"{source}: placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
-        if not 0 < self.evidence_min_fraction <= 1:
-            raise InputError(f"{source}: evidence_min_fraction must be in (0, 1], got {self.evidence_min_fraction}")
-        if self.evidence_photos < 1:
-            raise InputError(f"{source}: evidence_photos must be >= 1, got {self.evidence_photos}")
         if self.virtual_depth not in VIRTUAL_DEPTHS:
             raise InputError(f"{source}: virtual_depth must be one of {', '.join(VIRTUAL_DEPTHS)}, "
                              f"got {self.virtual_depth!r}")
-        if self.virtual_pixels not in ("all", "informative"):
-            raise InputError(f"{source}: virtual_pixels must be 'all' or 'informative', got {self.virtual_pixels!r}")
-        if self.virtual_pixels == "informative" and self.supervision != "photo":
-            raise InputError(f"{source}: virtual_pixels 'informative' needs supervision 'photo'")
-        if self.residual_floor is not None and not self.residual_floor >= 0:
-            raise InputError(f"{source}: residual_floor must be >= 0, got {self.residual_floor}")
-        if self.virtual_mode not in ("alternate", "additive"):
-            raise InputError(f"{source}: virtual_mode must be 'alternate' or 'additive', got {self.virtual_mode!r}")
-        if not self.geometry_weight >= 0:
-            raise InputError(f"{source}: geometry_weight must be >= 0, got {self.geometry_weight}")
-        if self.geometry_samples < 1:
-            raise InputError(f"{source}: geometry_samples must be >= 1, got {self.geometry_samples}")
-        if not self.virtual_colour and self.geometry_weight == 0:
-            raise InputError(f"{source}: virtual_colour off needs a geometry_weight > 0 (else a virtual view carries no loss)")
         if self.conscience_tolerance is not None and not self.conscience_tolerance >= 0:
             raise InputError(f"{source}: conscience_tolerance must be >= 0 (or null: off), got {self.conscience_tolerance}")
         if self.lambda_virtual < 0:
@@ -260,48 +220,122 @@ class BootstrapConfig(SavedConfig):
         for name in ("eval_every", "save_views", "regenerate_every"):
             if getattr(self, name) < 0:
                 raise InputError(f"{source}: {name} must be >= 0, got {getattr(self, name)}")
-        for f in fields(self):  # a NaN passes every comparison above, an inf most of them
-            value = getattr(self, f.name)
-            if isinstance(value, float) and not math.isfinite(value):
-                raise InputError(f"{source}: {f.name} must be a finite number, got {value}")
+        check_finite(self, source)
+        self.validate_variants(source)
         return self
+
+    def validate_variants(self, source: str) -> None:
+        """Each chosen variant's options (types, finite, ranges) and what it needs of the rest."""
+        for name, variant in self.variants.items():
+            where = f"{source}: variants.{name}"
+            check_field_types(variant, where)
+            check_finite(variant, where)
+            variant.check(where, self)
+            missing = [other for other in variant.REQUIRES if other not in self.variants]
+            if missing:
+                raise InputError(f"{where}: needs the variant {', '.join(missing)} too")
 
 
 def read_bootstrap_config(path: str | Path) -> BootstrapConfig:
-    """A BootstrapConfig from a JSON object of field names at ``path``, validated. An unknown
-    key (with the nearest field name when one is close), a value of the wrong type, a non-finite
-    number or an out-of-range value is an InputError: one line naming the file and the key."""
+    """A BootstrapConfig from a JSON object of its keys at ``path``, validated. An unknown key
+    (with the nearest key name when one is close), a value of the wrong type, a non-finite number
+    or an out-of-range value is an InputError: one line naming the file and the key."""
     path = Path(path)
-    data = read_json_object(path, BootstrapConfig.CONFIG_KIND)
-    by_name = {f.name: f for f in fields(BootstrapConfig)}
-    values = {}
-    for key, value in data.items():
-        if key not in by_name:
-            close = difflib.get_close_matches(key, list(by_name), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise InputError(f"{path}: unknown key {key!r}{hint}; docs/bootstrap_options.md lists the keys")
-        values[key] = checked_value(path, key, by_name[key].type, value)
-    return BootstrapConfig(**values).validate(str(path))
+    return config_from_json(read_json_object(path, BootstrapConfig.CONFIG_KIND), str(path))
 
 
-def checked_value(path: Path, key: str, annotation: str, value):
-    """``value`` from a JSON file when it fits the field's annotation (a string such as
-    "int", "float | None"), an int widened to float for a float field; else an InputError
-    naming ``path`` and ``key``."""
-    kinds = {kind.strip() for kind in str(annotation).split("|")}
-    nullable = "None" in kinds
-    (kind,) = kinds - {"None"}
-    wanted = {"int": "an integer", "float": "a finite number", "str": "a string", "bool": "true or false"}[kind]
-    if value is None and nullable:
-        return None
-    if kind == "bool" and isinstance(value, bool):
-        return value
-    if kind == "int" and isinstance(value, int) and not isinstance(value, bool):
-        return value
-    if kind == "str" and isinstance(value, str):
-        return value
-    if (kind == "float" and isinstance(value, (int, float)) and not isinstance(value, bool)
-            and math.isfinite(value)):
-        return float(value)
-    shown = json.dumps(value, allow_nan=True)
-    raise InputError(f"{path}: {key} must be {wanted}{' or null' if nullable else ''}, got {shown}")
+def config_from_json(data: dict, source: str) -> BootstrapConfig:
+    """:func:`read_bootstrap_config` of a JSON object already read; ``source`` names it in errors."""
+    data = sections_from_flat_keys(data, source)
+    settings = {key: value for key, value in data.items() if key != "variants"}
+    values = read_options(BootstrapConfig, settings, source, also_known=FLAT_KEYS)
+    values["variants"] = chosen_variants(data.get("variants", {}), source)
+    return BootstrapConfig(**values).validate(source)
+
+
+# --- files of flat keys ---------------------------------------------------------------------------
+# Before the variants had sections a file chose them with flat keys. Each key is still read, checked
+# as it was, and moved into the section of the variant it chose:
+# key -> (its type, {value: the variant it chooses; None: none}).
+FLAT_CHOICES = {
+    "supervision": ("str", {"blend": None, "photo": "photo_supervision"}),
+    "virtual_mode": ("str", {"alternate": None, "additive": "additive"}),
+    "virtual_pixels": ("str", {"all": None, "informative": "informative"}),
+    "placement": ("str", {"paths": None, "evidence": "evidence"}),
+    "densify": ("bool", {False: None, True: "densify"}),
+}
+# key -> (its type, the value that chose nothing, the variant any other value chooses, its option).
+FLAT_SWITCHES = {
+    "align_px": ("float | None", None, "align", "max_shift_px"),
+    "geometry_weight": ("float", 0.0, "geometry", "weight"),
+}
+# key -> (its type, the variant, its option, the key's default then): kept when the file chooses the
+# variant. Every file of that time holds them all, so the defaults are dropped unread.
+FLAT_OPTIONS = {
+    "geometry_samples": ("int", "geometry", "samples", 4096),
+    "virtual_colour": ("bool", "geometry", "colour", True),
+    "residual_floor": ("float | None", "informative", "residual_floor", None),
+    "evidence_min_fraction": ("float", "evidence", "min_fraction", 0.05),
+    "evidence_photos": ("int", "evidence", "photos", 6),
+}
+FLAT_KEYS = (*FLAT_CHOICES, *FLAT_SWITCHES, *FLAT_OPTIONS)
+
+
+def sections_from_flat_keys(data: dict, source: str) -> dict:
+    """``data`` (a config JSON object) with every flat key of an older file (FLAT_CHOICES,
+    FLAT_SWITCHES, FLAT_OPTIONS; ``"fill": "inpaint"``) moved into its variant's section under
+    "variants". A flat key's value is checked as before (type, allowed values); the option of a
+    variant the file does not choose had no effect and is dropped once its range is checked.
+    A flat key and the variant's section both setting the same option is an error, unless the
+    flat key holds its old default (files of the time hold every key)."""
+    data = dict(data)
+    sections = data.get("variants", {})
+    if not isinstance(sections, dict):
+        raise InputError(f"{source}: variants must be an object of variant names and their options, got {sections!r}")
+    sections = {name: dict(options) if isinstance(options, dict) else options for name, options in sections.items()}
+    options: dict[str, dict] = {}
+    for key, (kind, values) in FLAT_CHOICES.items():
+        if key in data:
+            value = checked_value(source, key, kind, data.pop(key))
+            if value not in values:
+                raise InputError(f"{source}: {key} must be one of {', '.join(repr(v) for v in values)}, got {value!r}")
+            if values[value] is not None:
+                sections.setdefault(values[value], {})
+    if data.get("fill") == "inpaint":
+        data["fill"] = "render"         # the inpainting is over the render's blend: no prior
+        sections.setdefault("inpaint", {})
+    for key, (kind, off, name, option_name) in FLAT_SWITCHES.items():
+        if key in data:
+            value = checked_value(source, key, kind, data.pop(key))
+            if value != off:
+                sections.setdefault(name, {})
+                options.setdefault(name, {})[option_name] = (key, value)
+    defaults = set()                    # (variant, option) a flat key gives at its default then
+    for key, (kind, name, option_name, default) in FLAT_OPTIONS.items():
+        if key in data:
+            value = checked_value(source, key, kind, data.pop(key))
+            if value != default or name in sections:
+                options.setdefault(name, {})[option_name] = (key, value)
+            if value == default:
+                defaults.add((name, option_name))
+    if options.get("geometry", {}).get("colour", (None, True))[1] is False and "geometry" not in sections:
+        raise InputError(f"{source}: virtual_colour off needs a geometry_weight > 0 (else a virtual view carries no loss)")
+    for name, given in options.items():
+        if name not in sections:
+            # Not chosen: the options had no effect, but an out-of-range one was refused and still is.
+            (unused,) = chosen_variants({name: {option: value for option, (_, value) in given.items()}},
+                                        source).values()
+            check_finite(unused, f"{source}: {name}")
+            unused.check(f"{source}: {name}", BootstrapConfig())
+            continue
+        if not isinstance(sections[name], dict):
+            continue                    # refused with its own message when the sections are read
+        for option_name, (key, value) in given.items():
+            if option_name in sections[name]:
+                if (name, option_name) in defaults:
+                    continue            # a file of the time holds every key: its default says nothing
+                raise InputError(f"{source}: {key} and variants.{name}.{option_name} both given; keep one")
+            sections[name][option_name] = value
+    if sections:
+        data["variants"] = sections
+    return data

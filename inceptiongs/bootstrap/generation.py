@@ -13,7 +13,7 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -27,6 +27,17 @@ CACHE_FORMAT_VERSION = 1
 # Poses are rounded to this many decimals before hashing, so a pose that went through JSON
 # (or float64 -> text -> float64) still hits its cache entry.
 POSE_DECIMALS = 9
+
+
+class ImagePrior(Protocol):
+    """What generation asks of a prior (prior.model.Prior, prior.sd_backend.SDPrior): its device,
+    and ``generate(gaussians, camera, steps, seed)`` -> (rgb [H, W, 3] in [0, 1], extras)."""
+
+    device: torch.device
+
+    def generate(self, gaussians: Gaussians, camera: Camera, steps: int, seed: int) -> tuple: ...
+
+    def eval(self): ...
 
 
 def tensor_digest(tensors: Sequence[torch.Tensor]) -> str:
@@ -163,7 +174,8 @@ class VirtualTarget:
     generated: torch.Tensor
     cache_hit: bool
     round: int
-    # The source photos of the geometry term (multiview.GeometrySource; empty when it is off).
+    # What a variant keeps for its loss term at the view (the variant "geometry": its source
+    # photos, experimental.multiview.GeometrySource; empty on the default path).
     geometry: list = field(default_factory=list)
     # The warped photos' agreement margin (agreement.py; None: not measured) and whether the
     # view takes part in the refinement (False: the render agrees with the photos better than
@@ -173,6 +185,6 @@ class VirtualTarget:
     # Which depth placed the photos: "render", "sources" or "both" (--virtual-depth; "auto"
     # records the one it chose).
     depth: str = "render"
-    # placement "evidence" only: [H, W, 1] loss weight, 1 where the leave-one-out estimate says
-    # the blend beats the render (placement.with_evidence), else 0; None: every pixel counts.
+    # [H, W, 1] loss weight per pixel set by a placement (the variant "evidence": 1 where the
+    # leave-one-out estimate says the blend beats the render, else 0); None: every pixel counts.
     evidence: torch.Tensor | None = None

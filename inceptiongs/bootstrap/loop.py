@@ -1,57 +1,38 @@
-"""The bootstrap loop's steps: prepare RUN2, make a round's virtual views and their I*, refine,
-finish (model, config, summary). ``runner.run_bootstrap`` runs them in that order.
+"""The bootstrap loop: rounds of refinement steps over the pool of virtual views, then the
+finish (model, config, summary, checkpoint). prepare.py makes what it runs on; runner.py runs
+prepare -> :func:`run_rounds` -> :func:`finish`.
 
-Per round: virtual views around the round's targets (virtual_views), I* at each (view_targets:
-the fill blended with warped real photos), then refinement steps alternating real photos and
-virtual views (Langevin-chosen). Round r+1 starts from round r's Gaussians and keeps round r's
-virtual views in the pool, so what round r repaired stays supervised.
+Per round: virtual views around the round's targets and their I* (round_views.py), then
+refinement steps alternating real photos and virtual views (Langevin-chosen, refine.py). Round
+r+1 starts from round r's Gaussians and keeps round r's virtual views in the pool, so what round
+r repaired stays supervised. Every function takes the config, the round plan, the fixed setting
+and the state it changes as arguments (state.py, plan.py, pool.py).
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 import math
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
 
-import numpy as np
-
-from ..evaluation.networks import load_torchscript
-from ..io.atomic import atomic_write_bytes, atomic_write_text, check_writable_dir, ensure_dir, \
-    remove_stale_temp_files
+from ..io.atomic import atomic_write_text
 from ..io.config_json import json_safe
-from ..rasterizer.interface import device_record, rasterizer_device
-from ..runs.checkpoint import list_checkpoints, save_checkpoint
-from ..runs.config import TrainConfig
-from ..train.loop import SaveAttempts, StepLoop, out_of_memory_stops, save_model
-from ..gaussians import gaussians_from_params
-from ..runs.metrics import append_metrics, truncate_metrics
-from ..train.step import (data_on, evaluate_held_out, prepare_data, restore_state, sh_degree_at,
-                          state_from_gaussians, state_on, supported_sh_degree, train_step)
+from ..runs.checkpoint import save_checkpoint
+from ..runs.metrics import append_metrics
+from ..train.loop import SaveAttempts, out_of_memory_stops, save_model
+from ..train.step import evaluate_held_out, sh_degree_at, train_step
 from .config import BootstrapConfig
-from .conscience import Conscience, photo_loss
-from .generation import GenerationCache, VirtualTarget, obtain_prior, prior_version
-from .outlook import run_outlook
-from .perceptual import perceptual_name
-from .placement import candidate_views, evidence_share, place_by_evidence, with_evidence
-from .refine import ViewSampler, active_views, continuation_config, render_l1, virtual_step
-from .stage1 import Stage1
-from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE, virtual_step_count
-from .targets import Target, round_targets, targets_to_json
-from .validation import EvidenceGrid, measure_evidence, seen_cells, validation_photos
-from .view_targets import TargetMaker, TargetSetting
-from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, nearest_training_views, virtual_views
-
-TARGETS_FILE = "targets.json"     # in RUN2/bootstrap: what is repaired, so --resume needs no flags
-
-# How the report names each --virtual-depth.
-DEPTH_WORDS = {"render": "render", "sources": "training views", "both": "render, else the training views",
-               "auto": "render or the training views, whichever places more photos"}
+from .conscience import photo_loss
+from .plan import RoundPlan, photo_first_s
+from .pool import ViewPool, in_use, supervised_count
+from .probe import measured_outlook, photo_until
+from .refine import active_views, render_l1, virtual_loss, virtual_step
+from .round_views import add_round_views, open_round, regenerate_pool
+from .state import LoopState, Setting, evaluate, model
+from .summary_file import SUMMARY_FILE, virtual_step_count
 
 
 @dataclass
@@ -75,512 +56,206 @@ class BootstrapResult:
     virtual_steps: int | None = None
 
 
-def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig):
-    """[(target index, VirtualView)] for the round's targets, at most config.max_virtual_views."""
-    kwargs = {name: getattr(config, name) for name in ("k", "l") if getattr(config, name) is not None}
-    views = []
-    for index, target in enumerate(goal):
-        if config.include_target:
-            views.append((index, VirtualView(target.camera.with_pose(target.camera.world_to_camera, name="target"),
-                                             -1, 0.0, "target")))
-        views.extend((index, view) for view in virtual_views(target.camera, cameras, list(train), **kwargs))
-    return views[:config.max_virtual_views]
+# --- rounds ----------------------------------------------------------------------------------------
+def run_rounds(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state: LoopState, pool: ViewPool,
+               first_round: int = 0, steps_left: int | None = None) -> None:
+    """The plan's rounds from ``first_round`` (0-based; ``steps_left`` of it after a resume,
+    None: all), each: its views, its refinement, a checkpoint between rounds. A resumed run
+    first remakes the finished rounds' views (the pool keeps them). Stops early, with
+    ``state.finished`` False, on the user's stop or the time budget."""
+    for earlier in range(first_round if first_round < len(plan.rounds) else 0):
+        open_round(setting, config, plan, state, pool, earlier)
+    for round_index in range(first_round, len(plan.rounds)):
+        if state.clock.wait_or_stop() or state.clock.out_of_time():
+            state.finished = False
+            break
+        state.current_round = round_index + 1
+        open_round(setting, config, plan, state, pool, round_index)
+        if not refine_round(setting, config, plan, state, pool, round_index,
+                            steps_left if round_index == first_round else None):
+            state.finished = False
+            break
+        state.rounds_done += 1
+        if round_index + 1 < len(plan.rounds):
+            checkpoint(setting, config, state, pool, round_index + 1)
 
 
-def continued_schedule(run: Stage1, config: BootstrapConfig) -> tuple[int, TrainConfig]:
-    """(the iteration stage II starts from, the stage-I config continued for its steps)."""
-    start = int(run.payload["iteration"]) if run.payload is not None else run.config.iterations
-    return start, continuation_config(run.config, start, config.rounds * config.iterations, config.densify)
-
-
-def prepare_folder(run: Stage1, out_dir: Path, config: BootstrapConfig, targets: Sequence[Target] | None,
-                   log: Callable[[str], None]) -> tuple[Path, int, TrainConfig]:
-    """RUN2 made ready for this run -> (RUN2/bootstrap, the start iteration, the continued
-    stage-I config). Only reached for a fresh folder or with overwrite (the user said so)."""
-    check_writable_dir(out_dir)
-    remove_stale_temp_files(out_dir, max_age_s=0.0)
-    boot_dir = ensure_dir(out_dir / BOOTSTRAP_DIR)
-    config.save(boot_dir / "config.json")
-    if targets is not None:
-        atomic_write_text(boot_dir / TARGETS_FILE, json.dumps(targets_to_json(targets), indent=1) + "\n")
-    atomic_write_bytes(out_dir / "split.json", (run.run_dir / "split.json").read_bytes())
-    start, train_config = continued_schedule(run, config)
-    train_config.save(out_dir / "config.json")
-    (out_dir / "metrics.jsonl").unlink(missing_ok=True)
-    (out_dir / "model.ply").unlink(missing_ok=True)  # a stale model must not pass for this run's
-    kept = list_checkpoints(out_dir)
-    if kept:
-        log(f"{out_dir}: discarding the earlier bootstrap's checkpoints (newest at step {kept[-1][0]}; "
-            f"`bootstrap --resume` would have continued it)")
-        shutil.rmtree(out_dir / "checkpoints")
-    return boot_dir, start, train_config
-
-
-def resume_folder(run: Stage1, out_dir: Path, config: BootstrapConfig) -> tuple[Path, int, TrainConfig]:
-    """RUN2 of a stopped bootstrap, kept as it is -> the same as :func:`prepare_folder`."""
-    check_writable_dir(out_dir)
-    remove_stale_temp_files(out_dir, max_age_s=0.0)
-    start, train_config = continued_schedule(run, config)
-    return ensure_dir(out_dir / BOOTSTRAP_DIR), start, train_config
-
-
-def input_scores(out_dir: Path) -> dict:
-    """The held-out scores of the input, as the first metrics line of RUN2 holds them."""
-    path = out_dir / "metrics.jsonl"
-    for line in (path.read_text(encoding="utf-8", errors="replace").splitlines() if path.is_file() else []):
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(record, dict) and record.get("phase") == "input":
-            return {k: v for k, v in record.items() if k.endswith(("_psnr", "_ssim"))}
-    return {}
-
-
-@dataclass
-class Bootstrap:
-    """One bootstrap in progress: the stage-I run, RUN2, the optimiser state, the pool of
-    virtual views and what the summary will say about them."""
-
-    run: Stage1
-    out_dir: Path
-    boot_dir: Path
-    config: BootstrapConfig
-    train_config: TrainConfig
-    rounds: list[list[Target]]
-    loop: StepLoop
-    rasterizer: Callable
-    log: Callable[[str], None]
-    data: object
-    state: object
-    sh_max: int
-    start: int
-    prior: object = None
-    prior_text: str = "none (baseline: no virtual views)"
-    prior_hash: str = ""
-    lpips: object = None
-    summary: dict = field(default_factory=dict)
-    initial_eval: dict = field(default_factory=dict)    # the input's held-out scores
-    last_eval: dict = field(default_factory=dict)       # the newest held-out scores
-    cache: GenerationCache | None = None
-    pool: list[VirtualTarget] = field(default_factory=list)
-    sampler: ViewSampler | None = None
-    conscience_views: list[int] = field(default_factory=list)
-    conscience: Conscience | None = None
-    # What each refinement step was ("additive": a photo step carrying a virtual loss, also
-    # counted by its virtual branch; "idle": a virtual slot with no informative view, a photo step;
-    # "photo_first": a virtual slot before the round's views are made (follow_outlook), a photo step).
-    step_counts: dict = field(default_factory=lambda: dict.fromkeys(
-        ("real", "perceptual", "l1_ssim", "informative_l1", "geometry", "additive", "idle", "photo_first"), 0))
-    view_use: dict = field(default_factory=dict)            # how often each virtual view was chosen
-    regenerations: list = field(default_factory=list)
-    finished: bool = True
-    rounds_done: int = 0
-    # The photos on the CPU, for the leave-one-out estimate (placement "evidence") and the prior's
-    # training; ``data`` holds them on the rasterizer's device, where a round's virtual views are
-    # made and refined.
-    cpu_photos: dict = field(default_factory=dict)
-    current_round: int = 0          # 1-based: the round being refined (0: none yet)
-    # placement "evidence": the newest round's leave-one-out estimate (validation.py; None: no evidence).
-    evidence: EvidenceGrid | None = None
-    # follow_outlook: the bootstrap's wall second before which every step is a photo step (0: none;
-    # inf: all). A round whose views wait for it is made then (pending_round).
-    photo_until_s: float = 0.0
-    pending_round: int | None = None
-
-    # --- prepare ---------------------------------------------------------------------------------
-    @classmethod
-    def prepare(cls, run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config: BootstrapConfig,
-                loop: StepLoop, rasterizer, log, resume: dict | None = None) -> "Bootstrap":
-        """RUN2 written ready, the state restored, the input evaluated, the prior obtained.
-        ``resume``: the newest checkpoint of a stopped bootstrap in RUN2, continued from."""
-        rounds = round_targets(targets, config.rounds) if targets is not None else [[] for _ in range(config.rounds)]
-        boot_dir, start, train_config = (prepare_folder(run, out_dir, config, targets, log) if resume is None
-                                         else resume_folder(run, out_dir, config))
-        data = prepare_data(run.scene, run.split, train_config, log)
-        sh_max = supported_sh_degree(len(data.train), train_config.sh.degree_max)
-        if resume is not None:
-            state = restore_state(resume, data, train_config)
-            truncate_metrics(out_dir, state.iteration)   # the steps after it run (and are logged) again
-        else:
-            # A copy: the optimiser adopts the payload's moment tensors and updates them in place,
-            # and the same Stage1 may start another run (the demo's baseline).
-            state = (restore_state(copy.deepcopy(run.payload), data, train_config) if run.payload is not None
-                     else state_from_gaussians(run.gaussians, data, train_config))
-            state.iteration = start
-        cpu_photos = data.images
-        device = rasterizer_device(rasterizer)
-        data, state = data_on(data, device), state_on(state, device, train_config, data.extent)
-        boot = cls(run, out_dir, boot_dir, config, train_config, rounds, loop, rasterizer, log, data, state, sh_max,
-                   start, cpu_photos=cpu_photos)
-        boot.initial_eval = boot.last_eval = (boot.evaluate({"phase": "input", "round": 0}) if resume is None
-                                              else input_scores(out_dir))
-        boot.summary = {"run": str(run.run_dir.resolve()), "baseline": targets is None, "start_iteration": start,
-                        "targets": [{"name": t.name, "origin": t.origin} for r in rounds for t in r],
-                        "rounds": [], "initial_eval": boot.initial_eval, "device": device_record(rasterizer)}
-        if resume is not None:
-            boot.summary["resumed_at"] = state.iteration
-        if targets is not None:
-            outlook = run_outlook(run.run_dir)   # what stage I's curve says before any work is spent
-            log(outlook.line)
-            boot.summary["outlook"] = outlook.to_json()
-            if config.follow_outlook:
-                boot.follow(outlook)
-            boot.obtain_prior()
-        if config.lpips_weights:
-            boot.lpips = load_torchscript(config.lpips_weights, "LPIPS")
-        boot.summary["perceptual"] = (perceptual_name(boot.lpips)
-                                      + (f" ({config.lpips_weights})" if boot.lpips is not None else ""))
-        boot.cache = GenerationCache(boot_dir / "cache")
-        boot.sampler = ViewSampler(config, config.seed)
-        pose = (resume or {}).get("bootstrap", {}).get("pose")
-        if pose is not None:
-            boot.sampler.pose = np.asarray(pose, dtype=np.float64)
-        boot.watch_conscience()
-        return boot
-
-    def follow(self, outlook) -> None:
-        """The step plan the outlook asks for (outlook.py): none of the virtual views' work when
-        there is nothing to repair, photo steps first while stage I's curve still rises fast."""
-        if outlook.verdict == "nothing to repair":
-            self.photo_until_s = math.inf
-        elif outlook.verdict == "train longer":
-            wait = outlook.photo_first_min
-            # On the bootstrap's own clock (0 at its start, carried through a resume).
-            self.photo_until_s = math.inf if wait is None else 60.0 * wait
-        self.summary["photo_first_s"] = None if math.isinf(self.photo_until_s) else self.photo_until_s
-        if self.photo_until_s > 0.0:
-            self.log("the loop follows the outlook: " + (
-                "no virtual views, every step on the photos" if math.isinf(self.photo_until_s) else
-                f"photo steps until {self.photo_until_s / 60.0:.1f} min, then virtual views")
-                + " (follow_outlook: false makes virtual views from the start)")
-
-    def obtain_prior(self) -> None:
-        """The prior that generates the fill, when the supervision needs one (else none is
-        trained or loaded, and the summary says what I* is made of instead)."""
-        config, began = self.config, time.perf_counter()
-        if math.isinf(self.photo_until_s):
-            self.prior_text = "none: no virtual views (the loop follows the outlook: nothing to repair)"
-            self.summary["prior"] = {"description": self.prior_text, "version": "", "seconds": 0.0}
-            return
-        if not config.needs_prior():
-            self.prior_text = (f"none: I* is made from the photos and the render (supervision {config.supervision}, "
-                               f"fill {config.fill}, depth from the "
-                               f"{DEPTH_WORDS[config.virtual_depth]}), nothing is generated")
-            self.summary["prior"] = {"description": self.prior_text, "version": "", "seconds": 0.0}
-            self.log(self.prior_text)
-            return
-        # The budget covers the whole job: a short prior training may take at most half of what
-        # is left of it when the prior starts (loading and the first evaluation have already
-        # spent some), in wall-clock seconds, so generation and refinement keep the rest. A stop
-        # (or pause) from the user is honoured between the prior's steps too.
-        prior_s = 60.0 * config.prior_minutes
-        if config.minutes is not None:
-            prior_s = min(prior_s, max(60.0 * config.minutes - self.loop.wall_s(), 0.0) / 2.0)
-        prior_end = self.loop.wall_s() + prior_s
-        # The photos from the host copy (the prior's trainer keeps them there and moves each
-        # batch), the prior on the run's device, where the virtual views are made.
-        train, images = self.run.split.train, self.cpu_photos
-        self.prior, self.prior_text = obtain_prior(
-            self.run.run_dir, self.out_dir, self.run.gaussians, self.run.train_cameras,
-            lambda k: images[train[k]].numpy(), config.prior, config.seed, prior_s / 60.0, config.prior_steps,
-            self.log, should_stop=lambda: self.loop.wait_or_stop() or self.loop.wall_s() >= prior_end,
-            device=rasterizer_device(self.rasterizer))
-        self.prior.eval()
-        self.prior_hash = prior_version(self.prior)
-        self.summary["prior"] = {"description": self.prior_text, "version": self.prior_hash,
-                                 "seconds": time.perf_counter() - began}
-        self.log(self.prior_text)
-
-    def watch_conscience(self) -> None:
-        """The conscience watches the training photos nearest the targets (none for the
-        baseline, which has no virtual views to restrain)."""
-        cameras, train, config = list(self.run.scene.cameras), list(self.run.split.train), self.config
-        k = config.k or DEFAULT_K
-        self.conscience_views = sorted({i for r in self.rounds for t in r
-                                        for i in nearest_training_views(t.camera, cameras, train, k)})
-        if config.conscience_tolerance is not None and self.conscience_views:
-            self.conscience = Conscience(config.conscience_tolerance)
-
-    def evaluate(self, extra: dict) -> dict:
-        """Held-out scores now, logged as a metrics line with ``extra``."""
-        began = time.perf_counter()
-        scores = evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer)
-        self.loop.exclude(time.perf_counter() - began)
-        append_metrics(self.out_dir, {"iteration": self.state.iteration, **self.loop.clocks(),
-                                      "num_gaussians": int(self.state.params["means"].shape[0]), **extra, **scores})
-        return scores
-
-    def model(self):
-        """The current Gaussians, detached."""
-        return gaussians_from_params(self.state.params).detach()
-
-    # --- a round's virtual views -------------------------------------------------------------------
-    def target_maker(self) -> TargetMaker:
-        """I* from the Gaussians as they are now, made where the refinement renders: on a GPU the
-        renders, warps and splatted depths of a round stay on it (bonsai at 800x533 on an H200:
-        13 views in 1.5 s)."""
-        setting = TargetSetting(self.config, list(self.run.scene.cameras), self.run.split.train, self.data.images,
-                                self.cache, self.boot_dir / "views", self.rasterizer, self.prior, self.prior_hash)
-        return TargetMaker(setting, self.model(), self.state.sky)
-
-    def on_device(self, entry: VirtualTarget) -> VirtualTarget:
-        """``entry`` with its I* and mask where the refinement renders (moved once, used many steps)."""
-        device = self.state.params["means"].device
-        moved = {} if entry.evidence is None else {"evidence": entry.evidence.to(device)}
-        return dataclasses.replace(entry, target=entry.target.to(device), mask=entry.mask.to(device), **moved)
-
-    def make_round_targets(self, round_index: int) -> None:
-        """The round's virtual views and their I* (from the round's starting Gaussians) join the pool."""
-        goal = self.rounds[round_index]
-        round_info = {"round": round_index + 1, "targets": [t.name for t in goal], "views": []}
-        self.summary["rounds"].append(round_info)
-        if self.loop.wall_s() < self.photo_until_s:
-            # Photo steps first (follow): the views are made when they are due, from the Gaussians then.
-            round_info["deferred"] = "every step on the photos" if math.isinf(self.photo_until_s) else \
-                f"until {self.photo_until_s:.0f} s"
-            self.pending_round = round_index
-            return
-        self.add_round_views(round_index, round_info)
-
-    def add_round_views(self, round_index: int, round_info: dict) -> None:
-        """The round's virtual views and I* into the pool, their records into ``round_info``."""
-        goal, config = self.rounds[round_index], self.config
-        began = time.perf_counter()
-        maker = None
-        if config.placement == "evidence":
-            maker = self.target_maker()
-            new_views = self.evidence_views(round_index, goal, maker, round_info)
-        else:
-            new_views = round_virtual_views(goal, list(self.run.scene.cameras), self.run.split.train, config)
-        if not new_views:
-            return
-        maker = maker or self.target_maker()
-        for number, (target_index, view) in enumerate(new_views):
-            if self.loop.wait_or_stop() or self.loop.out_of_time():
+def refine_round(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state: LoopState, pool: ViewPool,
+                 round_index: int, steps: int | None = None) -> bool:
+    """The round's refinement steps (``steps``: those left of it, after a resume) and its
+    evaluation -> False when stopped (by the user or the time budget) before its last step."""
+    began = time.perf_counter()
+    stopped = False
+    steps = plan.steps if steps is None else steps
+    state.current_round = round_index + 1
+    train = state.train
+    round_end = train.iteration + steps
+    with out_of_memory_stops(setting.out_dir, lambda: (train.iteration + 1, train.params["means"].shape[0]),
+                             "--resume"):
+        for _ in range(steps):
+            if state.clock.wait_or_stop() or state.clock.out_of_time():
+                stopped = True
                 break
-            name = f"r{round_index + 1}_t{target_index}_{view.name}"
-            entry, sources = self.make_target(maker, view.camera.with_pose(view.camera.world_to_camera, name=name),
-                                              round_index + 1, save=number < config.save_views)
-            self.pool.append(self.on_device(entry))
-            round_info["views"].append({"name": name, "source": int(view.source), "t": float(view.t),
-                                        "cache_hit": entry.cache_hit, "mask_fraction": float(entry.mask.mean()),
-                                        "agreement_db": entry.agreement_db, "supervised": entry.supervised,
-                                        "depth": entry.depth, "blend_sources": [int(s) for s in sources]})
-            if entry.evidence is not None:
-                round_info["views"][-1]["evidence_share"] = evidence_share(entry)
-        round_info["generation_s"] = time.perf_counter() - began
-        views = round_info["views"]
-        self.log(f"round {round_index + 1}: {len(views)} virtual views "
-                 f"({sum(v['cache_hit'] for v in views)} from the cache) in {round_info['generation_s']:.1f} s")
-        left_out = [v for v in views if not v["supervised"]]
-        if left_out and config.placement == "evidence":
-            self.log(f"round {round_index + 1}: {len(left_out)} of {len(views)} virtual views left out: too few "
-                     f"of their pixels lie where the blend is validated to beat the render")
-        elif left_out:
-            self.log(f"round {round_index + 1}: {len(left_out)} of {len(views)} virtual views left "
-                     f"out: the render agrees with their warped photos better than the photos agree with "
-                     f"each other (by more than {-config.agreement_min_db:g} dB)")
+            refine_step(setting, config, plan, state, pool, train.iteration + 1, round_index, round_end)
+    round_info = state.summary["rounds"][-1]
+    round_info["refine_s"] = time.perf_counter() - began
+    state.last_eval = round_info["eval"] = evaluate(setting, state, {"phase": "round", "round": round_index + 1})
+    return not stopped
 
-    def make_target(self, maker: TargetMaker, camera, round_number: int, save: bool) -> tuple[VirtualTarget, list]:
-        """``maker.make``, with placement "evidence" the view's loss weights and gate from the estimate."""
-        entry, sources = maker.make(camera, round_number, save)
-        if self.config.placement == "evidence":
-            entry = with_evidence(entry, self.evidence, maker.renders.depth(camera).cpu(),
-                                  self.config.evidence_min_fraction)
-        return entry, sources
 
-    def evidence_views(self, round_index: int, goal: Sequence[Target], maker: TargetMaker, round_info: dict) -> list:
-        """[(target index, VirtualView)] where the leave-one-out estimate, measured now at the
-        training photos nearest the targets (validation.py), says the blend beats the render
-        (placement.py); the estimate and every candidate's score go into the round's summary."""
-        config, cameras, train = self.config, list(self.run.scene.cameras), self.run.split.train
-        k = config.k or DEFAULT_K
-        photos = nearest_training_views(goal[0].camera, cameras, sorted({
-            i for target in goal for i in validation_photos(target.camera, cameras, train, k)}),
-            config.evidence_photos) if goal else []
-        # The estimate and its voxel grid stay on the CPU (placement "evidence" is experimental).
-        depth_of = lambda camera: maker.renders.depth(camera).cpu()     # noqa: E731
-        self.evidence = measure_evidence(photos, cameras, train, self.cpu_photos, config, depth_of,
-                                         lambda camera: maker.renders.rgb(camera).cpu())
-        record = {"validation_photos": [cameras[i].name for i in photos],
-                  "estimate": None if self.evidence is None else self.evidence.summary(), "targets": []}
-        views = []
-        for index, target in enumerate(goal):
-            candidates = candidate_views(target.camera, cameras, train, config.k, config.l, config.include_target)
-            region = seen_cells(self.evidence, target.camera, depth_of(target.camera))
-            # As many views as the default placement makes: the virtual steps are not spread thinner.
-            limit = (config.k or DEFAULT_K) * (config.l or DEFAULT_L) + int(config.include_target)
-            placement = place_by_evidence(candidates, self.evidence, depth_of, config.evidence_min_fraction,
-                                          limit=limit, region=region)
-            views.extend((index, view) for view in placement.views)
-            record["targets"].append({"target": target.name, "placed": [view.name for view in placement.views],
-                                      "reason": placement.reason,
-                                      "candidates": [score.to_json() for score in placement.scores]})
-            if placement.reason:
-                self.log(f"round {round_index + 1}: {target.name}: {placement.reason}")
-        round_info["evidence"] = record
-        return views[:config.max_virtual_views]
+def regeneration_due(config: BootstrapConfig, plan: RoundPlan, pool: ViewPool, step: int, round_end: int) -> bool:
+    """A regeneration pays off over the steps after it: none for a round's last few. Nor when
+    every view was left out (agreement.py): the photos' steps are worth more than re-judging
+    views the render already agrees with better."""
+    every = config.regenerate_every
+    return bool(pool.entries and every and (step - plan.start) % every == 0
+                and round_end - step + 1 >= max(1, every // 2) and in_use(pool))
 
-    def regenerate_pool(self) -> None:
-        """I* of every pool view again, from the Gaussians as they are now: the prior then repairs
-        the refined render rather than the stage-I one (the bootstrap's feedback loop)."""
-        began = time.perf_counter()
-        maker = self.target_maker()
-        for number, entry in enumerate(self.pool):
-            if self.loop.wait_or_stop() or self.loop.out_of_time():
-                break  # the views not reached keep their I*
-            self.pool[number] = self.on_device(self.make_target(maker, entry.camera, entry.round, save=False)[0])
-        self.regenerations.append({"iteration": self.state.iteration, "views": len(self.pool),
-                                   "supervised": sum(entry.supervised for entry in self.pool),
-                                   "seconds": time.perf_counter() - began})
-        self.log(f"step {self.state.iteration}: regenerated {len(self.pool)} virtual views in "
-                 f"{self.regenerations[-1]['seconds']:.1f} s")
 
-    # --- refinement --------------------------------------------------------------------------------
-    def refine(self, round_index: int, steps: int | None = None) -> bool:
-        """The round's refinement steps (``steps``: those left of it, after a resume) and its
-        evaluation -> False when stopped (by the user or the time budget) before its last step."""
-        began = time.perf_counter()
-        stopped = False
-        steps = self.config.iterations if steps is None else steps
-        self.current_round = round_index + 1
-        round_end = self.state.iteration + steps
-        with out_of_memory_stops(self.out_dir, lambda: (self.state.iteration + 1,
-                                                        self.state.params["means"].shape[0]), "--resume"):
-            for _ in range(steps):
-                if self.loop.wait_or_stop() or self.loop.out_of_time():
-                    stopped = True
-                    break
-                self.refine_step(self.state.iteration + 1, round_index, round_end)
-        round_info = self.summary["rounds"][-1]
-        round_info["refine_s"] = time.perf_counter() - began
-        self.last_eval = round_info["eval"] = self.evaluate({"phase": "round", "round": round_index + 1})
-        return not stopped
+# --- one step --------------------------------------------------------------------------------------
+def refine_step(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state: LoopState, pool: ViewPool,
+                step: int, round_index: int, round_end: int) -> None:
+    """One refinement step (a virtual view's every ``virtual_every``-th, else a photo's) and
+    its bookkeeping: metrics, snapshot, checkpoint."""
+    clock, conscience = state.clock, state.conscience
+    clock.mark_first_step()
+    if state.probe is not None and state.probe.over(step, clock.wall_s()):
+        end_probe(setting, state)
+    if pool.pending_round is not None and clock.wall_s() >= photo_until(plan, state):
+        pending, pool.pending_round = pool.pending_round, None
+        add_round_views(setting, config, plan, state, pool, pending, state.summary["rounds"][-1])
+    if regeneration_due(config, plan, pool, step, round_end):
+        regenerate_pool(setting, config, state, pool)
+    # (A resumed run's conscience starts again: its first step takes the baseline.)
+    # (No view in use yet, or every view left out: nothing for the conscience to restrain, so
+    # its photo renders are skipped and the time goes to photo steps.)
+    check_due = (step - plan.start - 1) % config.conscience_every == 0
+    if conscience is not None and in_use(pool) and (check_due or not conscience.history):
+        loss = photo_loss(setting.rasterizer, model(state.train), list(setting.run.scene.cameras),
+                          setting.data.images, list(setting.conscience_views),
+                          sh_degree_at(step, setting.train_config, setting.sh_max))
+        conscience.update(step, loss)
+    record = virtual_or_photo_step(setting, config, state, pool, step)
+    state.train.iteration = step
+    clock.advance()
+    if step % config.log_every == 0:
+        record.update(iteration=step, **clock.clocks(), round=round_index + 1)
+        if conscience is not None and conscience.history:
+            record.update(conscience_loss=conscience.history[-1][1], virtual_scale=conscience.scale)
+        if config.eval_every and step % config.eval_every == 0:
+            run = setting.run
+            record.update(evaluate_held_out(model(state.train), run.scene, run.split, setting.data,
+                                            setting.rasterizer))
+        append_metrics(setting.out_dir, record)
+    clock.snapshot(step, state.train.params, record)
+    if (step - plan.start) % config.checkpoint_every == 0:
+        checkpoint(setting, config, state, pool, round_index + 1)
 
-    def regeneration_due(self, step: int, round_end: int) -> bool:
-        """A regeneration pays off over the steps after it: none for a round's last few. Nor when
-        every view was left out (agreement.py): the photos' steps are worth more than re-judging
-        views the render already agrees with better."""
-        every = self.config.regenerate_every
-        return bool(self.pool and every and (step - self.start) % every == 0
-                    and round_end - step + 1 >= max(1, every // 2) and self.views_in_use())
 
-    def views_in_use(self) -> bool:
-        """Any pool view the gate kept (agreement.py; placement "evidence": validated)."""
-        return any(entry.supervised for entry in self.pool)
+def end_probe(setting: Setting, state: LoopState) -> None:
+    """The probe's photo steps are done: score the held-out views again and read the outlook from
+    the two scorings (probe.py); from now on the loop follows it."""
+    clock, probe = state.clock, state.probe
+    scores = evaluate(setting, state, {"phase": "probe"})
+    outlook = measured_outlook(setting.initial_eval, scores, clock.train_s() - probe.start_train_s)
+    wait = photo_first_s(outlook)
+    state.probe, state.last_eval = None, scores
+    state.photo_until_s = clock.wall_s() + wait            # inf stays inf: every step on the photos
+    state.summary["outlook"] = {**outlook.to_json(), "measured": True}
+    state.summary["photo_first_s"] = None if math.isinf(wait) else state.photo_until_s
+    setting.log(outlook.line)
 
-    def refine_step(self, step: int, round_index: int, round_end: int) -> None:
-        """One refinement step (a virtual view's every ``virtual_every``-th, else a photo's) and
-        its bookkeeping: metrics, snapshot, checkpoint."""
-        config = self.config
-        self.loop.mark_first_step()
-        if self.pending_round is not None and self.loop.wall_s() >= self.photo_until_s:
-            pending, self.pending_round = self.pending_round, None
-            self.add_round_views(pending, self.summary["rounds"][-1])
-        if self.regeneration_due(step, round_end):
-            self.regenerate_pool()
-        # (A resumed run's conscience starts again: its first step takes the baseline.)
-        # (No view in use yet, or every view left out: nothing for the conscience to restrain, so
-        # its photo renders are skipped and the time goes to photo steps.)
-        check_due = (step - self.start - 1) % config.conscience_every == 0
-        if self.conscience is not None and self.views_in_use() and (check_due or not self.conscience.history):
-            loss = photo_loss(self.rasterizer, self.model(), list(self.run.scene.cameras), self.data.images,
-                              self.conscience_views, sh_degree_at(step, self.train_config, self.sh_max))
-            self.conscience.update(step, loss)
-        record = self.virtual_or_photo_step(step)
-        self.state.iteration = step
-        self.loop.advance()
-        if step % config.log_every == 0:
-            record.update(iteration=step, **self.loop.clocks(), round=round_index + 1)
-            if self.conscience is not None and self.conscience.history:
-                record.update(conscience_loss=self.conscience.history[-1][1], virtual_scale=self.conscience.scale)
-            if config.eval_every and step % config.eval_every == 0:
-                record.update(evaluate_held_out(self.model(), self.run.scene, self.run.split, self.data, self.rasterizer))
-            append_metrics(self.out_dir, record)
-        self.loop.snapshot(step, self.state.params, record)
-        if (step - self.start) % config.checkpoint_every == 0:
-            self.checkpoint(round_index + 1)
 
-    def virtual_or_photo_step(self, step: int) -> dict:
-        """A virtual view chosen by the sampler on a virtual slot when one is active, else a photo step."""
-        config, pool = self.config, self.pool
-        active = [pool[i] for i in active_views(pool, config.virtual_pixels)] if pool else []
-        virtual_slot = step % config.virtual_every == 0
-        if pool and virtual_slot and not active:
-            self.step_counts["idle"] += 1
-        elif self.pending_round is not None and virtual_slot:
-            self.step_counts["photo_first"] += 1
-        if not (active and virtual_slot):
-            record = train_step(step, self.state, self.data, self.train_config, self.sh_max, self.rasterizer, self.log)
-            record["kind"] = "real"
-            self.step_counts["real"] += 1
-            return record
-        sh_degree = sh_degree_at(step, self.train_config, self.sh_max)
-        frozen = self.model()
-        choice = self.sampler.choose(active,
-                                     lambda i, w2c: render_l1(self.rasterizer, frozen, active[i], sh_degree, w2c))
-        scale = self.conscience.scale if self.conscience is not None else 1.0
-        view = active[choice.index]
-        if config.virtual_mode == "additive":
-            from .experimental.additive import additive_step
+def virtual_or_photo_step(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool,
+                          step: int) -> dict:
+    """On a virtual slot a view chosen by the sampler when one may be sampled (the step: a
+    variant's ``take_step``, else refine.virtual_step), else a photo step -> the step's record."""
+    s, counts = setting, state.counts
+    active = [pool.entries[i] for i in active_views(pool.entries, config)] if pool.entries else []
+    virtual_slot = step % config.virtual_every == 0
+    if pool.entries and virtual_slot and not active:
+        counts["idle"] += 1
+    elif pool.pending_round is not None and virtual_slot:
+        counts["photo_first"] += 1
 
-            record = additive_step(step, self.state, self.data, self.train_config, self.sh_max, view, choice, config,
-                                   self.rasterizer,
-                                   lambda: train_step(step, self.state, self.data, self.train_config, self.sh_max,
-                                                      self.rasterizer, self.log),
-                                   self.lpips, scale=scale)
-            self.step_counts["additive"] += 1
-        else:
-            record = virtual_step(step, self.state, self.data, self.train_config, self.sh_max, view, choice, config,
-                                  self.rasterizer, self.lpips, scale=scale)
-        self.step_counts[record["virtual_branch"]] += 1
-        self.view_use[view.name] = self.view_use.get(view.name, 0) + 1
+    def photo_step() -> dict:
+        return train_step(step, state.train, s.data, s.train_config, s.sh_max, s.rasterizer, s.log)
+
+    if not (active and virtual_slot):
+        record = photo_step()
+        record["kind"] = "real"
+        counts["real"] += 1
         return record
+    sh_degree = sh_degree_at(step, s.train_config, s.sh_max)
+    frozen = model(state.train)
+    choice = pool.sampler.choose(active, lambda i, w2c: render_l1(s.rasterizer, frozen, active[i], sh_degree, w2c),
+                                 config)
+    scale = state.conscience.scale if state.conscience is not None else 1.0
+    view = active[choice.index]
+    record = None
+    for variant in config.variants.values():
+        record = variant.take_step(lambda: virtual_loss(step, state.train, s.train_config, s.sh_max, view, choice,
+                                                        config, s.rasterizer, s.lpips, scale=scale), photo_step)
+        if record is not None:
+            counts[record["kind"]] += 1
+            break
+    if record is None:
+        record = virtual_step(step, state.train, s.data, s.train_config, s.sh_max, view, choice, config,
+                              s.rasterizer, s.lpips, scale=scale)
+    counts[record["virtual_branch"]] += 1
+    pool.view_use[view.name] = pool.view_use.get(view.name, 0) + 1
+    return record
 
-    def checkpoint(self, round_number: int) -> None:
-        state = self.state
-        state.wall_s, state.train_s = self.loop.wall_s(), self.loop.train_s()
-        body = state.payload(self.train_config)
-        body["bootstrap"] = {"round": round_number, "config": self.config.to_json_dict(),
-                             "pose": None if self.sampler.pose is None else self.sampler.pose.tolist()}
-        save_checkpoint(self.out_dir, state.iteration, body, self.train_config.output.keep_checkpoints)
 
-    # --- finish ------------------------------------------------------------------------------------
-    def finish(self) -> BootstrapResult:
-        """The final save, in the order that keeps the result: model.ply (a stopped run's too:
-        stop means save), then the final config.json and summary.json, then the checkpoint
-        `--resume` continues from. Each is attempted even when an earlier one fails (a full
-        disk) and each is atomic; the first failure is raised once all were tried."""
-        saves = SaveAttempts()
-        attempt = saves.attempt
-        gaussians = self.model()
-        attempt(lambda: save_model(self.out_dir, gaussians, self.state.iteration, self.train_config, self.sh_max,
-                                   self.run.scene.normalization))
-        attempt(self.write_summary)
-        if self.current_round:
-            attempt(lambda: self.checkpoint(self.current_round))
-        saves.raise_first(self.log)
-        return BootstrapResult(self.out_dir, self.start, self.state.iteration, self.finished, self.rounds_done,
-                               len(gaussians), len(self.pool), self.cache.hits, self.cache.misses,
-                               self.loop.wall_s(), self.prior_text, self.initial_eval, self.last_eval,
-                               supervised_views=sum(entry.supervised for entry in self.pool),
-                               virtual_steps=virtual_step_count(self.step_counts))
+# --- saving ----------------------------------------------------------------------------------------
+def checkpoint(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool, round_number: int) -> None:
+    """The stage-I checkpoint of the state now, plus the bootstrap's entry: the round, the
+    config and the sampler's Langevin pose (what `--resume` continues from)."""
+    train = state.train
+    train.wall_s, train.train_s = state.clock.wall_s(), state.clock.train_s()
+    body = train.payload(setting.train_config)
+    pose = pool.sampler.pose
+    body["bootstrap"] = {"round": round_number, "config": config.to_json_dict(),
+                         "pose": None if pose is None else pose.tolist()}
+    save_checkpoint(setting.out_dir, train.iteration, body, setting.train_config.output.keep_checkpoints)
 
-    def write_summary(self) -> None:
-        """RUN2/config.json with the steps made, and RUN2/bootstrap/summary.json."""
-        state, loop = self.state, self.loop
-        final_config = dataclasses.replace(self.train_config, iterations=max(state.iteration, self.start + 1))
-        final_config.save(self.out_dir / "config.json")
-        conscience = self.conscience
-        self.summary.update(
-            iteration=state.iteration, finished=self.finished, stopped=loop.stopped_by_user(),
-            rounds_done=self.rounds_done, wall_s=loop.wall_s(),
-            cache_hits=self.cache.hits, cache_misses=self.cache.misses, virtual_views=len(self.pool),
-            last_eval=self.last_eval, steps=self.step_counts, view_use=self.view_use,
-            regenerations=self.regenerations,
-            conscience=None if conscience is None else {
-                "views": [self.run.scene.cameras[i].name for i in self.conscience_views],
-                "tolerance": conscience.tolerance, "baseline": conscience.baseline,
-                "checks": [list(c) for c in conscience.history]})
-        atomic_write_text(self.out_dir / SUMMARY_FILE, json.dumps(json_safe(self.summary), indent=1) + "\n")
+
+def finish(setting: Setting, config: BootstrapConfig, plan: RoundPlan, state: LoopState,
+           pool: ViewPool) -> BootstrapResult:
+    """The final save, in the order that keeps the result: model.ply (a stopped run's too:
+    stop means save), then the final config.json and summary.json, then the checkpoint
+    `--resume` continues from. Each is attempted even when an earlier one fails (a full
+    disk) and each is atomic; the first failure is raised once all were tried."""
+    saves = SaveAttempts()
+    attempt = saves.attempt
+    gaussians = model(state.train)
+    run, train = setting.run, state.train
+    attempt(lambda: save_model(setting.out_dir, gaussians, train.iteration, setting.train_config, setting.sh_max,
+                               run.scene.normalization))
+    attempt(lambda: write_summary(setting, plan, state, pool))
+    if state.current_round or not state.finished:   # stopped before round 1 too: `--resume` starts it
+        attempt(lambda: checkpoint(setting, config, state, pool, max(state.current_round, 1)))
+    saves.raise_first(setting.log)
+    cache = setting.cache
+    return BootstrapResult(setting.out_dir, plan.start, train.iteration, state.finished, state.rounds_done,
+                           len(gaussians), len(pool.entries), cache.hits, cache.misses, state.clock.wall_s(),
+                           setting.prior_text, setting.initial_eval, state.last_eval,
+                           supervised_views=supervised_count(pool), virtual_steps=virtual_step_count(state.counts))
+
+
+def write_summary(setting: Setting, plan: RoundPlan, state: LoopState, pool: ViewPool) -> None:
+    """RUN2/config.json with the steps made, and RUN2/bootstrap/summary.json."""
+    train, clock, conscience = state.train, state.clock, state.conscience
+    final_config = dataclasses.replace(setting.train_config, iterations=max(train.iteration, plan.start + 1))
+    final_config.save(setting.out_dir / "config.json")
+    state.summary.update(
+        iteration=train.iteration, finished=state.finished, stopped=clock.stopped_by_user(),
+        rounds_done=state.rounds_done, wall_s=clock.wall_s(),
+        cache_hits=setting.cache.hits, cache_misses=setting.cache.misses, virtual_views=len(pool.entries),
+        last_eval=state.last_eval, steps=state.counts, view_use=pool.view_use,
+        regenerations=pool.regenerations,
+        conscience=None if conscience is None else {
+            "views": [setting.run.scene.cameras[i].name for i in setting.conscience_views],
+            "tolerance": conscience.tolerance, "baseline": conscience.baseline,
+            "checks": [list(c) for c in conscience.history]})
+    atomic_write_text(setting.out_dir / SUMMARY_FILE, json.dumps(json_safe(state.summary), indent=1) + "\n")

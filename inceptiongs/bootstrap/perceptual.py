@@ -1,7 +1,7 @@
 """The perceptual branch of the virtual-view loss.
 
-With user-given LPIPS weights (a TorchScript network loaded by
-inceptiongs.evaluation.networks.load_torchscript) the distance is LPIPS. Without them no learned
+With user-given LPIPS weights (plain tensors in the project's own AlexNet-LPIPS network,
+inceptiongs.evaluation.lpips_net.load_lpips) the distance is LPIPS. Without them no learned
 perceptual metric exists here (no weights can be downloaded), so the fallback is a
 weight-free distance named for what it is, "MS-SSIM-G":
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 import torch
@@ -31,14 +31,11 @@ from .generation import VirtualTarget
 from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pose_gradient, pose_to_vector, \
     snap_to_nearest
 from .perceptual import perceptual_distance
+from .variants import Variant
 
 # Opacity resets wipe every Gaussian's opacity; in a refinement of a few hundred steps the
 # covered regions would not recover, so the continuation never resets (a step count no run reaches).
 NO_RESET = 10**12
-# Densification during refinement: after this fraction of the refinement steps (the virtual
-# views' gradients first need to accumulate), until this fraction (the last steps settle).
-DENSIFY_START_FRACTION = 0.1
-DENSIFY_END_FRACTION = 0.7
 # P = exp(L1) with L1 of images in [0, 1] is in [1, e]: exp never overflows and 1/P is in
 # [1/e, 1]. The clamp guards renders outside [0, 1] (black background, SH overshoot).
 L1_MAX_FOR_P = 10.0
@@ -46,28 +43,23 @@ L1_MAX_FOR_P = 10.0
 MIN_WEIGHTED_SHARE = 1e-3
 
 
-def continuation_config(stage1: TrainConfig, start: int, steps: int, densify: bool) -> TrainConfig:
+def continuation_config(stage1: TrainConfig, start: int, steps: int, variants: Iterable[Variant] = ()) -> TrainConfig:
     """The stage-I config continued for ``steps`` iterations after ``start`` (stage I's last).
 
     ``iterations`` stays stage I's, so the position learning rate stays at the value stage I
     ended with (a re-spread decay raised it and cost the covered views ~0.2 dB within 180 demo
-    steps, measured with the same-time baseline). Opacity resets are off; with ``densify`` the
-    densification window covers the middle of the extension. The bootstrap and the same-time
-    baseline both use this, so their comparison isolates the virtual views.
+    steps, measured with the same-time baseline). Opacity resets and densification are off (the
+    variant "densify" opens a window over the middle of the extension: ``continued_schedule``).
+    The bootstrap and the same-time baseline both use this, so their comparison isolates the
+    virtual views.
     """
     steps = max(int(steps), 1)
+    densification = dataclasses.replace(stage1.densification, opacity_reset_every=NO_RESET,
+                                        densify_until=min(stage1.densification.densify_until, start))
     config = dataclasses.replace(stage1, iterations=max(stage1.iterations, start), minutes=None,
-                                 densification=dataclasses.replace(stage1.densification,
-                                                                   opacity_reset_every=NO_RESET))
-    if densify:
-        every = max(1, min(stage1.densification.densify_every, steps // 6))
-        config = dataclasses.replace(config, densification=dataclasses.replace(
-            config.densification, densify_every=every,
-            densify_from=start + max(1, int(steps * DENSIFY_START_FRACTION)),
-            densify_until=start + max(2, int(steps * DENSIFY_END_FRACTION))))
-    else:
-        config = dataclasses.replace(config, densification=dataclasses.replace(
-            config.densification, densify_until=min(config.densification.densify_until, start)))
+                                 densification=densification)
+    for variant in variants:
+        config = variant.continued_schedule(config, stage1, start, steps)
     return config
 
 
@@ -88,11 +80,11 @@ class ViewSampler:
 
     The pose state starts at the first view of the pool; after each Langevin step it is
     snapped to the nearest virtual view and continues from that view's pose (the state stays
-    on the pool, so it cannot drift away from the views that have an I*).
+    on the pool, so it cannot drift away from the views that have an I*). Its state is the
+    random generator and the pose (a checkpoint keeps the pose).
     """
 
-    def __init__(self, config: BootstrapConfig, seed: int) -> None:
-        self.config = config
+    def __init__(self, seed: int) -> None:
         self.rng = np.random.default_rng(seed)
         self.pose: np.ndarray | None = None
         self._poses: np.ndarray | None = None
@@ -107,10 +99,11 @@ class ViewSampler:
             self._pool_names = names
         return self._poses
 
-    def choose(self, pool: Sequence[VirtualTarget], loss_at: Callable[[int, torch.Tensor], torch.Tensor]
-               ) -> ViewChoice:
-        """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index])."""
-        if self.config.sampling == "uniform":
+    def choose(self, pool: Sequence[VirtualTarget], loss_at: Callable[[int, torch.Tensor], torch.Tensor],
+               config: BootstrapConfig) -> ViewChoice:
+        """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index]);
+        ``config``: the sampling and its Langevin step and noise."""
+        if config.sampling == "uniform":
             return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
         poses = self._pool_poses(pool)
         if self.pose is None:
@@ -120,8 +113,8 @@ class ViewSampler:
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
         # pose through the differentiable rasterizer, chained to the 7-D pose by langevin.py).
         grad = pose_gradient(lambda w2c: loss_at(current, w2c), camera.world_to_camera)
-        step = DEFAULT_STEP_SIZE if self.config.langevin_step is None else self.config.langevin_step
-        noise = DEFAULT_NOISE_SCALE if self.config.langevin_noise is None else self.config.langevin_noise
+        step = DEFAULT_STEP_SIZE if config.langevin_step is None else config.langevin_step
+        noise = DEFAULT_NOISE_SCALE if config.langevin_noise is None else config.langevin_noise
         moved = langevin_step(self.pose, np.asarray(grad, np.float64), step, noise, self.rng)
         chosen = int(snap_to_nearest(moved, poses))
         self.pose = poses[chosen].copy()
@@ -131,41 +124,42 @@ class ViewSampler:
         return ViewChoice(chosen, 1.0 / p, p)  # p >= 1: the division is safe
 
 
-def pixel_weights(mask: torch.Tensor, generated_weight: float, virtual_pixels: str = "all") -> torch.Tensor | None:
+def pixel_weights(mask: torch.Tensor, generated_weight: float) -> torch.Tensor | None:
     """[H, W, 1] confidence: 1 on pixels trusted from warped photos, ``generated_weight`` on
-    generated ones (None when that is 1: the paper's unweighted loss). ``virtual_pixels=
-    "informative"``: the mask itself (it is then the informative mask: no weight elsewhere)."""
-    if virtual_pixels == "informative":
-        return mask
+    generated ones (None when that is 1: the paper's unweighted loss)."""
     if generated_weight == 1.0:
         return None
     return mask + generated_weight * (1.0 - mask)
 
 
-def active_views(pool: Sequence[VirtualTarget], virtual_pixels: str) -> list[int]:
-    """Indices of the pool's views that can take a virtual step: those whose photos were not
-    outvoted by the render (``VirtualTarget.supervised``, agreement.py), and with
-    ``"informative"`` only those with at least MIN_INFORMATIVE_PIXELS informative pixels."""
-    if virtual_pixels != "informative":
-        return [i for i, view in enumerate(pool) if view.supervised]
-    from .experimental.informative import MIN_INFORMATIVE_PIXELS
+def view_weights(mask: torch.Tensor, config: BootstrapConfig) -> torch.Tensor | None:
+    """:func:`pixel_weights`, as the chosen variants change them (``pixel_weights`` hook)."""
+    weights = pixel_weights(mask, config.generated_weight)
+    for variant in config.variants.values():
+        weights = variant.pixel_weights(mask, weights)
+    return weights
 
-    return [i for i, view in enumerate(pool)
-            if view.supervised and float(view.mask.sum()) >= MIN_INFORMATIVE_PIXELS]
+
+def active_views(pool: Sequence[VirtualTarget], config: BootstrapConfig) -> list[int]:
+    """Indices of the pool's views that can take a virtual step: those whose photos were not
+    outvoted by the render (``VirtualTarget.supervised``, agreement.py) and that every chosen
+    variant lets be sampled (``may_sample``)."""
+    variants = list(config.variants.values())
+    return [i for i, view in enumerate(pool) if view.supervised and all(v.may_sample(view) for v in variants)]
 
 
 def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: BootstrapConfig,
                       lambda_dssim: float, lpips=None, weights: torch.Tensor | None = None,
                       weighted_share: float = 1.0) -> tuple[torch.Tensor, dict]:
     """rgb, target: [H, W, 3] -> (loss, record). Perceptual when 1 - SSIM <= tau, else L1 + D-SSIM.
-    weights: optional [H, W, 1] per-pixel confidence (pixel_weights). With ``virtual_pixels=
-    "informative"``: :func:`informative_loss` (weights = the informative mask). weighted_share in
-    (0, 1]: the share of pixels that carry loss at all (evidence weights); the SSIM loss of the
-    others is 0, so the tau test divides by it to judge the structure where the loss is."""
-    if config.virtual_pixels == "informative":
-        from .experimental.informative import informative_loss
-
-        return informative_loss(rgb, target, weights)
+    weights: optional [H, W, 1] per-pixel confidence (view_weights). A chosen variant may supply
+    the loss instead (``colour_loss``). weighted_share in (0, 1]: the share of pixels that carry
+    loss at all (evidence weights); the SSIM loss of the others is 0, so the tau test divides by
+    it to judge the structure where the loss is."""
+    for variant in config.variants.values():
+        replaced = variant.colour_loss(rgb, target, weights)
+        if replaced is not None:
+            return replaced
     if weights is not None:
         # Scaling the residual by the per-pixel confidence W gives L1 = mean(W |r - I*|) and an
         # SSIM of the same down-weighted residual; W = 1 everywhere is the plain loss.
@@ -187,34 +181,35 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
                  choice: ViewChoice, config: BootstrapConfig, rasterizer, lpips=None, scale: float = 1.0
                  ) -> tuple[torch.Tensor, dict, dict]:
     """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual),
-    plus the geometry term (``geometry_weight``, scaled by the conscience too) when it is on
+    plus the chosen variants' terms (``extra_loss``, scaled by the conscience too)
     -> (loss, the render's outputs, log record); no backward, no optimiser step."""
     sh_degree = sh_degree_at(step, train_config, sh_max)
     gaussians = gaussians_from_params(state.params)
-    geometry = config.geometry_weight > 0 and len(view.geometry) >= 2
-    outputs = ("rgb", "depth", "normal") if geometry else ("rgb",)
+    variants = list(config.variants.values())
+    outputs = ("rgb",) + tuple(output for variant in variants for output in variant.render_outputs(view))
     out = rasterizer(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
-    if config.virtual_colour:
-        weights = pixel_weights(view.mask, config.generated_weight, config.virtual_pixels)
+    if config.colour_target():
+        weights = view_weights(view.mask, config)
         share = 1.0
         if view.evidence is not None:   # regions without positive evidence get no virtual gradient
             weights = view.evidence if weights is None else weights * view.evidence
             share = max(float(view.evidence.mean()), MIN_WEIGHTED_SHARE)
-        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.losses.lambda_dssim, lpips,
-                                         weights, share)
+        loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.losses.lambda_dssim, lpips, weights,
+                                         share)
         total = config.lambda_virtual * choice.weight * scale * loss
     else:
-        # No colour target: the rgb output still enters the graph (at zero weight) so the
-        # trainer's densification statistics see the same render as on any other step.
+        # No colour target (only a variant's term): the rgb output still enters the graph (at
+        # zero weight) so the trainer's densification statistics see the same render as on any
+        # other step.
         total = 0.0 * out["rgb"].sum()
         record = {"virtual_loss": 0.0, "virtual_branch": "geometry"}
-    if geometry:
-        from .experimental.multiview import geometry_loss
-
-        term, geometry_record = geometry_loss(out, view, config, step)
-        record.update(geometry_record)
-        if term is not None:
-            total = total + config.geometry_weight * scale * term
+    for variant in variants:
+        extra = variant.extra_loss(out, view, config.seed, step, scale)
+        if extra is not None:
+            term, extra_record = extra
+            record.update(extra_record)
+            if term is not None:
+                total = total + term
     record.update(view=view.name, weight=choice.weight, p=choice.p, sh_degree=sh_degree)
     return total, out, record
 

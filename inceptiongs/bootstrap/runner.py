@@ -1,4 +1,5 @@
-"""Stage II: a stage-I run in, a repaired run folder out (the steps themselves: ``loop.py``).
+"""Stage II: a stage-I run in, a repaired run folder out, as a pipeline: ``prepare.prepare``
+(RUN2, the state, the round plan, the pool) -> ``loop.run_rounds`` -> ``loop.finish``.
 
 RUN2 is a run folder (docs/training.md): config.json (the stage-I config, extended schedule),
 split.json (copied, so evaluations are comparable), checkpoints/, model.ply, metrics.jsonl
@@ -9,6 +10,7 @@ summary.json, cache/, views/*.png) and RUN2/prior/ when a prior was trained here
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -20,9 +22,11 @@ from ..threads import use_torch_threads
 from ..train.loop import StepLoop, default_log, expected_total_steps  # noqa: F401 (expected_total_steps: re-exported)
 from ..runs.folder import holds_result, next_free_folder
 from .config import BootstrapConfig
-from .loop import BOOTSTRAP_DIR, Bootstrap, BootstrapResult  # noqa: F401 (BOOTSTRAP_DIR: re-exported)
-from .stage1 import Stage1, as_stage1, load_stage1
-from .summary_file import read_summary  # noqa: F401 (load_stage1: re-exported)
+from .loop import BootstrapResult, finish, run_rounds
+from .plan import resume_point
+from .prepare import TARGETS_FILE, prepare
+from .stage1 import Stage1, as_stage1, load_stage1  # noqa: F401 (load_stage1: re-exported)
+from .summary_file import BOOTSTRAP_DIR, read_summary  # noqa: F401 (BOOTSTRAP_DIR: re-exported)
 from .targets import Target, flag_targets, named_target, split_targets
 
 
@@ -31,9 +35,19 @@ def default_out_dir(run_dir: str | Path) -> Path:
     return run_dir.with_name(run_dir.name + "_bootstrap")
 
 
+def check_default_out_dir(out_dir: Path) -> Path:
+    """``out_dir`` when it may take a default output: the folder beside the input run belongs
+    to whoever made that bundle, so a symlink there (which could send the model, checkpoints and
+    logs anywhere) is refused in one line; an --out the user gives is their choice."""
+    if out_dir.is_symlink():
+        raise InputError(f"{out_dir}: the default output folder is a symlink (to {os.readlink(out_dir)}); "
+                         f"give --out to choose where the bootstrap writes")
+    return out_dir
+
+
 def check_output_folder(out_dir: Path, overwrite: bool) -> None:
     """InputError (one line) when ``out_dir`` holds a result and the user did not ask to replace it."""
-    if not holds_result(out_dir) or overwrite:
+    if not holds_result(out_dir) or overwrite or killed_before_first_save(out_dir):
         return
     stopped = stopped_bootstrap_step(out_dir)
     if stopped is not None:
@@ -41,6 +55,15 @@ def check_output_folder(out_dir: Path, overwrite: bool) -> None:
                          f"continue it, --overwrite to replace it, or another --out")
     raise InputError(f"{out_dir}: already holds a result; give --overwrite to replace it, or another "
                      f"--out (e.g. {next_free_folder(out_dir)})")
+
+
+def killed_before_first_save(out_dir: Path) -> bool:
+    """Whether ``out_dir`` holds only the start of a bootstrap killed before it saved anything
+    (no model, no checkpoint): a rerun may start it again, since nothing there is a result."""
+    from ..runs.checkpoint import list_checkpoints
+
+    return ((out_dir / BOOTSTRAP_DIR).is_dir() and not (out_dir / "model.ply").exists()
+            and not list_checkpoints(out_dir))
 
 
 def stopped_bootstrap_step(out_dir: Path) -> int | None:
@@ -139,26 +162,19 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
                     on_snapshot=on_snapshot, snapshot_every=snapshot_every,
                     wall_start_s=float(payload["wall_s"]) if payload else 0.0,
                     train_start_s=float(payload["train_s"]) if payload else 0.0)
-    boot = Bootstrap.prepare(run, out_dir, targets, config, loop, rasterizer, log or default_log, resume=payload)
-    first_round, steps_left = (0, None) if payload is None else resume_point(boot, payload)
+    log = log or default_log
+    setting, plan, state, pool = prepare(run, out_dir, targets, config, loop, rasterizer, log, resume=payload)
+    first_round, steps_left = 0, None
+    if payload is not None:
+        point = resume_point(plan, state.train.iteration, payload["bootstrap"]["round"])
+        first_round, steps_left, state.rounds_done = point.first_round, point.steps_left, point.rounds_done
+        if steps_left is not None:
+            log(f"resumed at step {state.train.iteration} (round {first_round + 1}, {steps_left} steps of it left)")
     try:
-        for earlier in range(first_round if first_round < len(boot.rounds) else 0):
-            boot.make_round_targets(earlier)   # the pool keeps the finished rounds' views
-        for round_index in range(first_round, len(boot.rounds)):
-            if loop.wait_or_stop() or loop.out_of_time():
-                boot.finished = False
-                break
-            boot.current_round = round_index + 1
-            boot.make_round_targets(round_index)
-            if not boot.refine(round_index, steps_left if round_index == first_round else None):
-                boot.finished = False
-                break
-            boot.rounds_done += 1
-            if round_index + 1 < len(boot.rounds):
-                boot.checkpoint(round_index + 1)
+        run_rounds(setting, config, plan, state, pool, first_round, steps_left)
     finally:
         loop.close()
-    return boot.finish()
+    return finish(setting, config, plan, state, pool)
 
 
 def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
@@ -167,7 +183,6 @@ def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
     import json
 
     from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint
-    from .loop import TARGETS_FILE
     from .targets import targets_from_json
 
     if latest_checkpoint(out_dir) is None:
@@ -185,20 +200,6 @@ def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{targets_path}: cannot read the bootstrap's targets ({exc})") from None
     return payload, targets_from_json(data, str(targets_path))
-
-
-def resume_point(boot: Bootstrap, payload: dict) -> tuple[int, int | None]:
-    """(the round index to continue, the steps left of it; None: all of it) from a checkpoint
-    taken in (1-based) round ``payload["bootstrap"]["round"]``."""
-    steps = boot.config.iterations
-    round_number = min(max(int(payload["bootstrap"]["round"]), 1), len(boot.rounds))
-    done = boot.state.iteration - boot.start - (round_number - 1) * steps
-    boot.rounds_done = round_number - 1
-    if done >= steps:   # the round had ended: the next one starts
-        boot.rounds_done = round_number
-        return round_number, None
-    boot.log(f"resumed at step {boot.state.iteration} (round {round_number}, {steps - max(done, 0)} steps of it left)")
-    return round_number - 1, steps - max(done, 0)
 
 
 def baseline_run(run: Stage1 | str | Path, out_dir: str | Path, minutes: float | None, iterations: int,

@@ -1,5 +1,5 @@
 """RUN2/bootstrap/summary.json, what a bootstrap says about itself: written by
-:class:`.loop.Bootstrap`, read by the stopped-run check (:mod:`.runner`), the repair outlook that
+:mod:`.loop`, read by the stopped-run check (:mod:`.runner`), the repair outlook that
 ``eval`` shows (:mod:`.outlook`) and the verdicts (``inceptiongs.evaluation.verdict``: the viewer's,
 ``eval``'s, ``report``'s), which compare a bootstrap only with its same-time baseline
 (:func:`same_time_mismatch` decides). Light: no torch, so readers stay cheap."""

@@ -1,11 +1,10 @@
-"""I* at one virtual view by its supervision kind (``BootstrapConfig.supervision``; the
-interface and the registry: supervision_kinds.py).
+"""I* at one virtual view (what a supervision works on and returns: view_supervision.py).
 
-The core kind is "blend" (:func:`blend_supervision`): the K nearest photos warped in with the
+The default is the blend (:func:`blend_supervision`): the K nearest photos warped in with the
 model's depth (or the training views' depth splatted into the view, ``virtual_depth``), their
-binary-masked mean over the fill: I* = M * warped + (1 - M) * fill, the paper's blending. The
-kinds that were measured and left off by default live in :mod:`.experimental` and register
-themselves there.
+binary-masked mean over the fill: I* = M * warped + (1 - M) * fill, the paper's blending. A
+chosen variant may supply another supervision, or move the warps and finish the blend (the
+hooks ``supervise``, ``adjust_warps``, ``finish_blend``: variants.py).
 """
 
 from __future__ import annotations
@@ -15,39 +14,32 @@ from dataclasses import dataclass
 import torch
 
 from .agreement import agreement_margin_db
-from .supervision_kinds import (SUPERVISION_KINDS, SupervisionKind, ViewContext, ViewSupervision,
-                                register_supervision)
+from .view_supervision import ViewContext, ViewSupervision
 from .warp import WarpResult, blend_views, warp_to_view
 
 
-def supervision_kind(name: str) -> SupervisionKind:
-    """The kind registered as ``name`` (the experimental ones are imported when first asked for)."""
-    if name not in SUPERVISION_KINDS:
-        from .experimental import photo_supervision  # noqa: F401 (registers "photo")
-    return SUPERVISION_KINDS[name]
-
-
 def supervise_view(context: ViewContext) -> ViewSupervision:
-    """I* of the view by ``config.supervision``; without blending (ablation) or photos: the fill
-    and an all-zero mask."""
+    """I* of the view: a chosen variant's supervision, else the blend; without blending
+    (ablation) or photos: the fill and an all-zero mask."""
     if not context.config.blending or not context.sources:
         return ViewSupervision(context.fill, torch.zeros((*context.fill.shape[:2], 1), device=context.fill.device))
-    return supervision_kind(context.config.supervision)(context)
+    for variant in context.config.variants.values():
+        supervision = variant.supervise(context)
+        if supervision is not None:
+            return supervision
+    return blend_supervision(context)
 
 
-# --- the core kind: the paper's blend --------------------------------------------------------------
+# --- the default: the paper's blend --------------------------------------------------------------
 def warp_sources(context: ViewContext, depth: torch.Tensor) -> list[WarpResult]:
-    """Each source photo warped into the view placed with ``depth`` [H, W, 1] (and, with
-    ``align_px``, moved onto the render by optical flow: experimental.align)."""
+    """Each source photo warped into the view placed with ``depth`` [H, W, 1] (then moved by
+    the chosen variants, ``adjust_warps``)."""
     warps = [warp_to_view(context.photos[i], context.render_depth(context.cameras[i]), context.cameras[i], depth,
                           context.camera, delta=context.delta)
              for i in context.sources]
-    if context.config.align_px is None:
-        return warps
-    from .experimental.align import align_warp
-
-    reference = context.render()
-    return [align_warp(reference, warp, context.config.align_px) for warp in warps]
+    for variant in context.config.variants.values():
+        warps = variant.adjust_warps(context, warps)
+    return warps
 
 
 @dataclass
@@ -94,15 +86,12 @@ def choose_placement(context: ViewContext, fill: torch.Tensor) -> tuple[PlacedBl
     return splatted, "sources"
 
 
-@register_supervision("blend")
 def blend_supervision(context: ViewContext) -> ViewSupervision:
     """The uniform mean of the binary-masked warps over the fill (the paper's blending)."""
     placed, depth_name = choose_placement(context, context.fill)
     report = {} if depth_name is None else {"depth": depth_name}
     report["agreement_db"] = agreement_margin_db(context.render(), placed.warps)
     image = placed.image
-    if context.config.fill == "inpaint":
-        from .experimental.inpaint import inpaint_fill
-
-        image = inpaint_fill(image, placed.mask, placed.depth)
+    for variant in context.config.variants.values():
+        image = variant.finish_blend(image, placed.mask, placed.depth)
     return ViewSupervision(image.detach().float().clamp(0.0, 1.0), placed.mask.detach().float(), report)

@@ -19,7 +19,7 @@ from ..train.free_space import render_surface_depth
 from .config import BootstrapConfig
 from .source_depth import depth_from_training_views
 from .supervise import ViewContext, supervise_view
-from .generation import GenerationCache, VirtualTarget, gaussians_version, generate_cached
+from .generation import GenerationCache, ImagePrior, VirtualTarget, gaussians_version, generate_cached
 from .virtual_views import DEFAULT_K, nearest_training_views
 
 
@@ -64,18 +64,19 @@ class ModelRenders:
         return render.float().clamp(0.0, 1.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class TargetSetting:
-    """What every virtual view's I* in a run is made with (fixed for the run)."""
+    """What every virtual view's I* in a run is made with (fixed for the run): the scene's
+    cameras, the training views, their photos (on the device I* is made on), the generation
+    cache, the folder of the views' PNGs, the rasterizer and the prior (None: no fill is generated)."""
 
-    config: BootstrapConfig
     cameras: Sequence[Camera]
     train: Sequence[int]
     photos: dict
     cache: GenerationCache
     views_dir: Path
     rasterizer: Callable
-    prior: object = None
+    prior: ImagePrior | None = None
     prior_hash: str = ""
 
 
@@ -100,25 +101,27 @@ class TargetMaker:
         """The model's version in the generation cache's keys."""
         return gaussians_version(self.current)
 
-    def fill(self, camera: Camera) -> tuple[torch.Tensor, bool]:
+    def fill(self, camera: Camera, config: BootstrapConfig) -> tuple[torch.Tensor, bool]:
         """(what fills the pixels no photo covers [H, W, 3] float32 on the model's device, read
-        from the cache): the prior's image, else the render."""
+        from the cache): the prior's image (``config.seed``, ``config.ddim_steps``), else the render."""
         s = self.setting
         if s.prior is not None:
-            image, hit = generate_cached(s.prior, self.current_for_prior, camera, s.config.seed, s.config.ddim_steps,
+            image, hit = generate_cached(s.prior, self.current_for_prior, camera, config.seed, config.ddim_steps,
                                          s.cache, s.prior_hash, self.gaussians_hash)
             # The cache holds host arrays; the warps it is blended with are on the model's device.
             return torch.as_tensor(image).to(self.current.means.device), hit
         # The fill is the render itself (or inpainted around it): nothing to generate.
         return self.renders.rgb(camera), False
 
-    def make(self, camera: Camera, round_number: int, save: bool) -> tuple[VirtualTarget, list[int]]:
+    def make(self, camera: Camera, round_number: int, save: bool, config: BootstrapConfig
+             ) -> tuple[VirtualTarget, list[int]]:
         """-> (the view's VirtualTarget, the training views warped into it)."""
-        s, config = self.setting, self.setting.config
-        generated, hit = self.fill(camera)
+        s = self.setting
+        generated, hit = self.fill(camera, config)
         sources = blend_sources(camera, s.cameras, s.train, config)
         report: dict = {}
-        if config.virtual_colour:
+        colour = config.colour_target()
+        if colour:
             supervision = supervise_view(ViewContext(
                 config, camera, generated, sources, s.cameras, s.photos, self.renders.depth, self.renders.rgb,
                 source_depth=lambda: depth_from_training_views(camera, s.cameras, s.train, config.splat_views,
@@ -129,10 +132,11 @@ class TargetMaker:
             # built for nothing. The render stands in for the PNGs, with an empty mask.
             image = torch.as_tensor(generated, dtype=torch.float32)
             mask = torch.zeros(camera.height, camera.width, 1, device=image.device)
-        geometry = self.geometry_sources(sources) if config.geometry_weight > 0 else []
+        geometry = [source for variant in config.variants.values()
+                    for source in variant.view_geometry(sources, s.photos, s.cameras, self.renders.depth)]
         agreement = report.get("agreement_db")
-        # Only the photos' colour is gated: a geometry-only view has no warped colour to judge.
-        supervised = (config.agreement_min_db is None or agreement is None or not config.virtual_colour
+        # Only the photos' colour is gated: a view without a colour target has no warped colour to judge.
+        supervised = (config.agreement_min_db is None or agreement is None or not colour
                       or agreement >= config.agreement_min_db)
         entry = VirtualTarget(camera.name, camera, image, mask, torch.as_tensor(generated), hit, round_number,
                               geometry, agreement, supervised, report.get("depth", "render"))
@@ -140,13 +144,3 @@ class TargetMaker:
             write_png(s.views_dir / f"{camera.name}.png", view_png(entry.generated, mask, image,
                                                                     self.renders.rgb(camera)))
         return entry, sources
-
-    def geometry_sources(self, sources: Sequence[int]) -> list:
-        """The geometry term's sources: grey photos (NCC ignores colour balance) and the current
-        depth of each (its visibility reference)."""
-        from .experimental.multiview import GeometrySource
-
-        s = self.setting
-        return [GeometrySource(s.photos[i].float().mean(-1, keepdim=True), s.cameras[i],
-                               self.renders.depth(s.cameras[i]))
-                for i in sources]

@@ -13,7 +13,9 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from .device import recorded_device
+from ..io.values import flag
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
 
@@ -45,12 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a JSON object of bootstrap settings (docs/bootstrap_options.md lists every key; "
                              "RUN2/bootstrap/config.json of an earlier result is one); flags given here override it")
     # default None: a flag not given leaves the --config file's value (else the default) in place
-    parser.add_argument("--rounds", type=int, default=None, help=f"bootstrap rounds (default {d.rounds})")
-    parser.add_argument("--minutes", type=float, default=None,
+    parser.add_argument("--rounds", type=flag("count"), default=None, help=f"bootstrap rounds (default {d.rounds})")
+    parser.add_argument("--minutes", type=flag("minutes"), default=None,
                         help="wall budget for the whole bootstrap (prior, generation, refinement)")
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=flag("steps"), default=None,
                         help=f"refinement steps per round (default {d.iterations})")
-    parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
+    parser.add_argument("--seed", type=flag("seed"), default=None, help=f"generation and sampling seed (default {d.seed})")
 
 
 def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
@@ -70,14 +72,17 @@ def config_from_args(args: argparse.Namespace, resumed: Path | None = None):
         base = BootstrapConfig()
     given = {name: getattr(args, name) for name in CONFIG_FLAGS if getattr(args, name) is not None}
     config = dataclasses.replace(base, **given).validate("arguments")
-    if config.lpips_weights is not None and not Path(config.lpips_weights).is_file():
-        raise InputError(f"{args.config}: lpips_weights {config.lpips_weights}: LPIPS weights file does not exist")
+    if config.lpips_weights is not None:
+        if not Path(config.lpips_weights).is_file():
+            raise InputError(f"{args.config}: lpips_weights {config.lpips_weights}: LPIPS weights file does not exist")
+        from ..evaluation.lpips_net import load_lpips
+        load_lpips(config.lpips_weights)   # refused here, before any work: TorchScript, objects, wrong keys
     return config
 
 
 def run(args) -> int:
-    from ..bootstrap.runner import (check_output_folder, default_out_dir, load_stage1, resolve_targets,
-                                    resumable, run_bootstrap)
+    from ..bootstrap.runner import (check_default_out_dir, check_output_folder, default_out_dir, load_stage1,
+                                    resolve_targets, resumable, run_bootstrap)
     from ..live import JobControl
     from ..rasterizer.interface import resolve_device
     from ..stop_signals import stop_on_signals
@@ -87,10 +92,14 @@ def run(args) -> int:
     if args.out:
         out_dir = Path(args.out)
     elif args.overwrite or args.resume:
-        out_dir = default_out_dir(run_dir)
+        out_dir = check_default_out_dir(default_out_dir(run_dir))
     else:  # the default name never lands on an earlier result: the next free one is chosen
-        out_dir = next_free_folder(default_out_dir(run_dir))
+        out_dir = check_default_out_dir(next_free_folder(check_default_out_dir(default_out_dir(run_dir))))
+    if out_dir.resolve() == run_dir.resolve():     # said first: no other word about the folder applies
+        raise InputError(f"{out_dir}: --out must differ from the input run (the bootstrap writes a new run folder)")
     config = config_from_args(args, out_dir if args.resume else None)
+    if run_in_blocks(run_dir):
+        return run_blocks(args, run_dir, out_dir, config)
     targets = None
     if args.resume:
         targets = resumable(out_dir)[1]   # one line now when there is nothing to resume
@@ -108,11 +117,23 @@ def run(args) -> int:
         print(device.note, file=sys.stderr)
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
-                               resume=args.resume, rasterizer=device.rasterizer)
+        try:
+            result = run_bootstrap(stage1, out_dir, targets, config, control=control, overwrite=args.overwrite,
+                                   resume=args.resume, rasterizer=device.rasterizer)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out_dir, stopping.exit_status,
+                                            f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume")
     if stopping.signum is not None:
-        print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue with: "
-              f"inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
+        from ..runs.checkpoint import latest_checkpoint
+        if latest_checkpoint(out_dir) is not None:
+            print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply and a checkpoint (continue "
+                  f"with: inceptiongs bootstrap {run_dir} --out {out_dir} --resume)", file=sys.stderr)
+        else:   # said as it is: a line promising a checkpoint that is not there sends the user to --resume in vain
+            print(f"{out_dir}: stopped at iteration {result.iteration}; saved model.ply, no checkpoint (start again "
+                  f"with: inceptiongs bootstrap {run_dir} --out {out_dir} --overwrite)", file=sys.stderr)
         return stopping.exit_status
     print(f"prior: {result.prior}")
     if result.supervised_views is not None and result.supervised_views < result.virtual_views:
@@ -129,4 +150,48 @@ def run(args) -> int:
             print(f"{group:>8} PSNR {before:6.2f} -> {after:6.2f} dB   SSIM "
                   f"{result.initial_eval[f'{group}_ssim']:.4f} -> {result.last_eval[f'{group}_ssim']:.4f}")
     print(f"wrote {out_dir}")
+    return 0
+
+
+def run_in_blocks(run_dir: Path) -> bool:
+    """Whether RUN was trained in blocks (`train --blocks`; its config.json says how many)."""
+    from ..runs.config import TrainConfig
+
+    stored = run_dir / "config.json"
+    return stored.is_file() and TrainConfig.load(stored).blocks > 0
+
+
+def run_blocks(args, run_dir: Path, out_dir: Path, config) -> int:
+    """Stage II on a run in blocks: only the blocks the flagged views see are refined
+    (inceptiongs.bootstrap.blocks); the others stay as they are."""
+    from ..bootstrap.blocks import bootstrap_blocks
+    from ..bootstrap.runner import check_output_folder, load_stage1, resolve_targets, run_bootstrap
+    from ..live import JobControl
+    from ..rasterizer.interface import resolve_device
+    from ..stop_signals import stop_on_signals
+
+    if args.resume:
+        raise InputError(f"{out_dir}: a bootstrap of a run in blocks is not resumed; run it again (--overwrite "
+                         f"replaces the stopped one)")
+    check_output_folder(out_dir, args.overwrite)
+    device = resolve_device(*recorded_device(run_dir))
+    stage1 = load_stage1(run_dir)
+    targets = resolve_targets(stage1.scene, stage1.split, args.targets, args.target_view, config.rounds,
+                              run_dir=run_dir)
+    print(f"bootstrap {run_dir} -> {out_dir}: targets {', '.join(f'{t.name} ({t.origin})' for t in targets)}")
+    control = JobControl()
+    say = lambda line: print(line, file=sys.stderr)  # noqa: E731
+    with stop_on_signals(control) as stopping:
+        result = bootstrap_blocks(stage1, out_dir, targets, config,
+                                  lambda run, out, block_targets, block_config: run_bootstrap(
+                                      run, out, block_targets, block_config, control=control,
+                                      overwrite=args.overwrite, rasterizer=device.rasterizer, log=say), say)
+    if stopping.signum is not None:
+        print(f"{out_dir}: stopped; the refined blocks so far are merged into model.ply", file=sys.stderr)
+        return stopping.exit_status
+    for index, block in zip(result.refined, result.results):
+        print(f"block {index + 1}: iterations {block.start_iteration}..{block.iteration}, {block.virtual_views} "
+              f"virtual views, {block.wall_s:.1f} s")
+    print(f"wrote {out_dir}: {result.num_gaussians} Gaussians, blocks {', '.join(str(i + 1) for i in result.refined)} "
+          f"refined (inceptiongs eval {out_dir})")
     return 0

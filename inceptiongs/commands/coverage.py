@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .device import add_device_argument, command_device
+from ..io.values import flag
 
 HELP = ("where a capture is thin: cameras from above, viewing density over a region's hemisphere, "
         "the views whose content is seen least")
@@ -18,12 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="scene folder (its sparse points) or run folder (its Gaussians, "
                                      "occlusion from rendered depth, training views as sources)")
     parser.add_argument("--out", default="coverage.png", help="figure to write (.png, default coverage.png)")
-    parser.add_argument("--roi", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+    parser.add_argument("--roi", type=flag("number"), nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                         help="region of interest, an axis-aligned box in the scene's original frame "
                              "(default: the points' 2-98 %% bounds)")
-    parser.add_argument("--suggest", type=int, default=5, metavar="K",
+    parser.add_argument("--suggest", type=flag("count or 0"), default=5, metavar="K",
                         help="list the K scarcest views (candidates to flag; default 5)")
-    parser.add_argument("--downscale", type=int, default=4,
+    parser.add_argument("--downscale", type=flag("factor"), default=4,
                         help="scene folders without sparse points: triangulate from images this many times "
                              "smaller (default 4)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")

@@ -24,6 +24,7 @@ import math
 import time
 from pathlib import Path
 from .device import add_device_argument, command_device
+from ..io.values import flag
 
 HELP = ("the whole pipeline on the built-in courtyard: scene, stage I, coverage, bootstrap, the same-time "
         "baseline, evaluation, report")
@@ -65,25 +66,25 @@ DEMO_DEPTH_WIDTH = 64
 
 def add_arguments(parser) -> None:
     parser.add_argument("out", help="output folder (scene, runs, report)")
-    parser.add_argument("--minutes", type=float, default=DEFAULT_MINUTES,
+    parser.add_argument("--minutes", type=flag("minutes"), default=DEFAULT_MINUTES,
                         help=f"stage-I training time budget (default {DEFAULT_MINUTES:g})")
-    parser.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS,
+    parser.add_argument("--iterations", type=flag("steps"), default=DEFAULT_ITERATIONS,
                         help=f"stage-I schedule length, stops early at --minutes (default {DEFAULT_ITERATIONS})")
     parser.add_argument("--size", choices=("tiny", "small", "medium"), default=DEFAULT_SIZE,
                         help="courtyard size: tiny 64x48 (tests), small 192x144 (default), medium 320x240")
-    parser.add_argument("--downscale", type=int, default=DEFAULT_DOWNSCALE,
+    parser.add_argument("--downscale", type=flag("factor"), default=DEFAULT_DOWNSCALE,
                         help=f"train on images this many times smaller (default {DEFAULT_DOWNSCALE})")
-    parser.add_argument("--seed", type=int, default=0, help="scene, split, training and generation seed")
+    parser.add_argument("--seed", type=flag("seed"), default=0, help="scene, split, training and generation seed")
     add_device_argument(parser)
-    parser.add_argument("--bootstrap-minutes", type=float, default=DEFAULT_BOOTSTRAP_MINUTES,
+    parser.add_argument("--bootstrap-minutes", type=flag("minutes"), default=DEFAULT_BOOTSTRAP_MINUTES,
                         help=f"stage-II wall budget, prior included; the baseline gets the same time "
                              f"(default {DEFAULT_BOOTSTRAP_MINUTES:g})")
-    parser.add_argument("--bootstrap-iterations", type=int, default=DEFAULT_BOOTSTRAP_ITERATIONS,
+    parser.add_argument("--bootstrap-iterations", type=flag("steps"), default=DEFAULT_BOOTSTRAP_ITERATIONS,
                         help=f"stage-II refinement steps (default {DEFAULT_BOOTSTRAP_ITERATIONS})")
-    parser.add_argument("--prior-minutes", type=float, default=DEFAULT_PRIOR_MINUTES,
+    parser.add_argument("--prior-minutes", type=flag("minutes"), default=DEFAULT_PRIOR_MINUTES,
                         help=f"prior training budget (default {DEFAULT_PRIOR_MINUTES:g})")
-    parser.add_argument("--prior-steps", type=int, default=None, help="or stop the prior after this many steps")
-    parser.add_argument("--ddim-steps", type=int, default=DEMO_DDIM_STEPS,
+    parser.add_argument("--prior-steps", type=flag("steps"), default=None, help="or stop the prior after this many steps")
+    parser.add_argument("--ddim-steps", type=flag("steps"), default=DEMO_DDIM_STEPS,
                         help=f"DDIM steps per generated image (default {DEMO_DDIM_STEPS})")
 
 

@@ -10,6 +10,7 @@ from ..scene.courtyard import COURTYARD_SIZES, write_courtyard_scene
 from ..scene.demo import SIZES, write_demo_scene
 from ..scene.town import DEFAULT_TOWN_SIZE, TOWN_SIZES, VIEWS_MAX, VIEWS_MIN, check_views, parse_town_size, \
     write_town_scene
+from ..io.values import flag
 
 HELP = "write a built-in procedural scene (COLMAP model + images, ground-truth cameras)"
 DEFAULT_TOWN_VIEWS = 3000
@@ -26,10 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "320x240; objects: small 28 of 192x144, medium 46 of 320x240; town: WIDTHxHEIGHT "
                              f"or {', '.join(f'{k} {w}x{h}' for k, (w, h) in TOWN_SIZES.items())} "
                              f"(default {DEFAULT_TOWN_SIZE})")
-    parser.add_argument("--views", type=int, default=None,
+    parser.add_argument("--views", type=flag("count"), default=None,
                         help=f"town only: number of views, {VIEWS_MIN} to {VIEWS_MAX} (default {DEFAULT_TOWN_VIEWS}); "
                              "the town grows with it, about 60 views a block")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (the scene is deterministic for a seed)")
+    parser.add_argument("--seed", type=flag("seed"), default=0, help="random seed (the scene is deterministic for a seed)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from .device import add_device_argument, command_device
+from ..io.values import flag
 
 HELP = "generate an image for any viewpoint with a run's diffusion prior"
 
@@ -27,10 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("--camera", help="camera JSON (original scene frame)")
     which.add_argument("--view", help="name of a camera (image) of the run's scene")
     parser.add_argument("--out", required=True, help="output .png")
-    parser.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same image)")
-    parser.add_argument("--window", type=int, default=None, help="MultiDiffusion window (default: patch size)")
-    parser.add_argument("--stride", type=int, default=None, help="window stride (default: 3/4 window)")
+    parser.add_argument("--steps", type=flag("steps"), default=20, help="DDIM steps (default 20)")
+    parser.add_argument("--seed", type=flag("seed"), default=0, help="noise seed (same seed, same image)")
+    parser.add_argument("--window", type=flag("pixels"), default=None, help="MultiDiffusion window (default: patch size)")
+    parser.add_argument("--stride", type=flag("pixels"), default=None, help="window stride (default: 3/4 window)")
     add_sampling_arguments(parser)
     parser.add_argument("--gbuffer-out", default=None, help="also write the G-buffer as .npy")
     add_device_argument(parser, reads_run=True)
@@ -38,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_sampling_arguments(parser: argparse.ArgumentParser, context: str = "") -> None:
     """--start / --init (checked by prior.trainer.sampling_options), shared with `eval --generated`."""
-    parser.add_argument("--start", type=float, default=None,
+    parser.add_argument("--start", type=flag("start"), default=None,
                         help=f"{context}tiny backend: start sampling at this fraction of T from a noised image "
                              "(SDEdit; default: the prior's sample_start, 1 = pure noise)")
     parser.add_argument("--init", choices=("render", "hint"), default=None,
@@ -77,6 +78,11 @@ def run(args) -> int:
     stride = args.stride
     if stride is not None and not 1 <= stride <= window:
         raise InputError(f"--stride: must be in 1..{window}, got {stride}")
+    if prior.backend == "tiny":      # refused before the canvas is allocated
+        from ..prior.footprint import check_sampling_fits
+        from ..prior.model import denoiser_cond_channels
+        check_sampling_fits(prior.config.unet, denoiser_cond_channels(prior.config), camera.height, camera.width,
+                            window, f"--window {window}", device)
     options = sampling_options(prior, args.start, args.init, run_dir)
     rgb, gbuffer = prior.generate(gaussians.to(device), camera, steps=args.steps, seed=args.seed,
                                   window=window, stride=stride, progress=True, **options)

@@ -1,4 +1,4 @@
-"""``inceptiongs info PATH [--json]``: summarise a scene folder or a 3DGS .ply."""
+"""``inceptiongs info PATH [--json]``: summarise a scene folder or a model file (.ply, .splat, .spz)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ from ..errors import InputError
 
 INFO_COVERAGE_POINTS = 1000
 
-HELP = "summarise a scene (format, cameras, resolutions, points, extent, warnings) or a .ply"
+HELP = "summarise a scene (format, cameras, resolutions, points, extent, warnings) or a model file"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="scene folder (COLMAP, transforms.json, LLFF) or a .ply file")
+    parser.add_argument("path", help="scene folder (COLMAP, transforms.json, LLFF) or a model file "
+                                     "(.ply, .compressed.ply, .splat, .spz)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--strict", action="store_true",
                         help="fail (exit 2) on missing, unreadable or mis-sized images instead of listing them")
@@ -65,10 +66,13 @@ def coverage_section(scene) -> dict:
 
 
 def ply_summary(path: Path) -> dict:
-    from ..io.ply import read_ply
+    """Summary of a model file of any format (:mod:`inceptiongs.io.models`)."""
+    from ..io.models import open_model
 
-    g = read_ply(path)
-    summary = {"path": str(path), "kind": "gaussians", "gaussians": len(g), "sh_degree": g.sh_degree}
+    model = open_model(path)
+    g = model.gaussians
+    summary = {"path": str(path), "kind": "gaussians", "file_format": model.format, "gaussians": len(g),
+               "sh_degree": g.sh_degree}
     if len(g):
         means = g.means.numpy()
         summary["bounds"] = [means.min(axis=0).tolist(), means.max(axis=0).tolist()]
@@ -82,7 +86,8 @@ def _format_vector(values) -> str:
 def format_summary(summary: dict) -> str:
     lines = [f"{summary['path']}"]
     if summary["kind"] == "gaussians":
-        lines.append(f"  3DGS PLY: {summary['gaussians']} Gaussians, SH degree {summary['sh_degree']}")
+        lines.append(f"  {summary['file_format']} model: {summary['gaussians']} Gaussians, "
+                     f"SH degree {summary['sh_degree']}")
         if "bounds" in summary:
             lines.append(f"  bounds: {_format_vector(summary['bounds'][0])} .. {_format_vector(summary['bounds'][1])}")
         return "\n".join(lines)
@@ -110,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if not path.exists():
         raise InputError(f"{path}: path does not exist")
-    summary = ply_summary(path) if path.suffix.lower() == ".ply" else scene_summary(path, args.strict)
+    from ..io.models import is_model_file
+
+    summary = ply_summary(path) if path.is_file() and is_model_file(path) else scene_summary(path, args.strict)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0

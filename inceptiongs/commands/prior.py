@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .device import add_device_argument, command_device
+from ..io.values import flag
 
 HELP = "train the scene-adaptive diffusion prior on a run's training photos (tiny or sd backend)"
 DEFAULT_MINUTES = 15.0
@@ -24,25 +25,25 @@ DEFAULT_MINUTES = 15.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", help="a stage-I run folder")
-    parser.add_argument("--minutes", type=float, default=None,
+    parser.add_argument("--minutes", type=flag("minutes"), default=None,
                         help=f"training time budget (default {DEFAULT_MINUTES:g} unless --steps is given)")
-    parser.add_argument("--steps", type=int, default=None, help="stop after this many steps (whichever first)")
-    parser.add_argument("--patch-size", type=int, default=None, help="patch edge s (default 64)")
-    parser.add_argument("--batch-size", type=int, default=None, help="patches per step (default 4)")
-    parser.add_argument("--seed", type=int, default=None, help="initial weights and patch sampling (default 0)")
-    parser.add_argument("--unet-width", type=int, default=None,
+    parser.add_argument("--steps", type=flag("steps"), default=None, help="stop after this many steps (whichever first)")
+    parser.add_argument("--patch-size", type=flag("pixels"), default=None, help="patch edge s (default 64)")
+    parser.add_argument("--batch-size", type=flag("count"), default=None, help="patches per step (default 4)")
+    parser.add_argument("--seed", type=flag("seed"), default=None, help="initial weights and patch sampling (default 0)")
+    parser.add_argument("--unet-width", type=flag("count"), default=None,
                         help="tiny backend: channels of the denoiser's first level (default 32, the two-core "
                              "machine's size; a GPU affords 64 or more); a new prior only")
     parser.add_argument("--prediction", choices=("epsilon", "v"), default=None,
                         help="tiny backend: what the UNet is trained to predict (default epsilon; see "
                              "docs/prior.md for when v samples better); a new prior only")
-    parser.add_argument("--high-noise-share", type=float, default=None,
+    parser.add_argument("--high-noise-share", type=flag("fraction"), default=None,
                         help="tiny backend: share of each batch trained at t >= 0.8 T, where only the "
                              "G-buffer can help (default 0); a new prior only")
-    parser.add_argument("--appearance-weight", type=float, default=None,
+    parser.add_argument("--appearance-weight", type=flag("weight"), default=None,
                         help="tiny backend: weight of the appearance hint's L1 loss (default 1; 0 = no "
                              "hint: the denoiser sees the bare G-buffer); a new prior only")
-    parser.add_argument("--sample-start", type=float, default=None,
+    parser.add_argument("--sample-start", type=flag("start"), default=None,
                         help="tiny backend: generation starts at this fraction of T from an image "
                              "noised to it (SDEdit; 1 = pure noise); a new prior only")
     parser.add_argument("--sample-init", choices=("render", "hint"), default=None,
@@ -50,12 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: the prior repairs it) or the appearance hint; a new prior only")
     parser.add_argument("--restart", action="store_true", help="ignore an existing RUN/prior checkpoint")
     add_device_argument(parser, reads_run=True)
-    parser.add_argument("--checkpoint-every", type=int, default=200, help="steps between checkpoints")
+    parser.add_argument("--checkpoint-every", type=flag("steps"), default=200, help="steps between checkpoints")
     add_backend_arguments(parser)
-    parser.add_argument("--eval-every-minutes", type=float, default=None,
+    parser.add_argument("--eval-every-minutes", type=flag("minutes"), default=None,
                         help="score generated images on the held-out views every M training minutes")
-    parser.add_argument("--eval-steps", type=int, default=20, help="DDIM steps of those evaluations")
-    parser.add_argument("--eval-views", type=int, default=None,
+    parser.add_argument("--eval-steps", type=flag("steps"), default=20, help="DDIM steps of those evaluations")
+    parser.add_argument("--eval-views", type=flag("count"), default=None,
                         help="score at most this many held-out views per group in those evaluations")
 
 
@@ -68,8 +69,10 @@ def add_backend_arguments(parser: argparse.ArgumentParser, prefix: str = "") -> 
                         help="local diffusers folder with unet/ and vae/ (see docs/prior.md)")
 
 
-def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path, **overrides):
-    """A fresh prior of ``backend`` fitted to ``gaussians``; overrides: config fields (None = default)."""
+def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path, patch_limit: int | None = None,
+              **overrides):
+    """A fresh prior of ``backend`` fitted to ``gaussians``; overrides: config fields (None = default).
+    ``patch_limit``: the smallest training image side (patches shrink to it when training)."""
     overrides = {k: v for k, v in overrides.items() if v is not None}
     try:
         if (backend or "tiny") == "sd":
@@ -83,16 +86,33 @@ def new_prior(backend: str, sd_path: str | None, gaussians, device, where: Path,
                     raise InputError(f"--{name.replace('_', '-')} is for the tiny backend")
             config = replace(SDPriorConfig(sd_path=str(Path(sd_path).resolve())), **overrides)
             return SDPrior.for_gaussians(config, gaussians, device)
-        from ..prior.model import Prior, PriorConfig
+        from ..prior.footprint import check_training_fits
+        from ..prior.model import Prior, PriorConfig, denoiser_cond_channels
         from ..prior.unet import UNetConfig
         if "unet_width" in overrides:
             overrides["unet"] = UNetConfig(base_width=overrides.pop("unet_width"))
-        return Prior.for_gaussians(replace(PriorConfig(), **overrides), gaussians).to(device)
+        config = replace(PriorConfig(), **overrides)
+        # Refused before the denoiser is built: the sizes the flags set must fit the device.
+        sizes = f"--unet-width {config.unet.base_width} --batch-size {config.batch_size} --patch-size {config.patch_size}"
+        patch = min(config.patch_size, patch_limit or config.patch_size)
+        check_training_fits(config.unet, denoiser_cond_channels(config), patch, config.batch_size, sizes, device)
+        return Prior.for_gaussians(config, gaussians, sizes).to(device)
     except ValueError as exc:
         raise InputError(f"{where}: {exc}") from None
 
 
 def run(args) -> int:
+    from ..runs.lock import run_folder_lock
+
+    if not Path(args.run).is_dir():
+        return train_prior(args)   # its one line names what is wrong with the path
+    # One writer per run: two priors at once interleaved prior/metrics.jsonl and lost one's work,
+    # and a `train --resume` would change the model under the prior.
+    with run_folder_lock(args.run):
+        return train_prior(args)
+
+
+def train_prior(args) -> int:
     from ..prior.joint import training_views
     from ..prior.trainer import CHECKPOINT_NAME, METRICS_NAME, PriorTrainer, prior_dir, resume_trainer
     from ..runs.load import load_run
@@ -111,6 +131,8 @@ def run(args) -> int:
 
     gaussians, scene, _ = load_run(run_dir)
     from ..io.atomic import check_writable_dir
+    from ..io.paths import check_inside
+    check_inside(prior_dir(run_dir), run_dir)   # RUN/prior a symlink out of the run: neither read nor written
     check_writable_dir(prior_dir(run_dir))  # one line now, not after the prior's training
     gaussians = gaussians.to(device)
     views = training_views(run_dir, scene)
@@ -137,7 +159,8 @@ def run(args) -> int:
         sample_start = args.sample_start
         if sample_start is None and args.appearance_weight == 0 and args.sample_init == "hint":
             sample_start = 1.0  # no hint to start from: sample from pure noise
-        prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir, patch_size=args.patch_size,
+        prior = new_prior(args.backend, args.sd_path, gaussians, device, run_dir,
+                          patch_limit=min(min(c.width, c.height) for c in cameras), patch_size=args.patch_size,
                           batch_size=args.batch_size, seed=args.seed, prediction=args.prediction,
                           high_noise_share=args.high_noise_share, appearance_weight=args.appearance_weight,
                           sample_start=sample_start, sample_init=args.sample_init, unet_width=args.unet_width)

@@ -5,8 +5,9 @@
 device rule, :mod:`.device`; default: the run's device for a run folder): it belongs to
 ``--backend torch`` alone, since GL draws wherever its context runs.
 
-MODEL is a 3DGS PLY or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest PLY
-in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
+MODEL is a model file (a 3DGS PLY, binary, ASCII or compressed, a .splat or a .spz:
+:mod:`inceptiongs.io.models`) or a run folder (RUN/model.ply, RUN/point_cloud.ply or the newest
+PLY in it; a run without a PLY falls back to its newest checkpoint). Frames: --camera poses are
 in the model file's own (original) frame; with --view the camera comes from the scene (the
 run's config names it, or --scene), in the scene's normalised frame, and the model is moved
 into that frame with the scene's normalisation.
@@ -35,13 +36,14 @@ from ..constants import ALPHA_EPS
 from ..errors import InputError
 from ..io.paths import read_small_text
 from .device import add_device_argument, command_device
+from ..io.values import flag, shown
 
-HELP = "render a PLY or a run folder from a camera JSON or a scene view (torch or OpenGL)"
+HELP = "render a model file (.ply, .splat, .spz) or a run folder from a camera JSON or a scene view (torch or OpenGL)"
 MODES = ("rgb", "depth", "normal", "alpha")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("model", help="a 3DGS .ply or a run folder")
+    parser.add_argument("model", help="a model file (.ply, .compressed.ply, .splat, .spz) or a run folder")
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--camera", help="camera JSON {width, height, fx, fy, cx, cy, world_to_camera}")
     which.add_argument("--view", help="name of a camera (image) of the scene")
@@ -53,14 +55,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                              "--backend torch only")
     parser.add_argument("--mode", choices=MODES, default="rgb")
     parser.add_argument("--out", required=True, help="output .png (depth/normal colour-mapped) or .npy (raw float32)")
-    parser.add_argument("--width", type=int, help="output width (intrinsics rescaled)")
-    parser.add_argument("--height", type=int, help="output height (intrinsics rescaled)")
+    parser.add_argument("--width", type=flag("pixels"), help="output width (intrinsics rescaled)")
+    parser.add_argument("--height", type=flag("pixels"), help="output height (intrinsics rescaled)")
     parser.add_argument("--background", default="0,0,0", help="rgb background r,g,b in [0, 1]")
     lod = parser.add_mutually_exclusive_group()
-    lod.add_argument("--lod", type=float, metavar="GRANULARITY_PX",
+    lod.add_argument("--lod", type=flag("length in pixels"), metavar="GRANULARITY_PX",
                      help="draw a level-of-detail cut: nodes of the model's LOD hierarchy down to this projected "
                           "size in pixels (0: every leaf; default: the exact model, no hierarchy)")
-    lod.add_argument("--lod-budget", type=int, metavar="SPLATS",
+    lod.add_argument("--lod-budget", type=flag("count"), metavar="SPLATS",
                      help="draw the finest level-of-detail cut of at most this many splats")
 
 
@@ -105,14 +107,17 @@ def _run_scene_path(run_dir: Path) -> str | None:
     if not config.is_file():
         return None
     try:
-        return json.loads(read_small_text(config, "run config")).get("scene") or None
+        scene = json.loads(read_small_text(config, "run config")).get("scene") or None
     except (OSError, json.JSONDecodeError, AttributeError):
         raise InputError(f"{config}: not a readable run config") from None
+    if scene is not None and not isinstance(scene, str):
+        raise InputError(f"{config}: scene must be a string (the scene folder), got {shown(scene)}")
+    return scene
 
 
 def load_model_and_camera(args):
     """-> (Gaussians, Camera) in one frame, per the rules in the module docstring."""
-    from ..io.ply import read_ply
+    from ..io.models import read_model
 
     model = Path(args.model)
     if not model.exists():
@@ -122,7 +127,7 @@ def load_model_and_camera(args):
     if args.camera:
         if ply is None:
             raise InputError(f"{model}: no .ply model in the run folder (--camera needs one)")
-        return read_ply(ply), read_camera_json(args.camera)
+        return read_model(ply), read_camera_json(args.camera)
     from ..scene.loader import load_scene
 
     scene_path = args.scene or (_run_scene_path(run_dir) if run_dir else None)
@@ -135,7 +140,7 @@ def load_model_and_camera(args):
         from ..runs.load import load_run
         gaussians, _, _ = load_run(run_dir)  # newest checkpoint, normalised frame (same normalisation)
     else:
-        gaussians = scene.normalization.gaussians_to_normalized(read_ply(ply))
+        gaussians = scene.normalization.gaussians_to_normalized(read_model(ply))
     return gaussians, scene.camera_by_name(args.view)
 
 

@@ -9,12 +9,16 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.atomic import OutputError
 from ..io.config_json import check_seed, with_values
 from ..io.paths import contained_path, read_small_text
+from ..train.distributed import ranks_from_environment
 from .device import add_device_argument, command_device
 
 from ..runs.config import PROTOCOLS, TrainConfig
+from ..train.partition import PHOTOS_PER_BLOCK
 from ..train.strategies import STRATEGIES
+from ..io.values import flag
 
 HELP = "train stage I (PGSR-style planar 3DGS) on a scene into a run folder"
 # Trainer steps per prior step of `train --prior` without a number.
@@ -32,14 +36,14 @@ def add_arguments(parser) -> None:
                              "'{\"pgsr\": false, \"free_space\": {\"sky_min_scale\": 0}}'; the flags given "
                              "override it (RUN/config.json records the result)")
     budget = parser.add_mutually_exclusive_group()
-    budget.add_argument("--minutes", type=float, help="train for this much time: the schedule (learning-rate "
+    budget.add_argument("--minutes", type=flag("minutes"), help="train for this much time: the schedule (learning-rate "
                         "decay, densification, pruning) is sized to it from the measured step rate")
-    budget.add_argument("--iterations", type=int, help="number of steps (default 30000)")
-    parser.add_argument("--downscale", type=int, help="image downscale factor (default 1)")
+    budget.add_argument("--iterations", type=flag("steps"), help="number of steps (default 30000)")
+    parser.add_argument("--downscale", type=flag("factor"), help="image downscale factor (default 1)")
     parser.add_argument("--protocol", choices=PROTOCOLS,
                         help="which views are held out for evaluation (default llff: every 8th view, "
                              "so `eval` works on the run; none: train on all)")
-    parser.add_argument("--seed", type=int, help="seed of the split, the initial points and every random draw "
+    parser.add_argument("--seed", type=flag("seed"), help="seed of the split, the initial points and every random draw "
                                                  "(default 0)")
     add_device_argument(parser, reads_run=True, default_help="auto; with --resume the run's device")
     parser.add_argument("--resume", action="store_true",
@@ -51,9 +55,14 @@ def add_arguments(parser) -> None:
                         help="leave these photos out (neither trained on nor held out): comma-separated image "
                              "names, a text file of names (one per line), or a finished run folder whose "
                              "view_fit.json names the photos it fitted poorly (moved objects, wrong poses)")
+    parser.add_argument("--blocks", metavar="auto|N",
+                        help="train in N blocks on the ground plane (auto: one per "
+                             f"{PHOTOS_PER_BLOCK} training photos), each an ordinary run in RUN/blocks/, merged "
+                             "into RUN; the same command again trains only the unfinished blocks. Under torchrun "
+                             "the ranks share the blocks (docs/large_scenes.md)")
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
-    prior.add_argument("--prior", nargs="?", type=int, const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",
+    prior.add_argument("--prior", nargs="?", type=flag("steps"), const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",
                        help=f"also train the diffusion prior: one prior step every EVERY trainer steps (default "
                             f"{DEFAULT_PRIOR_EVERY}), checkpointed with the run in RUN/prior/")
     add_backend_arguments(prior, prefix="prior-")
@@ -143,10 +152,10 @@ def photos_to_exclude(value: str | None) -> list[str]:
         print(f"excluding {len(names)} photo(s) that {value} fitted poorly", file=sys.stderr)
         return names
     if is_file:
-        try:
-            value = path.read_text().replace("\n", ",")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc})") from None
+        try:     # of a list's size (a huge or sparse file is refused before it is read)
+            value = read_small_text(path, "list of photos to exclude").replace("\n", ",")
+        except FileNotFoundError as exc:
+            raise InputError(f"{path}: cannot read the list of photos to exclude ({exc.strerror})") from None
     return [name.strip() for name in value.split(",") if name.strip()]
 
 
@@ -160,6 +169,11 @@ def run(args) -> int:
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
     out = Path(args.out) if args.out else default_run_dir(scene)
+    ranks = ranks_from_environment()
+    if args.blocks is not None:
+        return run_blocks(args, out)
+    if ranks.distributed:
+        raise InputError(f"torchrun ({ranks.world} ranks): only `train --blocks` spreads over ranks")
     stored = out / "config.json"
     resuming = args.resume and stored.is_file()
     if resuming and args.config:
@@ -178,7 +192,14 @@ def run(args) -> int:
     joint = joint_prior(args, out, config, device.torch_device) if args.prior is not None else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
-        result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        try:
+            result = train(config, out, resume=args.resume, after_step=joint, control=control)
+        except OutputError as exc:
+            if stopping.signum is None:
+                raise
+            from .stopped import stopped_with_failed_save
+            return stopped_with_failed_save(exc, out, stopping.exit_status,
+                                            f"inceptiongs train {args.scene} --out {out} --resume")
     if joint is not None:
         saved = joint.finish()
         if saved is not None:
@@ -190,6 +211,62 @@ def run(args) -> int:
     summary = ", ".join(f"{k} {v:.3f}" for k, v in result.last_eval.items())
     print(f"{out}: {result.iteration} iterations, {result.num_gaussians} Gaussians"
           + (f"; {summary}" if summary else ""))
+    return 0
+
+
+def run_blocks(args, out: Path) -> int:
+    """`train --blocks`: plan, train this process's blocks, merge (inceptiongs.train.blocks); under
+    torchrun each rank trains its share and rank 0 merges."""
+    from ..evaluation.protocols import make_split
+    from ..live import JobControl
+    from ..scene.loader import load_scene
+    from ..stop_signals import stop_on_signals
+    from ..train.blocks import block_count, train_blocks
+    from ..train.distributed import end_group, start_group
+    from ..train.trainer import train
+
+    if args.prior is not None:
+        raise InputError("--blocks: the joint prior (--prior) trains on one run; train it on the merged run with "
+                         "`inceptiongs prior RUN`")
+    if args.resume:
+        raise InputError("--blocks: the same command without --resume continues the unfinished blocks")
+    ranks = ranks_from_environment()
+    config = build_config(args)
+    stored = out / "config.json"
+    if stored.is_file():
+        previous = TrainConfig.load(stored)
+        if not previous.blocks:
+            raise InputError(f"{out}: run folder already holds a run that is not in blocks (give another --out)")
+        config = dataclasses.replace(previous, device=config.device)
+        count = previous.blocks
+        if args.blocks != "auto" and str(args.blocks) != str(count):
+            raise InputError(f"{out}: holds a run in {count} blocks, not {args.blocks} (give --blocks {count} to "
+                             f"continue it, or another --out)")
+    else:
+        scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
+        split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
+        count = block_count(args.blocks, len(split.train))
+        config = dataclasses.replace(config, blocks=count)
+    if ranks.world > count:   # before joining the group: the ranks it would wait for never come
+        raise InputError(f"torchrun: {ranks.world} ranks for {count} blocks; start at most {count} (a rank "
+                         f"without a block would only wait)")
+    device = command_device(args.device, None)
+    control = JobControl()
+    say = lambda line: print(line if not ranks.distributed else f"[rank {ranks.rank}] {line}",  # noqa: E731
+                             file=sys.stderr, flush=True)
+    start_group(ranks, cuda=device.torch_device.type == "cuda")
+    try:
+        with stop_on_signals(control) as stopping:
+            result = train_blocks(config, out, count, ranks,
+                                  lambda block, folder, resume: train(block, folder, resume=resume, control=control,
+                                                                      progress=not ranks.distributed, log=say), say)
+    finally:
+        end_group(ranks)
+    if stopping.signum is not None or result.stopped:
+        print(f"{out}: stopped; finished blocks are kept (continue with the same command)", file=sys.stderr)
+        return stopping.exit_status if stopping.signum is not None else 130
+    if result.merged:
+        print(f"{out}: {count} blocks merged, {result.num_gaussians} Gaussians (inceptiongs eval {out})")
     return 0
 
 

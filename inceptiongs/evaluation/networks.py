@@ -1,4 +1,5 @@
-"""Metric networks a user gives by path (LPIPS, FID feature extractors)."""
+"""The FID feature extractor a user gives by path on the command line (TorchScript: it runs
+code, so no run, scene or config ever names it; LPIPS weights are plain tensors, lpips_net)."""
 
 from __future__ import annotations
 

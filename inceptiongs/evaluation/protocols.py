@@ -137,6 +137,17 @@ class Split:
                                  f"({split.num_views} views, the scene has {len(names)})")
         return split
 
+    def restricted(self, views) -> "Split":
+        """The split among ``views`` only (scene indices): the same held-out views where they are
+        among them, every other view excluded (a block of a larger run, inceptiongs.train.blocks)."""
+        keep = set(int(i) for i in views)
+        inside = lambda indices: [i for i in indices if i in keep]  # noqa: E731
+        excluded = sorted(set(range(self.num_views)) - (keep & set(self.train + self.test)))
+        return Split(self.protocol, self.seed, inside(self.train), inside(self.test), inside(self.scarce_test),
+                     inside(self.covered_test), self.target_view if self.target_view in keep else None,
+                     [kept for kept in (inside(cluster) for cluster in self.clusters) if kept],
+                     list(self.view_names), excluded)
+
     def problem(self) -> str | None:
         """Why this split is inconsistent, or None."""
         if self.protocol not in PROTOCOLS:

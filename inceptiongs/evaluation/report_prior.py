@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 from ..io.atomic import atomic_write_bytes
+from ..io.paths import check_inside
 from ..errors import InputError
 from .report import read_metrics
 
@@ -26,6 +27,7 @@ def prior_evaluations(run_dir: str | Path) -> list[dict]:
     path = Path(run_dir) / "prior" / "metrics.jsonl"
     if not path.is_file():
         return []
+    check_inside(path, run_dir)
     records = [r for r in read_metrics(path) if isinstance(r.get("generated"), dict)]
     for record in records:
         if not isinstance(record.get("train_s"), (int, float)):
@@ -38,6 +40,7 @@ def generated_by_steps(run_dir: str | Path) -> list[dict]:
     path = Path(run_dir) / "eval" / "generated.json"
     if not path.is_file():
         return []
+    check_inside(path, run_dir)
     try:
         entries = json.loads(path.read_text(encoding="utf-8"))["by_steps"]
         return sorted(entries, key=lambda e: int(e["ddim_steps"]))

@@ -2,8 +2,8 @@
 it with :mod:`.scoring`, and writes RUN/eval/*.png and RUN/eval/eval.json. Sits above training
 (it reads run folders); scoring itself stays below it.
 
-LPIPS and FID are computed only from weights the user gives as local TorchScript files
-(docs/evaluation.md says what they must compute); without them the result says "unavailable" -
+LPIPS and FID are computed only from weights the user gives as local files (LPIPS as plain
+tensors, .lpips_net; FID as a TorchScript network given on the command line; docs/evaluation.md says what they must compute); without them the result says "unavailable" -
 never a stand-in under that name.
 """
 
@@ -17,6 +17,7 @@ from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.config_json import json_safe
 from ..runs.load import load_run
+from .lpips_net import load_lpips
 from .networks import load_torchscript
 from .protocols import Split
 from .scoring import evaluate_views
@@ -51,7 +52,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | Path | None = None,
     if not split.test:
         raise InputError(f"{run_dir / 'split.json'}: the split holds out no views (protocol "
                          f"{split.protocol!r}); nothing to evaluate")
-    lpips_model = load_torchscript(lpips_weights, "LPIPS") if lpips_weights else None
+    lpips_model = load_lpips(lpips_weights) if lpips_weights else None
     fid_model = load_torchscript(fid_weights, "FID") if fid_weights else None
     eval_dir = run_dir / "eval"
     # The trainer scores its test views on black (the rasterizer's default); so do we.

@@ -49,13 +49,26 @@ class OutputError(InputError):
     """A file or folder could not be written: '<path>: cannot write (<problem>)'."""
 
 
-def describe_os_error(exc: OSError) -> str:
-    """A short phrase for an OS error ("no space left on device", ...)."""
-    return _PROBLEMS.get(exc.errno, exc.strerror or type(exc).__name__)
+# Below this many free bytes a write that failed without an error number (numpy's tofile says
+# only "N requested and 0 written") failed for want of space.
+FULL_DISK_BYTES = 2**20
+
+
+def describe_os_error(exc: OSError, path: str | Path | None = None) -> str:
+    """A short phrase for an OS error ("no space left on device", ...). An error without an
+    errno (a short write reported by a library) is told by the free space of ``path``'s file
+    system when that is (almost) none, else by its own message."""
+    if exc.errno is None and path is not None:
+        with contextlib.suppress(OSError):
+            folder = Path(path).parent
+            info = os.statvfs(folder if folder.is_dir() else ".")
+            if info.f_bavail * info.f_frsize < FULL_DISK_BYTES:
+                return _PROBLEMS[errno.ENOSPC]
+    return _PROBLEMS.get(exc.errno, exc.strerror or (str(exc).splitlines() or [""])[0] or type(exc).__name__)
 
 
 def output_error(path: str | Path, exc: OSError) -> OutputError:
-    return OutputError(f"{path}: cannot write ({describe_os_error(exc)})")
+    return OutputError(f"{path}: cannot write ({describe_os_error(exc, path)})")
 
 
 def _umask() -> int:

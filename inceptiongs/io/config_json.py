@@ -7,17 +7,17 @@ import dataclasses
 import difflib
 import json
 import math
-import numbers
 import types
 import typing
 from pathlib import Path
 from dataclasses import dataclass
 from typing import ClassVar, TypeVar
 
-import numpy as np
 
 from .atomic import atomic_write_text
 from .paths import read_small_text
+from .values import (SEED_MAX, Range, Rule, above, at_least, is_finite_number, is_integer,  # noqa: F401
+                     rule as named_rule, shown, within)
 from ..errors import InputError
 
 Config = TypeVar("Config")
@@ -115,22 +115,17 @@ def value_fits(value, kind) -> bool:
         return isinstance(value, bool)
     # numbers.Integral/Real: numpy scalars computed by the schedule helpers count as well.
     if kind is int:
-        return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+        return is_integer(value)
     if kind is float:
-        return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+        return is_finite_number(value)
     if kind is str:
         return isinstance(value, str)
     return True
 
 
-# Seeds numpy and torch both take: 0 .. 2**32 - 1.
-SEED_MAX = 2**32 - 1
-
-
 def check_seed(value, source: str) -> None:
-    """InputError unless ``value`` is an int seed in 0..SEED_MAX."""
-    if not value_fits(value, int) or not 0 <= value <= SEED_MAX:
-        raise InputError(f"{source}: seed must be an integer in 0..{SEED_MAX}, got {value!r}")
+    """InputError unless ``value`` is an int seed in 0..SEED_MAX (the "seed" rule)."""
+    named_rule("seed").check(value, f"{source}: seed" if not source.startswith("--") else source)
 
 
 def check_field_types(config, source: str) -> None:
@@ -166,54 +161,14 @@ def json_safe(value):
 # them, and an options page is generated from the same metadata (scripts/gen_train_options.py).
 
 
-@dataclass(frozen=True)
-class Range:
-    """The numbers a setting may take: ``low`` .. ``high`` (None: unbounded), each end closed
-    unless ``*_open``. ``value in Range(...)``; NaN is in no range."""
-
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-
-    def __contains__(self, value) -> bool:
-        if self.low is not None and not (value > self.low if self.low_open else value >= self.low):
-            return False
-        if self.high is not None and not (value < self.high if self.high_open else value <= self.high):
-            return False
-        return True
-
-    def __str__(self) -> str:
-        if self.high is None:
-            return f"{'>' if self.low_open else '>='} {_number(self.low)}"
-        if self.low is None:
-            return f"{'<' if self.high_open else '<='} {_number(self.high)}"
-        return (f"in {'(' if self.low_open else '['}{_number(self.low)}, {_number(self.high)}"
-                f"{')' if self.high_open else ']'}")
-
-
-def _number(value: float) -> str:
-    return str(int(value)) if float(value).is_integer() else f"{value:g}"
-
-
-def at_least(low: float) -> Range:
-    return Range(low=low)
-
-
-def above(low: float) -> Range:
-    return Range(low=low, low_open=True)
-
-
-def within(low: float, high: float, brackets: str = "[]") -> Range:
-    """``brackets``: "[]", "[)", "(]" or "()", as in interval notation."""
-    return Range(low, high, brackets[0] == "(", brackets[1] == ")")
-
-
 def setting(default, meaning: str, unit: str = "-", range: Range | None = None,
-            choices: tuple | None = None):
+            choices: tuple | None = None, rule: Rule | None = None):
     """A config field with its documentation and limits: what it means, its unit ("-": none),
-    the range a number must lie in and the values a string may take (None: any). A list
-    default is copied for every instance."""
+    the range a number must lie in and the values a string may take (None: any). ``rule`` (a
+    rule of io/values.py, the one the matching flag follows) gives the range and unit instead.
+    A list default is copied for every instance."""
+    if rule is not None:
+        range, unit = rule.range, (unit if rule.unit == "-" else rule.unit)
     metadata = {"meaning": meaning, "unit": unit, "range": range, "choices": choices}
     if isinstance(default, list):
         return dataclasses.field(default_factory=lambda: list(default), metadata=metadata)
@@ -309,11 +264,7 @@ def _wanted(kind) -> str:
 
 def _shown(value) -> str:
     """A value as its JSON text (NaN and Infinity too), cut to 60 characters."""
-    try:
-        text = json.dumps(value, allow_nan=True)
-    except TypeError:      # not a JSON value at all (a config built in code)
-        text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return shown(value)
 
 
 def checked_setting(source: str, path: str, kind, value, field: dataclasses.Field):
@@ -329,10 +280,9 @@ def checked_setting(source: str, path: str, kind, value, field: dataclasses.Fiel
     if wants_float and not isinstance(value, bool):
         value = float(value)
     limits, choices = field.metadata.get("range"), field.metadata.get("choices")
-    if limits is not None and value not in limits:
-        raise InputError(f"{source}: {path} must be {limits}"
-                         f"{' (' + field.metadata['unit'] + ')' if field.metadata.get('unit', '-') != '-' else ''}"
-                         f", got {_shown(value)}")
+    if limits is not None:
+        value = Rule(float if wants_float else int, limits, field.metadata.get("unit", "-")).check(
+            value, f"{source}: {path}")
     if choices is not None and value not in choices:
         raise InputError(f"{source}: {path} must be one of {', '.join(map(str, choices))}, got {value!r}")
     return value

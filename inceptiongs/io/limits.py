@@ -29,7 +29,25 @@ def available_memory_bytes() -> int | None:
         return None
 
 
+def device_memory_bytes(device=None) -> int | None:
+    """Memory a torch ``device`` can give now: a CUDA device's free memory plus what torch holds
+    there unused; anything else (cpu, None) the system's (:func:`available_memory_bytes`)."""
+    if device is not None and getattr(device, "type", str(device).split(":")[0]) == "cuda":
+        import torch  # noqa: PLC0415 (only a CUDA device needs torch here)
+
+        try:
+            free, _ = torch.cuda.mem_get_info(device)
+            return int(free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device))
+        except (RuntimeError, AssertionError):
+            return None
+    return available_memory_bytes()
+
+
 def _gib(count: float) -> str:
+    if count >= 2**50:
+        return f"{count / 2**50:.1f} PiB"
+    if count >= 2**40:
+        return f"{count / 2**40:.1f} TiB"
     return f"{count / 2**30:.1f} GiB"
 
 
@@ -50,10 +68,13 @@ def check_image_size(width: int, height: int, source: str,
                          f"only {_gib(available)} available")
 
 
-def check_allocation(needed: int, source: str, what: str, available: int | None = None) -> None:
+def check_allocation(needed: int, source: str, what: str, available: int | None = None, device=None) -> None:
     """InputError '<source>: <what> needs about N GiB of memory, only M GiB available' when
     ``needed`` bytes cannot fit: declared sizes (vertex or point counts of a file) are checked
-    before anything of that size is allocated."""
-    available = available_memory_bytes() if available is None else available
+    before anything of that size is allocated. ``available`` (bytes) defaults to what
+    ``device`` (None: the system) has free (:func:`device_memory_bytes`)."""
+    available = device_memory_bytes(device) if available is None else available
     if available is not None and needed > available:
-        raise InputError(f"{source}: {what} needs about {_gib(needed)} of memory, only {_gib(available)} available")
+        where = f" on {device}" if device is not None and str(device) != "cpu" else ""
+        raise InputError(f"{source}: {what} needs about {_gib(needed)} of memory{where}, "
+                         f"only {_gib(available)} available")

@@ -109,6 +109,24 @@ def read_small_text(path: str | Path, what: str, max_bytes: int = MAX_TEXT_FILE_
         raise InputError(f"{path}: not a readable {what} ({exc})") from None
 
 
+def stays_inside(path: str | Path, folder: str | Path) -> bool:
+    """Whether ``path`` (written below ``folder``) is still inside ``folder`` once every symlink
+    on the way is resolved; a loop counts as outside."""
+    try:
+        return is_inside(Path(os.path.realpath(path, strict=False)), Path(os.path.realpath(folder, strict=False)))
+    except (OSError, RuntimeError):
+        return False
+
+
+def check_inside(path: str | Path, folder: str | Path) -> None:
+    """The read guard for a file of a run or scene: InputError '<path>: ...' when ``path``, below
+    ``folder``, leads outside it through a symlink (a shared run or scene could otherwise make a
+    command read, and copy into its results, any file on the disk)."""
+    if not stays_inside(path, folder):
+        raise InputError(f"{path}: a symlink that leads outside {folder}; files of a run or scene folder are "
+                         f"read only from inside it")
+
+
 def check_read_inside_named_folder(path: str | Path) -> None:
     """InputError when ``path`` lies below a folder the user named (a run, an output folder:
     :func:`inceptiongs.io.atomic.writing_under`) but resolves outside it, through a symlink
@@ -122,3 +140,14 @@ def check_read_inside_named_folder(path: str | Path) -> None:
         if not is_inside(resolved(target, str(path)), resolved(root, root)):
             raise InputError(f"{path}: a symlink that leads outside {root}; files of a run or scene folder "
                              f"are read only from inside it")
+
+
+def check_readable_file(path: Path, what: str) -> None:
+    """InputError '<path>: ...' unless ``path`` is a regular file (through a working symlink)
+    that may be read: no dangling symlink or loop, no escape from a named folder."""
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
+    if not path.is_file():
+        raise InputError(f"{path}: {what} file does not exist" if not path.exists() else f"{path}: not a file")
+    check_read_inside_named_folder(path)

@@ -5,6 +5,10 @@ opacity scale_0..2 rot_0..3, all float32, binary little-endian. f_rest is channe
 f_rest[c * (K - 1) + k] is coefficient k + 1 of colour channel c. On read the SH degree comes
 from the number of f_rest fields, other properties (normals, extras) are ignored, and the
 float32 values are kept as they are so a read/write round trip is bit-exact.
+
+Read also: ASCII PLY with the same properties (the body parsed by numpy's text reader), and SuperSplat's
+compressed PLY, recognised by its header (a ``chunk`` element and ``packed_*`` vertex
+properties; :mod:`.ply_compressed`).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from .atomic import atomic_open
 from ..constants import SH_MAX_DEGREE, sh_coeff_count
 from ..errors import InputError
 from .limits import check_allocation
-from .paths import check_read_inside_named_folder, link_problem
+from .paths import check_readable_file
 from ..gaussians import Gaussians
 
 # PLY scalar type names (both spellings of the spec) -> numpy type codes without byte order.
@@ -30,12 +34,16 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 _BYTE_ORDER = {"binary_little_endian": "<", "binary_big_endian": ">"}
+# The "byte order" _parse_header reports for a text (ASCII) PLY.
+ASCII = "ascii"
+# Which PLY a file was (format names as `inceptiongs convert` reports them).
+PLY_BINARY, PLY_ASCII, PLY_COMPRESSED = "ply", "ply-ascii", "compressed-ply"
 # A header longer than this is not a 3DGS PLY (the largest standard one is ~1.5 KB).
 _MAX_HEADER_BYTES = 1 << 20
 
 
 def _parse_header(raw: bytes, path: Path) -> tuple[int, str, list[tuple[str, int, list[tuple[str, str]]]]]:
-    """-> (header length in bytes, byte order, elements [(name, count, [(prop, type)])])."""
+    """-> (header length in bytes, byte order ('<', '>' or ASCII), elements [(name, count, [(prop, type)])])."""
     if not raw.startswith(b"ply\n") and not raw.startswith(b"ply\r\n"):
         raise InputError(f"{path}: not a PLY file (missing 'ply' magic)")
     end = raw.find(b"end_header")
@@ -58,11 +66,9 @@ def _parse_header(raw: bytes, path: Path) -> tuple[int, str, list[tuple[str, int
         if words[0] == "format":
             if len(words) < 2:
                 raise InputError(f"{path}: PLY format line is malformed: {line!r}")
-            if words[1] == "ascii":
-                raise InputError(f"{path}: ASCII PLY is not supported; save it as binary_little_endian")
-            if words[1] not in _BYTE_ORDER:
+            if words[1] != ASCII and words[1] not in _BYTE_ORDER:
                 raise InputError(f"{path}: unknown PLY format {words[1]!r}")
-            byte_order = _BYTE_ORDER[words[1]]
+            byte_order = ASCII if words[1] == ASCII else _BYTE_ORDER[words[1]]
         elif words[0] == "element":
             if len(words) != 3 or not re.fullmatch(r"\d+", words[2]):
                 raise InputError(f"{path}: PLY element line is malformed: {line!r}")
@@ -101,12 +107,7 @@ def _sh_rest_count(names: set[str], path: Path) -> int:
 def _read_header(path: Path, what: str):
     """The header of the PLY at ``path`` (no link out of the named folders, no loop) ->
     _parse_header's (header length, byte order, elements); InputError naming the file."""
-    problem = link_problem(path)
-    if problem is not None:
-        raise InputError(f"{path}: {problem}")
-    if not path.is_file():
-        raise InputError(f"{path}: {what} file does not exist")
-    check_read_inside_named_folder(path)
+    check_readable_file(path, what)
     try:
         with open(path, "rb") as handle:
             head = handle.read(_MAX_HEADER_BYTES)
@@ -116,18 +117,35 @@ def _read_header(path: Path, what: str):
 
 
 def read_ply(path: str | Path) -> Gaussians:
-    """Read a 3DGS PLY into float32 CPU Gaussians. Raises InputError for anything malformed."""
+    """Read a 3DGS PLY (binary, ASCII or SuperSplat's compressed) into float32 CPU Gaussians.
+    Raises InputError for anything malformed."""
+    return read_ply_with_format(path)[0]
+
+
+def read_ply_with_format(path: str | Path) -> tuple[Gaussians, str]:
+    """-> (:func:`read_ply`'s Gaussians, which PLY it was: PLY_BINARY, PLY_ASCII or PLY_COMPRESSED)."""
     path = Path(path)
     header_len, byte_order, elements = _read_header(path, "PLY")
+    from .ply_compressed import is_compressed_layout, read_compressed_ply
 
+    if is_compressed_layout(elements):
+        return read_compressed_ply(path, header_len, byte_order, elements), PLY_COMPRESSED
+    return _read_standard_ply(path, header_len, byte_order, elements), \
+        PLY_ASCII if byte_order == ASCII else PLY_BINARY
+
+
+def _read_standard_ply(path: Path, header_len: int, byte_order: str, elements) -> Gaussians:
+    """The standard 3DGS vertex layout, binary (either byte order) or ASCII."""
     offset = header_len
+    rows_before = 0  # in an ASCII PLY every element row is one line
     vertex = None
     for name, count, props in elements:
-        dtype = np.dtype([(prop, byte_order + code) for prop, code in props])
+        dtype = np.dtype([(prop, ("<" if byte_order == ASCII else byte_order) + code) for prop, code in props])
         if name == "vertex":
             vertex = (count, dtype, offset)
             break
         offset += count * dtype.itemsize  # fixed-size elements before the vertices are skipped
+        rows_before += count
     if vertex is None:
         raise InputError(f"{path}: PLY has no 'vertex' element")
     count, dtype, offset = vertex
@@ -138,16 +156,20 @@ def read_ply(path: str | Path) -> Gaussians:
     if missing:
         raise InputError(f"{path}: PLY vertex element lacks 3DGS field(s) {', '.join(missing)}")
     rest_count = _sh_rest_count(names, path)
+    used = required + [f"f_rest_{i}" for i in range(rest_count)]
 
     file_size = path.stat().st_size
     needed = offset + count * dtype.itemsize
-    if file_size < needed:
+    if byte_order != ASCII and file_size < needed:
         raise InputError(f"{path}: truncated PLY: header declares {count} vertices "
                          f"({needed} bytes) but the file has {file_size} bytes")
     # The model holds [count, 14 + rest] float32 values, copied about three times on the way.
     check_allocation(3 * count * (14 + rest_count) * 4, str(path), f"{count} declared vertices")
     k_rest = rest_count // 3
-    if all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
+    if byte_order == ASCII:
+        matrix = _ascii_vertex_matrix(path, header_len, rows_before, count, [dtype.names.index(n) for n in used])
+        column_of = {name: i for i, name in enumerate(used)}
+    elif all(dtype.fields[name][0] == np.dtype("<f4") for name in dtype.names):
         # The usual case, every property a little-endian float32: the vertices are one
         # [N, F] float32 matrix, and each model array is a (mostly contiguous) column slice,
         # so the file is read once instead of once per field.
@@ -157,7 +179,6 @@ def read_ply(path: str | Path) -> Gaussians:
         column_of = {name: i for i, name in enumerate(dtype.names)}
     else:
         data = np.fromfile(path, dtype=dtype, count=count, offset=offset)
-        used = required + [f"f_rest_{i}" for i in range(rest_count)]
         matrix = np.stack([data[name].astype(np.float32) for name in used], axis=1) if count else \
             np.zeros((0, len(used)), np.float32)
         column_of = {name: i for i, name in enumerate(used)}
@@ -192,6 +213,29 @@ def read_ply(path: str | Path) -> Gaussians:
     # was assembled into fresh memory already.
     return Gaussians(**{name: torch.from_numpy(a if name == "sh" else np.array(a, np.float32, order="C"))
                         for name, a in arrays.items()})
+
+
+def _ascii_vertex_matrix(path: Path, header_len: int, rows_before: int, count: int,
+                         columns: list[int]) -> np.ndarray:
+    """The vertex rows of an ASCII PLY -> [count, len(columns)] float32 matrix of the given
+    property columns, parsed by numpy's text reader. The header is parsed already and list
+    properties are refused there, so every element row is one line: the ``rows_before`` lines
+    of earlier elements are skipped. A malformed or truncated body is an InputError naming the file."""
+    if count == 0:
+        return np.zeros((0, len(columns)), np.float32)
+    try:
+        with open(path, "rb") as handle:
+            handle.seek(header_len)
+            matrix = np.loadtxt(handle, dtype=np.float32, comments=None, skiprows=rows_before, max_rows=count,
+                                usecols=columns, ndmin=2, encoding="ascii")
+    except (ValueError, UnicodeDecodeError) as exc:
+        reason = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise InputError(f"{path}: ASCII PLY body is malformed ({reason})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    if len(matrix) != count:
+        raise InputError(f"{path}: truncated ASCII PLY: header declares {count} vertices, the file has {len(matrix)}")
+    return matrix
 
 
 def ply_field_names(sh_degree: int) -> list[str]:
@@ -229,6 +273,8 @@ def read_point_cloud_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | Non
     [P, 3] uint8 or None). Used for the sparse points of nerfstudio scenes."""
     path = Path(path)
     header_len, byte_order, elements = _read_header(path, "point cloud")
+    if byte_order == ASCII:
+        raise InputError(f"{path}: ASCII point cloud PLY is not supported; save it as binary_little_endian")
     offset = header_len
     for name, count, props in elements:
         dtype = np.dtype([(prop, byte_order + code) for prop, code in props])

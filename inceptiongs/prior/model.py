@@ -14,10 +14,12 @@ from torch import nn
 from ..camera import Camera
 from ..gaussians import Gaussians
 from ..io.config_json import dataclass_from_dict
+from ..io.limits import check_allocation
 from .appearance import HINT_CHANNELS, AppearanceHead
 from .controlnet import ConditionalDenoiser
 from .ddim import start_timestep
-from .gbuffer import HASH_AT, gbuffer_channels, render_gbuffer
+from .footprint import check_sampling_fits, denoiser_size
+from .gbuffer import FEATURES_START, HASH_AT, gbuffer_channels, render_gbuffer
 from .hashgrid import HashGrid, HashGridConfig, scene_grid
 from .multidiffusion import multidiffusion_sample
 from .schedule import make_schedule, q_sample
@@ -121,6 +123,13 @@ def fit_grid(grid: HashGridConfig, means: torch.Tensor) -> HashGridConfig:
     return replace(grid, bound=fit_bound(means))
 
 
+def denoiser_cond_channels(config: PriorConfig) -> int:
+    """The channels the denoiser's condition branch sees: the G-buffer (normal, alpha, hash
+    features) and the appearance hint when the prior has one."""
+    hint = HINT_CHANNELS if config.appearance_weight > 0 else 0
+    return FEATURES_START + config.grid.num_features + hint
+
+
 class Prior(nn.Module):
     """denoiser: ConditionalDenoiser; hash_grid: HashGrid; schedule: NoiseSchedule.
 
@@ -130,7 +139,9 @@ class Prior(nn.Module):
 
     backend = "tiny"
 
-    def __init__(self, config: PriorConfig):
+    def __init__(self, config: PriorConfig, source: str = "prior config"):
+        """``source`` names where the config came from in the one-line refusal of a denoiser
+        too large for the memory (a checkpoint's path, the command's flags)."""
         super().__init__()
         factor = config.unet.downsample_factor
         if config.prediction not in PREDICTIONS:
@@ -150,6 +161,8 @@ class Prior(nn.Module):
             raise ValueError(f"hash_at must be one of {HASH_AT}, got {config.hash_at!r}")
         if config.patch_size < factor or config.patch_size % factor:
             raise ValueError(f"patch_size {config.patch_size} must be a positive multiple of {factor}")
+        weights = denoiser_size(config.unet, denoiser_cond_channels(config)).parameters * 4
+        check_allocation(weights, source, f"the prior's denoiser (width {config.unet.base_width})")
         self.config = config
         self.hash_grid = HashGrid(config.grid, seed=config.seed)
         # The initial weights follow the seed, without disturbing the caller's global RNG.
@@ -162,9 +175,9 @@ class Prior(nn.Module):
         self.schedule = make_schedule(config.schedule, config.num_timesteps)
 
     @staticmethod
-    def for_gaussians(config: PriorConfig, gaussians: Gaussians) -> "Prior":
+    def for_gaussians(config: PriorConfig, gaussians: Gaussians, source: str = "prior config") -> "Prior":
         """A new prior whose hash grid (contraction core, box) is fitted to ``gaussians``."""
-        return Prior(replace(config, grid=fit_grid(config.grid, gaussians.means)))
+        return Prior(replace(config, grid=fit_grid(config.grid, gaussians.means)), source)
 
     @property
     def device(self) -> torch.device:
@@ -280,6 +293,8 @@ class Prior(nn.Module):
         init = self.config.sample_init if init is None else init
         if init not in SAMPLE_INITS:
             raise ValueError(f"init must be one of {SAMPLE_INITS}, got {init!r}")
+        check_sampling_fits(self.config.unet, denoiser_cond_channels(self.config), camera.height, camera.width,
+                            window, f"generation window {window}", self.device)
         cond = self.gbuffer(gaussians, camera)
         image0 = None
         if start < 1.0:

@@ -26,11 +26,14 @@ import torch
 from tqdm import tqdm
 
 from ..io.atomic import atomic_write_bytes
+from ..io.paths import check_inside
+from ..io.pickles import file_names_code
 from ..camera import Camera
-from ..errors import InputError
+from ..errors import InputError, one_line
 from ..gaussians import Gaussians
 from .gbuffer import crop_candidates, gaussian_features, render_gbuffer, render_geometry, surface_features
-from .model import Prior, PriorConfig
+from .footprint import check_training_fits
+from .model import Prior, PriorConfig, denoiser_cond_channels
 
 CHECKPOINT_NAME = "prior.pt"
 METRICS_NAME = "metrics.jsonl"
@@ -82,6 +85,9 @@ class PriorTrainer:
         if not self.cameras:
             raise InputError("prior training: no training cameras")
         self.patch_size = patch_size_for(self.prior, self.cameras)
+        if self.prior.backend == "tiny":     # the batch a file or a flag set must fit before the first step
+            check_training_fits(self.prior.config.unet, denoiser_cond_channels(self.prior.config), self.patch_size,
+                                self.prior.config.batch_size, "prior settings", self.prior.device)
         self.generator = torch.Generator().manual_seed(self.prior.config.seed)
         self.optimizer = adam_for(self.prior.parameter_groups())
         self._images: dict[int, torch.Tensor] = {}
@@ -248,10 +254,11 @@ def append_prior_metrics(run_dir: str | Path, record: dict) -> None:
     append_line(prior_dir(run_dir) / METRICS_NAME, json.dumps(record))
 
 
-def build_prior(backend: str, config, device=None):
-    """A new prior of ``backend`` from its config object (PriorConfig or SDPriorConfig)."""
+def build_prior(backend: str, config, device=None, source: str = "prior config"):
+    """A new prior of ``backend`` from its config object (PriorConfig or SDPriorConfig);
+    ``source`` (where the config came from) names it in a refusal."""
     if backend == "tiny":
-        return Prior(config).to(device)
+        return Prior(config, source).to(device)
     if backend == "sd":
         from .sd_backend import SDPrior
         return SDPrior(config, device=device)
@@ -292,18 +299,27 @@ def read_prior_checkpoint(run_dir: str | Path, device=None) -> dict:
     path = prior_dir(run_dir) / CHECKPOINT_NAME
     if not path.is_file():
         raise InputError(f"{path}: no prior checkpoint (train one with `inceptiongs prior RUN`)")
+    check_inside(path, run_dir)
     try:
         payload = torch.load(path, map_location=device, weights_only=True)
         backend = payload.get("backend", "tiny")  # checkpoints from before the sd backend
         return {**payload, "backend": backend, "config": config_from_dict(backend, payload["config"], str(path))}
     except Exception as exc:  # a truncated or foreign file: report it as the user's input problem
-        raise InputError(f"{path}: not a readable prior checkpoint ({type(exc).__name__}: {exc})") from None
+        text = str(exc)
+        if "Weights only load failed" in text:   # torch's advice to load it unsafely is not repeated
+            if file_names_code(path, text):
+                raise InputError(f"{path}: refused: it holds Python objects other than tensors and plain data "
+                                 "(loading it could run code; a prior checkpoint never does)") from None
+            after = text.split("WeightsUnpickler error:", 1)[-1] if "WeightsUnpickler error:" in text else ""
+            detail = next((line.strip() for line in after.splitlines() if line.strip()), "not a torch checkpoint")
+            raise InputError(f"{path}: not a readable prior checkpoint ({detail[:200]})") from None
+        raise InputError(f"{path}: not a readable prior checkpoint ({one_line(exc)})") from None
 
 
 def load_prior(run_dir: str | Path, device=None) -> Prior:
     """The trained prior of a run (for generation): a Prior, or an SDPrior for the sd backend."""
     payload = read_prior_checkpoint(run_dir, device)
-    prior = build_prior(payload["backend"], payload["config"], device)
+    prior = build_prior(payload["backend"], payload["config"], device, str(prior_dir(run_dir) / CHECKPOINT_NAME))
     prior.load_checkpoint_state(payload["model"])
     return prior
 
@@ -312,7 +328,7 @@ def resume_trainer(run_dir: str | Path, gaussians: Gaussians, cameras: list[Came
                    load_image: Callable[[int], np.ndarray], device=None) -> PriorTrainer:
     """A trainer continuing exactly where RUN/prior/prior.pt left off."""
     payload = read_prior_checkpoint(run_dir, device)
-    prior = build_prior(payload["backend"], payload["config"], device)
+    prior = build_prior(payload["backend"], payload["config"], device, str(prior_dir(run_dir) / CHECKPOINT_NAME))
     prior.load_checkpoint_state(payload["model"])
     trainer = PriorTrainer(prior, gaussians, cameras, load_image, step_count=int(payload["step"]),
                            losses=list(payload["losses"]), train_s=float(payload.get("train_s", 0.0)))

@@ -19,6 +19,7 @@ import torch
 
 from ..io.atomic import atomic_write_bytes
 from ..io.paths import check_read_inside_named_folder
+from ..io.pickles import file_names_code
 from ..errors import InputError
 from .checkpoint_schema import checkpoint_problem
 
@@ -105,18 +106,6 @@ def load_newest_checkpoint(run_dir: Path, warn=None) -> tuple[Path, dict]:
     raise first_error
 
 
-def _names_code(path: Path, message: str) -> bool:
-    """Whether the weights-only loader refused ``path`` for naming a class or function (torch's
-    zip naming an unsupported global, or a bare pickle, which InceptionGS never writes) rather
-    than for damaged bytes (those fall back to an older checkpoint)."""
-    try:
-        with open(path, "rb") as handle:
-            head = handle.read(4)
-    except OSError:
-        return False
-    return head[:1] == b"\x80" or (head == b"PK\x03\x04" and "Unsupported global" in message)
-
-
 def load_checkpoint(path: Path) -> dict:
     """The checkpoint at ``path``, loaded as data only (``weights_only=True``: a file that names
     any class or function outside torch's tensor types is refused, never run) and checked to
@@ -130,11 +119,13 @@ def load_checkpoint(path: Path) -> dict:
             warnings.simplefilter("ignore")
             payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated, foreign or crafted file: name it, one line
-        if "Weights only load failed" in str(exc) and _names_code(path, str(exc)):
+        if "Weights only load failed" in str(exc) and file_names_code(path, str(exc)):
             raise UnsafeCheckpointError(f"{path}: refused: it holds Python objects other than tensors and plain "
                                         f"data (loading it could run code; an InceptionGS checkpoint never "
                                         f"does)") from None
         detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        if "Weights only load failed" in detail:   # torch's advice to load it unsafely is not repeated
+            detail = "the weights-only loader refused it"
         raise InputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {detail[:200]})") from None
     problem = checkpoint_problem(payload)
     if problem is not None:

@@ -38,6 +38,9 @@ def params_problem(params) -> str | None:
         return f"unknown params {', '.join(map(str, unknown))}"
     if not all(isinstance(t, torch.Tensor) and t.is_floating_point() for t in params.values()):
         return "params are not all floating-point tensors"
+    other = sorted({str(t.dtype).removeprefix("torch.") for t in params.values()} - {"float32"})
+    if other:   # the model, its optimizer and the losses are float32 throughout
+        return f"params are {', '.join(other)}, not float32"
     n = params["means"].shape[0] if params["means"].ndim else -1
     for name, tail in PARAM_SHAPES.items():
         if tuple(params[name].shape) != (n, *tail):
@@ -46,6 +49,10 @@ def params_problem(params) -> str | None:
     if rest is not None and (rest.ndim != 3 or rest.shape[0] != n or rest.shape[2] != 3
                              or rest.shape[1] + 1 not in (4, 9, 16)):
         return f"params sh_rest has shape {tuple(rest.shape)}"
+    for name, tensor in params.items():
+        # A resume from NaN or inf trains nothing and writes a model.ply every reader refuses.
+        if not bool(torch.isfinite(tensor).all()):
+            return f"params {name} holds {int((~torch.isfinite(tensor)).sum())} non-finite values"
     return None
 
 

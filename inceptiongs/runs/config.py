@@ -24,7 +24,8 @@ from typing import ClassVar
 
 from ..constants import DEVICES
 from ..errors import InputError
-from ..io.config_json import (SEED_MAX, SavedConfig, above, at_least, check_settings, config_from_dict,
+from ..io.values import rule as named_rule
+from ..io.config_json import (SavedConfig, above, at_least, check_settings, config_from_dict,
                               config_value, flat_values, read_json_object, section, setting, setting_paths,
                               with_values, within)
 
@@ -221,12 +222,33 @@ STRATEGY_OPTIONS: dict[str, type | None] = {"default": None, "mcmc": MCMCOptions
 STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
 
 
+@dataclass(frozen=True)
+class Block:
+    """This run is one block of a larger one (`train --blocks`, inceptiongs.train.blocks): it
+    trains on the photos that see its cell of the ground plane, starts from the sparse points
+    those photos see and the cell and its margin hold, and holds out the whole run's held-out views among its photos."""
+
+    count: int = setting(0, "blocks of the whole run; 0: this run is not a block", "blocks", at_least(0))
+    index: int = setting(0, "this block's index, 0 .. count - 1", "-", at_least(0))
+    photos: list[str] = setting([], "the photos (names) this block trains on or holds out; every other photo "
+                                    "is left out")
+    origin: list[float] = setting([], "the ground plane's origin (3 numbers, the scene's normalised frame)",
+                                  "scene units")
+    u: list[float] = setting([], "the ground plane's first axis (3 numbers, unit length)")
+    v: list[float] = setting([], "the ground plane's second axis (3 numbers, unit length)")
+    cell: list[float] = setting([], "the cell [u0, u1, v0, v1] in plane coordinates (+-1e9: unbounded); the merge "
+                                    "keeps the block's Gaussians inside it", "scene units")
+    margin: float = setting(0.0, "the cell is widened by this for the sparse points the block starts from",
+                            "scene units", at_least(0))
+
+
 @dataclass
 class TrainConfig(SavedConfig):
     CONFIG_KIND = "train config"
 
     scene: str = setting("", "scene folder (absolute path); `train` takes it from its SCENE argument", "path")
-    downscale: int = setting(1, "photos are read at 1/downscale of their size", "factor", at_least(1))
+    downscale: int = setting(1, "photos are read at 1/downscale of their size", "factor",
+                             rule=named_rule("factor"))
     max_width: int | None = setting(None, "every photo is scaled down further so that the widest is at most this "
                                           "wide; null: no cap", "pixels", at_least(1))
     protocol: str = setting("none", "which views are held out for evaluation (inceptiongs.evaluation.protocols): "
@@ -234,15 +256,15 @@ class TrainConfig(SavedConfig):
                                     "a few of every other), \"none\"; `train` defaults to \"llff\"",
                             choices=PROTOCOLS)
     seed: int = setting(0, "seeds the view order, the initial points and every random draw of the strategies",
-                        range=within(0, SEED_MAX))
+                        rule=named_rule("seed"))
     scarce_views: list[str] = setting([], "unstructured protocol: these views (names) form the scarce cluster "
                                           "instead of a seeded random one")
     exclude_photos: list[str] = setting([], "photos (names) left out entirely: neither trained on nor held out "
                                             "(`train --exclude-photos`, inceptiongs.train.view_fit)")
     iterations: int = setting(30_000, "length of the schedule; the milestones (steps) not given scale with it "
-                                      "(short_run_schedule)", "steps", at_least(1))
+                                      "(short_run_schedule)", rule=named_rule("steps"))
     minutes: float | None = setting(None, "wall-clock budget: stops the loop early; given without iterations, "
-                                          "the schedule is sized to it; null: no budget", "minutes", above(0))
+                                          "the schedule is sized to it; null: no budget", rule=named_rule("minutes"))
     size_to_minutes: bool = setting(False, "the trainer sizes iterations (and the schedule) to the time budget "
                                            "from the measured step rate, and re-sizes it when the rate changes "
                                            "a lot; `train` sets it when minutes is given without iterations")
@@ -253,6 +275,8 @@ class TrainConfig(SavedConfig):
                                        "\"mcmc\" (3DGS-MCMC), \"dropgaussian\"; its own options are the section of "
                                        "its name", choices=STRATEGY_NAMES)
     pgsr: bool = setting(True, "PGSR's planar terms (the pgsr_terms section); false: plain 3DGS")
+    blocks: int = setting(0, "train the scene in this many blocks on the ground plane, each an ordinary run in "
+                             "RUN/blocks/, merged into RUN (`train --blocks`); 0: one run", "blocks", at_least(0))
     triangulate_init: bool = setting(True, "scenes without sparse points (LLFF): triangulate some from the "
                                            "training photos with the known poses (inceptiongs.train.triangulate) "
                                            "instead of starting from random points")
@@ -266,6 +290,7 @@ class TrainConfig(SavedConfig):
     output: Output = section(Output, Output.__doc__)
     mcmc: MCMCOptions = section(MCMCOptions, MCMCOptions.__doc__)
     dropgaussian: DropGaussianOptions = section(DropGaussianOptions, DropGaussianOptions.__doc__)
+    block: Block = section(Block, Block.__doc__)
 
     # A run's config.json written before the shell's scale floor was trained with a free shell:
     # without this its shell would be raised at the first step of a bootstrap or a resume.
@@ -306,6 +331,17 @@ class TrainConfig(SavedConfig):
         self.check_types(source)
         if self.scarce_views and self.protocol != "unstructured":
             raise InputError(f"{source}: scarce_views need the unstructured protocol, got {self.protocol!r}")
+        block = self.block
+        if block.count:
+            if self.blocks:
+                raise InputError(f"{source}: a block (block.count {block.count}) is not itself split into blocks")
+            if not block.index < block.count:
+                raise InputError(f"{source}: block.index must be below block.count ({block.count}), got {block.index}")
+            for name, size in (("origin", 3), ("u", 3), ("v", 3), ("cell", 4)):
+                if len(getattr(block, name)) != size:
+                    raise InputError(f"{source}: block.{name} must hold {size} numbers, got {getattr(block, name)}")
+            if not block.photos:
+                raise InputError(f"{source}: block.photos names no photo")
         return self
 
 

@@ -16,7 +16,7 @@ def load_run(run_dir: str | Path):
 
     The final model.ply when training finished, else the newest checkpoint.
     """
-    from ..io.ply import read_ply
+    from ..io.models import read_model
     from ..scene.loader import load_scene
 
     run_dir = Path(run_dir)
@@ -27,7 +27,7 @@ def load_run(run_dir: str | Path):
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
     model = run_dir / "model.ply"
     if model.is_file():
-        return to_normalized_frame(read_ply(model), scene.normalization), scene, config
+        return to_normalized_frame(read_model(model), scene.normalization), scene, config
     if latest_checkpoint(run_dir) is None:
         raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint")
     params = load_newest_checkpoint(run_dir)[1]["params"]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..io.atomic import append_line, atomic_write_text
 from ..io.paths import contained_path, read_small_text
+from ..io.values import rule
 
 
 def append_metrics(run_dir: Path, record: dict) -> None:
@@ -22,12 +23,18 @@ def truncate_metrics(run_dir: Path, last_iteration: int) -> None:
         return
     kept = []
     # Through the read guard: a run may come from someone else (no symlink out, a log's size).
-    for line in read_small_text(contained_path(run_dir, "metrics.jsonl", str(run_dir)), "metrics log").splitlines():
+    text = read_small_text(contained_path(run_dir, "metrics.jsonl", str(run_dir)), "metrics log")
+    for number, line in enumerate(text.splitlines(), 1):
         try:
             record = json.loads(line)
         except json.JSONDecodeError:
             continue  # the line a kill cut in half
-        if isinstance(record, dict) and record.get("iteration", 0) <= last_iteration:
+        if not isinstance(record, dict):
+            continue
+        # An iteration is a step number (io/values.py's "count or 0"): a string or NaN is refused
+        # in one line, not compared.
+        iteration = rule("count or 0").check(record.get("iteration", 0), f"{path}: line {number}: iteration")
+        if iteration <= last_iteration:
             kept.append(line)
     atomic_write_text(path, "".join(line + "\n" for line in kept))
 

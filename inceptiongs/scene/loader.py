@@ -9,8 +9,11 @@ downscaled and undistorted images are cached in the scene's work folder.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import math
+import os
+import stat
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -21,7 +24,7 @@ from ..io.atomic import atomic_write_bytes
 from ..camera import Camera
 from ..constants import IMAGE_SIDE_MAX
 from ..errors import InputError
-from ..io.paths import link_problem
+from ..io.paths import link_problem, stays_inside
 from ..gaussians import Gaussians
 from .raw import RawScene
 from .undistort import distortion_key, undistort_image, undistorted_camera
@@ -183,7 +186,10 @@ class Scene:
             cache = self.work_dir / relative
         except InputError:  # no usable cache directory: work without one
             cache = None
-        for cached in (cache, self.legacy_work_dir / relative):
+        legacy = self.legacy_work_dir / relative
+        # Older versions' cache inside the scene is read only where it really lies inside the scene:
+        # a symlink planted there would make every command read (and `eval` copy) any image on the disk.
+        for cached in (cache, legacy if stays_inside(legacy, self.root) else None):
             if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
                 return _to_float_rgb(_read_image(cached), cached)
         image = _read_image(path)
@@ -204,13 +210,34 @@ class Scene:
         return _to_float_rgb(image, path)
 
 
-def _read_image(path: Path) -> np.ndarray:
-    """BGR(A) image as stored (uint8 or uint16), or InputError."""
+def image_file_problem(path: Path) -> str | None:
+    """None when ``path`` is a regular file; else what keeps it from being an image file, in
+    words: missing, a symlink loop (the file or a folder above it), a name too long for the file
+    system, a FIFO, a device or a folder."""
     problem = link_problem(path)
     if problem is not None:
+        return problem
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "symlink loop on the way to the image file"
+        if exc.errno == errno.ENAMETOOLONG:
+            return "image name is too long for the file system"
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return "image file does not exist"
+        return f"cannot read image file ({exc.strerror or exc})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
+    return f"image path is {kind}, not a regular file"
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """BGR(A) image as stored (uint8 or uint16), or InputError."""
+    problem = image_file_problem(path)
+    if problem is not None:
         raise InputError(f"{path}: {problem}")
-    if not path.is_file():
-        raise InputError(f"{path}: image file does not exist")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise InputError(f"{path}: cannot decode image (corrupt or unsupported format)")
@@ -299,9 +326,9 @@ def _check_images(raw: RawScene, require_images: bool) -> list[str]:
         if camera.name in seen:
             problems.append(f"{path}: duplicate image name {camera.name} (more than one camera uses it)")
         seen.add(camera.name)
-        problem = link_problem(path)
-        if problem is not None or not path.is_file():
-            problems.append(f"{path}: {problem or 'image file does not exist'}")
+        problem = image_file_problem(path)
+        if problem is not None:
+            problems.append(f"{path}: {problem}")
             continue
         size = _image_size(path)
         if isinstance(size, str):

@@ -35,6 +35,7 @@ from ..gaussians import gaussians_from_params
 from .sky import fill_shell_behind_scene
 from .view_fit import VIEW_FIT_FILE, summary_line, view_fit_report
 from ..runs.metrics import append_metrics, logged_iterations, truncate_metrics
+from .partition import as_block
 from .step import (add_maintenance_counts, data_on, evaluate_held_out, log_once, new_state, prepare_data,
                    restore_state, state_on, supported_sh_degree, train_step)
 
@@ -115,9 +116,14 @@ def _start(config: TrainConfig, run_dir: Path, resume: bool, log):
             log(f"{run_dir}: no checkpoint to resume from, starting a new run")
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
         split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
+        if config.block.count:   # one block of a larger run: its photos and the points of its cell
+            scene, split = as_block(scene, split, config.block)
         if not split.train:
             raise InputError(f"{config.scene}: the {config.protocol} split leaves no training views")
-        if split.excluded:
+        if config.block.count:
+            log(f"block {config.block.index + 1} of {config.block.count}: {len(split.train)} training and "
+                f"{len(split.test)} held-out photos see its cell; the other {len(split.excluded)} are left out")
+        elif split.excluded:
             log(f"left out: {len(split.excluded)} of {split.num_views} photos (exclude_photos), neither trained "
                 f"on nor held out")
         data = prepare_data(scene, split, config, log)

@@ -157,9 +157,9 @@ def test_jobs_write_fresh_folders(tmp_path):
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory) -> Path:
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    return write_demo_scene(tmp_path_factory.mktemp("viewer_jobs") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("viewer_jobs") / "scene")
 
 
 def _wait(viewer, condition, seconds=120.0) -> None:

@@ -139,9 +139,9 @@ def test_hundreds_of_training_cameras_are_thinned_and_sized_to_their_spacing(xvf
 
 
 def test_sparse_points_are_small_screen_space_points(xvfb, tmp_path):
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     with opened(open_viewer, scene, 640, 480) as viewer:
         viewer.view.settings.show_panel = False
         viewer.view.settings.show_training_cameras = False

@@ -58,9 +58,9 @@ def test_window_matches_its_golden_images(xvfb, tmp_path):
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory):
     """The demo scene without runs (a scene opens its newest run: the goldens show its points)."""
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    return write_demo_scene(tmp_path_factory.mktemp("pictures") / "demo", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("pictures") / "demo")
 
 
 def test_training_photo_matches_its_golden_images(xvfb, demo_scene):

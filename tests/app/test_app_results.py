@@ -23,9 +23,9 @@ from viewer_cases import click_widget, opened, press_key, start_job, type_into
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory) -> Path:
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    return write_demo_scene(tmp_path_factory.mktemp("viewer_results") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("viewer_results") / "scene")
 
 
 def _viewer(scene, width=1000, height=1000, **kwargs):

@@ -224,9 +224,9 @@ def _window_pixel(viewer, camera, point) -> tuple[float, float]:
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory):
     """The procedural demo scene (28 cameras, sparse points): a scene folder with cameras."""
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    return write_demo_scene(tmp_path_factory.mktemp("user_events") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("user_events") / "scene")
 
 
 def test_n_and_p_keys_step_through_the_training_cameras(xvfb, demo_scene):

@@ -8,7 +8,6 @@ import torch.nn.functional as F
 
 from inceptiongs.bootstrap.perceptual import (LPIPS_NAME, PERCEPTUAL_NAME, perceptual_distance,
                                               perceptual_name)
-from inceptiongs.evaluation.networks import load_torchscript
 
 
 def _texture(h=48, w=64, seed=0) -> torch.Tensor:
@@ -90,10 +89,8 @@ def test_lpips_branch_uses_the_callable(tmp_path):
     assert seen[0][1] < -0.3 and seen[0][2] > 0.3  # rescaled to [-1, 1]
     assert perceptual_name(spy) == LPIPS_NAME
 
-    # A TorchScript network from a local file, as the CLI loads user weights; differentiable.
-    path = tmp_path / "lpips.pt"
-    torch.jit.script(_FakeLpips()).save(str(path))
-    network = load_torchscript(path, "LPIPS")
+    # A network as the bootstrap loads user weights; differentiable.
+    network = _FakeLpips()
     pred = _blur(image, 1.0).requires_grad_(True)
     value = perceptual_distance(pred, image, lpips=network)
     expected = ((F.avg_pool2d(pred.permute(2, 0, 1)[None] * 2 - 1, 3)

@@ -112,3 +112,29 @@ def test_resume_without_a_checkpoint_is_one_line(stage1, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(err) == 1 and "no bootstrap checkpoint" in err[0]
     assert not (tmp_path / "nothing").exists()
+
+
+def test_a_bootstrap_stopped_before_its_first_step_saves_a_checkpoint_resume_continues(stage1, tmp_path):
+    """Ctrl+C in the first seconds (while the bootstrap still prepares) used to save no checkpoint
+    while the line said it had: `--resume` then found none and a plain rerun wanted --overwrite."""
+    out = tmp_path / "boot"
+    control = JobControl()
+    control.stop.set()   # the stop arrives before the first step
+    stopped = run_bootstrap(stage1, out, _targets(stage1), _config(), control=control, progress=False)
+    assert not stopped.finished and stopped.iteration == stopped.start_iteration
+    assert list_checkpoints(out) and list_checkpoints(out)[-1][0] == stopped.start_iteration
+    resumed = run_bootstrap(stage1, out, None, _config(), progress=False, resume=True)
+    assert resumed.finished and resumed.iteration == stopped.start_iteration + STEPS
+
+
+def test_a_bootstrap_killed_before_its_first_save_can_simply_be_run_again(stage1, tmp_path):
+    """kill -9 in the first seconds leaves RUN2/bootstrap/ and the input scores but no model and
+    no checkpoint: nothing to resume, so a plain rerun starts again instead of asking for --overwrite."""
+    out = tmp_path / "boot"
+    (out / "bootstrap").mkdir(parents=True)
+    (out / "config.json").write_text("{}")
+    (out / "metrics.jsonl").write_text('{"iteration": 0}\n')
+    check_output_folder(out, overwrite=False)        # no InputError
+    with pytest.raises(InputError, match="without --resume"):
+        from inceptiongs.bootstrap.runner import resumable
+        resumable(out)

@@ -17,7 +17,7 @@ from inceptiongs.bootstrap.runner import baseline_run, expected_total_steps, res
 from inceptiongs.bootstrap.targets import Target, round_targets
 from inceptiongs.io.flags import read_flag_cameras
 from inceptiongs.cli import main
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.run import evaluate_run
 from inceptiongs.live import SnapshotBox
@@ -40,7 +40,7 @@ def stage1(tmp_path_factory) -> Path:
 
 def _tiny_stage1(root: Path, iterations: int, eval_every: int, checkpoint_every: int) -> Path:
     """ROOT/run: stage I on the demo scene (written to ROOT/scene) at 48x36, unstructured protocol."""
-    scene = write_demo_scene(root / "scene", progress=False)
+    scene = copy_of_demo_scene(root / "scene")
     config = TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", seed=1, iterations=iterations,
                          densification=Densification(densify_from=10, densify_every=10, densify_until=15,
                                                      opacity_reset_every=1000),
@@ -56,7 +56,7 @@ def _config(**overrides) -> BootstrapConfig:
     # The tiny stage I still rises fast, so the loop would follow its outlook ("train longer") and
     # take photo steps only: these tests are about the virtual steps, so they do not follow it.
     base = BootstrapConfig(seed=2, iterations=8, k=2, l=2, ddim_steps=2, prior_steps=2, prior_minutes=1.0,
-                           log_every=1, save_views=2, checkpoint_every=4, supervision="blend", fill="prior",
+                           log_every=1, save_views=2, checkpoint_every=4, fill="prior",
                            virtual_depth="render", agreement_min_db=None, virtual_every=2, lambda_virtual=0.5,
                            follow_outlook=False)
     return dataclasses.replace(base, **overrides)
@@ -188,18 +188,40 @@ def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_superv
     assert json.loads((tmp_path / "once" / "bootstrap" / "summary.json").read_text())["regenerations"] == []
 
 
+def test_a_bootstrap_with_every_default_loads_no_experimental_code(stage1, tmp_path):
+    """The default path reaches the variants only by name (bootstrap/variants.py): a run that
+    chooses none, virtual steps included, never imports bootstrap/experimental."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+from inceptiongs.bootstrap.config import BootstrapConfig
+from inceptiongs.bootstrap.runner import load_stage1, resolve_targets, run_bootstrap
+run = load_stage1({str(stage1)!r})
+config = BootstrapConfig(iterations=4, k=2, l=2, save_views=0, follow_outlook=False, virtual_every=2)
+result = run_bootstrap(run, {str(tmp_path / "boot")!r}, resolve_targets(run.scene, run.split, None, None, 1), config,
+                       progress=False, log=lambda line: None)
+print(result.virtual_steps, sorted(m for m in sys.modules if "bootstrap.experimental" in m))
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, check=True)
+    steps, modules = out.stdout.split(maxsplit=1)
+    assert int(steps) > 0 and modules.strip() == "[]", out.stdout + out.stderr
+
+
 def test_continuation_schedule_and_sampling_weight():
     stage1 = TrainConfig(iterations=100, densification=Densification(densify_until=50, densify_every=10,
                                                                       opacity_reset_every=30))
     from inceptiongs.train.optim import position_learning_rate
 
-    extended = continuation_config(stage1, 100, 60, densify=True)
+    densifying = BootstrapConfig(variants={"densify": {}}).variants.values()
+    extended = continuation_config(stage1, 100, 60, densifying)
     assert 100 < extended.densification.densify_from < extended.densification.densify_until <= 160
     # The position learning rate stays where stage I ended.
     assert position_learning_rate(130, extended, 1.0) == pytest.approx(stage1.learning_rates.means_final)
     assert extended.densification.opacity_reset_every > 10**9  # no opacity reset in a refinement
-    frozen = continuation_config(stage1, 100, 60, densify=False)
-    assert frozen.densification.densify_until <= 100
+    frozen = continuation_config(stage1, 100, 60)
+    assert frozen.densification.densify_until <= 100 and frozen.densification.opacity_reset_every > 10**9
     assert probability(0.0) == 1.0 and probability(0.5) == pytest.approx(np.exp(0.5))
     assert probability(1e9) < np.inf
 
@@ -319,7 +341,7 @@ def test_informative_views_and_the_additive_step():
     from inceptiongs.bootstrap.generation import VirtualTarget
     from inceptiongs.bootstrap.experimental.additive import additive_step
     from inceptiongs.bootstrap.experimental.informative import MIN_INFORMATIVE_PIXELS
-    from inceptiongs.bootstrap.refine import ViewChoice, active_views
+    from inceptiongs.bootstrap.refine import ViewChoice, active_views, virtual_loss
 
     size = (16, 16)
     target = torch.full((*size, 3), 0.8)
@@ -329,8 +351,9 @@ def test_informative_views_and_the_additive_step():
     few[0, : int(MIN_INFORMATIVE_PIXELS) - 1] = 1.0
     views = [VirtualTarget(name, None, target, mask, target, False, 1)
              for name, mask in (("none", torch.zeros(*size, 1)), ("some", some), ("few", few))]
-    assert active_views(views, "informative") == [1]
-    assert active_views(views, "all") == [0, 1, 2]
+    config = BootstrapConfig(fill="render", variants={"photo_supervision": {}, "informative": {}, "additive": {}})
+    assert active_views(views, config) == [1]
+    assert active_views(views, BootstrapConfig()) == [0, 1, 2]
 
     params = {"means": torch.zeros(1, 3, requires_grad=True), "log_scales": torch.zeros(1, 3, requires_grad=True),
               "quats": torch.tensor([[1.0, 0, 0, 0]], requires_grad=True),
@@ -354,10 +377,10 @@ def test_informative_views_and_the_additive_step():
         params["sh_dc"].grad = None
         return {"loss": 0.0}
 
-    config = BootstrapConfig(supervision="photo", fill="render", virtual_pixels="informative", virtual_mode="additive")
     train_config = TrainConfig(scene="unused")
-    record = additive_step(10, state, None, train_config, 0, views[1], ViewChoice(1, 1.0, 1.0), config, render_fn,
-                           photo_step)
+    # The loop hands the variant its virtual loss and photo step (additive.py imports nothing of refine).
+    record = additive_step(lambda: virtual_loss(10, state, train_config, 0, views[1], ViewChoice(1, 1.0, 1.0), config,
+                                                render_fn), photo_step)
     assert record["kind"] == "additive" and record["virtual_branch"] == "informative_l1"
     photo_only = torch.autograd.grad(photo_loss(), params["sh_dc"])[0]
     # The virtual loss pulls the colour up (towards 0.8 on its informative pixels), the photo down (0.05).
@@ -369,9 +392,9 @@ def test_informative_additive_loop_keeps_every_photo_step(stage1, tmp_path):
     out = tmp_path / "informative"
     iterations = 6
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=iterations, supervision="photo", fill="render", save_views=0,
-                                   regenerate_every=0, virtual_pixels="informative", virtual_mode="additive",
-                                   sampling="uniform"),
+                           _config(iterations=iterations, fill="render", save_views=0, regenerate_every=0,
+                                   sampling="uniform",
+                                   variants={"photo_supervision": {}, "informative": {}, "additive": {}}),
                            progress=False)
     assert result.finished
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
@@ -394,9 +417,10 @@ def test_geometry_only_loop_adds_the_multiview_term_to_photo_steps(stage1, tmp_p
     out = tmp_path / "geometry"
     iterations = 6
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=iterations, supervision="photo", fill="render", save_views=0,
-                                   regenerate_every=0, virtual_colour=False, geometry_weight=0.15,
-                                   virtual_mode="additive", sampling="uniform", conscience_tolerance=None),
+                           _config(iterations=iterations, fill="render", save_views=0, regenerate_every=0,
+                                   sampling="uniform", conscience_tolerance=None,
+                                   variants={"photo_supervision": {}, "additive": {},
+                                             "geometry": {"weight": 0.15, "colour": False}}),
                            progress=False)
     assert result.finished
     steps = json.loads((out / "bootstrap" / "summary.json").read_text())["steps"]
@@ -409,8 +433,8 @@ def test_geometry_only_loop_adds_the_multiview_term_to_photo_steps(stage1, tmp_p
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     assert all(v["mask_fraction"] == 0.0 for v in summary["rounds"][0]["views"])
     assert "nothing is generated" in summary["prior"]["description"]
-    with pytest.raises(InputError, match="geometry_weight"):
-        _config(virtual_colour=False).validate()
+    with pytest.raises(InputError, match="geometry: weight must be > 0"):
+        _config(variants={"geometry": {"weight": 0.0, "colour": False}}).validate()
 
 
 @pytest.mark.slow
@@ -418,8 +442,9 @@ def test_geometry_only_loop_adds_the_multiview_term_to_photo_steps(stage1, tmp_p
 def test_photo_supervision_and_the_conscience_run_end_to_end(stage1, tmp_path, fill):
     out = tmp_path / f"photo_{fill}"
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=8, supervision="photo", fill=fill, conscience_every=2, save_views=0,
-                                   regenerate_every=0),
+                           _config(iterations=8, fill="prior" if fill == "prior" else "render", conscience_every=2,
+                                   save_views=0, regenerate_every=0,
+                                   variants={"photo_supervision": {}, **({"inpaint": {}} if fill == "inpaint" else {})}),
                            progress=False)
     assert result.finished and (out / "model.ply").is_file()
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
@@ -441,8 +466,10 @@ def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tm
     (align_px) moved onto the render by optical flow first."""
     out = tmp_path / f"blend_{fill}"
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=4, fill=fill, virtual_depth="sources", save_views=0, regenerate_every=0,
-                                   agreement_min_db=BootstrapConfig().agreement_min_db, align_px=align_px),
+                           _config(iterations=4, fill="render", virtual_depth="sources", save_views=0,
+                                   regenerate_every=0, agreement_min_db=BootstrapConfig().agreement_min_db,
+                                   variants={**({"inpaint": {}} if fill == "inpaint" else {}),
+                                             **({"align": {"max_shift_px": align_px}} if align_px else {})}),
                            progress=False)
     assert result.finished and (out / "model.ply").is_file()
     assert not (out / "prior").exists()
@@ -451,9 +478,10 @@ def test_the_blend_over_the_render_with_splatted_depth_needs_no_prior(stage1, tm
     masks = [v["mask_fraction"] for v in summary["rounds"][0]["views"]]
     assert any(m > 0 for m in masks) and all(0 <= m <= 1 for m in masks)
     recorded = json.loads((out / "bootstrap" / "config.json").read_text())
-    assert recorded["virtual_depth"] == "sources" and recorded["align_px"] == align_px
-    with pytest.raises(InputError, match="align_px"):
-        _config(align_px=0.0).validate()
+    assert recorded["virtual_depth"] == "sources" and recorded["fill"] == "render"
+    assert recorded["variants"] == ({"inpaint": {}, "align": {"max_shift_px": align_px}} if align_px else {})
+    with pytest.raises(InputError, match="max_shift_px"):
+        _config(variants={"align": {"max_shift_px": 0.0}}).validate()
     with pytest.raises(InputError, match="virtual_depth"):
         _config(virtual_depth="mesh").validate()
     with pytest.raises(InputError, match="splat_views"):
@@ -530,27 +558,28 @@ def test_train_longer_takes_photo_steps_first_then_makes_the_views(stage1, tmp_p
     import time
 
     from inceptiongs.bootstrap import loop as loop_module
+    from inceptiongs.bootstrap import prepare as prepare_module
     from inceptiongs.bootstrap.outlook import Outlook
 
     wait_min = 1.0 / 60.0
-    monkeypatch.setattr(loop_module, "run_outlook", lambda run_dir: Outlook(
+    monkeypatch.setattr(prepare_module, "run_outlook", lambda run_dir: Outlook(
         "train longer", "train longer first: (a test's curve)", photo_first_min=wait_min))
-    original = loop_module.Bootstrap.virtual_or_photo_step
-    original_follow = loop_module.Bootstrap.follow
+    original = loop_module.virtual_or_photo_step
+    original_following = prepare_module.plan_following
+    began = time.perf_counter()      # just before the bootstrap's clock starts
 
-    def follow_from_now(self, outlook):
-        original_follow(self, outlook)
-        assert self.photo_until_s == pytest.approx(60.0 * wait_min)    # on the bootstrap's own clock
-        self.photo_until_s += self.loop.wall_s()       # here the wait starts after loading, however long it took
-        self.summary["photo_first_s"] = self.photo_until_s
+    def following_from_now(plan, photo_until_s, summary, log):
+        assert photo_until_s == pytest.approx(60.0 * wait_min)        # on the bootstrap's own clock
+        # Here the wait starts after loading, however long it took (at least the clock's time now).
+        return original_following(plan, photo_until_s + time.perf_counter() - began, summary, log)
 
-    monkeypatch.setattr(loop_module.Bootstrap, "follow", follow_from_now)
+    monkeypatch.setattr(prepare_module, "plan_following", following_from_now)
 
-    def slow_step(self, step):          # every step takes >= 40 ms: 60 steps outlast the 1 s wait
+    def slow_step(*args):          # every step takes >= 40 ms: 60 steps outlast the 1 s wait
         time.sleep(0.04)
-        return original(self, step)
+        return original(*args)
 
-    monkeypatch.setattr(loop_module.Bootstrap, "virtual_or_photo_step", slow_step)
+    monkeypatch.setattr(loop_module, "virtual_or_photo_step", slow_step)
     iterations = 60
     result = run_bootstrap(stage1, tmp_path / "boot", _targets(stage1),
                            _config(iterations=iterations, follow_outlook=True, fill="render", save_views=0,
@@ -575,7 +604,7 @@ def test_evidence_placement_records_the_estimate_and_uses_only_validated_views(s
     out = tmp_path / "evidence"
     result = run_bootstrap(stage1, out, _targets(stage1),
                            _config(iterations=4, fill="render", virtual_depth="auto", save_views=0,
-                                   regenerate_every=2, placement="evidence", evidence_photos=3),
+                                   regenerate_every=2, variants={"evidence": {"photos": 3}}),
                            progress=False)
     assert result.finished and (out / "model.ply").is_file()
     round_info = json.loads((out / "bootstrap" / "summary.json").read_text())["rounds"][0]
@@ -588,21 +617,21 @@ def test_evidence_placement_records_the_estimate_and_uses_only_validated_views(s
         assert all(v["evidence_share"] >= 0.05 for v in round_info["views"] if v["supervised"])
     else:
         assert evidence["targets"][0]["reason"]
-    with pytest.raises(InputError, match="placement"):
-        _config(placement="anywhere").validate()
-    with pytest.raises(InputError, match="evidence_min_fraction"):
-        _config(evidence_min_fraction=0.0).validate()
+    with pytest.raises(InputError, match="unknown variant 'evidense' \\(did you mean 'evidence'\\?\\)"):
+        _config(variants={"evidense": {}})
+    with pytest.raises(InputError, match="min_fraction"):
+        _config(variants={"evidence": {"min_fraction": 0.0}}).validate()
 
 
 @pytest.mark.slow
 def test_without_evidence_no_view_is_placed_and_the_summary_says_why(stage1, tmp_path, monkeypatch):
-    import inceptiongs.bootstrap.loop as loop_module
+    import inceptiongs.bootstrap.experimental.evidence as evidence_module
 
-    monkeypatch.setattr(loop_module, "measure_evidence", lambda *args, **kwargs: None)
+    monkeypatch.setattr(evidence_module, "measure_evidence", lambda *args, **kwargs: None)
     out = tmp_path / "no_evidence"
     iterations = 4
     result = run_bootstrap(stage1, out, _targets(stage1),
-                           _config(iterations=iterations, fill="render", placement="evidence", save_views=0),
+                           _config(iterations=iterations, fill="render", save_views=0, variants={"evidence": {}}),
                            progress=False)
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     evidence = summary["rounds"][0]["evidence"]

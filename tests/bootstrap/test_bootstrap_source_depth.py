@@ -80,7 +80,7 @@ def test_both_depths_take_the_renders_warps_where_trusted_and_the_splatted_elsew
     splat = splatted_depth(cameras[2], [(plane_depth(c), c) for c in cameras[:2]])
 
     def blend(virtual_depth: str, splatted: torch.Tensor = splat):
-        config = BootstrapConfig(supervision="blend", fill="render", virtual_depth=virtual_depth)
+        config = BootstrapConfig(fill="render", virtual_depth=virtual_depth)
         out = supervise_view(ViewContext(config, cameras[2], render.numpy(), [0, 1], cameras, photos, depth_of,
                                          source_depth=lambda: splatted))
         return out.image, out.mask, out.report

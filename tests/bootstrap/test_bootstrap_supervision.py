@@ -185,7 +185,8 @@ def test_informative_target_holds_the_blended_photos_where_the_mask_is_on(plane_
     cameras = [s.camera for s in sources] + [virtual]
     photos = {i: s.photo for i, s in enumerate(sources)}
     depth_of = lambda camera: prior_depth  # noqa: E731  (every view sees the plane at that depth)
-    config = BootstrapConfig(supervision="photo", fill="render", virtual_depth="render", virtual_pixels="informative")
+    config = BootstrapConfig(fill="render", virtual_depth="render",
+                             variants={"photo_supervision": {}, "informative": {}})
     out = supervise_view(ViewContext(config, virtual, blurred.numpy(), [0, 1, 2], cameras, photos, depth_of,
                                      lambda camera: blurred))
     target, mask = out.image, out.mask
@@ -216,12 +217,13 @@ def test_the_priors_fill_is_generated_on_its_device_and_returned_on_the_models(t
             return torch.full((camera.height, camera.width, 3), 0.25), None
 
     camera = camera_at("v", (0.0, 0.0, 0.0))
-    setting = TargetSetting(BootstrapConfig(fill="prior"), [camera], [0], {}, GenerationCache(tmp_path),
-                            tmp_path, rasterizer=None, prior=MetaPrior(), prior_hash="p")
+    setting = TargetSetting([camera], [0], {}, GenerationCache(tmp_path), tmp_path, rasterizer=None,
+                            prior=MetaPrior(), prior_hash="p")
+    config = BootstrapConfig(fill="prior")
     current = random_gaussians(n=20, degree=0, seed=1)
-    fill, hit = TargetMaker(setting, current, sky=None).fill(camera)
+    fill, hit = TargetMaker(setting, current, sky=None).fill(camera, config)
     assert MetaPrior.seen == ["meta"] and not hit
     assert isinstance(fill, torch.Tensor) and fill.device == current.means.device
     assert fill.shape == (camera.height, camera.width, 3) and float(fill.mean()) == 0.25
-    again, hit = TargetMaker(setting, current, sky=None).fill(camera)
+    again, hit = TargetMaker(setting, current, sky=None).fill(camera, config)
     assert hit and torch.equal(again, fill) and MetaPrior.seen == ["meta"]   # the cache, not the prior

@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from inceptiongs.bootstrap.config import BootstrapConfig
-from inceptiongs.bootstrap.placement import candidate_views, place_by_evidence, score_view
-from inceptiongs.bootstrap.validation import (PhotoEvidence, evidence_grid, evidence_weights,
-                                              margin_db, measure_evidence, photo_evidence, validation_photos,
-                                              view_margins)
+from inceptiongs.bootstrap.experimental.placement import candidate_views, place_by_evidence, score_view
+from inceptiongs.bootstrap.experimental.validation import (PhotoEvidence, evidence_grid, evidence_weights,
+                                                           margin_db, measure_evidence, photo_evidence,
+                                                           validation_photos, view_margins)
 from inceptiongs.bootstrap.virtual_views import VirtualView
 from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at
 
@@ -250,7 +250,7 @@ def test_the_tau_test_judges_structure_only_where_the_loss_is():
 
 
 def test_only_pixels_on_the_targets_own_surface_count_when_a_region_is_given(grid):
-    from inceptiongs.bootstrap.validation import seen_cells
+    from inceptiongs.bootstrap.experimental.validation import seen_cells
 
     target = near_camera("target", 0.3)                   # sees x in [-0.77, 1.37]
     region = seen_cells(grid, target, depth(target))

@@ -78,6 +78,21 @@ def write(path: Path, text: str) -> Path:
     ('{"rounds": 0}', "rounds", ">= 1"),
     ('{"fill": "paint"}', "fill", "paint"),
     ('{"generated_weight": 1.5}', "generated_weight", "[0, 1]"),
+    # The variants' sections are read as strictly.
+    ('{"variants": {"alin": {}}}', "alin", "did you mean 'align'"),
+    ('{"variants": {"align": {"max_shift": 2}}}', "variants.align.max_shift", "did you mean 'max_shift_px'"),
+    ('{"variants": {"align": {"max_shift_px": "2"}}}', "variants.align.max_shift_px", "finite number"),
+    ('{"variants": {"align": {"max_shift_px": Infinity}}}', "variants.align.max_shift_px", "finite"),
+    ('{"variants": {"align": {"max_shift_px": -1}}}', "variants.align", "max_shift_px must be a positive"),
+    ('{"variants": {"align": 2}}', "variants.align", "object"),
+    ('{"variants": ["align"]}', "variants", "object"),
+    ('{"variants": {"informative": {}}}', "variants.informative", "needs the variant photo_supervision"),
+    # So are the flat keys of older files.
+    ('{"align_p": 2}', "align_p", "did you mean 'align_px'"),
+    ('{"align_px": NaN}', "align_px", "finite"),
+    ('{"supervision": "photos"}', "supervision", "photos"),
+    ('{"evidence_photos": 0}', "evidence", "photos must be >= 1"),
+    ('{"virtual_colour": false}', "virtual_colour", "geometry_weight > 0"),
 ])
 def test_a_bad_config_file_is_one_line_naming_the_file_and_the_key(tmp_path, capsys, text, key, fragment):
     bad = write(tmp_path / "settings.json", text)
@@ -108,13 +123,14 @@ def parse(*argv: str):
 
 def test_flags_given_override_the_file_and_the_rest_keep_the_file(tmp_path):
     settings = write(tmp_path / "settings.json", json.dumps(
-        {"iterations": 120, "rounds": 2, "seed": 5, "minutes": 3, "k": 2, "fill": "inpaint"}))
+        {"iterations": 120, "rounds": 2, "seed": 5, "minutes": 3, "k": 2, "variants": {"align": {"max_shift_px": 2}}}))
     from_file = config_from_args(parse("--config", str(settings)))
     assert (from_file.iterations, from_file.rounds, from_file.seed, from_file.minutes) == (120, 2, 5, 3.0)
-    assert (from_file.k, from_file.fill) == (2, "inpaint")
+    assert from_file.k == 2 and from_file.to_json_dict()["variants"] == {"align": {"max_shift_px": 2.0}}
     overridden = config_from_args(parse("--config", str(settings), "--iterations", "7", "--seed", "9"))
     assert (overridden.iterations, overridden.seed) == (7, 9)
-    assert (overridden.rounds, overridden.minutes, overridden.k, overridden.fill) == (2, 3.0, 2, "inpaint")
+    assert (overridden.rounds, overridden.minutes, overridden.k, overridden.variants) == \
+        (2, 3.0, 2, from_file.variants)
     # No --config: the dataclass's defaults, with the flags given.
     assert config_from_args(parse("--rounds", "3")) == dataclasses.replace(BootstrapConfig(), rounds=3)
     assert config_from_args(parse()) == BootstrapConfig()
@@ -132,6 +148,25 @@ def test_a_missing_lpips_file_named_in_the_config_is_refused(tmp_path):
         config_from_args(parse("--config", str(settings)))
 
 
+@pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")
+def test_a_torchscript_lpips_file_named_in_a_shared_config_is_refused_before_it_loads(tmp_path, monkeypatch):
+    """A config (or a stopped bootstrap's saved one) may come from someone else: a TorchScript
+    file it names can create and overwrite files when loaded and run, so it is never loaded."""
+    import torch
+
+    class Distance(torch.nn.Module):
+        def forward(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+            return (a - b).abs().mean()
+
+    torch.jit.script(Distance()).save(str(tmp_path / "lpips.pt"))
+    loads = []
+    monkeypatch.setattr(torch.jit, "load", lambda *args, **kwargs: loads.append(args))
+    settings = write(tmp_path / "settings.json", json.dumps({"lpips_weights": str(tmp_path / "lpips.pt")}))
+    with pytest.raises(InputError, match="TorchScript"):
+        config_from_args(parse("--config", str(settings)))
+    assert loads == []
+
+
 def test_the_saved_config_reads_back_as_a_config_file(tmp_path):
     """RUN2/bootstrap/config.json is written by BootstrapConfig.save: every field, and it loads
     through --config to the same config (also with every optional field set)."""
@@ -140,6 +175,9 @@ def test_the_saved_config_reads_back_as_a_config_file(tmp_path):
          "residual_floor": 0.02, "conscience_tolerance": None, "agreement_min_db": None, "densify": True,
          "lpips_weights": None, "prior_steps": 4, "langevin_step": 0.02, "langevin_noise": 0.0}))
     config = config_from_args(parse("--config", str(settings), "--minutes", "1.5"))
+    # The flat keys of the file are in the variants' sections.
+    assert config.to_json_dict()["variants"] == {"photo_supervision": {}, "align": {"max_shift_px": 2.5},
+                                                 "informative": {"residual_floor": 0.02}, "densify": {}}
     saved = tmp_path / "RUN2" / "bootstrap" / "config.json"
     saved.parent.mkdir(parents=True)
     config.save(saved)
@@ -150,9 +188,15 @@ def test_the_saved_config_reads_back_as_a_config_file(tmp_path):
 
 
 def test_every_field_type_is_one_the_strict_reader_knows():
-    for f in dataclasses.fields(BootstrapConfig):
+    from inceptiongs.bootstrap.variants import VARIANT_NAMES, variant_class
+
+    owners = [BootstrapConfig, *(variant_class(name) for name in VARIANT_NAMES)]
+    for f in (f for cls in owners for f in dataclasses.fields(cls) if f.name != "variants"):
         stored = json.loads(json.dumps(f.default))
         assert checked_value(Path("x.json"), f.name, f.type, stored) == f.default, f.name
+    # The variants' sections are read by their own reader: every variant's defaults read back.
+    every = {name: {} for name in VARIANT_NAMES}
+    assert BootstrapConfig(variants=every).to_json_dict()["variants"].keys() == every.keys()
 
 
 def test_the_options_doc_is_generated_from_the_dataclass():
@@ -186,4 +230,4 @@ def test_a_non_finite_flag_is_refused_too(tmp_path, capsys):
     capsys.readouterr()
     assert main(["bootstrap", str(tmp_path / "run"), "--minutes", "nan", "--out", str(tmp_path / "out")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "arguments: minutes must be float | None (a finite number)" in lines[0], lines
+    assert len(lines) == 1 and "--minutes must be a finite number" in lines[0], lines

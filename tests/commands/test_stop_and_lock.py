@@ -15,14 +15,14 @@ from inceptiongs.cli import main
 from inceptiongs.errors import InputError
 from inceptiongs.runs.lock import LOCK_INFO_FILE, run_folder_lock
 from inceptiongs.live import JobControl
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.stop_signals import stop_on_signals
 from inceptiongs.runs.checkpoint import list_checkpoints
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
-    return write_demo_scene(tmp_path_factory.mktemp("stop") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("stop") / "scene")
 
 
 def test_first_signal_asks_to_stop_the_second_interrupts_and_handlers_come_back():

@@ -149,26 +149,29 @@ def test_cli_json_and_table(tmp_path, scene_root, capsys):
     assert "nothing" in capsys.readouterr().err
 
 
-def test_local_torchscript_weights_are_used(tmp_path, scene_root):
-    class MeanAbs(torch.nn.Module):
-        def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-            return (pred - target).abs().mean(dim=(1, 2, 3))
+def test_local_lpips_weights_and_a_torchscript_fid_network_are_used(tmp_path, scene_root):
+    from inceptiongs.evaluation.lpips_net import load_lpips, lpips_shapes
 
     class PooledColour(torch.nn.Module):
         def forward(self, images: torch.Tensor) -> torch.Tensor:
             return torch.cat([images.mean(dim=(2, 3)), images.std(dim=(2, 3))], dim=1)
 
-    torch.jit.script(MeanAbs()).save(str(tmp_path / "lpips.pt"))
+    g = torch.Generator().manual_seed(0)
+    weights = {name: torch.randn(shape, generator=g).abs() * 0.1 for name, shape in lpips_shapes().items()}
+    torch.save(weights, tmp_path / "lpips.pt")
     torch.jit.script(PooledColour()).save(str(tmp_path / "fid.pt"))
     model = known_gaussians(seed=2)
     scene, _ = write_run(tmp_path / "run", scene_root, model)
     summary = evaluate_run(tmp_path / "run", lpips_weights=tmp_path / "lpips.pt",
                            fid_weights=tmp_path / "fid.pt", progress=False)
     assert summary["lpips"].startswith("computed") and summary["fid"].startswith("computed")
+    network = load_lpips(tmp_path / "lpips.pt")
     for view in summary["views"]:
-        # The "network" is |a - b| on [-1, 1] images: twice the mean absolute error on [0, 1].
         rgb, photo = render_and_photo(model, scene, view["index"])
-        assert view["lpips"] == pytest.approx(2 * np.mean(np.abs(rgb - photo)), abs=1e-5)
+        as_batch = [torch.from_numpy(np.ascontiguousarray(x)).float().permute(2, 0, 1)[None] * 2 - 1
+                    for x in (rgb, photo)]
+        with torch.no_grad():
+            assert view["lpips"] == pytest.approx(float(network(*as_batch)), rel=1e-4, abs=1e-6)
     assert summary["groups"]["all"]["fid"] > 0
     (tmp_path / "junk.pt").write_bytes(b"not a model")
     with pytest.raises(InputError, match="junk.pt"):

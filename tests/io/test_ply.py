@@ -140,7 +140,7 @@ def _valid_file(tmp_path, n=4, degree=0):
     ("truncated", "truncated PLY"),
     ("no_end_header", "no end_header"),
     ("not_ply", "not a PLY"),
-    ("ascii", "ASCII PLY"),
+    ("ascii_truncated", "truncated ASCII PLY"),
     ("nan", "NaN/Inf"),
     ("inf", "NaN/Inf"),
     ("bad_rest_count", "f_rest fields"),
@@ -157,8 +157,10 @@ def test_bad_ply_raises_one_line_input_error(tmp_path, problem, match):
         path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n")
     elif problem == "not_ply":
         path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 64)
-    elif problem == "ascii":
-        path.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n")
+    elif problem == "ascii_truncated":
+        names = ply_field_names(0)
+        path.write_text("ply\nformat ascii 1.0\nelement vertex 2\n" + "".join(f"property float {n}\n" for n in names)
+                        + "end_header\n" + " ".join(["0.5"] * len(names)) + "\n")
     elif problem in ("nan", "inf"):
         fields = _standard_fields(4, 0)
         fields["scale_1"][2] = np.nan if problem == "nan" else np.inf

@@ -122,3 +122,19 @@ def test_unet_width_sizes_a_new_prior_and_is_refused_for_an_existing_one(tmp_pat
     err = capsys.readouterr().err
     assert "prior.pt" in err and "8 channels wide, not 16" in err
     assert main(["prior", str(run), "--steps", "1", "--unet-width", "0"]) == 2
+
+
+def test_a_second_prior_on_a_run_in_use_is_refused_before_writing(run_dir, capsys):
+    """Two priors at once interleaved prior/metrics.jsonl (both exit 0, one's work lost): the
+    prior takes the run's lock, as train and bootstrap do."""
+    import os
+
+    from inceptiongs.runs.lock import run_folder_lock
+
+    metrics = run_dir / "prior" / "metrics.jsonl"
+    before = metrics.read_bytes() if metrics.exists() else None
+    with run_folder_lock(run_dir):
+        assert main(["prior", str(run_dir), "--steps", "1", "--patch-size", "16", "--batch-size", "1"]) == 2
+    err = capsys.readouterr().err
+    assert f"in use by pid {os.getpid()}" in err and str(run_dir) in err
+    assert (metrics.read_bytes() if metrics.exists() else None) == before

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from inceptiongs.cli import main
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.prior.joint import JointPrior
 from inceptiongs.prior.trainer import read_prior_checkpoint
 
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.mark.slow
 def test_train_with_prior_alternates_and_checkpoints(tmp_path):
-    scene = write_demo_scene(tmp_path / "scene", progress=False)
+    scene = copy_of_demo_scene(tmp_path / "scene")
     run = tmp_path / "run"
     assert main(["train", str(scene), "--out", str(run), "--downscale", "4", "--iterations", "4",
                  "--protocol", "unstructured", "--prior", "2"]) == 0

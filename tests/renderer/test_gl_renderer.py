@@ -195,10 +195,10 @@ def test_render_cli_gl_matches_torch_and_writes_png(tmp_path):
 @pytest.mark.slow
 def test_render_cli_view_from_a_scene(tmp_path):
     from inceptiongs.cli import main
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
     from inceptiongs.io.ply import write_ply
     from inceptiongs.scene.loader import load_scene
-    scene_dir = write_demo_scene(tmp_path / "scene", progress=False)
+    scene_dir = copy_of_demo_scene(tmp_path / "scene")
     scene = load_scene(scene_dir)
     model = random_model(300, seed=7, degree=0)
     # Model in the scene's original frame, as a trained model.ply is.

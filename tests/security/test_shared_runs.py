@@ -99,6 +99,86 @@ def test_a_checkpoint_with_missing_keys_is_one_line(copy):
     one_error_line(status, stderr, str(path), "not an InceptionGS training checkpoint")
 
 
+@pytest.mark.parametrize("protocol", range(pickle.HIGHEST_PROTOCOL + 1))
+def test_a_payload_of_every_pickle_protocol_is_refused_not_skipped_as_damaged(copy, protocol):
+    """A payload is never taken for damaged bytes (which would fall back to the older checkpoint
+    beside it with a warning), and the line never advises loading it unsafely."""
+    run = copy["run"]
+    marker = copy["root"] / "PAYLOAD_RAN"
+    planted = run / "checkpoints" / "step_0000099.pt"
+    planted.write_bytes(pickle.dumps({"iteration": 99, "params": _Payload(marker)}, protocol=protocol))
+    status, _, stderr = run_main(["train", str(copy["scene"]), "--out", str(run), "--resume"])
+    line = one_error_line(status, stderr, str(planted), "could run code")
+    assert "weights_only" not in stderr and "warning" not in stderr and not marker.exists(), line
+
+
+def test_non_finite_parameters_in_a_checkpoint_are_refused_on_load(copy):
+    from inceptiongs.runs.checkpoint import list_checkpoints
+
+    run = copy["run"]
+    _, path = list_checkpoints(run)[-1]
+    payload = torch.load(path, weights_only=True)
+    payload["params"]["means"][0, 1] = float("nan")
+    torch.save(payload, path)
+    for _, older in list_checkpoints(run)[:-1]:
+        older.unlink()   # the only checkpoint: nothing to fall back to
+    status, _, stderr = run_main(["train", str(copy["scene"]), "--out", str(run), "--resume"])
+    one_error_line(status, stderr, str(path), "non-finite")
+
+
+@pytest.mark.parametrize("extra", [[], ["--overwrite"]])
+def test_the_default_bootstrap_output_never_follows_a_planted_sibling_symlink(copy, extra):
+    """A bundle holding run/ and run_bootstrap -> elsewhere must not make a bootstrap write its
+    model, checkpoints and logs elsewhere."""
+    elsewhere = copy["root"] / "elsewhere"
+    elsewhere.mkdir()
+    (copy["root"] / "run_bootstrap").symlink_to(elsewhere)
+    status, _, stderr = run_main(["bootstrap", str(copy["run"]), "--target-view", copy["names"][0], *extra])
+    one_error_line(status, stderr, "run_bootstrap", "symlink", "--out")
+    assert list(elsewhere.iterdir()) == []
+
+
+def test_the_old_cache_folder_inside_a_scene_is_not_followed_out_of_it(copy):
+    """SCENE/.inceptiongs (older versions' cache) planted as a symlink to elsewhere: the image
+    there must not be read (eval would copy it into the run)."""
+    import cv2
+
+    from inceptiongs.scene.loader import load_scene
+
+    scene_dir = copy["scene"]
+    scene = load_scene(scene_dir, downscale=2)   # resized images: the cache path is taken
+    camera = scene.cameras[0]
+    outside = copy["root"] / "outside"
+    planted = outside / "images" / f"{camera.width}x{camera.height}" / f"{camera.name}.png"
+    planted.parent.mkdir(parents=True)
+    red = np.zeros((camera.height, camera.width, 3), np.uint8)
+    red[..., 2] = 255
+    cv2.imwrite(str(planted), red)
+    (scene_dir / ".inceptiongs").symlink_to(outside)
+    image = load_scene(scene_dir, downscale=2).load_image(0)
+    assert not (image[..., 0] > 0.99).all(), "the image outside the scene was read"
+
+
+def test_prior_files_and_generated_scores_are_not_read_through_a_symlink_out_of_the_run(copy):
+    from inceptiongs.errors import InputError
+    from inceptiongs.evaluation.report_prior import generated_by_steps
+    from inceptiongs.prior.trainer import read_prior_checkpoint
+
+    run, outside = copy["run"], copy["root"] / "outside"
+    (outside / "prior").mkdir(parents=True)
+    torch.save({"backend": "tiny"}, outside / "prior" / "prior.pt")
+    (run / "prior").symlink_to(outside / "prior")
+    with pytest.raises(InputError, match="leads outside"):
+        read_prior_checkpoint(run)
+    (outside / "generated.json").write_text(json.dumps({"by_steps": [{"ddim_steps": 4}]}))
+    (run / "eval").mkdir(exist_ok=True)
+    (run / "eval" / "generated.json").symlink_to(outside / "generated.json")
+    with pytest.raises(InputError, match="leads outside"):
+        generated_by_steps(run)
+    status, _, stderr = run_main(["prior", str(run), "--steps", "1"])
+    one_error_line(status, stderr, "leads outside")
+
+
 def test_checkpoints_are_written_as_plain_data_that_loads_weights_only(tmp_path):
     from inceptiongs.runs.checkpoint import load_checkpoint, plain_data, save_checkpoint
 

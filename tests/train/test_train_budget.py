@@ -10,7 +10,7 @@ import pytest
 
 from inceptiongs.commands import train as train_command
 from inceptiongs.errors import InputError
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.io.config_json import with_values
 from inceptiongs.runs.config import Densification, TrainConfig, short_run_schedule, sized_schedule
 from inceptiongs.train.budget import budget_iterations
@@ -51,7 +51,7 @@ def test_sized_schedule_rescales_the_milestones_from_the_defaults():
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory):
-    return write_demo_scene(tmp_path_factory.mktemp("budget") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("budget") / "scene")
 
 
 def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path, demo_scene):

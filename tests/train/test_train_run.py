@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from inceptiongs.scene.demo import write_demo_scene
+from demo_cases import copy_of_demo_scene
 from inceptiongs.runs.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_newest_checkpoint
 from inceptiongs.runs.config import TrainConfig
 from inceptiongs.live import JobControl
@@ -28,7 +28,7 @@ from train_cases import overridden
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory) -> Path:
-    return write_demo_scene(tmp_path_factory.mktemp("train") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("train") / "scene")
 
 
 def _config(scene: Path, **overrides) -> TrainConfig:

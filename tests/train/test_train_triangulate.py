@@ -7,10 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from inceptiongs.scene.demo import Textures, trace, write_demo_scene
+from inceptiongs.scene.demo import Textures, trace
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.triangulate import (TriangulationConfig, connected_labels, epipolar_distance,
                                            fundamental_matrix, training_points, triangulate_tracks)
+from demo_cases import copy_of_demo_scene
 from scene_cases import known_cameras, known_points, project
 
 
@@ -60,7 +61,7 @@ def test_connected_labels():
 
 @pytest.fixture(scope="module")
 def demo_scene_without_points(tmp_path_factory):
-    root = write_demo_scene(tmp_path_factory.mktemp("tri") / "scene", progress=False)
+    root = copy_of_demo_scene(tmp_path_factory.mktemp("tri") / "scene")
     scene = load_scene(root)
     return dataclasses.replace(scene, points=np.zeros((0, 3)), point_colors=None)
 

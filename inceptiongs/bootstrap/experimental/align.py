@@ -1,4 +1,4 @@
-"""Flow alignment (``align_px``, off by default): warped photos moved onto the render by dense
+"""Flow alignment (the variant "align", off by default): warped photos moved onto the render by dense
 optical flow, before they are blended. Measured: it closes most of the misplacement on
 statuette but costs the courtyard's I* 0.6 dB, where the render is a blur the flow cannot lock
 onto (docs/bootstrap.md), so it stays off.
@@ -14,10 +14,16 @@ left untrusted.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import cv2
 import numpy as np
 import torch
 
+from ...errors import InputError
+from ..options import VARIANT, option
+from ..variants import Variant
 from ..warp import WarpResult
 
 # DIS works on an image pyramid with 8 x 8 patches: smaller images have no pyramid to search.
@@ -70,3 +76,23 @@ def align_warp(render: torch.Tensor, warp: WarpResult, max_shift_px: float = DEF
     trusted = (taps_trusted & small)[..., None]
     out_mask = torch.from_numpy(trusted.astype(np.float32)).to(warp.mask)
     return WarpResult(image=torch.from_numpy(image * trusted).to(warp.image), mask=out_mask)
+
+
+@dataclass(frozen=True)
+class Align(Variant):
+    """The blend's warps moved onto the render by optical flow before they are blended."""
+
+    NAME: ClassVar[str] = "align"
+
+    max_shift_px: float = option(DEFAULT_MAX_SHIFT_PX, "a warped pixel the flow moves farther than this is "
+                                                       "left untrusted (a different surface, not a misplacement)",
+                                 "px", VARIANT)
+
+    def check(self, source: str, config) -> None:
+        if not self.max_shift_px > 0:
+            raise InputError(f"{source}: max_shift_px must be a positive number of pixels, got {self.max_shift_px}")
+
+    def adjust_warps(self, context, warps: list[WarpResult]) -> list[WarpResult]:
+        """Each warp aligned to the view's render (view_supervision.ViewContext.render)."""
+        reference = context.render()
+        return [align_warp(reference, warp, self.max_shift_px) for warp in warps]

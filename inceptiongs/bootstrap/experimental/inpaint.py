@@ -1,4 +1,4 @@
-"""The inpainting fill (``fill="inpaint"``, off by default): the photos' blend carried into the
+"""The inpainting fill (the variant "inpaint", off by default): the photos' blend carried into the
 pixels no photo reaches, by classical inpainting (OpenCV Telea).
 
 Measured: +0.76 / -0.12 dB (scarce / covered) on the courtyard against the same-time baseline,
@@ -8,8 +8,14 @@ over large uncovered areas (docs/bootstrap.md), so the render fills by default.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 import torch
+
+from ...errors import InputError
+from ..variants import Variant
 
 # Inpainting radius in pixels (OpenCV Telea): the neighbourhood a missing pixel is filled from.
 INPAINT_RADIUS = 3
@@ -33,3 +39,18 @@ def inpaint_fill(image: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor) -
     """The blend ``image`` [H, W, 3] carried into the pixels no photo reaches (mask [H, W, 1] 0)
     where the view has depth (``depth`` [H, W, 1] > 0)."""
     return inpaint(image, (mask[..., 0] > 0) | (depth[..., 0] <= 0))
+
+
+@dataclass(frozen=True)
+class Inpaint(Variant):
+    """The photos' blend inpainted where no photo reaches, over the render's fill (with the
+    variant photo_supervision: its inpainting fill)."""
+
+    NAME: ClassVar[str] = "inpaint"
+
+    def check(self, source: str, config) -> None:
+        if config.fill != "render":
+            raise InputError(f"{source}: the inpainting is the fill: it needs fill \"render\", got {config.fill!r}")
+
+    def finish_blend(self, image: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        return inpaint_fill(image, mask, depth)

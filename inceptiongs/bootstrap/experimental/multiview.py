@@ -1,4 +1,4 @@
-"""The geometry term (``geometry_weight > 0``, off by default): multi-view geometric consistency
+"""The geometry term (the variant "geometry", geometry.py; off by default): multi-view geometric consistency
 at a virtual view; the photos supervise *where* the surface is, never what colour it has.
 Measured against the same-time baseline: +0.08 / +0.15 dB (scarce / covered) on the objects
 demo, -0.40 / -0.54 on the courtyard (docs/bootstrap.md), so it stays off.
@@ -43,7 +43,6 @@ import torch
 from ...camera import Camera
 from ...constants import NEAR_PLANE
 from ...train.losses import patch_offsets, plane_homographies, safe_normalize, sample_image
-from ..config import BootstrapConfig
 from ..generation import VirtualTarget
 from .photo_depth import VARIANCE_MIN
 from ..warp import DEFAULT_DELTA
@@ -191,15 +190,16 @@ def multiview_consistency(depth: torch.Tensor, normal: torch.Tensor | None, came
     return ConsistencyTerm(total / weight_sum, pairs, ncc_sum / pairs)
 
 
-def geometry_loss(out: dict, view: VirtualTarget, config: BootstrapConfig, step: int
+def geometry_loss(out: dict, view: VirtualTarget, seed: int, samples: int, step: int
                   ) -> tuple[torch.Tensor | None, dict]:
     """The geometry term (this module) of a virtual view's render ``out`` (with "depth" and
-    "normal") against its source photos -> (1 - NCC or None where no pair is valid, record).
-    The pixel subset is drawn from a generator seeded by the step: reproducible, and the
-    trainer's own random stream (view order, photo steps) is left as the baseline has it."""
-    generator = torch.Generator().manual_seed(config.seed * 1_000_003 + step)
+    "normal") against its source photos, on ``samples`` pixels -> (1 - NCC or None where no pair
+    is valid, record). The pixel subset is drawn from a generator seeded by the run's ``seed``
+    and the step: reproducible, and the trainer's own random stream (view order, photo steps) is
+    left as the baseline has it."""
+    generator = torch.Generator().manual_seed(seed * 1_000_003 + step)
     term = multiview_consistency(out["depth"], out["normal"], view.camera, view.geometry,
-                                 samples=config.geometry_samples, generator=generator)
+                                 samples=samples, generator=generator)
     record = {"geometry_pairs": term.pairs, "geometry_ncc": term.ncc,
               "geometry_loss": None if term.loss is None else float(term.loss.detach())}
     return term.loss, record

@@ -1,4 +1,4 @@
-"""The photo supervision (``supervision="photo"``, off by default): what stage II trains on at a
+"""The photo supervision (the variant "photo_supervision", off by default): what stage II trains on at a
 virtual view, built from the photos and the geometry:
 
 1. the stage-I depth refined by photo consistency (:mod:`.photo_depth`);
@@ -16,7 +16,7 @@ virtual view, built from the photos and the geometry:
    both compared over the NCC window (a box mean): bilinear resampling blurs every warp alike,
    so at single pixels the photos would "agree" on a blur that a sharp, correct render does
    not show. Only there can a virtual view add information the photo steps do not already
-   give; the refinement may restrict its virtual loss to them (``BootstrapConfig.virtual_pixels``).
+   give; the refinement may restrict its virtual loss to them (the variant "informative").
 
 I* = M * blended + (1 - M) * fill. Every intermediate is returned, so the benchmark
 (benchmarks/bench_supervision.py) can score each ingredient on its own.
@@ -29,14 +29,15 @@ when the witnesses stand far from the view.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import ClassVar, Sequence
 
 import numpy as np
 import torch
 
 from ...camera import Camera
 from ..agreement import agreement_margin_db
-from ..supervision_kinds import ViewContext, ViewSupervision, register_supervision
+from ..view_supervision import ViewContext, ViewSupervision
+from ..variants import Variant
 from .exposure import apply_affine_colour, fit_affine_colour
 from .inpaint import inpaint
 from .lumigraph import lumigraph_weights
@@ -231,22 +232,34 @@ def supervise(camera: Camera, render: torch.Tensor, render_depth: torch.Tensor, 
     return Supervision(target, mask, blended, fill_image, depth, warps, weights, covered, informative, spread)
 
 
-@register_supervision("photo")
 def photo_supervision(context: ViewContext) -> ViewSupervision:
-    """:func:`supervise` at a virtual view, the photos placed with ``context.placing_depth()``.
-    ``virtual_pixels="informative"``: the informative mask instead of the trust mask, and the
-    blend itself on it (not I*, whose soft mask may give the photos almost no weight where the
-    best witness is far off in angle), the fill elsewhere."""
+    """:func:`supervise` at a virtual view, the photos placed with ``context.placing_depth()``;
+    the fill is the inpainting with the variant "inpaint", else ``config.fill``. With the variant
+    "informative": the informative mask (its ``residual_floor``) instead of the trust mask, and
+    the blend itself on it (not I*, whose soft mask may give the photos almost no weight where
+    the best witness is far off in angle), the fill elsewhere."""
     config = context.config
+    informative = config.variants.get("informative")
+    floor = None if informative is None else informative.residual_floor
     render = context.render()
     sources = [Source(context.photos[i], context.cameras[i], context.render_depth(context.cameras[i]))
                for i in context.sources]
     out = supervise(context.camera, render, context.placing_depth(), sources,
-                    generated=context.fill, fill=config.fill,
-                    delta=context.delta,
-                    residual_floor=RESIDUAL_FLOOR if config.residual_floor is None else config.residual_floor)
+                    generated=context.fill, fill="inpaint" if "inpaint" in config.variants else config.fill,
+                    delta=context.delta, residual_floor=RESIDUAL_FLOOR if floor is None else floor)
     report = {"agreement_db": agreement_margin_db(render, out.warps)}
-    if config.virtual_pixels == "informative":
+    if informative is not None:
         target = out.informative * out.blended + (1.0 - out.informative) * out.fill
         return ViewSupervision(target.detach().float().clamp(0.0, 1.0), out.informative.detach().float(), report)
     return ViewSupervision(out.target.detach().float().clamp(0.0, 1.0), out.mask.detach().float(), report)
+
+
+@dataclass(frozen=True)
+class PhotoSupervision(Variant):
+    """I* from the photo-consistent depth, exposure-matched warps, lumigraph weights and a soft
+    mask instead of the default blend (experimental/photo_supervision.py)."""
+
+    NAME: ClassVar[str] = "photo_supervision"
+
+    def supervise(self, context: ViewContext) -> ViewSupervision:
+        return photo_supervision(context)

@@ -1,5 +1,5 @@
 """Virtual views where the leave-one-out evidence says the blend beats the render
-(``BootstrapConfig.placement = "evidence"``; the estimate itself: validation.py).
+(the variant "evidence", evidence.py; the estimate itself: validation.py).
 
 Candidates are poses in the target's neighbourhood: the target itself and the poses on the
 paths from it towards its ``2 k`` nearest training photos (twice the loop's sources, so the
@@ -23,10 +23,10 @@ from typing import Callable, Sequence
 
 import torch
 
-from ..camera import Camera
-from .generation import VirtualTarget
+from ...camera import Camera
+from ..generation import VirtualTarget
 from .validation import EvidenceGrid, evidence_weights, view_margins, world_points
-from .virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, virtual_views
+from ..virtual_views import DEFAULT_K, DEFAULT_L, VirtualView, virtual_views
 
 # A candidate needs at least this share of its pixels with depth on positive evidence.
 DEFAULT_MIN_FRACTION = 0.05
@@ -118,7 +118,3 @@ def with_evidence(entry: VirtualTarget, grid: EvidenceGrid | None, depth: torch.
     share = float(weights.sum()) / max(with_depth, 1)
     return dataclasses.replace(entry, evidence=weights, supervised=share >= min_fraction)
 
-
-def evidence_share(entry: VirtualTarget) -> float | None:
-    """The share of the view's pixels that carry virtual loss (None: no evidence weights)."""
-    return None if entry.evidence is None else float(entry.evidence.mean())

@@ -1,8 +1,7 @@
-"""The supervision kinds' interface: a kind turns a :class:`ViewContext` (one virtual view, its
-fill, the photos to warp in, the model's depth and render) into a :class:`ViewSupervision`
-(I* [H, W, 3], its trusted-pixel mask M [H, W, 1], a report), and is registered by the name
-``BootstrapConfig.supervision`` gives it. supervise.py holds the core kind ("blend") and
-chooses; experimental/ registers the others.
+"""What a supervision works on and returns: it turns a :class:`ViewContext` (one virtual view,
+its fill, the photos to warp in, the model's depth and render) into a :class:`ViewSupervision`
+(I* [H, W, 3], its trusted-pixel mask M [H, W, 1], a report). supervise.py holds the default
+blend; a variant may supply another (variants.Variant.supervise).
 """
 
 from __future__ import annotations
@@ -68,15 +67,3 @@ class ViewSupervision:
     image: torch.Tensor
     mask: torch.Tensor
     report: dict = field(default_factory=dict)
-
-
-SupervisionKind = Callable[[ViewContext], ViewSupervision]
-SUPERVISION_KINDS: dict[str, SupervisionKind] = {}
-
-
-def register_supervision(name: str) -> Callable[[SupervisionKind], SupervisionKind]:
-    """Decorator: the function builds I* for ``BootstrapConfig.supervision == name``."""
-    def register(kind: SupervisionKind) -> SupervisionKind:
-        SUPERVISION_KINDS[name] = kind
-        return kind
-    return register

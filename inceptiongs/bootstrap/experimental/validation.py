@@ -39,13 +39,13 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from ..camera import Camera
-from .config import BootstrapConfig
-from .source_depth import depth_from_training_views
-from .supervise import supervise_view
-from .supervision_kinds import ViewContext, ViewSupervision
-from .virtual_views import DEFAULT_K, nearest_training_views
-from ..pinhole import unproject
+from ...camera import Camera
+from ..config import BootstrapConfig
+from ..source_depth import depth_from_training_views
+from ..supervise import supervise_view
+from ..view_supervision import ViewContext, ViewSupervision
+from ..virtual_views import DEFAULT_K, nearest_training_views
+from ...pinhole import unproject
 
 # Cells per side of the evidence's extent (its longest axis).
 VOXELS_PER_SIDE = 16

@@ -1,0 +1,39 @@
+"""The viewer opens a model file of every format (.ply binary/ASCII/compressed, .splat, .spz)
+and refuses other files with one line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from inceptiongs.errors import InputError
+from inceptiongs.io.models import read_model, write_model
+from model_cases import random_model
+
+
+@pytest.mark.parametrize("suffix", ["ply", "compressed.ply", "splat", "spz"])
+def test_viewer_opens_every_model_format(tmp_path, suffix):
+    from inceptiongs.app.sources import open_source
+
+    path = tmp_path / f"model.{suffix}"
+    write_model(path, random_model(40, 1))
+    source = open_source(path)
+    assert source.kind == "ply" and source.model_path == path
+    expected = read_model(path).numpy()
+    assert set(source.gaussians) == set(expected)
+    for name, values in expected.items():
+        assert np.array_equal(source.gaussians[name], values), name
+
+
+def test_viewer_refuses_a_file_that_is_not_a_model(tmp_path):
+    from inceptiongs.app.sources import open_source
+
+    path = tmp_path / "notes.txt"
+    path.write_text("hello")
+    with pytest.raises(InputError, match=r"notes.txt: not a scene folder, a model file \(.ply, .splat, .spz\)"):
+        open_source(path)
+    broken = tmp_path / "broken.spz"
+    broken.write_bytes(b"\x1f\x8b" + b"\0" * 30)
+    with pytest.raises(InputError) as info:
+        open_source(broken)
+    assert str(info.value).startswith(str(broken)) and "\n" not in str(info.value)
