@@ -8,6 +8,8 @@ Edits never touch the loaded arrays: an :class:`EditState` keeps a boolean ``ali
 
 from __future__ import annotations
 
+import json
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -350,6 +352,21 @@ class Editor:
             self.say_edit_state(f"cropped; {self.view.edit.count} Gaussians left")
 
     # --- saving --------------------------------------------------------------------------------
+    def _save_view(self, model: Path) -> None:
+        """sources.saved_view_file(model): the up and the camera the edit is seen with, in the
+        model file's frame, so the file reopens level and here (its shape alone may say another
+        up: the courtyard's edit reopened 32 degrees tilted, seen from below)."""
+        from inceptiongs.io.atomic import atomic_write_text  # noqa: PLC0415
+
+        from .sources import saved_view_file  # noqa: PLC0415
+
+        camera = self.view.current_camera()
+        scene = self.view.source.scene
+        if scene is not None:   # the normalisation is a shift and a scale: the up is unchanged
+            camera = scene.normalization.camera_to_original(camera)
+        data = {"up": [float(v) for v in self.view.up], "camera": camera.to_json_dict()}
+        atomic_write_text(saved_view_file(model), json.dumps(data, indent=1))
+
     def save_ply(self, path: str | Path) -> Path:
         """Write the shown Gaussians (atomic) to ``path``, or to the first free name after it
         when it exists (runs.fresh_file: a save never replaces one); the "file" field then
@@ -371,6 +388,7 @@ class Editor:
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_ply(gaussians, path)
+        self._save_view(path)
         if str(typed) != self.offered_path:   # a name the user typed starts a series of its own
             self.save_series = typed
         self.save_path = self.offered_path = str(fresh_file(self.save_series))

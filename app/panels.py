@@ -517,15 +517,23 @@ def draw_job_question(ui, jobs) -> None:
     imgui.end_popup()
 
 
+def poorly_fit_line(count: int) -> str:
+    """"1 training photo fits poorly (orange frustum)", "3 training photos fit poorly (...)"."""
+    if count == 1:
+        return "1 training photo fits poorly (orange frustum)"
+    return f"{count} training photos fit poorly (orange frustums)"
+
+
 def _poorly_fit(ui, jobs) -> None:
     """The open run's training photos it fits poorly (view_fit.json): how many, and a button that
     steps through them (their frustums are drawn in POORLY_FIT_COLOR)."""
     if not jobs.poorly_fit:
         return
     worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(jobs.poorly_fit.items())[:3])
-    imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0),
-                       f"{len(jobs.poorly_fit)} training photos fit poorly (orange frustums)")
+    line = poorly_fit_line(len(jobs.poorly_fit))
+    imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0), line)
     _remember(ui, "poorly fit photos")
+    ui.texts["poorly fit photos"] = line
     if imgui.is_item_hovered():
         imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: they "
                           f"disagree with the others (moved objects, wrong poses, exposure changes) or show what "

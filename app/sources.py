@@ -49,6 +49,9 @@ class ViewerSource:
     notes: list[str] = field(default_factory=list)
     runs: list[Path] = field(default_factory=list)  # a scene's runs (sources.scene_runs), oldest first
     runs_dir: Path | None = None  # the runs folder the user chose (--runs); None: ./runs (runs.runs_folder)
+    # A saved edit's view (saved_view_file): the world up [3] and the camera it was saved from.
+    saved_up: np.ndarray | None = None
+    saved_camera: Camera | None = None
 
 
 def points_as_splats(points: np.ndarray, colors: np.ndarray | None) -> dict:
@@ -154,6 +157,29 @@ def newest_model(work_dir: Path, runs: list[Path] | None = None, saved: Path | N
     return max(candidates, key=lambda item: item[0])[1] if candidates else None
 
 
+def saved_view_file(model: Path) -> Path:
+    """NAME.view.json beside a saved edit NAME.ply: the up and the camera it was saved with, so
+    it reopens level and where it was seen (a model alone only guesses its up from its shape)."""
+    return model.with_name(model.stem + ".view.json")
+
+
+def read_saved_view(model: Path) -> tuple[np.ndarray | None, Camera | None, str | None]:
+    """(up [3] unit, camera, None) from saved_view_file(model); (None, None, None) when there is
+    none; (None, None, the problem) when it cannot be used: the model still opens, guessed."""
+    path = saved_view_file(model)
+    if not path.is_file():
+        return None, None, None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        up = np.asarray(data["up"], np.float64).reshape(3)
+        norm = float(np.linalg.norm(up))
+        if not np.isfinite(norm) or norm < 1e-6:   # a zero or broken up has no direction
+            raise ValueError("its up is not a direction")
+        return up / norm, camera_from_json_dict(data["camera"], str(path)), None
+    except (OSError, ValueError, KeyError, TypeError, InputError) as exc:
+        return None, None, f"{path}: not a readable saved view ({exc}); the view is guessed from the model"
+
+
 def _cameras_json(path: Path) -> list[Camera]:
     """A run folder's cameras.json: a list of camera JSON objects (optional)."""
     if not path.is_file():
@@ -244,9 +270,10 @@ def _open_source(path: Path, runs_dir: Path | None, say) -> ViewerSource:
         if not is_model_file(path):
             raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
         say(f"reading the model {path.name} ({_megabytes(path)})")
+        up, camera, problem = read_saved_view(path)
         # The folder beside a user's PLY is input too: flags and screenshots go to the cache.
         return ViewerSource("ply", path, _read_ply_arrays(path), [], scene_cache_dir(path, [path]),
-                            model_path=path)
+                            model_path=path, saved_up=up, saved_camera=camera, notes=[problem] if problem else [])
     from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
 
     if (path / "config.json").is_file():

@@ -18,7 +18,8 @@ from inceptiongs.lod.hierarchy import GAUSSIAN_FIELDS
 
 from . import flags as flagging
 from .editing import EditState
-from .navigation import NavigationState, default_view, estimate_up, forward_facing, framed, leveled, model_up
+from .navigation import (NavigationState, default_view, estimate_up, forward_facing, framed, leveled, model_up,
+                         statistics_sample)
 from .settings import StatusLine, ViewSettings
 
 
@@ -38,8 +39,13 @@ class View:
         self.shows_points = bool(getattr(source, "sparse_points", False))
         self.cameras = source.cameras
         # Up: the cameras' mean up, else the model's dominant plane; the View panel may change it.
-        self.up = estimate_up(self.cameras) if self.cameras else model_up(source.gaussians["means"])
-        self.up_source = "from the cameras" if self.cameras else "from the model"
+        saved_up = getattr(source, "saved_up", None)
+        if self.cameras:
+            self.up, self.up_source = estimate_up(self.cameras), "from the cameras"
+        elif saved_up is not None:   # a saved edit: the up it was edited with (sources.read_saved_view)
+            self.up, self.up_source = saved_up, "as saved"
+        else:
+            self.up, self.up_source = model_up(source.gaussians["means"]), "from the model"
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
@@ -93,6 +99,11 @@ class View:
                 return nav
             covered, _ = self.window_to_framebuffer(self.covered_left, 0.0)
             return framed(nav, means, width, height, covered, self.cameras)
+        saved = getattr(self.source, "saved_camera", None)
+        if saved is not None:   # a saved edit reopens where it was seen when saved
+            pivot = saved.center + saved.rotation[2] * _saved_pivot_distance(saved.center, means)
+            return NavigationState.from_camera(saved, up=self.up, speed=default_view(means, width, height).speed,
+                                               pivot=pivot)
         return default_view(means, width, height, up=self.up)
 
     def untouched(self) -> bool:
@@ -217,3 +228,11 @@ class View:
                 self.status.text = f"training photo not shown: {exc}"
                 self._photo_cache = (index, None)
         return self._photo_cache[1]
+
+
+def _saved_pivot_distance(center: np.ndarray, means: np.ndarray) -> float:
+    """How far ahead of a saved camera its orbit centre lies: the distance to the model's median
+    (centre [3], means [N, 3]); 1 without a model. Floored so the pivot is never at the eye."""
+    if len(means) == 0:
+        return 1.0
+    return max(float(np.linalg.norm(np.median(statistics_sample(means), axis=0) - center)), 1e-3)

@@ -158,6 +158,38 @@ def test_save_ply_and_f12_never_overwrite_and_name_the_file(xvfb, tmp_path):
         assert one != two and one.is_file() and two.is_file(), viewer.status
 
 
+def test_a_saved_edit_reopens_level_and_where_it_was_seen(xvfb, demo_scene, tmp_path):
+    """A saved edit of the courtyard reopened 32 degrees tilted and seen from below: a model alone
+    only guesses its up from its shape. The saved file reopens with the scene's up and the view
+    it was saved from (in the file's frame: the scene's original one)."""
+    with opened(open_viewer, demo_scene, 640, 480) as viewer:
+        scene_up = viewer.view.up.copy()
+        viewer.view.snap_to_camera(2)
+        viewer.step()
+        seen = viewer.view.source.scene.normalization.camera_to_original(viewer.view.current_camera())
+        for header in ("View", "Inspect", "Flags", "Training"):
+            click_widget(viewer, header)
+        click_widget(viewer, "Edit")
+        scroll_panel_to(viewer, "save PLY")
+        type_into(viewer, "file", str(tmp_path / "edit.ply"))
+        click_widget(viewer, "save PLY")
+        saved = Path(viewer.status.split(" to ", 1)[1])
+        assert saved == tmp_path / "edit.ply" and saved.is_file(), viewer.status
+    with opened(open_viewer, saved, 640, 480) as viewer:
+        view = viewer.view
+        tilt = np.degrees(np.arccos(np.clip(view.up @ scene_up, -1.0, 1.0)))
+        assert tilt < 0.5 and view.up_source == "as saved", (tilt, view.up_source)
+        np.testing.assert_allclose(view.nav.world_to_camera, seen.world_to_camera, atol=1e-6)
+        assert -view.nav.rotation[1] @ scene_up > 0.5     # the camera's up is the scene's: not from below
+        image = _scene_image(viewer)
+        assert _lit(image) > 0.02, _lit(image)            # the courtyard in view, not empty sky
+    # Without its view file the model still opens (its up guessed from its shape); a broken one
+    # is named and ignored.
+    (tmp_path / "edit.view.json").write_text("{", encoding="utf-8")
+    with opened(open_viewer, saved, 640, 480) as viewer:
+        assert viewer.view.up_source == "from the model" and "edit.view.json" in viewer.status
+
+
 # --- 3. open where the scene is -----------------------------------------------------------------
 
 @pytest.mark.slow

@@ -543,6 +543,7 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
             assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
         viewer.step()
         assert "poorly fit photos" in viewer.ui.rects
+        assert viewer.ui.texts["poorly fit photos"] == "2 training photos fit poorly (orange frustums)"
         click_widget(viewer, "next poorly fit photo")
         assert viewer.view.cameras[viewer.view.camera_index].name == second["name"]
         assert second["name"] in viewer.status and "7.0 dB" in viewer.status
@@ -559,6 +560,12 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
         assert viewer.jobs.settings.train_config(demo_scene).exclude_photos == [second["name"], first["name"]]
         click_widget(viewer, "leave them out of the next run")
         assert viewer.jobs.settings.exclude_photos == []
+    # One photo is "a photo", in the singular ("1 training photos" read wrong).
+    second.update(poorly_fit=False)
+    (run / VIEW_FIT_FILE).write_text(json.dumps(report))
+    with opened(Viewer, open_source(run), 900, 1000) as viewer:
+        viewer.step()
+        assert viewer.ui.texts["poorly fit photos"] == "1 training photo fits poorly (orange frustum)"
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:
