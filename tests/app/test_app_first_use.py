@@ -190,6 +190,39 @@ def test_a_saved_edit_reopens_level_and_where_it_was_seen(xvfb, demo_scene, tmp_
         assert viewer.view.up_source == "from the model" and "edit.view.json" in viewer.status
 
 
+def test_a_right_click_flag_comes_near_the_spot_it_names(xvfb, demo_scene):
+    """A right-click flag kept the far eye, so its before/after thumbnails showed the whole
+    courtyard instead of the clicked facade. It now stands as near the spot as the nearest
+    training photo, on the side it was clicked from, the spot at its centre."""
+    from inceptiongs.camera import project_points
+
+    with opened(open_viewer, demo_scene, 900, 600) as viewer:
+        viewer.view.settings.show_panel = False
+        viewer.status = ""
+        _frames(viewer)
+        hits = [(x, y) for y in range(150, 450, 30) for x in range(250, 650, 30)
+                if viewer.view.pick_point(x, y) is not None]
+        assert hits, "nothing under the cursor anywhere in the middle of the window"
+        x, y = hits[len(hits) // 2]
+        eye = viewer.view.current_camera().center
+        spot = viewer.view.pick_point(x, y)
+        viewer.input.on_cursor(viewer.window, x, y)
+        viewer.step()
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.PRESS, 0)
+        viewer.input.on_mouse_button(viewer.window, glfw.MOUSE_BUTTON_RIGHT, glfw.RELEASE, 0)
+        viewer.step()
+        assert [f.name for f in viewer.flags.items] == ["flag 1"], viewer.status
+        flag = viewer.flags.items[0].camera
+        nearest = min(np.linalg.norm(c.center - spot) for c in viewer.view.cameras)
+        far = np.linalg.norm(eye - spot)
+        assert np.linalg.norm(flag.center - spot) <= min(nearest, far) + 1e-6, (nearest, far)
+        assert np.linalg.norm(flag.center - spot) < 0.9 * far, (nearest, far)
+        # The same side as the click, the spot in the middle of the flagged view.
+        assert (flag.center - spot) @ (eye - spot) > 0
+        pixel, _, inside = project_points(spot[None], flag)
+        assert inside[0] and np.allclose(pixel[0], (flag.cx, flag.cy), atol=1.0), pixel
+
+
 # --- 3. open where the scene is -----------------------------------------------------------------
 
 @pytest.mark.slow
