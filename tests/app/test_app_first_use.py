@@ -183,6 +183,12 @@ def test_a_saved_edit_reopens_level_and_where_it_was_seen(xvfb, demo_scene, tmp_
         assert -view.nav.rotation[1] @ scene_up > 0.5     # the camera's up is the scene's: not from below
         image = _scene_image(viewer)
         assert _lit(image) > 0.02, _lit(image)            # the courtyard in view, not empty sky
+    # --screenshot of the saved file is taken from there too (it used a view of the model's -Y).
+    from inceptiongs.app.screenshot import screenshot_camera
+    from inceptiongs.app.sources import open_source
+
+    shot = screenshot_camera(open_source(saved), None, None)
+    np.testing.assert_allclose(shot.world_to_camera, seen.world_to_camera, atol=1e-6)
     # Without its view file the model still opens (its up guessed from its shape); a broken one
     # is named and ignored.
     (tmp_path / "edit.view.json").write_text("{", encoding="utf-8")
