@@ -19,6 +19,7 @@ from .coverage_mode import CoverageMode
 from . import detail as level_of_detail
 from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
 from .editing import box_handles
+from .block_cells import CELL_COLOR
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
@@ -400,6 +401,9 @@ class FrameDrawer:
                 slot = shown.index(flag_book.selected)
                 colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
+        cells = view.block_cell_segments() if settings.mode == "coverage" else None
+        if cells is not None and len(cells):
+            self.overlay.draw_segments(camera, cells, np.tile(CELL_COLOR, (len(cells), 1)))
         if settings.crop_enabled:
             self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),
                                        np.tile(CROP_COLOR, (12, 1)))

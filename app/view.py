@@ -81,6 +81,20 @@ class View:
         self.source = source
         self.show_model(source.gaussians, points=bool(getattr(source, "sparse_points", False)))
 
+    def block_cell_segments(self):
+        """The open run's block cells as ground outlines [4 * C, 2, 3] (block_cells), None when it
+        was not trained in blocks; read once per source and model."""
+        from .block_cells import cell_outline_segments, read_block_plan  # noqa: PLC0415
+
+        key = (id(self.source), self.model_version)
+        if getattr(self, "_cells", (None, None))[0] != key:
+            plan, problem = read_block_plan(getattr(self.source, "run_dir", None))
+            if problem:
+                self.status.text = problem
+            segments = None if plan is None else cell_outline_segments(plan, self.edit.base["means"], self.up)
+            self._cells = (key, segments)
+        return self._cells[1]
+
     # --- the camera ----------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
         """Where the window opens: with cameras around the scene, framed on what they look at as
