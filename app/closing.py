@@ -10,6 +10,7 @@ second one quits without waiting."""
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass, field
 
 from inceptiongs.live import JobControl
@@ -29,6 +30,7 @@ class Closing:
 
     state: str = "open"
     signals: JobControl = field(default_factory=JobControl)
+    stop_asked_at: float = 0.0   # perf_counter() of "stop and save" (the saving line counts from it)
 
 
 def background_line(out_dir) -> str:
@@ -58,10 +60,17 @@ def stop_for_closing(viewer) -> None:
     """Stop the job (it saves model.ply and its checkpoint); the window closes once it has."""
     jobs = viewer.jobs
     viewer.closing.state = "stopping"
+    viewer.closing.stop_asked_at = time.perf_counter()
     if jobs.alive:
         jobs.training.stop(timeout=0)  # asks and returns: the frames go on while it saves
-        where = f" in {jobs.out_dir}" if jobs.out_dir is not None else ""
-        viewer.status = f"closing: the job stops and saves model.ply and a checkpoint{where}..."
+        viewer.status = saving_line(jobs.out_dir, 0.0)
+
+
+def saving_line(out_dir, seconds: float) -> str:
+    """What the window says while the stopped job saves, before it closes."""
+    where = f" in {out_dir}" if out_dir is not None else ""
+    return (f"closing: saving the job's model.ply and a checkpoint{where} ({seconds:.0f} s); the window closes "
+            "once they are on disk")
 
 
 def keep_open(viewer) -> bool:
@@ -73,7 +82,11 @@ def keep_open(viewer) -> bool:
     if closing.signals.stop.is_set() and closing.state in ("open", "asking"):
         stop_for_closing(viewer)
     if closing.state == "stopping":
-        return jobs.alive  # frames until the job's final save is written
+        if jobs.alive:   # frames until the job's final save is written, the seconds counted
+            line = saving_line(jobs.out_dir, time.perf_counter() - closing.stop_asked_at)
+            if line != viewer.status:
+                viewer.status = line
+        return jobs.alive
     if closing.state == "background":
         return False
     if closing.state == "asking" and not jobs.alive:
@@ -89,12 +102,16 @@ def keep_open(viewer) -> bool:
 
 
 def wait_in_background(viewer, poll_s: float = 0.5) -> None:
-    """With the window hidden: wait for the job's end; a stop signal stops it (it saves)."""
+    """With the window hidden: wait for the job's end (a stop signal stops it: it saves), then
+    say how it ended, as the window's closing line would have (time, iteration, scores, folder)."""
     jobs, closing = viewer.jobs, viewer.closing
     while jobs.alive:
         if closing.signals.stop.is_set() and not jobs.training.control.stop.is_set():
             jobs.training.stop(timeout=0)
         jobs.training.join(poll_s)
+    if jobs.training is not None:
+        jobs.report_job_end()
+        print(f"the job in the background ended: {viewer.status}", file=sys.stderr, flush=True)
 
 
 def draw_question(viewer) -> None:

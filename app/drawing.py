@@ -19,10 +19,12 @@ from .coverage_mode import CoverageMode
 from . import detail as level_of_detail
 from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
 from .editing import box_handles
+from .block_cells import CELL_COLOR
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .gizmo import gizmo_handles, gizmo_segments
 from .images import compose_photo, visualize
 from .overlay import OverlayRenderer, SceneTexture
+from .points import point_colours, render_points
 from .reference import ReferenceWorker, error_heatmap, side_by_side
 from .settings import GL_MODE_NAMES
 
@@ -48,8 +50,6 @@ STILL_SECONDS = 0.15
 # training view updates at reduced resolution) and refined once the job pauses, stops or goes
 # quiet.
 MODEL_STILL_SECONDS = 1.0
-# Sparse points are drawn this many window pixels wide (squares), whatever their distance.
-SPARSE_POINT_PIXELS = 2.0
 # The torch reference renders at most this many pixels wide (it runs on the CPU).
 REFERENCE_MAX_WIDTH = 320
 TRAINING_COLOR = (0.2, 0.6, 1.0)
@@ -140,6 +140,7 @@ class FrameDrawer:
         self._preview: tuple | None = None  # (model, arrays): what a large model shows while its tree builds
         self._model_age = float("inf")  # seconds since a job's snapshot last replaced the model
         self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
+        self.shown_arrays: dict | None = None  # what upload_model last handed over (coverage colours included)
 
     def upload_model(self, view) -> None:
         """Hand the view's visible Gaussians to the renderer when they changed (recoloured by
@@ -155,6 +156,7 @@ class FrameDrawer:
                 arrays = self.coverage.update(arrays, view.cameras, self.depth_of, model)
             self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
+            self.shown_arrays = arrays
 
     def detail_engaged(self, view, model_age: float) -> bool:
         """Whether this frame draws a large model by its level of detail (detail.py): a model of
@@ -259,7 +261,7 @@ class FrameDrawer:
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
         self.still_frame_owed = moving   # the frame after the motion stops refines (Viewer.is_idle)
-        points = view.shows_points and view.settings.mode == "rgb" and view.settings.photo == "off"
+        points = view.shows_points and view.settings.mode != "reference"
         scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         detail = self.detail_engaged(view, now - model_changed_at)
         settings = view.settings
@@ -284,7 +286,7 @@ class FrameDrawer:
         elif key != self.last_render_key:
             self.reference_shown = None  # the texture is about to hold a splat render
             if points:
-                self.draw_points(view, camera)
+                self.draw_points(view, camera, photo, stats)
             elif photo is not None:
                 # The render with the nearest training photo: composed on the CPU, then uploaded.
                 image = self.renderer.render(camera, "rgb", background=settings.background,
@@ -304,8 +306,10 @@ class FrameDrawer:
                 image = self.renderer.render(camera, GL_MODE_NAMES[mode], sh_degree_cap=settings.sh_degree_cap,
                                              splat_scale=settings.splat_scale)
                 self.scene_texture.upload(visualize(image, mode))
-            stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
-            stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
+            if not points:  # the points' own figures were set by draw_points
+                stats.sort_ms = float(self.renderer.timings.get("sort_ms", 0.0))
+                stats.draw_ms = float(self.renderer.timings.get("draw_ms", 0.0))
+                stats.drawn_by = "splats"
             if mode in ("rgb", "coverage") and photo is None and not points:  # the splats drawn into the texture
                 add_render_cost(self.render_costs, scale, sum(self.renderer.timings.values()))
                 if moving:
@@ -318,20 +322,27 @@ class FrameDrawer:
             self.last_render_key = key
         self.scene_texture.blit(screen)
 
-    def draw_points(self, view, camera) -> None:
-        """Sparse points as small screen-space points (SPARSE_POINT_PIXELS of the window, at
-        any distance) in their colours, far ones first, into the scene texture. The splats stay
-        uploaded: picking a depth under the cursor still reads them."""
-        arrays = view.edit.visible_arrays()
-        means = arrays["means"]
-        colors = np.clip(arrays["sh"][:, 0, :] * SH_C0 + SH_OFFSET, 0.0, 1.0)
-        depth = (means @ camera.rotation[2].astype(np.float32)) + np.float32(camera.world_to_camera[2, 3])
-        order = np.argsort(-depth, kind="stable")  # painter's order: no depth buffer needed
-        target = self.scene_texture.ensure(camera.width, camera.height)
-        target.use()
-        target.clear(*view.settings.background, 1.0)
-        self.overlay.draw_points(camera, means[order], colors[order], size=SPARSE_POINT_PIXELS)
-        self.scene_texture.flip_y = False
+    def points_image(self, view, camera) -> np.ndarray:
+        """The shown points (sparse or triangulated) as points.render_points draws them, in the
+        view's mode (coverage: their view-count colours), as displayable RGB [H, W, 3]: what the
+        window shows and what F12 writes. The splats stay uploaded: picking reads them."""
+        self.upload_model(view)
+        settings = view.settings
+        arrays = self.shown_arrays if self.shown_arrays is not None else view.edit.visible_arrays()
+        mode = settings.mode if settings.mode != "reference" else "rgb"
+        raw = render_points(arrays["means"], point_colours(arrays), camera, GL_MODE_NAMES[mode], settings.background)
+        return visualize(raw, mode)
+
+    def draw_points(self, view, camera, photo, stats) -> None:
+        """The points into the scene texture (with the nearest training photo when one is
+        shown); ``stats`` gets their drawing time, no sort (the frame figures name them)."""
+        start = time.perf_counter()
+        image = self.points_image(view, camera)
+        if photo is not None:
+            image = compose_photo(image, photo, view.settings.photo, view.settings.photo_alpha)
+        self.scene_texture.upload(image)
+        stats.sort_ms, stats.draw_ms = 0.0, 1e3 * (time.perf_counter() - start)
+        stats.drawn_by = "points"
 
     def draw_reference(self, view) -> None:
         """GL and torch at the same reduced camera; the torch image comes from the worker. The
@@ -395,6 +406,9 @@ class FrameDrawer:
                 slot = shown.index(flag_book.selected)
                 colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
+        cells = view.block_cell_segments() if settings.mode == "coverage" else None
+        if cells is not None and len(cells):
+            self.overlay.draw_segments(camera, cells, np.tile(CELL_COLOR, (len(cells), 1)))
         if settings.crop_enabled:
             self.overlay.draw_segments(camera, box_segments(settings.crop_min, settings.crop_max),
                                        np.tile(CROP_COLOR, (12, 1)))

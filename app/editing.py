@@ -8,6 +8,8 @@ Edits never touch the loaded arrays: an :class:`EditState` keeps a boolean ``ali
 
 from __future__ import annotations
 
+import json
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -303,8 +305,10 @@ class Editor:
 
     def __init__(self, view, status) -> None:
         self.view, self.status = view, status
-        # The Edit panel's "file" field: a new file in the visible NAME_saved folder beside the runs.
-        self.save_path = str(fresh_file(saved_dir(view.source, getattr(view.source, "runs_dir", None)) / "edited.ply"))
+        # The Edit panel's "file" field: a new file in the visible NAME_saved folder beside the
+        # runs; after each save the next free name of the same series (edited.ply, edited_2.ply ...).
+        self.save_series = saved_dir(view.source, getattr(view.source, "runs_dir", None)) / "edited.ply"
+        self.save_path = self.offered_path = str(fresh_file(self.save_series))
 
     def projected_means(self):
         return project_means(self.view.edit.base["means"], self.view.current_camera())
@@ -354,19 +358,34 @@ class Editor:
 
     def delete_selection(self) -> None:
         if self.view.edit.delete_selected():
-            self.status.text = f"deleted; {self.view.edit.count} Gaussians left"
+            self.say_edit_state(f"deleted; {self.view.edit.count} Gaussians left")
 
     def undo(self) -> None:
         """Undo the last edit; the status then says what is shown (a "deleted; N left" kept
         after the undo would name a state that is gone)."""
-        self.status.text = self._edit_state("undone") if self.view.edit.undo() else "nothing to undo"
+        if self.view.edit.undo():
+            self.say_edit_state(self._edit_state("undone"))
+        else:
+            self.status.text = "nothing to undo"
 
     def redo(self) -> None:
-        self.status.text = self._edit_state("redone") if self.view.edit.redo() else "nothing to redo"
+        if self.view.edit.redo():
+            self.say_edit_state(self._edit_state("redone"))
+        else:
+            self.status.text = "nothing to redo"
 
     def _edit_state(self, verb: str) -> str:
         edit = self.view.edit
         return f"{verb}; {edit.count} Gaussians shown, {int(edit.selected.sum())} selected"
+
+    def say_edit_state(self, text: str) -> None:
+        """A message about the edit state (counts shown, selected): it goes once the model or
+        the selection changes ("0 selected" stayed while the panel counted a new selection)."""
+        edit = self.view.edit
+        state = (edit.alive, int(edit.selected.sum()))
+        view = self.view
+        self.status.say(text, holds=lambda: view.edit is edit and edit.alive is state[0]
+                        and int(edit.selected.sum()) == state[1])
 
     # --- the crop box --------------------------------------------------------------------------
     def fit_crop_box(self) -> None:
@@ -416,18 +435,37 @@ class Editor:
     def apply_crop(self) -> None:
         settings = self.view.settings
         if self.view.edit.crop(np.array(settings.crop_min), np.array(settings.crop_max)):
-            self.status.text = f"cropped; {self.view.edit.count} Gaussians left"
+            self.say_edit_state(f"cropped; {self.view.edit.count} Gaussians left")
 
     # --- saving --------------------------------------------------------------------------------
+    def _save_view(self, model: Path) -> None:
+        """sources.saved_view_file(model): the up and the camera the edit is seen with, in the
+        model file's frame, so the file reopens level and here (its shape alone may say another
+        up: the courtyard's edit reopened 32 degrees tilted, seen from below)."""
+        from inceptiongs.io.atomic import atomic_write_text  # noqa: PLC0415
+
+        from .sources import saved_view_file  # noqa: PLC0415
+
+        camera = self.view.current_camera()
+        scene = self.view.source.scene
+        if scene is not None:   # the normalisation is a shift and a scale: the up is unchanged
+            camera = scene.normalization.camera_to_original(camera)
+        data = {"up": [float(v) for v in self.view.up], "camera": camera.to_json_dict()}
+        atomic_write_text(saved_view_file(model), json.dumps(data, indent=1))
+
     def save_ply(self, path: str | Path) -> Path:
-        """Write the shown Gaussians (atomic). Models of a scene are stored in the scene's
-        original frame, like the trainer's model.ply."""
+        """Write the shown Gaussians (atomic) to ``path``, or to the first free name after it
+        when it exists (runs.fresh_file: a save never replaces one); the "file" field then
+        offers the next free name. Models of a scene are stored in the scene's original frame,
+        like the trainer's model.ply. -> the file written."""
         from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 (torch only when saving)
         from inceptiongs.io.ply import write_ply  # noqa: PLC0415
 
         source = self.view.source
         scene = source.scene
-        path = Path(path).expanduser()
+        typed = Path(path).expanduser()
+        # A save never replaces a file: the first free name of the series (name_2.ply ...).
+        path = fresh_file(typed)
         if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
             raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
                              f"save elsewhere (the default is {saved_dir(source, getattr(source, 'runs_dir', None))})")
@@ -436,5 +474,10 @@ class Editor:
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_ply(gaussians, path)
-        self.status.text = f"saved {len(gaussians)} Gaussians to {path}"
+        self._save_view(path)
+        if str(typed) != self.offered_path:   # a name the user typed starts a series of its own
+            self.save_series = typed
+        self.save_path = self.offered_path = str(fresh_file(self.save_series))
+        kept = f" ({typed.name} exists: kept)" if path != typed else ""
+        self.status.text = f"saved {len(gaussians)} Gaussians to {path}{kept}"
         return Path(path)

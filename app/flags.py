@@ -10,11 +10,17 @@ from pathlib import Path
 import numpy as np
 
 from inceptiongs.camera import Camera, look_at
+from inceptiongs.constants import NEAR_PLANE
 from inceptiongs.errors import InputError
 from inceptiongs.io import flags as flag_io
 from inceptiongs.io.flags import Flag, now_iso
 
 from .coverage_mode import SUGGESTED_FLAGS
+
+# A right-click flag without training cameras comes this share of the way's length from the spot.
+FLAG_APPROACH = 0.25
+# Nearest a right-click flag stands to its spot (scene units): well past the near plane.
+FLAG_MIN_DISTANCE = 10 * NEAR_PLANE
 
 
 def unique_flag_name(flags: list[Flag], prefix: str = "flag") -> str:
@@ -45,6 +51,30 @@ def flag_aimed_at(camera: Camera, target: np.ndarray, name: str) -> Flag:
     up = -camera.rotation[1]
     pose = look_at(camera.center, target, up)
     return Flag(name, camera.with_pose(pose, name=name), now_iso())
+
+
+def approach_distance(eye: np.ndarray, target: np.ndarray, cameras: list[Camera]) -> float:
+    """How far from ``target`` [3] a right-click flag stands: as near as the nearest training
+    camera's centre is to it (the spot at the scale a photo shows it), never farther than the
+    eye [3] already is; without cameras, FLAG_APPROACH of the eye's distance. A flag kept at the
+    far eye showed the whole scene in its before/after thumbnails, not the spot clicked."""
+    current = float(np.linalg.norm(np.asarray(eye, np.float64) - target))
+    if cameras:
+        nearest = min(float(np.linalg.norm(c.center - target)) for c in cameras)
+        return max(min(current, nearest), FLAG_MIN_DISTANCE)
+    return max(current * FLAG_APPROACH, FLAG_MIN_DISTANCE)
+
+
+def flag_approaching(camera: Camera, target: np.ndarray, distance: float, name: str) -> Flag:
+    """flag_aimed_at from the point ``distance`` from ``target`` [3] on the line to ``camera``'s
+    eye: the same side, the clicked spot nearer. An eye on the target keeps its place."""
+    offset = camera.center - np.asarray(target, np.float64)
+    length = float(np.linalg.norm(offset))
+    if length < 1e-9:   # no direction to come from: aim from where the camera is
+        return flag_aimed_at(camera, target, name)
+    eye = target + offset * (distance / length)
+    moved = camera.with_pose(look_at(eye, target, -camera.rotation[1]))
+    return flag_aimed_at(moved, target, name)
 
 
 class FlagBook:
@@ -78,7 +108,9 @@ class FlagBook:
             self.status.text = "right-click: no surface under the cursor, nothing flagged"
             return
         name = unique_flag_name(self.items)
-        self.items.append(flag_aimed_at(self.view.current_camera(), point, name))
+        camera = self.view.current_camera()
+        distance = approach_distance(camera.center, point, self.view.cameras)
+        self.items.append(flag_approaching(camera, point, distance, name))
         self.save()
         self.status.text = f"flagged a view aimed at {np.round(point, 3).tolist()} as {name!r}"
 
@@ -126,5 +158,9 @@ class FlagBook:
         self.status.text = f"flag deleted; {left} flag{'s' if left != 1 else ''} left"
 
     def jump_to(self, index: int) -> None:
-        self.view.look_from(self.items[index].camera)
-        self.status.text = f"looking from flag {self.items[index].name!r}"
+        """Stand at flag ``index``'s view; the message says so while the camera stays there."""
+        view = self.view
+        view.look_from(self.items[index].camera)
+        pose = view.nav.world_to_camera.copy()
+        self.status.say(f"looking from flag {self.items[index].name!r}",
+                        holds=lambda: bool(np.allclose(view.nav.world_to_camera, pose)))

@@ -111,8 +111,9 @@ class InputController:
             refused = mode_unavailable(mode, view.source)
             if refused is None:
                 settings.mode = mode
+                viewer.status_line.drop("mode")   # an earlier refusal is answered by this choice
             else:
-                viewer.status = refused
+                viewer.status_line.say(refused, topic="mode")
 
     def on_char(self, window, codepoint) -> None:
         self.last_event = time.perf_counter()

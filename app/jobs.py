@@ -18,8 +18,8 @@ from inceptiongs.train.view_fit import read_poorly_fit
 from .capabilities import one_line, training_unavailable
 from .live_training import LiveTraining
 from .progress import closing_line, final_scores, format_duration, plan_of, replan_line, resume_line, run_scores
-from .runs import (describe_model, new_bootstrap_dir, new_train_dir, resume_blocked_reason, run_dir_of,
-                   runs_folder)
+from .runs import (describe_model, new_baseline_dir, new_bootstrap_dir, new_train_dir, resume_blocked_reason,
+                   run_dir_of, runs_folder)
 from .sources import open_scene_run
 from .verdict import read_verdict, verdict_line
 
@@ -115,6 +115,22 @@ def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
     return TrainJob(config=resumed_config(Path(run_dir)), run_dir=Path(run_dir), resume=True)
 
 
+def baseline_job_for(verdict):
+    """The same-time baseline of the bootstrap result ``verdict`` (verdict.Verdict) is about: its
+    stage-I run continued on the photos alone for the bootstrap's wall time, into a fresh
+    ``RUN_baseline[_N]`` beside the stage-I run (where `inceptiongs demo` puts it, and where
+    the verdict looks)."""
+    from inceptiongs.bootstrap.job import BaselineJob
+
+    if verdict is None or verdict.stage1_run is None or not verdict.seconds:
+        raise InputError("no bootstrap result with a known time and stage-I run to run a baseline for")
+    stage1 = Path(verdict.stage1_run)
+    if not (stage1 / "config.json").is_file():
+        raise InputError(f"{stage1}: the bootstrap's stage-I run is not there (moved or deleted)")
+    return BaselineJob(run_dir=stage1, out_dir=new_baseline_dir(stage1), seconds=float(verdict.seconds),
+                       eval_every=VIEWER_EVAL_EVERY)
+
+
 def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
     """Stage II of ``run_dir`` on the views flagged in ``flags_file`` into a fresh folder
     (config: a BootstrapConfig, default the command line's defaults)."""
@@ -128,6 +144,27 @@ def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
         raise InputError("no flagged views: flag the bad views first (F or right-click)")
     return BootstrapJob(run_dir=Path(run_dir), out_dir=new_bootstrap_dir(run_dir), targets_file=Path(flags_file),
                         config=config or BootstrapConfig())
+
+
+@dataclass
+class JobRequest:
+    """A job asked for and not yet confirmed: the panel shows ``question`` with "start the job" /
+    "do not start" (panels._job_question) and nothing runs before the first is pressed (a
+    mis-click never starts minutes of work). ``job``: built when asked (what could not be built
+    was said at once); ``out_dir``: where it writes; ``message``: the status once it starts."""
+
+    kind: str       # "training", "resume", "bootstrap", "baseline"
+    job: object
+    out_dir: Path | None
+    message: str
+    question: str
+
+
+def budget_text(minutes: float | None, iterations: int | None = None) -> str:
+    """"for at most 3 min 00 s", "for 2000 iterations" or "" (what a job's question says of its length)."""
+    if minutes is not None:
+        return f"for at most {format_duration(60.0 * minutes)}"
+    return f"for {iterations} iterations" if iterations else ""
 
 
 class Jobs:
@@ -166,6 +203,8 @@ class Jobs:
         self.bootstrap_base: dict | None = None  # the Gaussians shown when it started (stage I)
         self.bootstrap_views: list = []           # [(flag name, Camera)] it repairs
         self.verdict_images_due = self.verdict is not None  # the viewer renders them on its next frame
+        self.pending: JobRequest | None = None  # a job asked for, waiting for the user's "start"
+        self.baseline_of: Path | None = None  # the bootstrap result a running baseline was asked for
         self.read_view_fit()
 
     @property
@@ -191,45 +230,115 @@ class Jobs:
         """Why "train (new run)" is greyed out, or None (a job factory decides for itself)."""
         return None if self.factory is not None else training_unavailable(self.view.source)
 
-    def start_training(self) -> None:
-        """A new stage-I run (the job dialog's settings) in a fresh run folder."""
-        if self.alive:
-            return
+    def training_request(self) -> JobRequest | None:
+        """A new stage-I run (the job dialog's settings) in a fresh run folder; None (said in the
+        status line) when it cannot be built."""
         try:
             job = (self.factory(self.view.source) if self.factory is not None
                    else train_job_for(self.view.source, self.settings))
         except Exception as exc:  # noqa: BLE001 - a job that cannot be built is shown, not fatal
             self.status.text = f"training could not start: {one_line(exc)}"
-            return
+            return None
         out_dir = getattr(job, "run_dir", None)
-        self.start_job(job, out_dir, f"training into {out_dir}" if out_dir else "training")
+        config = getattr(job, "config", None)
+        length = budget_text(getattr(config, "minutes", None), getattr(config, "iterations", None))
+        where = f" into {out_dir}" if out_dir else ""
+        return JobRequest("training", job, out_dir, f"training into {out_dir}" if out_dir else "training",
+                          f"Train a new run{where}{' ' + length if length else ''}?")
 
-    def resume_training(self) -> None:
-        """Continue the open run from its newest checkpoint."""
-        if self.alive:
-            return
+    def resume_request(self) -> JobRequest | None:
+        """Continue the open run from its newest checkpoint; None (said) when it cannot."""
         try:
             job = resume_job_for(self.run_dir, self.settings)
         except Exception as exc:  # noqa: BLE001 - shown in the status line
             self.status.text = f"resume could not start: {exc}"
+            return None
+        return JobRequest("resume", job, job.run_dir, f"resuming {job.run_dir}",
+                          f"Resume {job.run_dir} from its newest checkpoint with its saved plan?")
+
+    def bootstrap_request(self, config=None) -> JobRequest | None:
+        """Stage II on the flagged views of the open run (config: default the job dialog's
+        settings); None (said) when it cannot."""
+        try:
+            config = config or self.settings.bootstrap_config()
+            job = bootstrap_job_for(self.run_dir, self.flags.file, config)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
+            self.status.text = f"bootstrap could not start: {exc}"
+            return None
+        count = len(self.flags.items)
+        length = budget_text(getattr(config, "minutes", None), None)
+        return JobRequest("bootstrap", job, job.out_dir,
+                          f"bootstrapping {count} flagged view(s) of {job.run_dir}",
+                          f"Bootstrap {count} flagged view(s) of {job.run_dir} into {job.out_dir}"
+                          f"{' ' + length if length else ''}?")
+
+    def baseline_request(self) -> JobRequest | None:
+        """The same-time baseline of the verdict's bootstrap; None (said) when it cannot run."""
+        try:
+            job = baseline_job_for(self.verdict)
+        except Exception as exc:  # noqa: BLE001 - shown in the status line
+            self.status.text = f"baseline could not start: {one_line(exc)}"
+            return None
+        return JobRequest("baseline", job, job.out_dir,
+                          f"baseline: {job.run_dir} continued on the photos alone for {format_duration(job.seconds)}",
+                          f"Run the same-time baseline: {job.run_dir} continued on the photos alone for "
+                          f"{format_duration(job.seconds)} (the bootstrap's time) into {job.out_dir}?")
+
+    def ask(self, kind: str) -> None:
+        """A job button was pressed: build the job and ask before it runs (the question shows until
+        "start the job" or "do not start"). Nothing when a job is alive or a question is open."""
+        if self.alive:
+            self.status.text = "a job is running: stop it first"
             return
-        self.start_job(job, job.run_dir, f"resuming {job.run_dir}")
-        self.status.text = resume_line(job.run_dir, self.training.plan, job.config.minutes)
+        if self.pending is not None:
+            return
+        build = {"training": self.training_request, "resume": self.resume_request,
+                 "bootstrap": self.bootstrap_request, "baseline": self.baseline_request}[kind]
+        self.pending = build()
+
+    def confirm(self) -> None:
+        """The user's "start the job": the asked job runs."""
+        request, self.pending = self.pending, None
+        if request is not None and not self.alive:
+            self.start_request(request)
+
+    def cancel(self) -> None:
+        """The user's "do not start"."""
+        if self.pending is not None:
+            self.status.text = f"not started: {self.pending.kind}"
+        self.pending = None
+
+    def start_request(self, request: JobRequest | None) -> None:
+        """Run a built request's job now (confirm, or the start_* calls below)."""
+        if request is None or self.alive:
+            return
+        if request.kind == "bootstrap":
+            self.bootstrap_base = self.view.edit.visible_arrays()
+            self.bootstrap_views = [(flag.name, flag.camera) for flag in self.flags.items]
+        verdict = self.verdict if request.kind == "baseline" else None
+        self.start_job(request.job, request.out_dir, request.message)
+        if request.kind == "resume":
+            self.status.text = resume_line(request.job.run_dir, self.training.plan, request.job.config.minutes)
+        if verdict is not None:
+            self.baseline_of = verdict.out_dir   # its verdict is read again when the baseline ends
+
+    def start_training(self) -> None:
+        """A new stage-I run (the job dialog's settings) in a fresh run folder, at once."""
+        if not self.alive:
+            self.start_request(self.training_request())
+
+    def resume_training(self) -> None:
+        """Continue the open run from its newest checkpoint, at once."""
+        if not self.alive:
+            self.start_request(self.resume_request())
 
     def start_bootstrap(self, config=None) -> None:
-        """Stage II on the flagged views of the open run as the live job (config: default the job
-        dialog's settings)."""
+        """Stage II on the flagged views of the open run as the live job, at once (config:
+        default the job dialog's settings)."""
         if self.alive:
             self.status.text = "a job is running: stop it before bootstrapping"
             return
-        try:
-            job = bootstrap_job_for(self.run_dir, self.flags.file, config or self.settings.bootstrap_config())
-        except Exception as exc:  # noqa: BLE001 - shown in the status line, never fatal
-            self.status.text = f"bootstrap could not start: {exc}"
-            return
-        self.bootstrap_base = self.view.edit.visible_arrays()
-        self.bootstrap_views = [(flag.name, flag.camera) for flag in self.flags.items]
-        self.start_job(job, job.out_dir, f"bootstrapping {len(self.flags.items)} flagged view(s) of {job.run_dir}")
+        self.start_request(self.bootstrap_request(config))
 
     def start_job(self, job, out_dir: Path | None, message: str) -> None:
         """Run ``job`` live; its folder becomes the open run (Resume and Bootstrap use it)."""
@@ -284,7 +393,13 @@ class Jobs:
             return
         self.status.text = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
                                         final_scores(run.progress.psnr), self.out_dir)
-        if self.out_dir is not None and self.out_dir == self.run_dir:
+        if self.baseline_of is not None:
+            # A same-time baseline ended: the verdict of the bootstrap it was run for, now with it.
+            self.set_verdict(read_verdict(self.baseline_of))
+            self.baseline_of = None
+            if self.verdict is not None:
+                self.status.text += f"; the bootstrap's verdict: {verdict_line(self.verdict)}"
+        elif self.out_dir is not None and self.out_dir == self.run_dir:
             self.read_view_fit()  # a finished run has just written its report
             self.set_verdict(read_verdict(self.out_dir))
             self.verdict_images_due = self.verdict is not None

@@ -67,25 +67,24 @@ def _open(args, size) -> int:
         runs_dir = Path(args.runs)
         if runs_dir.exists() and not runs_dir.is_dir():
             raise InputError(f"{runs_dir}: --runs must be a folder (it is created when a run starts)")
-    source = open_source(args.source, runs_dir)
     if args.screenshot:
-        path = take_screenshot(source, args.screenshot, args.camera, size)
+        path = take_screenshot(open_source(args.source, runs_dir), args.screenshot, args.camera, size)
         print(f"wrote {path}", file=sys.stderr)
         return 0
-    from .detail import check_window_memory  # noqa: PLC0415
-    from .viewer import Viewer  # noqa: PLC0415
+    from .loading import open_with_progress  # noqa: PLC0415
+    from .sources import check_openable  # noqa: PLC0415
     from .window import WindowError  # noqa: PLC0415
 
-    model = source.gaussians
-    check_window_memory(source.model_path or source.path, len(model["means"]), model["sh"].shape[1])
+    check_openable(args.source)   # bad input is one line, before a window opens
 
     width, height = size or (1280, 720)
     try:
-        viewer = Viewer(source, width, height)
+        # The window shows from its first frame what is being read (loading.py).
+        viewer = open_with_progress(args.source, runs_dir, width, height)
     except WindowError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return viewer.run()
+    return 0 if viewer is None else viewer.run()
 
 
 if __name__ == "__main__":

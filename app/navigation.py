@@ -287,6 +287,20 @@ FRAME_MAX_CAMERAS = 32
 FRAME_ELEVATION_DEG = 35.0
 
 
+# Cameras whose viewing directions' mean is at least this long (1: all the same way) face one
+# way, as a forward-facing (LLFF) capture's: the scene is in front of each of them.
+FORWARD_FACING_MIN_MEAN = 0.9
+
+
+def forward_facing(cameras: list[Camera]) -> bool:
+    """Whether ``cameras`` all look roughly the same way (FORWARD_FACING_MIN_MEAN): fern's
+    do, a capture around an object or a room's (bonsai's, the demo courtyard's) do not."""
+    if not cameras:
+        return False
+    directions = np.stack([camera.rotation[2] for camera in cameras])   # unit rows: the mean is <= 1
+    return float(np.linalg.norm(directions.mean(axis=0))) >= FORWARD_FACING_MIN_MEAN
+
+
 def looked_at(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
     """[N] bool: which of ``means`` [N, 3] lie in front of and inside the image of at least one
     of ``cameras`` (all True without cameras)."""

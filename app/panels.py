@@ -34,6 +34,14 @@ PANEL_WIDTH = 400
 PANEL_MIN_WIDTH = 300
 # A widget beside a long label keeps at least this width (its label may then wrap the panel).
 MIN_ITEM_WIDTH = 60
+# A job button that cannot run here: grey on grey, unlike the live buttons' blue.
+OFF_BUTTON_COLOR = (0.27, 0.27, 0.28)
+OFF_TEXT_COLOR = (0.55, 0.55, 0.55)
+# The question a job button asks before anything runs (draw_job_question), and its answers.
+JOB_QUESTION = "start a job?"
+START_JOB = "start the job"
+DO_NOT_START = "do not start"
+QUESTION_WIDTH = 560.0
 
 
 
@@ -66,6 +74,7 @@ def draw_panels(viewer) -> None:
     view, ui = viewer.view, viewer.ui
     draw_tool_feedback(view, viewer.input)
     if not view.settings.show_panel:  # Tab hid it: the scene, the tools' outlines, the notification
+        draw_job_question(ui, viewer.jobs)
         draw_notification(ui, viewer.status_line, panel_shown=False)
         if ui.show_help:
             _help(ui)
@@ -97,6 +106,7 @@ def draw_panels(viewer) -> None:
         draw_camera_path(ui, viewer.paths)
     ui.layout = _layout()
     imgui.end()
+    draw_job_question(ui, viewer.jobs)
     draw_notification(ui, viewer.status_line, panel_shown=True)
     if ui.show_help:
         _help(ui)
@@ -237,8 +247,9 @@ def _path_line(ui, key: str, prefix: str, path, disabled: bool = False) -> None:
 
 def _stats(ui, s, edit, gl_error: str | None) -> None:
     """The frame statistics (settings.FrameStats), the model's size, a GL error if one came."""
-    _flow(ui, "stats", [f"{s.fps:.1f} FPS", f"frame {s.frame_ms:.1f} ms", f"sort {s.sort_ms:.1f} ms",
-                        f"draw {s.draw_ms:.1f} ms"])
+    figures = ([f"points {s.draw_ms:.1f} ms"] if s.drawn_by == "points"   # points need no sort (points.py)
+               else [f"sort {s.sort_ms:.1f} ms", f"draw {s.draw_ms:.1f} ms"])
+    _flow(ui, "stats", [f"{s.fps:.1f} FPS", f"frame {s.frame_ms:.1f} ms", *figures])
     _flow(ui, "model", [f"{edit.count} Gaussians", f"render scale {s.rendered_scale:.2f}"])
     if gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {gl_error}")
@@ -310,6 +321,7 @@ def _inspect(ui, view, drawing) -> bool:
                             list(RENDER_MODES), set(off))
     if changed:
         settings.mode = RENDER_MODES[index]
+        view.status.drop("mode")
     if off:  # greyed in the list above; one line says why
         _hint(f"{', '.join(RENDER_MODES[i] for i in off)}: off, {NO_CAMERAS}")
         _remember(ui, "why modes are off")
@@ -399,31 +411,21 @@ def _flags(ui, flags) -> None:
 def _training(ui, jobs) -> None:
     """The open run, the scene's runs, the job dialog and buttons, the live job (jobs.Jobs)."""
     run = jobs.training
-    _path_line(ui, "open run", "open run: ", jobs.run_dir or "(none: train first)")
+    no_run = "(none: train first)" if jobs.view.source.scene is not None else "(none: a bare model has no runs)"
+    _path_line(ui, "open run", "open run: ", jobs.run_dir or no_run)
     _runs(ui, jobs)
     _poorly_fit(ui, jobs)
     if run is None or not run.alive:
         _job_settings(ui, jobs)
         no_training = jobs.training_unavailable()
-        imgui.begin_disabled(no_training is not None)
-        if _button(ui, "train (new run)"):
-            jobs.start_training()
-        imgui.end_disabled()
+        _job_button(ui, jobs, "train (new run)", "training", no_training)
         blocked = resume_blocked_reason(jobs.run_dir)
         if can_resume(jobs.run_dir) or blocked is not None:
             _same_line_if_fits("resume")
-            imgui.begin_disabled(blocked is not None)  # shown, greyed, with the reason: not hidden
-            if _button(ui, "resume"):
-                jobs.resume_training()
-            imgui.end_disabled()
-            if blocked is not None and imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
-                imgui.set_tooltip(blocked)
+            _job_button(ui, jobs, "resume", "resume", blocked)  # shown, greyed, with the reason: not hidden
         _same_line_if_fits("Bootstrap flagged views")
         no_bootstrap = bootstrap_unavailable(jobs.view.source, jobs.run_dir)
-        imgui.begin_disabled(no_bootstrap is not None)
-        if _button(ui, "Bootstrap flagged views"):
-            jobs.start_bootstrap()
-        imgui.end_disabled()
+        _job_button(ui, jobs, "Bootstrap flagged views", "bootstrap", no_bootstrap)
         outlook = outlook_before_repair(jobs.run_dir) if no_bootstrap is None else None
         if outlook is not None:   # before the user spends minutes on a repair (bootstrap/outlook.py)
             _hint(outlook)
@@ -451,7 +453,8 @@ def _training(ui, jobs) -> None:
             run.control.stop.set()
             jobs.status.text = f"{kind} stopping: it saves its model and checkpoint"
     if run is None:
-        draw_verdict(ui, jobs.verdict)  # an opened bootstrap result
+        if draw_verdict(ui, jobs.verdict):  # an opened bootstrap result
+            jobs.ask("baseline")
         return
     _fit("job's share of the CPU")
     _, jobs.training_utilisation = imgui.slider_float("job's share of the CPU", jobs.training_utilisation,
@@ -460,8 +463,69 @@ def _training(ui, jobs) -> None:
     if jobs.out_dir is not None:
         _path_line(ui, "job writes", "job writes: ", jobs.out_dir)
     _progress(jobs, run)
-    draw_verdict(ui, jobs.verdict)
+    if draw_verdict(ui, jobs.verdict, offer_baseline=not run.alive):
+        jobs.ask("baseline")
     draw_plots(ui, run.progress)
+
+
+def _job_button(ui, jobs, label: str, kind: str, off: str | None) -> None:
+    """A button that asks for a job (jobs.ask: the question follows, nothing runs before
+    "start the job"). ``off``: why it cannot run here; the button is then drawn grey (not the
+    live buttons' blue dimmed, which read as live) and a click on it says why."""
+    if off is None:
+        if _button(ui, label):
+            jobs.ask(kind)
+        return
+    grey = imgui.ImVec4(*OFF_BUTTON_COLOR, 1.0)
+    for slot in (imgui.Col_.button, imgui.Col_.button_hovered, imgui.Col_.button_active):
+        imgui.push_style_color(slot, grey)
+    imgui.push_style_color(imgui.Col_.text, imgui.ImVec4(*OFF_TEXT_COLOR, 1.0))
+    imgui.begin_disabled()
+    _button(ui, label)
+    imgui.end_disabled()
+    imgui.pop_style_color(4)
+    if imgui.is_item_hovered(imgui.HoveredFlags_.allow_when_disabled):
+        imgui.set_tooltip(off)
+        if imgui.is_mouse_clicked(imgui.MouseButton_.left):
+            jobs.status.text = off
+
+
+def draw_job_question(ui, jobs) -> None:
+    """The question a job button asks (jobs.pending): what will run, where and for how long, with
+    "start the job" and "do not start"; modal, so no other click lands meanwhile. The buttons'
+    rectangles are kept in ui.rects under their labels."""
+    if jobs.pending is None:
+        return
+    if not imgui.is_popup_open(JOB_QUESTION):
+        imgui.open_popup(JOB_QUESTION)
+    width, height = imgui.get_io().display_size
+    imgui.set_next_window_pos(imgui.ImVec2(width * 0.5, height * 0.5), imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+    imgui.set_next_window_size_constraints(imgui.ImVec2(0, 0), imgui.ImVec2(min(QUESTION_WIDTH, width - 20),
+                                                                           max(height - 20, 1)))
+    if not imgui.begin_popup_modal(JOB_QUESTION, None, imgui.WindowFlags_.always_auto_resize)[0]:
+        return
+    imgui.push_text_wrap_pos(imgui.get_cursor_pos_x() + min(QUESTION_WIDTH, width - 20) - 30)
+    imgui.text(jobs.pending.question)
+    imgui.pop_text_wrap_pos()
+    start = _button(ui, START_JOB)
+    imgui.same_line()
+    cancel = _button(ui, DO_NOT_START)
+    pos, size = imgui.get_window_pos(), imgui.get_window_size()
+    ui.rects[JOB_QUESTION] = (pos.x, pos.y, pos.x + size.x, pos.y + size.y)
+    if start or cancel:
+        imgui.close_current_popup()
+        if start:
+            jobs.confirm()
+        else:
+            jobs.cancel()
+    imgui.end_popup()
+
+
+def poorly_fit_line(count: int) -> str:
+    """"1 training photo fits poorly (orange frustum)", "3 training photos fit poorly (...)"."""
+    if count == 1:
+        return "1 training photo fits poorly (orange frustum)"
+    return f"{count} training photos fit poorly (orange frustums)"
 
 
 def _poorly_fit(ui, jobs) -> None:
@@ -470,9 +534,10 @@ def _poorly_fit(ui, jobs) -> None:
     if not jobs.poorly_fit:
         return
     worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(jobs.poorly_fit.items())[:3])
-    imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0),
-                       f"{len(jobs.poorly_fit)} training photos fit poorly (orange frustums)")
+    line = poorly_fit_line(len(jobs.poorly_fit))
+    imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0), line)
     _remember(ui, "poorly fit photos")
+    ui.texts["poorly fit photos"] = line
     if imgui.is_item_hovered():
         imgui.set_tooltip(f"more than {POOR_FIT_MARGIN_DB:g} dB below the run's median training photo: they "
                           f"disagree with the others (moved objects, wrong poses, exposure changes) or show what "

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from inceptiongs.bootstrap.job import BootstrapJob
+from inceptiongs.bootstrap.job import BaselineJob, BootstrapJob
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.report import eval_series, read_metrics
 from inceptiongs.runs.checkpoint import list_checkpoints
@@ -68,6 +68,9 @@ def plan_of(job) -> JobPlan:
         return JobPlan(start, start + config.rounds * config.iterations,
                        None if config.minutes is None else 60.0 * config.minutes,
                        None if out is None else Path(out) / "metrics.jsonl", "bootstrap")
+    if isinstance(job, BaselineJob):   # runs for its time: the end is not known in steps
+        return JobPlan(stage1_iteration(job.run_dir), None, job.seconds, Path(job.out_dir) / "metrics.jsonl",
+                       "baseline")
     return JobPlan()
 
 

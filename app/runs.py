@@ -3,7 +3,8 @@
 A stage-I job started from the viewer writes the run folder `inceptiongs train SCENE` writes
 without --out, ``./runs/NAME`` in the current folder (then ``NAME_2``, ``NAME_3`` ...), or
 ``DIR/NAME`` in a runs folder the user picks (``inceptiongs-viewer --runs DIR``, or the Training
-panel's field); a bootstrap of ``RUN`` writes ``RUN_bootstrap`` (then ``RUN_bootstrap_2`` ...).
+panel's field); a bootstrap of ``RUN`` writes ``RUN_bootstrap`` (then ``RUN_bootstrap_2`` ...), and the
+same-time baseline a verdict offers ``RUN_baseline`` beside it.
 Saved PLYs and screenshots go to ``NAME_saved`` in the same runs folder. Every job gets a folder
 of its own, never one that exists; only "Resume" writes into an existing folder: the open run,
 which the user chose. The cache (a scene's work folder) keeps only what can be rebuilt."""
@@ -20,6 +21,7 @@ from inceptiongs.runs.folder import CLI_RUNS_FOLDER, SAVED_SUFFIX, default_run_d
 # command line does: still listed and opened.
 TRAIN_RUN_NAME = "train"
 BOOTSTRAP_SUFFIX = "_bootstrap"
+BASELINE_SUFFIX = "_baseline"
 
 
 def fresh_folder(base: Path) -> Path:
@@ -76,6 +78,13 @@ def new_bootstrap_dir(run_dir: Path) -> Path:
     """A fresh stage-II output folder beside the run it repairs."""
     run_dir = Path(run_dir)
     return fresh_folder(run_dir.with_name(run_dir.name + BOOTSTRAP_SUFFIX))
+
+
+def new_baseline_dir(run_dir: Path) -> Path:
+    """A fresh same-time baseline folder beside the stage-I run it continues (RUN_baseline[_N],
+    as `inceptiongs demo` names it)."""
+    run_dir = Path(run_dir)
+    return fresh_folder(run_dir.with_name(run_dir.name + BASELINE_SUFFIX))
 
 
 def run_dir_of(source) -> Path | None:

@@ -18,6 +18,7 @@ from inceptiongs.io.images import image_encoding, write_image
 
 from .images import visualize
 from .navigation import default_view, estimate_up
+from .points import point_colours, render_points
 from .sources import ViewerSource
 
 DEFAULT_SIZE = (1280, 720)
@@ -43,12 +44,13 @@ def resized(camera: Camera, width: int, height: int) -> Camera:
 
 def screenshot_camera(source: ViewerSource, camera_path: str | None, size: tuple[int, int] | None) -> Camera:
     """--camera if given (at its own size unless --size), else the first training camera at the
-    window's default size (its aspect kept: a run's training size may be 96x72), else a view of
-    the whole model."""
+    window's default size (its aspect kept: a run's training size may be 96x72), else a saved
+    edit's camera (the same way), else a view of the whole model."""
     if camera_path is not None:
         camera = read_camera_json(camera_path)
-    elif source.cameras:
-        camera = source.cameras[0]
+    elif source.cameras or getattr(source, "saved_camera", None) is not None:
+        # A saved edit's own view (sources.read_saved_view) where it has no training camera.
+        camera = source.cameras[0] if source.cameras else source.saved_camera
         if size is None:
             fit = min(DEFAULT_SIZE[0] / camera.width, DEFAULT_SIZE[1] / camera.height)
             size = (max(int(round(camera.width * fit)), 1), max(int(round(camera.height * fit)), 1))
@@ -100,6 +102,10 @@ def take_screenshot(source: ViewerSource, out_path: str | Path, camera_path: str
     image_encoding(out_path)  # a bad extension fails before any rendering
     gaussians = shown_model(source)
     camera = screenshot_camera(source, camera_path, size)
+    if source.sparse_points or source.points_pending:   # points, as the window draws them
+        raw = render_points(gaussians["means"], point_colours(gaussians), camera, mode)
+        write_image(out_path, visualize(raw, mode))
+        return Path(out_path)
     ctx, cleanup = _context()
     try:
         renderer = SplatRenderer(ctx)

@@ -85,6 +85,7 @@ class FrameStats:
     sort_ms: float = 0.0
     draw_ms: float = 0.0
     rendered_scale: float = 1.0
+    drawn_by: str = "splats"  # what made the image shown: "splats" (sorted, drawn) or "points" (points.py)
     frames: int = 0
     splat_renders: int = 0
     frame_times: list = field(default_factory=list)  # seconds of the last FRAME_TIME_WINDOW frames
@@ -104,12 +105,19 @@ class StatusLine:
     """The message that answers the last action, shown in the notification area
     (notifications.py) that stays in view; every part that acts on the user's behalf (view,
     flags, editor, jobs) replaces it when the state it names changes. ``serial`` counts the
-    replacements and ``changed_at`` (perf_counter) dates the last, so the area can mark a new one."""
+    replacements and ``changed_at`` (perf_counter) dates the last, so the area can mark a new one.
+
+    A message set with :meth:`say` may name the state it is about: ``holds`` (a callable, asked
+    once a frame by :meth:`check`) says whether that state is still there, and the message goes
+    when it is not ("looking from flag 1" once the camera moves); ``topic`` lets the action that
+    ends it take it back (:meth:`drop`: a mode key after "coverage mode is off")."""
 
     def __init__(self, text: str = "") -> None:
         self._text = ""
         self.serial = 0
         self.changed_at = time.perf_counter()
+        self.holds = None
+        self.topic: str | None = None
         self.text = text
 
     @property
@@ -121,6 +129,22 @@ class StatusLine:
         self._text = str(value)
         self.serial += 1
         self.changed_at = time.perf_counter()
+        self.holds, self.topic = None, None
+
+    def say(self, text: str, holds=None, topic: str | None = None) -> None:
+        """Show ``text`` while ``holds()`` is true (None: until replaced), under ``topic``."""
+        self.text = text
+        self.holds, self.topic = holds, topic
+
+    def drop(self, topic: str) -> None:
+        """Clear the message when it is one about ``topic``."""
+        if self.topic == topic:
+            self.text = ""
+
+    def check(self) -> None:
+        """Clear the message when the state it named has gone (once a frame)."""
+        if self.holds is not None and not self.holds():
+            self.text = ""
 
 
 @dataclass

@@ -49,6 +49,9 @@ class ViewerSource:
     notes: list[str] = field(default_factory=list)
     runs: list[Path] = field(default_factory=list)  # a scene's runs (sources.scene_runs), oldest first
     runs_dir: Path | None = None  # the runs folder the user chose (--runs); None: ./runs (runs.runs_folder)
+    # A saved edit's view (saved_view_file): the world up [3] and the camera it was saved from.
+    saved_up: np.ndarray | None = None
+    saved_camera: Camera | None = None
 
 
 def points_as_splats(points: np.ndarray, colors: np.ndarray | None) -> dict:
@@ -154,6 +157,29 @@ def newest_model(work_dir: Path, runs: list[Path] | None = None, saved: Path | N
     return max(candidates, key=lambda item: item[0])[1] if candidates else None
 
 
+def saved_view_file(model: Path) -> Path:
+    """NAME.view.json beside a saved edit NAME.ply: the up and the camera it was saved with, so
+    it reopens level and where it was seen (a model alone only guesses its up from its shape)."""
+    return model.with_name(model.stem + ".view.json")
+
+
+def read_saved_view(model: Path) -> tuple[np.ndarray | None, Camera | None, str | None]:
+    """(up [3] unit, camera, None) from saved_view_file(model); (None, None, None) when there is
+    none; (None, None, the problem) when it cannot be used: the model still opens, guessed."""
+    path = saved_view_file(model)
+    if not path.is_file():
+        return None, None, None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        up = np.asarray(data["up"], np.float64).reshape(3)
+        norm = float(np.linalg.norm(up))
+        if not np.isfinite(norm) or norm < 1e-6:   # a zero or broken up has no direction
+            raise ValueError("its up is not a direction")
+        return up / norm, camera_from_json_dict(data["camera"], str(path)), None
+    except (OSError, ValueError, KeyError, TypeError, InputError) as exc:
+        return None, None, f"{path}: not a readable saved view ({exc}); the view is guessed from the model"
+
+
 def _cameras_json(path: Path) -> list[Camera]:
     """A run folder's cameras.json: a list of camera JSON objects (optional)."""
     if not path.is_file():
@@ -196,29 +222,64 @@ def not_a_source_message(path: Path, scene_error: InputError) -> str:
     return f"{path}: not a scene ({reason}), and no .ply model or run inside"
 
 
-def open_source(path: str | Path, runs_dir: Path | None = None) -> ViewerSource:
+def open_source(path: str | Path, runs_dir: Path | None = None, say=None) -> ViewerSource:
     """The viewer's source for ``path``; ``runs_dir``: the runs folder the user named (--runs),
-    where new runs go and whose runs of the scene are listed (None: ./runs)."""
-    source = _open_source(Path(path), runs_dir)
+    where new runs go and whose runs of the scene are listed (None: ./runs); ``say``: called with
+    what is being read, each time that changes (the opening window shows it: loading.py)."""
+    source = _open_source(Path(path), runs_dir, say or (lambda text: None))
     source.runs_dir = runs_dir
     return source
 
 
-def _open_source(path: Path, runs_dir: Path | None) -> ViewerSource:
+def check_openable(path: str | Path) -> None:
+    """InputError (the line open_source would give) when ``path`` is clearly nothing the viewer
+    opens: missing, a file that is no model file, a folder that is neither a run, a scene nor holds
+    a .ply. Cheap (no model is read), so bad input is one line before any window opens."""
+    from inceptiongs.io.models import is_model_file  # noqa: PLC0415
+    from inceptiongs.scene.loader import detect_format  # noqa: PLC0415
+
+    path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: does not exist")
     if path.is_file():
-        from inceptiongs.io.models import is_model_file  # noqa: PLC0415
-
         if not is_model_file(path):
             raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
+        return
+    if (path / "config.json").is_file():
+        return
+    try:
+        detect_format(path)
+    except InputError as scene_error:
+        if newest_ply(path) is None:
+            raise InputError(not_a_source_message(path, scene_error)) from None
+
+
+def _megabytes(path: Path) -> str:
+    try:
+        return f"{path.stat().st_size / 1e6:,.0f} MB"
+    except OSError:
+        return "size unknown"
+
+
+def _open_source(path: Path, runs_dir: Path | None, say) -> ViewerSource:
+    from inceptiongs.io.models import is_model_file  # noqa: PLC0415
+
+    if not path.exists():
+        raise InputError(f"{path}: does not exist")
+    if path.is_file():
+        if not is_model_file(path):
+            raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
+        say(f"reading the model {path.name} ({_megabytes(path)})")
+        up, camera, problem = read_saved_view(path)
         # The folder beside a user's PLY is input too: flags and screenshots go to the cache.
         return ViewerSource("ply", path, _read_ply_arrays(path), [], scene_cache_dir(path, [path]),
-                            model_path=path)
+                            model_path=path, saved_up=up, saved_camera=camera, notes=[problem] if problem else [])
     from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
 
     if (path / "config.json").is_file():
+        say(f"reading the run {path.name}: its model and its scene's cameras")
         return _open_run(path)
+    say(f"reading the scene {path.name}: its cameras and sparse points")
     try:
         scene = load_scene(path)
     except InputError as scene_error:
@@ -227,13 +288,17 @@ def _open_source(path: Path, runs_dir: Path | None) -> ViewerSource:
             raise InputError(not_a_source_message(path, scene_error)) from None
         return ViewerSource("run", path, _read_ply_arrays(model), _cameras_json(path / "cameras.json"),
                             path, model_path=model)
+    say(f"reading the scene {path.name}: {len(scene.cameras)} cameras read; looking for its runs")
     runs = scene_runs(scene, runs_dir)
     newest = newest_model(scene.work_dir, runs, saved_dir(SimpleNamespace(scene=scene, path=path), runs_dir))
     if newest is not None and newest.name == "config.json":
+        say(f"reading the newest of {len(runs)} run(s) of {path.name}: {newest.parent} "
+            f"({_megabytes(newest.parent / 'model.ply')})")
         source = open_scene_run(path, scene.work_dir, runs, newest.parent, runs_dir)
         source.notes.append(f"opened the newest of {len(runs)} run(s) of this scene: {newest.parent}")
         return source
     if newest is not None:  # a PLY saved in the work folder (the viewer's "save PLY"): original frame
+        say(f"reading the newest model of {path.name}: {newest} ({_megabytes(newest)})")
         gaussians = scene.normalization.gaussians_to_normalized(_read_ply(newest))
         return ViewerSource("scene", path, gaussians.numpy(), list(scene.cameras), scene.work_dir,
                             model_path=newest, scene=scene, runs=runs,

@@ -1,12 +1,11 @@
 """Whether a bootstrap helped, as the Training panel shows it once one has ended (or a bootstrap
-result is opened): the held-out scores of stage I (the bootstrap's first evaluation) and of the
-result by group (scarce, covered, all), the same-time baseline's where one was run beside it
-(stage I continued on the photos alone for the bootstrap's time: RUN2/bootstrap/summary.json
-with "baseline": true and the same stage-I run), and each flagged view rendered from the
+result is opened): the library's verdict (``inceptiongs.evaluation.verdict``: stage I, the
+result and its same-time baseline by group, never a baseline of another length; without one the
+sentence says so, and the panel offers to run it) and each flagged view rendered from the
 stage-I model and from the result, side by side.
 
-Reading is pure (read_verdict); the images are rendered by the viewer (Viewer.render_verdict)
-and drawn here with imgui."""
+Reading is the library's (read_verdict); the images are rendered by the viewer
+(Viewer.render_verdict) and drawn here with imgui."""
 
 from __future__ import annotations
 
@@ -17,14 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from inceptiongs.bootstrap.summary_file import SUMMARY_FILE, read_summary, virtual_step_count
+from inceptiongs.evaluation.verdict import BootstrapVerdict, read_bootstrap_verdict, score_rows, seconds_text
+from inceptiongs.evaluation.verdict import verdict_line  # noqa: F401 (the panel's and the status line's sentence)
 
-SUMMARY = Path(SUMMARY_FILE)
-GROUPS = ("scarce", "covered", "all")
 # Width of each before / after image in the panel, pixels.
 THUMBNAIL_WIDTH = 150
-# A difference within this many dB is reported as no change (held-out PSNR noise).
-SAME_DB = 0.05
+RUN_BASELINE = "run the same-time baseline"
 
 
 @dataclass
@@ -39,119 +36,27 @@ class FlagImages:
 
 
 @dataclass
-class Verdict:
-    """What the panel says about the bootstrap result in ``out_dir``: flat held-out scores
-    ("scarce_psnr", ...) of stage I (before) and of the result (after); the same-time baseline's
-    (None: none found) and its folder; the flagged views' images once rendered."""
+class Verdict(BootstrapVerdict):
+    """The library's verdict of the result in ``out_dir`` and the flagged views' images once
+    rendered."""
 
-    out_dir: Path
-    stage1_run: Path | None
-    before: dict
-    after: dict
-    baseline: dict | None = None
-    baseline_dir: Path | None = None
     images: list = field(default_factory=list)
-    # What stage I's curve said before the bootstrap started (inceptiongs.bootstrap.outlook).
-    outlook: str | None = None
-    # Steps that carried a virtual loss (None: unknown); 0 when the loop followed the outlook or
-    # every view was left out: the result is then stage I trained longer.
-    virtual_steps: int | None = None
-
-
-def _summary(run_dir: Path) -> dict | None:
-    """RUN/bootstrap/summary.json as a dict; None when absent or unreadable (a run being written)."""
-    return read_summary(run_dir)
-
-
-def _scores(data: dict, key: str) -> dict:
-    value = data.get(key)
-    return {k: v for k, v in value.items() if isinstance(v, (int, float))} if isinstance(value, dict) else {}
-
-
-def find_baseline(out_dir: Path, stage1_run: Path | None) -> tuple[Path, dict] | None:
-    """The newest same-time baseline of ``stage1_run`` beside ``out_dir`` or beside the stage-I
-    run (as `inceptiongs demo` lays them out: run, run_bootstrap, run_baseline) -> (its folder,
-    its last held-out scores); None when there is none."""
-    if stage1_run is None:
-        return None
-    wanted = Path(stage1_run).resolve()
-    found = []
-    for parent in {Path(out_dir).resolve().parent, wanted.parent}:
-        for folder in (p for p in parent.iterdir() if p.is_dir()) if parent.is_dir() else ():
-            data = _summary(folder)
-            if (data is None or data.get("baseline") is not True or not _scores(data, "last_eval")
-                    or Path(str(data.get("run", ""))).resolve() != wanted):
-                continue
-            found.append(((folder / SUMMARY).stat().st_mtime, folder, _scores(data, "last_eval")))
-    if not found:
-        return None
-    _, folder, scores = max(found, key=lambda item: item[0])
-    return folder, scores
 
 
 def read_verdict(run_dir: Path | None) -> Verdict | None:
     """The verdict of the bootstrap result in ``run_dir``; None for anything else (a stage-I
     run, a baseline, a bootstrap without both evaluations yet)."""
-    if run_dir is None:
-        return None
-    data = _summary(run_dir)
-    if data is None or data.get("baseline") is True:
-        return None
-    before, after = _scores(data, "initial_eval"), _scores(data, "last_eval")
-    if not before or not after:
-        return None
-    stage1 = Path(data["run"]) if isinstance(data.get("run"), str) else None
-    outlook = data.get("outlook")
-    steps = data.get("steps")
-    counted = isinstance(steps, dict) and all(isinstance(v, int) for v in steps.values())
-    verdict = Verdict(Path(run_dir), stage1, before, after,
-                      outlook=outlook.get("line") if isinstance(outlook, dict) and isinstance(outlook.get("line"), str)
-                      else None, virtual_steps=virtual_step_count(steps) if counted else None)
-    baseline = find_baseline(Path(run_dir), stage1)
-    if baseline is not None:
-        verdict.baseline_dir, verdict.baseline = baseline
-    return verdict
+    found = read_bootstrap_verdict(run_dir)
+    return None if found is None else Verdict(**vars(found))
 
 
-def score_rows(verdict: Verdict) -> list[tuple[str, float, float, float | None]]:
-    """[(group, stage I dB, bootstrap dB, baseline dB or None)] for the groups the result scored."""
-    rows = []
-    for group in GROUPS:
-        key = f"{group}_psnr"
-        if key in verdict.before and key in verdict.after:
-            baseline = None if verdict.baseline is None else verdict.baseline.get(key)
-            rows.append((group, verdict.before[key], verdict.after[key], baseline))
-    return rows
-
-
-def _change(difference: float, other: str) -> str:
-    """How the result compares with ``other`` ("the same-time baseline", "stage I")."""
-    if abs(difference) < SAME_DB:
-        return f"about the same as {other} ({difference:+.2f} dB)"
-    return f"{'better' if difference > 0 else 'worse'} by {abs(difference):.2f} dB than {other}"
-
-
-def verdict_line(verdict: Verdict) -> str:
-    """One sentence: how the result compares on the scarce views (else the first group scored)
-    with the same-time baseline, or with stage I when no baseline was run."""
-    rows = score_rows(verdict)
-    if not rows:
-        return "no held-out scores to judge the bootstrap by"
-    group, before, after, baseline = rows[0]
-    if baseline is not None:
-        return f"{group} views: {_change(after - baseline, 'the same-time baseline')}"
-    if verdict.virtual_steps == 0:
-        return (f"{group} views: {_change(after - before, 'stage I')}; no virtual step ran (the loop followed "
-                "the outlook, or every view was left out), so this is stage I trained longer")
-    return (f"{group} views: {_change(after - before, 'stage I')}; no same-time baseline was run, so "
-            "part of that may be the extra training alone")
-
-
-def draw_verdict(ui, verdict: Verdict | None) -> None:
+def draw_verdict(ui, verdict: Verdict | None, offer_baseline: bool = True) -> bool:
     """The panel's "repair verdict" block: the sentence, the scores table, the flagged views
-    before / after. The table's rectangle is kept under "verdict" (panels._remember's form)."""
+    before / after; without a same-time baseline (and with ``offer_baseline``: no job running),
+    a button that offers to run it. The table's rectangle is kept under "verdict", the button's
+    under RUN_BASELINE (panels._remember's form). -> whether the button was pressed."""
     if verdict is None:
-        return
+        return False
     from imgui_bundle import imgui  # noqa: PLC0415 (pure readers above stay importable without imgui)
 
     imgui.separator_text("repair verdict")
@@ -160,12 +65,29 @@ def draw_verdict(ui, verdict: Verdict | None) -> None:
     if verdict.outlook:
         imgui.text_disabled(f"before it started: {verdict.outlook}")
     imgui.pop_text_wrap_pos()
+    pressed = False
+    if offer_baseline and baseline_offered(verdict):
+        pressed = imgui.button(f"{RUN_BASELINE} ({seconds_text(verdict.seconds)})")
+        low, high = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+        ui.rects[RUN_BASELINE] = (low.x, low.y, high.x, high.y)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip(f"stage I ({verdict.stage1_run}) continued on the photos alone for the bootstrap's "
+                              f"{seconds_text(verdict.seconds)}, into a new folder beside it: the comparison "
+                              "that says whether the virtual views helped")
     top = imgui.get_cursor_screen_pos().y
     _score_table(verdict)
     for shown in verdict.images:
         _flag_images(shown)
     right = imgui.get_content_region_avail().x + imgui.get_cursor_screen_pos().x
     ui.rects["verdict"] = (imgui.get_cursor_screen_pos().x, top, right, imgui.get_cursor_screen_pos().y)
+    return pressed
+
+
+def baseline_offered(verdict: Verdict) -> bool:
+    """The verdict has no same-time baseline and one can be run: its stage-I run is there and
+    the bootstrap's time is known."""
+    return (verdict.baseline is None and verdict.seconds is not None and verdict.seconds > 0
+            and verdict.stage1_run is not None and (Path(verdict.stage1_run) / "config.json").is_file())
 
 
 def _score_table(verdict: Verdict) -> None:
@@ -189,7 +111,7 @@ def _score_table(verdict: Verdict) -> None:
     if with_baseline:
         imgui.push_text_wrap_pos(0.0)
         imgui.text_disabled(f"baseline: {verdict.baseline_dir.name}, stage I continued on the photos alone for "
-                            "the same time")
+                            f"the same time ({seconds_text(verdict.seconds)})")
         imgui.pop_text_wrap_pos()
 
 

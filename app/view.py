@@ -18,7 +18,8 @@ from inceptiongs.lod.hierarchy import GAUSSIAN_FIELDS
 
 from . import flags as flagging
 from .editing import EditState
-from .navigation import NavigationState, default_view, estimate_up, framed, leveled, model_up, statistics_sample
+from .navigation import (NavigationState, default_view, estimate_up, forward_facing, framed, leveled, model_up,
+                         statistics_sample)
 from .settings import StatusLine, ViewSettings
 
 
@@ -26,8 +27,10 @@ class View:
     """The camera on one window and the model it shows. ``window``: the GLFW window (its sizes);
     ``renderer``: the splat renderer (depth under the cursor); ``status``: the status line."""
 
-    def __init__(self, source, window, renderer, status: StatusLine) -> None:
+    def __init__(self, source, window, renderer, status: StatusLine, covered_left: float = 0.0) -> None:
         self.window, self.renderer, self.status = window, renderer, status
+        # Window pixels the panel covers at the window's left (Home and the first view avoid them).
+        self.covered_left = covered_left
         self.settings = ViewSettings()
         self.source = source
         self.edit = EditState(source.gaussians)  # the model shown, with its deletions and selection
@@ -36,12 +39,16 @@ class View:
         self.shows_points = bool(getattr(source, "sparse_points", False))
         self.cameras = source.cameras
         # Up: the cameras' mean up, else the model's dominant plane; the View panel may change it.
-        self.up = estimate_up(self.cameras) if self.cameras else model_up(source.gaussians["means"])
-        self.up_source = "from the cameras" if self.cameras else "from the model"
+        saved_up = getattr(source, "saved_up", None)
+        if self.cameras:
+            self.up, self.up_source = estimate_up(self.cameras), "from the cameras"
+        elif saved_up is not None:   # a saved edit: the up it was edited with (sources.read_saved_view)
+            self.up, self.up_source = saved_up, "as saved"
+        else:
+            self.up, self.up_source = model_up(source.gaussians["means"]), "from the model"
         self.nav = self.initial_view()
         self.home = self.nav.copy()
         self.camera_index = 0 if self.cameras else -1
-        self.covered_left = 0.0  # window pixels the panel covers at the window's left (Home avoids them)
         self.last_motion = -1e9  # when the camera or the model last moved (drawing's moving size)
         self._photo_cache: tuple[int | None, np.ndarray | None] = (None, None)
 
@@ -74,18 +81,56 @@ class View:
         self.source = source
         self.show_model(source.gaussians, points=bool(getattr(source, "sparse_points", False)))
 
+    def block_cell_segments(self):
+        """The open run's block cells as ground outlines [4 * C, 2, 3] (block_cells), None when it
+        was not trained in blocks; read once per source and model."""
+        from .block_cells import cell_outline_segments, read_block_plan  # noqa: PLC0415
+
+        key = (id(self.source), self.model_version)
+        if getattr(self, "_cells", (None, None))[0] != key:
+            plan, problem = read_block_plan(getattr(self.source, "run_dir", None))
+            if problem:
+                self.status.text = problem
+            segments = None if plan is None else cell_outline_segments(plan, self.edit.base["means"], self.up)
+            self._cells = (key, segments)
+        return self._cells[1]
+
     # --- the camera ----------------------------------------------------------------------------
     def initial_view(self) -> NavigationState:
+        """Where the window opens: with cameras around the scene, framed on what they look at as
+        Home frames it, seen from the first camera's heading (a capture's first camera may face
+        away from the scene: bonsai's showed a black window); with cameras that all face one way
+        (navigation.forward_facing: fern), or without a model yet, at the first camera, which
+        looks at the scene as they all do; without cameras, navigation.default_view."""
         width, height = self.framebuffer_size
-        means = self.source.gaussians["means"]
+        means = self.edit.base["means"]
         if self.cameras:
             first = self.cameras[0]
             centers = np.stack([c.center for c in self.cameras])
             spread = float(np.linalg.norm(centers.max(0) - centers.min(0))) if len(centers) > 1 else 1.0
             nav = NavigationState.from_camera(first, up=self.up, speed=max(spread * 0.5, 1e-3))
-            nav.pivot = np.median(statistics_sample(means), axis=0) if len(means) else nav.pivot
-            return nav
+            if len(means) == 0 or forward_facing(self.cameras):
+                return nav
+            covered, _ = self.window_to_framebuffer(self.covered_left, 0.0)
+            return framed(nav, means, width, height, covered, self.cameras)
+        saved = getattr(self.source, "saved_camera", None)
+        if saved is not None:   # a saved edit reopens where it was seen when saved
+            pivot = saved.center + saved.rotation[2] * _saved_pivot_distance(saved.center, means)
+            return NavigationState.from_camera(saved, up=self.up, speed=default_view(means, width, height).speed,
+                                               pivot=pivot)
         return default_view(means, width, height, up=self.up)
+
+    def untouched(self) -> bool:
+        """The camera is still where the window opened (the user has not moved it)."""
+        return bool(np.allclose(self.nav.world_to_camera, self.home.world_to_camera))
+
+    def open_at_model(self) -> None:
+        """A model arrived for a window opened without one (triangulated points): unless the
+        user moved meanwhile, open where it is (initial_view) and make that the home view."""
+        if self.untouched():
+            self.nav = self.initial_view()
+            self.home = self.nav.copy()
+            self.moved()
 
     @property
     def framebuffer_size(self) -> tuple[int, int]:
@@ -197,3 +242,11 @@ class View:
                 self.status.text = f"training photo not shown: {exc}"
                 self._photo_cache = (index, None)
         return self._photo_cache[1]
+
+
+def _saved_pivot_distance(center: np.ndarray, means: np.ndarray) -> float:
+    """How far ahead of a saved camera its orbit centre lies: the distance to the model's median
+    (centre [3], means [N, 3]); 1 without a model. Floored so the pivot is never at the eye."""
+    if len(means) == 0:
+        return 1.0
+    return max(float(np.linalg.norm(np.median(statistics_sample(means), axis=0) - center)), 1e-3)

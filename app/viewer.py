@@ -32,7 +32,7 @@ from .images import visualize
 from .input import InputController
 from .jobs import Jobs
 from .moving import SelectionMover
-from .runs import saved_dir
+from .runs import fresh_file, saved_dir
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
 from .view import View
@@ -67,16 +67,19 @@ class Viewer:
     ``editor``, ``jobs`` (see the module's docstring); ``ui``: what the panels remember."""
 
     def __init__(self, source: ViewerSource, width: int = 1280, height: int = 720, visible: bool = True,
-                 job_factory=None, with_ui: bool = True) -> None:
+                 job_factory=None, with_ui: bool = True, window=None, imgui_impl=None) -> None:
+        """``window`` and ``imgui_impl``: a window (its context current) and its imgui, already
+        showing (loading.open_with_progress opens them first); None: made here."""
         from inceptiongs.renderer.splats import SplatRenderer  # noqa: PLC0415 (GL only after a context exists)
 
-        self.window = create_window(width, height, f"InceptionGS — {source.path.name}", visible)
+        self.window = window if window is not None else create_window(width, height,
+                                                                      f"InceptionGS — {source.path.name}", visible)
         self.ctx = moderngl.create_context()
         self.renderer = SplatRenderer(self.ctx)
         self.drawing = FrameDrawer(self.ctx, self.renderer)
         self.stats = FrameStats()
         self.status_line = StatusLine("; ".join(source.notes))
-        self.view = View(source, self.window, self.renderer, self.status_line)
+        self.view = View(source, self.window, self.renderer, self.status_line, self.panel_guess(with_ui, width))
         # The user's flags are their work: beside the runs (./runs/NAME_saved), not in the cache.
         self.flags = FlagBook(saved_dir(source, source.runs_dir) / flag_io.FLAGS_FILE_NAME, self.view,
                               self.status_line, earlier=flag_io.flags_path(source.work_dir))
@@ -92,11 +95,21 @@ class Viewer:
         self.captured: np.ndarray | None = None
         self._last_frame_time = time.perf_counter()
         self._drawn_state: tuple | None = None  # shown_state() when the last frame was drawn
-        self.imgui_impl = create_imgui(self.window) if with_ui else None
+        self.imgui_impl = imgui_impl if imgui_impl is not None else (create_imgui(self.window) if with_ui else None)
         self.points_worker = PointsWorker(source.scene.root) if source.points_pending else None
         self.input = InputController(self)
         self.input.install(self.window)
         self.update_title()
+
+    @staticmethod
+    def panel_guess(with_ui: bool, width: int) -> float:
+        """The window pixels the panel will cover at the left before it is first drawn (its
+        default width; none without a UI), so the first view frames the scene beside it."""
+        if not with_ui:
+            return 0.0
+        from .panels import PANEL_MARGIN, PANEL_WIDTH  # noqa: PLC0415 (imgui only with a UI)
+
+        return float(min(PANEL_WIDTH + PANEL_MARGIN, 0.6 * width))
 
     @property
     def status(self) -> str:
@@ -121,25 +134,30 @@ class Viewer:
         splats, self.status = worker.result
         if splats is not None and self.jobs.training is None:
             self.view.show_model(splats, points=True)
+            self.view.open_at_model()
             self.view.moved()
 
     # --- pictures --------------------------------------------------------------------------------
     def render_image(self, camera: Camera | None = None) -> np.ndarray:
         """The scene alone (no UI) at ``camera`` (default: the current view), [H, W, 3] RGB."""
         settings = self.view.settings
-        self.drawing.upload_model(self.view)
         camera = camera or self.view.current_camera()
+        if self.view.shows_points:   # points as the window draws them (drawing.points_image)
+            return self.drawing.points_image(self.view, camera)
+        self.drawing.upload_model(self.view)
         mode = settings.mode if settings.mode != "reference" else "rgb"
         image = self.renderer.render(camera, mode=GL_MODE_NAMES[mode], background=settings.background,
                                      sh_degree_cap=settings.sh_degree_cap, splat_scale=settings.splat_scale)
         return visualize(image, mode)
 
     def save_screenshot(self, path: str | Path | None = None) -> Path:
+        """The scene at window size (render_image) to ``path`` (default: view-<time>.png beside
+        the runs), never over an existing file (two in one second: view-<time>_2.png)."""
         if path is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
             source = self.view.source
             path = saved_dir(source, source.runs_dir) / f"view-{stamp}.png"  # beside the runs, not in the cache
-        path = Path(path)
+        path = fresh_file(Path(path))
         path.parent.mkdir(parents=True, exist_ok=True)
         write_image(path, self.render_image())  # at window size, in the extension's format
         self.status = f"screenshot saved to {path}"
@@ -181,6 +199,7 @@ class Viewer:
         self._last_frame_time = now
         self.input.update_fly(seconds)
         self.paths.update()
+        self.status_line.check()   # a message whose state has gone is cleared before it is drawn
         self.take_points()
         self.jobs.take_snapshot()
         if self.jobs.verdict_images_due:

@@ -288,3 +288,12 @@ def type_into(viewer, label: str, text: str) -> None:
     press_key(viewer, glfw.KEY_ENTER)
     viewer.step()
     viewer.step()
+
+
+def start_job(viewer, button: str) -> None:
+    """Press a job button of the Training panel ("train (new run)", "resume", "Bootstrap flagged
+    views", ...) and answer its question with "start the job", as a user starts a job (a button
+    that could not build its job asks nothing: the status line says why)."""
+    click_widget(viewer, button)
+    if getattr(viewer.jobs, "pending", None) is not None:
+        click_widget(viewer, "start the job")

@@ -41,3 +41,35 @@ class BootstrapJob:
                 else f"{result.supervised_views} of {result.virtual_views} virtual views used (the others' photos "
                      f"agree with the render better than with each other)")
         out.finish("bootstrap", result.iteration, result.finished, result.last_eval, f"{used}, {out_dir}")
+
+
+# A baseline job runs for its time, not for a number of steps: its step cap is out of reach.
+BASELINE_STEP_CAP = 100_000
+
+
+@dataclass
+class BaselineJob:
+    """The same-time baseline of a bootstrap as a job: stage I (``run_dir``) continued on the
+    photos alone (runner.baseline_run's loop: the bootstrap's continuation schedule, no virtual
+    view) for ``seconds`` of wall time (the bootstrap's: its summary's wall_s) into ``out_dir``,
+    publishing a snapshot every ``snapshot_every`` steps."""
+
+    run_dir: Path
+    out_dir: Path
+    seconds: float
+    eval_every: int = 0
+    log_every: int = 1
+    snapshot_every: int = 5
+
+    def run(self, box: SnapshotBox, control: JobControl) -> None:
+        from .runner import run_bootstrap
+        from .stage1 import load_stage1
+
+        out = JobPublisher(box)
+        config = BootstrapConfig(iterations=BASELINE_STEP_CAP, minutes=self.seconds / 60.0, rounds=1,
+                                 log_every=self.log_every, eval_every=self.eval_every).validate()
+        out.log(f"baseline: stage I continued on the photos alone for {self.seconds:.0f} s -> {self.out_dir}")
+        result = run_bootstrap(load_stage1(self.run_dir), Path(self.out_dir), None, config, control=control,
+                               on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
+                               progress=False)
+        out.finish("baseline", result.iteration, result.finished, result.last_eval, str(self.out_dir))

@@ -172,8 +172,13 @@ def flagged_view_rows(index: int, stage1: dict, baseline: dict, boot: dict) -> l
             + " | ".join("-" if g is None else f"{g:+.2f}" for g in gains) + " |"]
 
 
-def verdict(stage1: dict, baseline: dict, boot: dict) -> str:
-    """One plain sentence: did the bootstrap beat the same-time baseline on the scarce views?"""
+def verdict(stage1: dict, baseline: dict, boot: dict, not_same_time: str | None = None) -> str:
+    """One plain sentence: did the bootstrap beat the same-time baseline on the scarce views?
+    ``not_same_time``: why the baseline run is not the bootstrap's same-time baseline
+    (summary_file.same_time_mismatch); then the bootstrap is not judged against it."""
+    if not_same_time is not None:
+        return (f"run_baseline is not the bootstrap's same-time baseline ({not_same_time}), so the bootstrap is "
+                "not judged against it.")
     scarce = _difference(baseline["groups"]["scarce"]["psnr"], boot["groups"]["scarce"]["psnr"])
     covered = _difference(baseline["groups"]["covered"]["psnr"], boot["groups"]["covered"]["psnr"])
     if scarce is None:
@@ -263,7 +268,7 @@ def outlook_text(boot_summary: dict) -> str:
 
 
 def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_result, boot_summary: dict,
-                    coverage: dict, timings: dict) -> str:
+                    coverage: dict, timings: dict, not_same_time: str | None = None) -> str:
     """OUT/report.md text; paths relative to OUT. evals: {run label: evaluate_run result}."""
     target = split.target_view
     meta_path = Path(scene.root) / "demo_scene.json"
@@ -275,7 +280,7 @@ def report_markdown(scene, split, evals: dict, stage1_result, boot_result, base_
     lines = [
         "# InceptionGS demo",
         "",
-        f"**{verdict(stage1, baseline, boot)}** {gap_sentence(stage1)}",
+        f"**{verdict(stage1, baseline, boot, not_same_time)}** {gap_sentence(stage1)}",
         "",
         f"Before the bootstrap ran, stage I's curve said: {outlook_text(boot_summary)}",
         "",
@@ -368,6 +373,7 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
     """OUT/run_bootstrap on j*, then OUT/run_baseline for the bootstrap's time -> (boot, baseline) results."""
     from ..bootstrap.config import BootstrapConfig
     from ..bootstrap.runner import baseline_run, run_bootstrap
+    from ..bootstrap.summary_file import read_summary, run_seconds
     from ..bootstrap.targets import split_targets
     from ..evaluation.report import read_metrics, run_duration
 
@@ -387,8 +393,10 @@ def _bootstrap_and_baseline(args, stage1, out: Path, progress: Progress, timings
                                 log=lambda message: print(f"      {message}", flush=True), rasterizer=rasterizer)
     timings["bootstrap"] = time.perf_counter() - began
 
-    # The baseline gets what the bootstrap took by its own clock (prior, generation, refinement).
-    base_s = max(run_duration(read_metrics(boot_dir / "metrics.jsonl")), 1.0)
+    # The baseline gets what the bootstrap took by its own clock (prior, generation, refinement):
+    # the wall time its summary records, which the same-time rule compares (summary_file).
+    recorded = run_seconds(read_summary(boot_dir) or {})
+    base_s = max(recorded if recorded is not None else run_duration(read_metrics(boot_dir / "metrics.jsonl")), 1.0)
     progress.replan("baseline", base_s)
     progress.stage(f"baseline: stage I continued on the photos alone for the bootstrap's {base_s:.0f} s")
     began = time.perf_counter()
@@ -413,6 +421,7 @@ def _evaluate(dirs: dict[str, Path], progress: Progress, timings: dict, device) 
 
 
 def run(args) -> int:
+    from ..bootstrap.summary_file import read_summary, same_time_mismatch
     from ..evaluation.report import read_metrics
     from ..io.atomic import atomic_write_text
 
@@ -440,11 +449,13 @@ def run(args) -> int:
                          {label: read_metrics(dirs[label] / "metrics.jsonl") for label in ("baseline", "bootstrap")})
     plot_time(curves, out / "report.png")
     boot_summary = json.loads((dirs["bootstrap"] / "bootstrap" / "summary.json").read_text())
+    # The verdict holds only if run_baseline is the same-time baseline (the one rule: summary_file).
+    not_same_time = same_time_mismatch(boot_summary, read_summary(dirs["baseline"]) or {})
     atomic_write_text(out / "report.md", report_markdown(scene, split, evals, stage1_result, boot_result, base_result,
-                                                         boot_summary, coverage_figures, timings))
+                                                         boot_summary, coverage_figures, timings, not_same_time))
     print(f"total {Progress.clock(time.perf_counter() - progress.began)}")
     print(gap_sentence(evals["stage I"]))
-    print(verdict(*(evals[label] for label in RUN_LABELS)))
+    print(verdict(*(evals[label] for label in RUN_LABELS), not_same_time))
     print(f"report: {out / 'report.md'}")
     print(f"open the result in the viewer:\n  inceptiongs-viewer {dirs['bootstrap']}")
     return 0

@@ -59,16 +59,23 @@ def run(args) -> int:
         generated = evaluate_generated_run(args.run, steps, seed=args.seed, device=device.torch_device, start=args.start,
                                            init=args.init)
     from ..bootstrap.outlook import recorded_outlook
+    from ..evaluation.verdict import read_bootstrap_verdict, verdict_json, verdict_line
 
     outlook = recorded_outlook(args.run)
+    # A bootstrap result: its own evaluations against its same-time baseline (never another length).
+    verdict = read_bootstrap_verdict(args.run)
     if args.json:
         extra = {"outlook": {"when": outlook[0], **outlook[1].to_json()}} if outlook else {}
+        if verdict is not None:
+            extra["verdict"] = verdict_json(verdict)
         print(json.dumps(json_safe({**summary, **extra, **({"generated": generated} if generated else {})}),
                          indent=1))
     else:
         print(format_table(summary))
         if outlook is not None:
             print(f"repair outlook {outlook[0]}: {outlook[1].line}")
+        if verdict is not None:
+            print(f"repair verdict (the bootstrap's own evaluations): {verdict_line(verdict)}")
         if generated:
             print(format_generated_table(generated))
         print(f"images and eval.json{' / generated.json' if generated else ''} in {args.run.rstrip('/')}/eval/")

@@ -30,9 +30,16 @@ def run(args) -> int:
     if args.out and Path(args.out).suffix.lower() != ".png":
         raise InputError(f"{args.out}: the report figure must be a .png file")
     if not args.prior:
+        from ..evaluation.verdict import report_verdicts
+
         print(make_report(args.runs, args.out))
         if args.out:
             print(f"figure: {args.out}")
+        # A bootstrap is compared only with its same-time baseline (or the line says there is none).
+        verdicts = report_verdicts(args.runs)
+        if verdicts:
+            print("repair verdicts (each bootstrap's own evaluations against its same-time baseline):")
+            print("\n".join(f"  {line}" for line in verdicts))
     with_prior = [r for r in args.runs if has_prior_report(r)]
     if args.prior and not with_prior:
         raise InputError(f"{', '.join(args.runs)}: no prior evaluations (RUN/prior/metrics.jsonl evaluation "

@@ -15,8 +15,8 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (click_at, click_widget, open_grid_viewer, scroll_panel_to, opened, press_key, synthetic_gaussians,
-                          write_grid_model)
+from viewer_cases import (click_at, click_widget, open_grid_viewer, opened, press_key, scroll_panel_to,
+                          start_job, synthetic_gaussians, write_grid_model)
 
 pytestmark = pytest.mark.gl
 
@@ -89,9 +89,12 @@ def test_a_right_click_flag_is_answered_in_view_and_no_message_goes_stale(xvfb, 
 
 # --- the bootstrap's verdict ----------------------------------------------------------------------
 
-def _write_summary(folder: Path, run: Path, baseline: bool, initial: dict, last: dict) -> None:
+def _write_summary(folder: Path, run: Path, baseline: bool, initial: dict, last: dict, seconds: float = 30.0) -> None:
+    """RUN2/bootstrap/summary.json: a bootstrap or baseline of ``run`` from iteration 100 that ran
+    ``seconds`` (the same for both: the baseline is the same-time one)."""
     (folder / "bootstrap").mkdir(parents=True, exist_ok=True)
-    data = {"run": str(run), "baseline": baseline, "initial_eval": initial, "last_eval": last}
+    data = {"run": str(run), "baseline": baseline, "start_iteration": 100, "iteration": 160, "wall_s": seconds,
+            "initial_eval": initial, "last_eval": last}
     (folder / "bootstrap" / "summary.json").write_text(json.dumps(data), encoding="utf-8")
 
 
@@ -133,7 +136,7 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
 
         stale = Verdict(tmp_path / "earlier_result", None, _scores(10.0, 11.0), _scores(10.5, 11.0))
         viewer.jobs.set_verdict(stale)
-        click_widget(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
         assert viewer.jobs.verdict is not stale      # an earlier result's verdict goes when the job starts
         deadline = time.time() + 60
         while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
@@ -182,7 +185,7 @@ def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb,
         _frames(viewer)
         for header in ("View", "Inspect", "Flags"):
             click_widget(viewer, header)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         viewer.jobs.training.plan = JobPlan(metrics=metrics)
         viewer.jobs.training.refresh_scores(force=True)
         time.sleep(0.3)
@@ -352,7 +355,9 @@ def test_an_opened_bootstrap_result_shows_its_verdict_and_its_target_before_and_
     targets = resolve_targets(scene, Split.load(run / "split.json", scene.cameras), None, None, 1)
     config = BootstrapConfig(iterations=6, k=1, l=2, ddim_steps=1, prior="untrained", log_every=1, save_views=0)
     run_bootstrap(run, tmp_path / "run_bootstrap", targets, config, progress=False)
-    baseline_run(run, tmp_path / "run_baseline", None, 6, seed=0, progress=False)
+    # The same-time baseline: the bootstrap's wall time, as `inceptiongs demo` gives it.
+    seconds = json.loads((tmp_path / "run_bootstrap" / "bootstrap" / "summary.json").read_text())["wall_s"]
+    baseline_run(run, tmp_path / "run_baseline", seconds / 60.0, 100_000, seed=0, progress=False)
     with opened(Viewer, open_source(tmp_path / "run_bootstrap"), 900, 1000) as viewer:
         _frames(viewer)
         verdict = viewer.jobs.verdict
@@ -373,15 +378,18 @@ def test_the_verdict_sentence_reads_as_a_comparison():
     from inceptiongs.app.verdict import Verdict, verdict_line
 
     flat = _scores(20.00, 22.00)
-    same = Verdict(Path("boot"), None, flat, _scores(20.02, 22.00))
-    assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time")
+    same = Verdict(Path("boot"), None, flat, _scores(20.02, 22.00), seconds=90.0)
+    assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time baseline "
+                                         "(stage I continued on the photos alone for 1 min 30 s) was run")
     worse = Verdict(Path("boot"), None, flat, _scores(19.00, 22.00), baseline=_scores(19.50, 22.00))
-    assert verdict_line(worse) == "scarce views: worse by 0.50 dB than the same-time baseline"
+    assert verdict_line(worse) == ("scarce views: worse by 0.50 dB than the same-time baseline; it scored below "
+                                   "stage I (20.00 -> 19.00 dB)")
     # No virtual step ran (the loop followed the outlook): the change is stage I trained longer.
     photos_only = Verdict(Path("boot"), None, flat, _scores(19.54, 22.00), virtual_steps=0)
-    assert verdict_line(photos_only) == ("scarce views: worse by 0.46 dB than stage I; no virtual step ran (the "
-                                         "loop followed the outlook, or every view was left out), so this is "
-                                         "stage I trained longer")
+    assert verdict_line(photos_only) == ("scarce views: worse by 0.46 dB than stage I; no same-time baseline (stage I "
+                                         "continued on the photos alone for the bootstrap's time) was run; no "
+                                         "virtual step ran (the loop followed the outlook, or every view was left "
+                                         "out), so this is stage I trained longer")
     assert "extra training alone" in verdict_line(dataclasses.replace(photos_only, virtual_steps=3))
 
 

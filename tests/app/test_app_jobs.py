@@ -19,7 +19,7 @@ from inceptiongs.app.settings import StatusLine
 from inceptiongs.io.config_json import with_values
 from inceptiongs.runs.config import FreeSpace, Output, TrainConfig
 from inceptiongs.errors import InputError
-from viewer_cases import opened
+from viewer_cases import opened, start_job
 
 
 def test_fresh_folder_never_returns_an_existing_one(tmp_path):
@@ -196,7 +196,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         assert first is not None
         first_bytes = first.read_bytes()
         # A second "train" (its button, clicked) starts a new run beside the first, leaving it as it was.
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         assert viewer.jobs.out_dir == runs / f"{name}_2"
         assert f"{name}_2" in glfw.get_window_title(viewer.window)  # the real window's title
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 10)
@@ -206,7 +206,7 @@ def test_train_twice_then_resume_never_overwrites(xvfb, demo_scene):
         stopped_at = list_checkpoints(runs / f"{name}_2")[-1][0]
         # Resume continues the open run (train_2) from its newest checkpoint, in the same folder.
         assert viewer.jobs.run_dir == runs / f"{name}_2"
-        click_widget(viewer, "resume")
+        start_job(viewer, "resume")
         job = viewer.jobs.training.job
         assert job.resume and job.run_dir == runs / f"{name}_2"
         seen = []
@@ -232,7 +232,7 @@ def test_progress_shows_totals_psnr_curve_and_the_closing_line(xvfb, demo_scene,
 
     with opened(Viewer, open_source(demo_scene), 1200, 1000) as viewer:
         viewer.jobs.settings = JobSettings(minutes=None, iterations=70, downscale=4, protocol="unstructured")
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         plan = viewer.jobs.training.plan
         assert (plan.start_iteration, plan.end_iteration, plan.budget_s) == (0, 70, None)
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 30)
@@ -280,7 +280,7 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
     monkeypatch.setattr("inceptiongs.runs.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
     with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
         viewer.jobs.settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         job = viewer.jobs.training.job
         guess = job.config.iterations
         assert job.config.size_to_minutes and guess == round(6000 * minutes)
@@ -429,7 +429,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
         click_widget(viewer, "sky shell")  # the checkbox flips the command line's default
         sky = not FreeSpace.sky_shell
         assert viewer.jobs.settings.sky_shell is sky
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         job = viewer.jobs.training.job
         assert (job.config.minutes, job.config.iterations, job.config.downscale, job.config.free_space.sky_shell) == (
             1.5, 700, 3, sky)
@@ -452,7 +452,7 @@ def test_typed_job_settings_reach_the_jobs(xvfb, demo_scene):
             type_into(viewer, label, text)
         click_widget(viewer, "follow the outlook")      # virtual views from the first step, whatever it says
         assert viewer.jobs.settings.follow_outlook is False
-        click_widget(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
         assert viewer.jobs.training is not None and viewer.jobs.training.job is not job, viewer.status
         config = viewer.jobs.training.job.config
         expected = (0.5, 25, 2, 3, 0.7, False)
@@ -507,7 +507,7 @@ def test_resume_is_greyed_out_on_a_bootstrap_result_and_says_why(xvfb, demo_scen
     with opened(Viewer, open_source(run), 900, 1000) as viewer:
         viewer.step()
         assert "why no resume" not in viewer.ui.rects
-        click_widget(viewer, "resume")
+        start_job(viewer, "resume")
         assert viewer.jobs.training is not None and viewer.jobs.training.job.resume, viewer.status
         viewer.jobs.training.stop()
 
@@ -543,6 +543,7 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
             assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
         viewer.step()
         assert "poorly fit photos" in viewer.ui.rects
+        assert viewer.ui.texts["poorly fit photos"] == "2 training photos fit poorly (orange frustums)"
         click_widget(viewer, "next poorly fit photo")
         assert viewer.view.cameras[viewer.view.camera_index].name == second["name"]
         assert second["name"] in viewer.status and "7.0 dB" in viewer.status
@@ -559,6 +560,12 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
         assert viewer.jobs.settings.train_config(demo_scene).exclude_photos == [second["name"], first["name"]]
         click_widget(viewer, "leave them out of the next run")
         assert viewer.jobs.settings.exclude_photos == []
+    # One photo is "a photo", in the singular ("1 training photos" read wrong).
+    second.update(poorly_fit=False)
+    (run / VIEW_FIT_FILE).write_text(json.dumps(report))
+    with opened(Viewer, open_source(run), 900, 1000) as viewer:
+        viewer.step()
+        assert viewer.ui.texts["poorly fit photos"] == "1 training photo fits poorly (orange frustum)"
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:

@@ -18,7 +18,7 @@ import pytest
 from inceptiongs.app.jobs import JobSettings
 from inceptiongs.errors import InputError
 from inceptiongs.io.config_json import with_values
-from viewer_cases import click_widget, opened, press_key, type_into
+from viewer_cases import click_widget, opened, press_key, start_job, type_into
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +72,7 @@ def test_jobs_and_saves_go_where_the_command_line_writes(xvfb, demo_scene, tmp_p
     with opened(_viewer, demo_scene) as viewer:
         cache = viewer.view.source.work_dir
         viewer.jobs.settings = JobSettings(minutes=None, iterations=2000, downscale=4)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         run = viewer.jobs.out_dir
         assert run == default_run_dir(demo_scene) == tmp_path / "runs" / demo_scene.name
         assert cache not in run.parents
@@ -89,7 +89,7 @@ def test_jobs_and_saves_go_where_the_command_line_writes(xvfb, demo_scene, tmp_p
         assert "new run goes to" in viewer.ui.rects
         picked = tmp_path / "picked"
         type_into(viewer, "runs folder", str(picked))
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         assert viewer.jobs.out_dir == picked / demo_scene.name
         viewer.jobs.training.stop()
     assert not (cache / "runs").exists() or not any((cache / "runs").iterdir())
@@ -173,7 +173,7 @@ def test_closing_with_a_job_asks_and_stop_and_save_keeps_the_model(xvfb, demo_sc
     monkeypatch.chdir(tmp_path)
     with opened(_viewer, demo_scene) as viewer:
         viewer.jobs.settings = JobSettings(minutes=None, iterations=3000, downscale=4)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         run = viewer.jobs.out_dir
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 3)
         glfw.set_window_should_close(viewer.window, True)  # the window's close button
@@ -200,7 +200,7 @@ def test_keep_running_hides_the_window_and_the_job_finishes(xvfb, demo_scene, tm
     monkeypatch.chdir(tmp_path)
     with opened(_viewer, demo_scene) as viewer:
         viewer.jobs.settings = JobSettings(minutes=None, iterations=30, downscale=4)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         run = viewer.jobs.out_dir
         glfw.set_window_should_close(viewer.window, True)
         assert viewer.run_frame()
@@ -224,7 +224,7 @@ def test_sigterm_on_the_viewer_stops_and_saves_the_job(xvfb, demo_scene, tmp_pat
     viewer = _viewer(demo_scene)
     try:
         viewer.jobs.settings = JobSettings(minutes=None, iterations=3000, downscale=4)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         run = viewer.jobs.out_dir
         _wait(viewer, lambda: viewer.jobs.training.progress.iteration >= 3)
         unhandled = []  # a viewer without its own handlers would leave the signal to this one
@@ -252,7 +252,7 @@ def test_resume_keeps_the_runs_own_budget_and_the_bar_agrees(xvfb, demo_scene, t
     stopped_at = int(latest_checkpoint(run).stem.split("_")[-1])
     with opened(_viewer, run) as viewer:
         assert viewer.jobs.settings.minutes != 0.5  # the dialog's budget is for new runs
-        click_widget(viewer, "resume")
+        start_job(viewer, "resume")
         job = viewer.jobs.training.job
         assert (job.config.minutes, job.config.iterations) == (0.5, 40)
         plan = viewer.jobs.training.plan
@@ -289,12 +289,12 @@ def test_bare_ply_greys_out_what_needs_cameras_and_errors_are_one_line(xvfb, tmp
         assert viewer.view.settings.mode == "rgb"
         viewer.step()
         assert {"why modes are off", "why no training", "why no bootstrap"} <= set(viewer.ui.rects)
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         assert viewer.jobs.training is None
         viewer.jobs.start_training()  # the action itself answers with the command line's line
         assert "InputError" not in viewer.status and "no scene to train" in viewer.status
         viewer.flags.flag_current_view()
-        click_widget(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
         assert viewer.jobs.training is None
     with opened(_viewer, model, 900, 1000, job_factory=lambda source: _FailingJob()) as viewer:
         viewer.jobs.start_training()

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viewer_cases import (choose, click_at, click_widget, scroll_panel_to, open_grid_viewer, open_viewer, opened, press_key,
-                          type_into, write_grid_model, write_table_model)
+from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, opened, press_key,
+                          scroll_panel_to, start_job, type_into, write_grid_model, write_table_model)
 
 pytestmark = pytest.mark.gl
 
@@ -98,7 +98,7 @@ def test_the_jobs_share_of_the_cpu_is_a_slider_the_user_drags(xvfb, tmp_path):
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 700) as viewer:
         viewer.jobs.factory = lambda source: job
         viewer.step()
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         for _ in range(3):
             viewer.step()
         default_wait = viewer.training_frame_wait()

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from inceptiongs.camera import write_camera_json
-from viewer_cases import (GOLDEN, MovingGridJob, click_widget, front_camera, open_grid_viewer, opened,
-                          write_grid_model)
+from viewer_cases import (click_widget, front_camera, GOLDEN, MovingGridJob, open_grid_viewer, opened,
+                          start_job, write_grid_model)
 
 # Golden tolerance: llvmpipe builds may differ in the last bit of blending; a real change
 # (a wrong sort, a flipped image, a shader bug) moves far more than this.
@@ -160,12 +160,13 @@ def test_flags_from_injected_key_and_right_click(xvfb, model):
         assert [f.name for f in flags] == ["flag 1", "flag 2"], viewer.status
         np.testing.assert_allclose(flags[0].camera.world_to_camera, current.world_to_camera, atol=1e-9)
         aimed = flags[1].camera
-        np.testing.assert_allclose(aimed.center, current.center, atol=1e-9)
         # The picked surface point: on the ray through the clicked pixel and at the image
         # centre of the flagged view, lying on the model's front plane z = 0.
         depth = viewer.renderer.pick_depth(current, int(x), int(y))
-        from inceptiongs.app.flags import unproject_pixel
+        from inceptiongs.app.flags import FLAG_APPROACH, unproject_pixel
         point = unproject_pixel(current, int(x), int(y), depth)
+        # Without training cameras the flag comes FLAG_APPROACH of the way from the spot to the eye.
+        np.testing.assert_allclose(aimed.center, point + FLAG_APPROACH * (current.center - point), atol=1e-6)
         pixels, _ = editing.project_means(point[None], aimed)
         np.testing.assert_allclose(pixels[0], (aimed.cx, aimed.cy), atol=1e-6)
         assert abs(point[2]) < 0.1
@@ -290,7 +291,7 @@ def test_panel_buttons_start_pause_and_stop_a_job(xvfb, model):
     job = MovingGridJob()
     with opened(open_grid_viewer, model, 900, 900, job_factory=lambda source: job) as viewer:
         viewer.step()
-        click_widget(viewer, "train (new run)")
+        start_job(viewer, "train (new run)")
         assert viewer.jobs.training is not None and viewer.jobs.training.alive
         click_widget(viewer, "pause")
         assert viewer.jobs.training.state == "paused"

@@ -67,6 +67,10 @@ def test_the_verdict_and_table_compare_the_bootstrap_with_the_baseline():
                                                                     "on the scarce views by +0.50 dB")
     lost = verdict(stage1, baseline, _eval(14.5, 21.0))
     assert "did NOT beat" in lost and "-0.50 dB" in lost
+    # A baseline of another length is named and the bootstrap is not judged against it.
+    refused = verdict(stage1, baseline, _eval(15.5, 20.8), "it ran 66 s, the bootstrap 4 s")
+    assert "not the bootstrap's same-time baseline (it ran 66 s, the bootstrap 4 s)" in refused
+    assert "beat" not in refused
     rows = metrics_table(stage1, baseline, _eval(14.5, 21.0))
     assert rows[2] == "| scarce | 2 | 14.00 / 0.5000 | 15.00 / 0.5000 | 14.50 / 0.5000 | -0.50 | +0.50 |"
 
