@@ -14,6 +14,7 @@ import sys
 from .errors import InputError
 from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+from .io.photo_memory import parse_memory, set_photo_memory
 
 # The arguments that name a run, output or input folder of a command.
 WRITE_ROOT_ARGUMENTS = ("run", "runs", "out", "path", "model", "scene")
@@ -81,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         set_cache_dir(getattr(args, "cache_dir", None))
+        memory = getattr(args, "photo_memory", None)
+        set_photo_memory(None if memory is None else parse_memory(memory))
         # Writes below the folders a command is given never follow a symlink planted there.
         with writing_under(*named_folders(args)):
             return int(args._run(args) or 0)
@@ -94,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     finally:
         set_cache_dir(None)
+        set_photo_memory(None)
 
 
 if __name__ == "__main__":

@@ -7,19 +7,18 @@ refinement (:mod:`inceptiongs.bootstrap`) both drive these.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
-import sys
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from ..camera import Camera
-from ..errors import InputError
 from ..gaussians import Gaussians
+from ..scene.photo_store import PREFETCH_DEPTH, DerivedPhotos, PhotoStore, check_photo_files
 from . import losses
 from ..runs.config import TrainConfig
 from .densify import DensifyStats, accumulate
@@ -63,19 +62,14 @@ class TrainData:
 def prepare_data(scene, split, config: TrainConfig, log: Callable[[str], None]) -> TrainData:
     cameras = list(scene.cameras)
     used = sorted(set(split.train) | set(split.test))
-    images = {}
-    for index in tqdm(used, desc="loading images", file=sys.stderr, leave=False):
-        image = torch.from_numpy(np.ascontiguousarray(scene.load_image(index), dtype=np.float32))
-        cam = cameras[index]
-        if tuple(image.shape[:2]) != (cam.height, cam.width):
-            raise InputError(f"{scene.image_paths[index]}: image is {image.shape[1]}x{image.shape[0]}, "
-                             f"camera says {cam.width}x{cam.height}")
-        images[index] = image
+    check_photo_files(scene, used)   # a missing photo: one line now, not at its first step
+    # Photos are read through a store (decoded once into the cache folder, at most the photo
+    # budget held, the sampler's next views prefetched): memory does not grow with their number.
+    images = PhotoStore(scene, used)
     grey, edges = {}, {}
     if config.pgsr:
-        for index in split.train:
-            grey[index] = images[index].mean(-1, keepdim=True)
-            edges[index] = losses.edge_aware_weight(images[index])
+        grey = DerivedPhotos(images, split.train, lambda image: image.mean(-1, keepdim=True))
+        edges = DerivedPhotos(images, split.train, losses.edge_aware_weight)
     intrinsics = {i: torch.tensor(cameras[i].intrinsics, dtype=torch.float32) for i in used}
     neighbours = {}
     if config.pgsr:
@@ -148,8 +142,10 @@ def on_cpu(value):
 
 
 def data_on(data: TrainData, device: torch.device | str) -> TrainData:
-    """``data`` with its photos and per-view tensors on ``device``: uploaded once, not per step."""
-    move = lambda tensors: {k: v.to(device) for k, v in tensors.items()}   # noqa: E731
+    """``data`` with its photos and per-view tensors on ``device``: the small per-view tensors
+    uploaded once, the photos one per read."""
+    def move(tensors):   # a photo store uploads one photo per read
+        return tensors.on(device) if hasattr(tensors, "on") else {k: v.to(device) for k, v in tensors.items()}
     return dataclasses.replace(data, images=move(data.images), grey=move(data.grey),
                                edge_weights=move(data.edge_weights), intrinsics=move(data.intrinsics))
 
@@ -228,6 +224,17 @@ def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainS
                       dict(payload.get("view_mse", {})))
 
 
+def upcoming_views(state: TrainState, data: TrainData, count: int) -> list[int]:
+    """The ``count`` views next_view returns next: the rest of this epoch's order, then the
+    next epoch's, drawn from a copy of the sampler's generator (the run's own is untouched)."""
+    views = list(state.order[state.order_pos:state.order_pos + count])
+    if len(views) < count and data.train:
+        rng = copy.deepcopy(state.view_rng)
+        while len(views) < count:
+            views += [data.train[i] for i in rng.permutation(len(data.train))][:count - len(views)]
+    return views
+
+
 def next_view(state: TrainState, data: TrainData) -> int:
     """Views in random order, every view once per epoch."""
     if state.order_pos >= len(state.order):
@@ -235,6 +242,8 @@ def next_view(state: TrainState, data: TrainData) -> int:
         state.order_pos = 0
     view = state.order[state.order_pos]
     state.order_pos += 1
+    if hasattr(data.images, "prefetch"):
+        data.images.prefetch(upcoming_views(state, data, PREFETCH_DEPTH))
     return view
 
 
