@@ -11,6 +11,7 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass
+from collections.abc import Iterable, Iterator
 from typing import Callable
 
 import numpy as np
@@ -170,7 +171,7 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     cameras = [data.cameras[i] for i in data.train]
     points, colors, triangulated = training_points(scene, data.train, data.images, config.triangulate_init, log)
     if triangulated:
-        gaussians, message = gaussians_from_sparse_depth(cameras, [data.images[i].numpy() for i in data.train],
+        gaussians, message = gaussians_from_sparse_depth(cameras, train_photos(data),
                                                          points, sh_degree, config.seed)
     else:
         gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
@@ -178,7 +179,7 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     sky = None
     free_space = config.free_space
     if free_space.sky_shell:
-        gaussians, sky = with_sky_shell(gaussians, cameras, [data.images[i].numpy() for i in data.train], points, log)
+        gaussians, sky = with_sky_shell(gaussians, cameras, train_photos(data), points, log)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)
@@ -192,7 +193,13 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
                       ViewStats.zeros(len(gaussians)), near, sky)
 
 
-def with_sky_shell(gaussians: Gaussians, cameras: list[Camera], images: list[np.ndarray], points: np.ndarray,
+def train_photos(data: TrainData) -> Iterator[np.ndarray]:
+    """The training views' photos [H, W, 3] one at a time, in data.train's order: a pass over
+    them never holds more than the photo store does."""
+    return (data.images[i].numpy() for i in data.train)
+
+
+def with_sky_shell(gaussians: Gaussians, cameras: list[Camera], images: Iterable[np.ndarray], points: np.ndarray,
                    log) -> tuple[Gaussians, torch.Tensor]:
     """``gaussians`` and the sky shell's after them, and the shell's sphere [4]."""
     means, colours, scales, sphere = sky_shell(cameras, images, points)
