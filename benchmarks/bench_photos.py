@@ -59,6 +59,16 @@ def run_train(scene: Path, out: Path, steps: int, budget: str, extra: list[str])
             "peak_rss_gb": peak_kb / 2**20, "wall_s": wall}
 
 
+def _data_dir() -> Path:
+    """$INCEPTIONGS_DATA, else the first shared/data beside the repository or above it."""
+    if os.environ.get("INCEPTIONGS_DATA"):
+        return Path(os.environ["INCEPTIONGS_DATA"])
+    for parent in REPO.parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return REPO.parent / "shared" / "data"
+
+
 def photo_gb(scene: Path, downscale: int) -> tuple[int, float]:
     """(photos, GB of all of them as float32 at the training resolution)."""
     from inceptiongs.scene.loader import load_scene
@@ -83,7 +93,7 @@ def main() -> int:
     parser.add_argument("--town", default="/tmp/town3000")
     parser.add_argument("--town-steps", type=int, default=50)
     parser.add_argument("--town-budget", default="1G")
-    parser.add_argument("--bonsai", default=str(REPO.parent / "shared" / "data" / "bonsai"))
+    parser.add_argument("--bonsai", default=str(_data_dir() / "bonsai"))
     parser.add_argument("--bonsai-steps", type=int, default=300)
     parser.add_argument("--downscale", type=int, default=4)
     parser.add_argument("--out", default="/tmp/bench_photos")

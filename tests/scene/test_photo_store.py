@@ -154,3 +154,24 @@ def test_a_stopped_store_prefetches_nothing(demo):
     assert store._held.thread is None
     assert torch.equal(store[3], photo_tensor(scene, 3))   # reads still work, in the caller's thread
 
+
+
+def test_a_store_on_a_device_uploads_one_photo_per_read(demo):
+    scene = load_scene(str(demo), downscale=4)
+    store = PhotoStore(scene, range(3), budget=3 * photo_bytes(scene, 0))
+    moved = store.on("meta")
+    assert moved[1].device.type == "meta" and moved[1].shape == store[1].shape
+    assert store[1].device.type == "cpu" and store.held_bytes == photo_bytes(scene, 1)   # one host copy
+
+
+def test_the_prefetched_views_are_the_ones_the_sampler_draws_next():
+    from types import SimpleNamespace
+
+    from inceptiongs.train.step import next_view, upcoming_views
+
+    data = SimpleNamespace(train=[2, 5, 7, 9, 11], images={})
+    state = SimpleNamespace(order=[], order_pos=0, view_rng=np.random.default_rng(3))
+    for _ in range(12):   # across epoch boundaries
+        ahead = upcoming_views(state, data, 7)
+        drawn = [next_view(state, data) for _ in range(7)]
+        assert drawn == ahead
