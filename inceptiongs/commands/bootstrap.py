@@ -13,7 +13,6 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ..io.photo_memory import PHOTO_MEMORY_HELP
 from .device import recorded_device
 
 HELP = "stage II: repair flagged views of a run by generative bootstrapping (writes RUN_bootstrap)"
@@ -51,7 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="wall budget for the whole bootstrap (prior, generation, refinement)")
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"refinement steps per round (default {d.iterations})")
-    parser.add_argument("--photo-memory", metavar="SIZE", default=None, help=PHOTO_MEMORY_HELP)
     parser.add_argument("--seed", type=int, default=None, help=f"generation and sampling seed (default {d.seed})")
 
 

@@ -3,14 +3,17 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 from ..errors import InputError
 
+PHOTO_MEMORY_ENV = "INCEPTIONGS_PHOTO_MEMORY"
 _PHOTO_MEMORY: int | None = None          # bytes; None: default_budget()
 _UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 PHOTO_MEMORY_HELP = ("bytes of decoded photos held in memory (e.g. 1G, 512M; default: all of them, at most a "
-                     "quarter of the free memory); the rest are read from the decoded-photo cache as needed")
+                     "quarter of the free memory; also $INCEPTIONGS_PHOTO_MEMORY); the rest are read from the "
+                     "decoded-photo cache as needed")
 
 
 def parse_memory(text: str, flag: str = "--photo-memory") -> int:
@@ -50,5 +53,9 @@ def default_budget(all_bytes: int) -> int:
 
 
 def photo_memory() -> int | None:
-    """The budget set by set_photo_memory (None: default_budget)."""
-    return _PHOTO_MEMORY
+    """The budget set by set_photo_memory (the flag), else $INCEPTIONGS_PHOTO_MEMORY (for every
+    command, stage II's included), else None: default_budget."""
+    if _PHOTO_MEMORY is not None:
+        return _PHOTO_MEMORY
+    text = os.environ.get(PHOTO_MEMORY_ENV)
+    return None if not text else parse_memory(text, f"${PHOTO_MEMORY_ENV}")

@@ -175,3 +175,12 @@ def test_the_prefetched_views_are_the_ones_the_sampler_draws_next():
         ahead = upcoming_views(state, data, 7)
         drawn = [next_view(state, data) for _ in range(7)]
         assert drawn == ahead
+
+
+def test_the_environment_sets_the_budget_of_every_command(monkeypatch):
+    from inceptiongs.io.photo_memory import photo_memory
+    monkeypatch.setenv("INCEPTIONGS_PHOTO_MEMORY", "2M")
+    assert photo_memory() == 2 << 20
+    monkeypatch.setenv("INCEPTIONGS_PHOTO_MEMORY", "plenty")
+    with pytest.raises(InputError, match=r"\$INCEPTIONGS_PHOTO_MEMORY: 'plenty'"):
+        photo_memory()
