@@ -15,6 +15,7 @@ import numpy as np
 from inceptiongs.camera import Camera, pose_distance
 from inceptiongs.errors import InputError
 from inceptiongs.lod.hierarchy import GAUSSIAN_FIELDS
+from inceptiongs.scene.photo_store import photo_tensor
 
 from . import flags as flagging
 from .editing import EditState
@@ -237,7 +238,7 @@ class View:
             return None
         if self._photo_cache[0] != index:
             try:
-                self._photo_cache = (index, self.source.scene.load_image(index))
+                self._photo_cache = (index, photo_tensor(self.source.scene, index).numpy())
             except (InputError, OSError) as exc:
                 self.status.text = f"training photo not shown: {exc}"
                 self._photo_cache = (index, None)

@@ -14,6 +14,7 @@ import sys
 from .errors import InputError
 from .io.atomic import writing_under
 from .io.cache import set_cache_dir
+from .io.photo_memory import parse_memory, set_photo_memory
 from .io.values import bind_flags
 
 # The arguments that name a run, output or input folder of a command.
@@ -91,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         set_cache_dir(getattr(args, "cache_dir", None))
+        memory = getattr(args, "photo_memory", None)
+        set_photo_memory(None if memory is None else parse_memory(memory))
         # Writes below the folders a command is given never follow a symlink planted there.
         with writing_under(*named_folders(args)):
             return int(args._run(args) or 0)
@@ -104,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     finally:
         set_cache_dir(None)
+        set_photo_memory(None)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ import json
 import sys
 
 from ..errors import InputError
+from ..io.photo_memory import PHOTO_MEMORY_HELP
 from .device import add_device_argument, command_device
 from .generate import add_sampling_arguments
 from ..io.values import flag, rule
@@ -29,6 +30,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ddim-steps", default="20", metavar="N[,N...]",
                         help="DDIM step counts for --generated (default 20; several give the quality-"
                              "against-steps curve of `inceptiongs report`)")
+    parser.add_argument("--photo-memory", metavar="SIZE", default=None, help=PHOTO_MEMORY_HELP)
     parser.add_argument("--seed", type=flag("seed"), default=0, help="generation seed for --generated")
     add_sampling_arguments(parser, "--generated, ")
     add_device_argument(parser, reads_run=True)

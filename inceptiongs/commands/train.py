@@ -11,6 +11,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.atomic import OutputError
 from ..io.config_json import check_seed, with_values
+from ..io.photo_memory import PHOTO_MEMORY_HELP
 from ..io.paths import contained_path, read_small_text
 from ..train.distributed import ranks_from_environment
 from .device import add_device_argument, command_device
@@ -60,6 +61,7 @@ def add_arguments(parser) -> None:
                              f"{PHOTOS_PER_BLOCK} training photos), each an ordinary run in RUN/blocks/, merged "
                              "into RUN; the same command again trains only the unfinished blocks. Under torchrun "
                              "the ranks share the blocks (docs/large_scenes.md)")
+    parser.add_argument("--photo-memory", metavar="SIZE", default=None, help=PHOTO_MEMORY_HELP)
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")
     prior.add_argument("--prior", nargs="?", type=flag("steps"), const=DEFAULT_PRIOR_EVERY, default=None, metavar="EVERY",

@@ -20,6 +20,7 @@ import torch
 from ..io.atomic import atomic_write_text
 from ..errors import InputError
 from ..io.images import write_png
+from ..scene.photo_store import photo_tensor
 from ..io.config_json import json_safe
 from ..rasterizer.interface import render_rgb
 from .scoring import GROUPS, group_of, mean_or_none, safe_name
@@ -37,7 +38,7 @@ def score(image: torch.Tensor, photo: torch.Tensor) -> dict[str, float]:
 
 def photo_of(scene, index: int) -> torch.Tensor:
     camera = scene.cameras[index]
-    photo = torch.as_tensor(np.asarray(scene.load_image(index), dtype=np.float32))
+    photo = photo_tensor(scene, index)   # decoded once into the photo cache
     if tuple(photo.shape) != (camera.height, camera.width, 3):
         raise InputError(f"{camera.name}: photo is {tuple(photo.shape)}, camera expects "
                          f"{(camera.height, camera.width, 3)}")

@@ -18,6 +18,7 @@ import torch
 
 from ..errors import InputError
 from ..io.images import write_png
+from ..scene.photo_store import photo_tensor
 from .metrics import frechet_distance, psnr, ssim
 from .protocols import Split
 
@@ -127,7 +128,7 @@ def evaluate_views(gaussians, scene, split: Split, photos: Mapping[int, torch.Te
         if photos is not None and index in photos:
             photo = photos[index]
         else:
-            photo = torch.as_tensor(scene.load_image(index))
+            photo = photo_tensor(scene, index)   # decoded once into the photo cache
         photo = photo.to(device=gaussians.device, dtype=torch.float32)
         if tuple(photo.shape) != (camera.height, camera.width, 3):
             raise InputError(f"{camera.name}: photo is {tuple(photo.shape)}, camera expects "

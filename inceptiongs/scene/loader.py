@@ -169,18 +169,30 @@ class Scene:
     def load_image(self, index: int) -> np.ndarray:
         """Image of camera ``index``: [H, W, 3] float32 in [0, 1] at the scene's downscale,
         undistorted when the camera was. Resized/undistorted images are cached."""
-        camera, source = self.cameras[index], self.source_cameras[index]
-        dist = self.distortion[index]
-        path = self.image_paths[index]
-        if dist is None and (camera.width, camera.height) == (source.width, source.height):
-            return _to_float_rgb(_read_image(path), path)
-        cache_name = camera.name.replace("/", "__").replace("\\", "__")
+        return float_rgb(self.load_stored_rgb(index))
+
+    def resolution_key(self, index: int) -> str:
+        """Names the training resolution (and lens model) photo ``index`` is prepared at:
+        "WxH", with a hash of the lens when the camera is undistorted."""
+        camera, source, dist = self.cameras[index], self.source_cameras[index], self.distortion[index]
         key = f"{camera.width}x{camera.height}"
         if dist is not None:
             # Undistorted images depend on the lens model too: a re-calibrated model must not
             # reuse images undistorted with the old one.
             lens = np.array([source.fx, source.fy, source.cx, source.cy], "<f8").tobytes() + distortion_key(dist)
             key += "-" + hashlib.sha1(lens).hexdigest()[:10]
+        return key
+
+    def load_stored_rgb(self, index: int) -> np.ndarray:
+        """Image of camera ``index`` as :meth:`load_image` converts it: [H, W, 3] RGB in the
+        file's own type (uint8, uint16 or float32), contiguous; float_rgb() of it is load_image."""
+        camera, source = self.cameras[index], self.source_cameras[index]
+        dist = self.distortion[index]
+        path = self.image_paths[index]
+        if dist is None and (camera.width, camera.height) == (source.width, source.height):
+            return stored_rgb(_read_image(path), path)
+        cache_name = camera.name.replace("/", "__").replace("\\", "__")
+        key = self.resolution_key(index)
         relative = Path("images") / key / f"{cache_name}.png"
         try:
             cache = self.work_dir / relative
@@ -191,7 +203,7 @@ class Scene:
         # a symlink planted there would make every command read (and `eval` copy) any image on the disk.
         for cached in (cache, legacy if stays_inside(legacy, self.root) else None):
             if cached is not None and cached.is_file() and cached.stat().st_mtime >= path.stat().st_mtime:
-                return _to_float_rgb(_read_image(cached), cached)
+                return stored_rgb(_read_image(cached), cached)
         image = _read_image(path)
         if image.shape[1] != source.width or image.shape[0] != source.height:
             raise InputError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but its camera "
@@ -207,7 +219,7 @@ class Scene:
                 atomic_write_bytes(cache, encoded.tobytes())
             except InputError:  # a full or read-only cache only costs speed
                 pass
-        return _to_float_rgb(image, path)
+        return stored_rgb(image, path)
 
 
 def image_file_problem(path: Path) -> str | None:
@@ -246,8 +258,8 @@ def _read_image(path: Path) -> np.ndarray:
     return image
 
 
-def _to_float_rgb(image: np.ndarray, path: Path) -> np.ndarray:
-    """BGR(A)/grey uint8|uint16 -> RGB float32 [H, W, 3] in [0, 1] (alpha dropped)."""
+def stored_rgb(image: np.ndarray, path: Path) -> np.ndarray:
+    """BGR(A)/grey as stored -> RGB [H, W, 3] in the stored type, contiguous (alpha dropped)."""
     if image.ndim == 2:
         image = image[:, :, None]
     channels = image.shape[2]
@@ -257,6 +269,11 @@ def _to_float_rgb(image: np.ndarray, path: Path) -> np.ndarray:
         rgb = image[:, :, 2::-1]
     else:
         raise InputError(f"{path}: image has {channels} channels, expected 1, 3 or 4")
+    return np.ascontiguousarray(rgb)
+
+
+def float_rgb(rgb: np.ndarray) -> np.ndarray:
+    """RGB [H, W, 3] uint8|uint16|float -> float32 in [0, 1]."""
     if rgb.dtype == np.uint8:
         return rgb.astype(np.float32) / 255.0
     if rgb.dtype == np.uint16:

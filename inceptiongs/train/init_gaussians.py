@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 import torch
@@ -146,7 +147,7 @@ def sparse_depth_samples(camera: Camera, image: np.ndarray, points: np.ndarray, 
     return world, colours, pixel_sigma * depth / max(camera.fx, camera.fy)
 
 
-def gaussians_from_sparse_depth(cameras: list[Camera], images: list[np.ndarray], points: np.ndarray,
+def gaussians_from_sparse_depth(cameras: list[Camera], images: Iterable[np.ndarray], points: np.ndarray,
                                 sh_degree: int, seed: int, count: int = 30_000) -> tuple[Gaussians, str]:
     """``count`` pixel-sized, photo-coloured Gaussians spread evenly over the training views
     at depths interpolated from the sparse ``points`` [P, 3] (see sparse_depth_samples).

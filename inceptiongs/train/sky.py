@@ -16,6 +16,7 @@ alone (:func:`in_background`).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import cv2
 import numpy as np
@@ -125,7 +126,7 @@ def shell_geometry(cameras: list[Camera], points: np.ndarray) -> tuple[np.ndarra
     return centre, SKY_RADIUS_FACTOR * max(float(np.percentile(spread, 99)), 1.0)
 
 
-def sky_shell(cameras: list[Camera], images: list[np.ndarray], points: np.ndarray
+def sky_shell(cameras: list[Camera], images: Iterable[np.ndarray], points: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The shell's Gaussians. images[k]: [H, W, 3] in [0, 1] of cameras[k]; points: [P, 3].
 

@@ -7,19 +7,19 @@ refinement (:mod:`inceptiongs.bootstrap`) both drive these.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
-import sys
 from dataclasses import dataclass
+from collections.abc import Iterable, Iterator
 from typing import Callable
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from ..camera import Camera
-from ..errors import InputError
 from ..gaussians import Gaussians
+from ..scene.photo_store import PREFETCH_DEPTH, DerivedPhotos, PhotoStore, check_photo_files
 from . import losses
 from ..runs.config import TrainConfig
 from .densify import DensifyStats, accumulate
@@ -63,19 +63,14 @@ class TrainData:
 def prepare_data(scene, split, config: TrainConfig, log: Callable[[str], None]) -> TrainData:
     cameras = list(scene.cameras)
     used = sorted(set(split.train) | set(split.test))
-    images = {}
-    for index in tqdm(used, desc="loading images", file=sys.stderr, leave=False):
-        image = torch.from_numpy(np.ascontiguousarray(scene.load_image(index), dtype=np.float32))
-        cam = cameras[index]
-        if tuple(image.shape[:2]) != (cam.height, cam.width):
-            raise InputError(f"{scene.image_paths[index]}: image is {image.shape[1]}x{image.shape[0]}, "
-                             f"camera says {cam.width}x{cam.height}")
-        images[index] = image
+    check_photo_files(scene, used)   # a missing photo: one line now, not at its first step
+    # Photos are read through a store (decoded once into the cache folder, at most the photo
+    # budget held, the sampler's next views prefetched): memory does not grow with their number.
+    images = PhotoStore(scene, used)
     grey, edges = {}, {}
     if config.pgsr:
-        for index in split.train:
-            grey[index] = images[index].mean(-1, keepdim=True)
-            edges[index] = losses.edge_aware_weight(images[index])
+        grey = DerivedPhotos(images, split.train, lambda image: image.mean(-1, keepdim=True))
+        edges = DerivedPhotos(images, split.train, losses.edge_aware_weight)
     intrinsics = {i: torch.tensor(cameras[i].intrinsics, dtype=torch.float32) for i in used}
     neighbours = {}
     if config.pgsr:
@@ -148,8 +143,10 @@ def on_cpu(value):
 
 
 def data_on(data: TrainData, device: torch.device | str) -> TrainData:
-    """``data`` with its photos and per-view tensors on ``device``: uploaded once, not per step."""
-    move = lambda tensors: {k: v.to(device) for k, v in tensors.items()}   # noqa: E731
+    """``data`` with its photos and per-view tensors on ``device``: the small per-view tensors
+    uploaded once, the photos one per read."""
+    def move(tensors):   # a photo store uploads one photo per read
+        return tensors.on(device) if hasattr(tensors, "on") else {k: v.to(device) for k, v in tensors.items()}
     return dataclasses.replace(data, images=move(data.images), grey=move(data.grey),
                                edge_weights=move(data.edge_weights), intrinsics=move(data.intrinsics))
 
@@ -174,7 +171,7 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     cameras = [data.cameras[i] for i in data.train]
     points, colors, triangulated = training_points(scene, data.train, data.images, config.triangulate_init, log)
     if triangulated:
-        gaussians, message = gaussians_from_sparse_depth(cameras, [data.images[i].numpy() for i in data.train],
+        gaussians, message = gaussians_from_sparse_depth(cameras, train_photos(data),
                                                          points, sh_degree, config.seed)
     else:
         gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
@@ -182,7 +179,7 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
     sky = None
     free_space = config.free_space
     if free_space.sky_shell:
-        gaussians, sky = with_sky_shell(gaussians, cameras, [data.images[i].numpy() for i in data.train], points, log)
+        gaussians, sky = with_sky_shell(gaussians, cameras, train_photos(data), points, log)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)
@@ -196,7 +193,13 @@ def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) 
                       ViewStats.zeros(len(gaussians)), near, sky)
 
 
-def with_sky_shell(gaussians: Gaussians, cameras: list[Camera], images: list[np.ndarray], points: np.ndarray,
+def train_photos(data: TrainData) -> Iterator[np.ndarray]:
+    """The training views' photos [H, W, 3] one at a time, in data.train's order: a pass over
+    them never holds more than the photo store does."""
+    return (data.images[i].numpy() for i in data.train)
+
+
+def with_sky_shell(gaussians: Gaussians, cameras: list[Camera], images: Iterable[np.ndarray], points: np.ndarray,
                    log) -> tuple[Gaussians, torch.Tensor]:
     """``gaussians`` and the sky shell's after them, and the shell's sphere [4]."""
     means, colours, scales, sphere = sky_shell(cameras, images, points)
@@ -228,6 +231,17 @@ def restore_state(payload: dict, data: TrainData, config: TrainConfig) -> TrainS
                       dict(payload.get("view_mse", {})))
 
 
+def upcoming_views(state: TrainState, data: TrainData, count: int) -> list[int]:
+    """The ``count`` views next_view returns next: the rest of this epoch's order, then the
+    next epoch's, drawn from a copy of the sampler's generator (the run's own is untouched)."""
+    views = list(state.order[state.order_pos:state.order_pos + count])
+    if len(views) < count and data.train:
+        rng = copy.deepcopy(state.view_rng)
+        while len(views) < count:
+            views += [data.train[i] for i in rng.permutation(len(data.train))][:count - len(views)]
+    return views
+
+
 def next_view(state: TrainState, data: TrainData) -> int:
     """Views in random order, every view once per epoch."""
     if state.order_pos >= len(state.order):
@@ -235,6 +249,8 @@ def next_view(state: TrainState, data: TrainData) -> int:
         state.order_pos = 0
     view = state.order[state.order_pos]
     state.order_pos += 1
+    if hasattr(data.images, "prefetch"):
+        data.images.prefetch(upcoming_views(state, data, PREFETCH_DEPTH))
     return view
 
 

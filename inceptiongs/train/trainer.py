@@ -99,6 +99,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, progress: bool, con
             run.steps()
     finally:
         loop.close()
+        getattr(data.images, "close", lambda: None)()   # the prefetch thread ends with the run (a stop, Ctrl+C or an error too)
     return run.finish()
 
 

@@ -62,7 +62,8 @@ FLAT_TO_NESTED = {
 # What a user of the command needs on its own flag; everything else is in --config. Two more come
 # with the large-capture work, so the help stays within 16 options then.
 KEPT_FLAGS = {"--out", "--config", "--minutes", "--iterations", "--downscale", "--protocol", "--seed", "--device",
-              "--resume", "--strategy", "--exclude-photos", "--prior", "--prior-backend", "--sd-path", "--blocks"}
+              "--resume", "--strategy", "--exclude-photos", "--prior", "--prior-backend", "--sd-path", "--blocks",
+              "--photo-memory"}
 # The parser's own, present in every command.
 COMMON_FLAGS = {"-h", "--help", "--debug", "--cache-dir"}
 
