@@ -4,7 +4,7 @@ so that at a virtual view it can turn the render into (part of) I*.
 
 The pieces, each a small function:
 
-* ways to make the degraded side (:data:`WAYS`): renders of an earlier, underfit stage-I
+* ways to make the degraded side: renders of an earlier, underfit stage-I
   checkpoint (``"underfit"``), renders of the model with its least visible Gaussians dropped
   (``"fewer"``, :func:`fewer_gaussians`), or any render function a caller supplies (a model
   trained with a photo and its neighbours left out is one);
@@ -34,7 +34,6 @@ from torch.nn import functional as F
 from ..gaussians import Gaussians
 from ..prior.unet import UNet, UNetConfig
 
-WAYS = ("underfit", "fewer", "left_out")
 # Squared error below this is treated as this: PSNR of a perfect image is then 100 dB, never inf.
 MSE_FLOOR = 1e-10
 # The held-out check's default margin: the fixer must beat the render by this much (dB) on
