@@ -62,6 +62,7 @@ VARIANT_CLASSES: dict[str, str] = {
     "geometry": "experimental.geometry:Geometry",
     "evidence": "experimental.evidence:EvidencePlacement",
     "densify": "experimental.densify:Densify",
+    "fixer": "experimental.fixer:Fixer",
 }
 VARIANT_NAMES = tuple(VARIANT_CLASSES)
 

@@ -1,0 +1,102 @@
+"""The scene-adaptive fixer as a variant ("fixer", off by default): before the first round's
+views are made, a small network (bootstrap/fixer.py) is trained on this scene's pairs -- the
+render of the model with its least visible Gaussians dropped at a training pose, and the photo
+there -- with the most isolated training poses held out. Its held-out check (fixed render
+against the render, on photos it never trained on) decides whether the loop uses it; the check
+is logged. Where it passed, the fixed render is the fill: what I* keeps where the photos' blend
+does not reach. Its training runs inside the loop's clock, so its time is the bootstrap's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+import torch
+
+from ...errors import InputError
+from ..fixer import CHECK_MARGIN_DB, FixerSettings, build_pairs, fewer_gaussians, fix_where_check_says, \
+    held_out_check, held_out_views, train_fixer
+from ..options import VARIANT, option
+from ..supervise import blend_supervision
+from ..variants import PlacementRequest, Variant
+
+
+@dataclass
+class FixerState:
+    """What the first round trains: the network and its check (None until then)."""
+
+    net: object = None
+    check: object = None
+
+
+@dataclass(frozen=True)
+class Fixer(Variant):
+    """The fill made by a per-scene fixer where its held-out check passed."""
+
+    NAME: ClassVar[str] = "fixer"
+
+    keep_fraction: float = option(0.5, "share of Gaussians (the most visible: opacity x footprint) the degraded "
+                                       "renders keep", "-", VARIANT)
+    steps: int = option(300, "the fixer's training steps (charged to the bootstrap's clock)", "-", VARIANT)
+    held_out: int = option(2, "isolated training poses held out of its training for its check", "-", VARIANT)
+    margin_db: float = option(CHECK_MARGIN_DB, "the held-out gain over the render it must reach to be used",
+                              "dB", VARIANT)
+    width: int = option(16, "the fixer UNet's base width", "-", VARIANT)
+
+    @property
+    def state(self) -> FixerState:
+        """The run's trained fixer: set once on this (frozen) options object, not an option."""
+        if "_state" not in self.__dict__:
+            object.__setattr__(self, "_state", FixerState())
+        return self.__dict__["_state"]
+
+    def check(self, source: str, config) -> None:
+        if config.fill != "render":
+            raise InputError(f"{source}: the fixer makes the fill from the render: it needs fill \"render\", "
+                             f"got {config.fill!r}")
+        if not 0.0 < self.keep_fraction <= 1.0:
+            raise InputError(f"{source}: variants.fixer.keep_fraction must be in (0, 1], got {self.keep_fraction}")
+        if self.steps < 1 or self.held_out < 1 or self.width < 2:
+            raise InputError(f"{source}: variants.fixer: steps and held_out must be >= 1 and width >= 2")
+
+    def place_views(self, request: PlacementRequest):
+        if self.state.check is None:
+            self.state.net, self.state.check = self.trained(request)
+            request.log(f"fixer {'used' if self.state.check.passes else 'not used'} at the virtual views")
+        return None
+
+    def trained(self, request: PlacementRequest):
+        """(network, check) from the request's model, photos and training views."""
+        maker, cameras, train = request.maker, request.cameras, list(request.train)
+        reduced = fewer_gaussians(maker.current.detach(), self.keep_fraction)
+        rasterizer = maker.setting.rasterizer
+
+        def degraded(view: int) -> torch.Tensor:
+            with torch.no_grad():
+                return rasterizer(reduced, cameras[view], outputs=("rgb",))["rgb"].float().cpu()
+
+        centres = np.array([camera.center for camera in cameras])
+        held = held_out_views(centres, train, self.held_out)
+        fit = [v for v in train if v not in held]
+        device = maker.current.means.device
+        trained = train_fixer(build_pairs(degraded, request.photos, fit),
+                              FixerSettings(steps=self.steps, width=self.width, seed=request.config.seed),
+                              device=device, log=request.log)
+        # The check: at the held-out poses the degraded render stands in for a scarce view's
+        # render (it must be beaten by margin_db); the plain render there is already fitted to
+        # its photo, and the fixer must not harm it by more than |margin_db|.
+        check = held_out_check(trained.net, build_pairs(degraded, request.photos, held), self.margin_db)
+        fitted = held_out_check(trained.net, build_pairs(lambda v: maker.renders.rgb(cameras[v]).cpu(),
+                                                         request.photos, held), -abs(self.margin_db))
+        request.log(f"{check.words()}; on the fitted render there {fitted.gain_db:+.2f} dB")
+        if not fitted.passes:
+            check.margin_db = float("inf")        # refused: it harms a fitted render
+        return trained.net, check
+
+    def supervise(self, context):
+        fixed = fix_where_check_says(self.state.net, self.state.check, context.render())
+        if fixed is None:
+            return None
+        return blend_supervision(replace(context, fill=fixed.to(context.fill.device)))

@@ -1,0 +1,108 @@
+"""The scene-adaptive fixer (bootstrap/fixer.py) on synthetic images whose answer is known: a
+degradation (a colour shift and a blur) applied to 'renders' that the fixer must learn to undo."""
+
+import numpy as np
+import pytest
+import torch
+from torch.nn import functional as F
+
+from inceptiongs.bootstrap import fixer
+from inceptiongs.gaussians import Gaussians
+
+
+def scene_photo(view: int, size: int = 32) -> torch.Tensor:
+    """[size, size, 3] a smooth random texture per view (sums of sinusoids), in [0, 1]."""
+    rng = np.random.default_rng(view)
+    y, x = np.mgrid[0:size, 0:size] / size
+    channels = []
+    for _ in range(3):
+        f = rng.uniform(1.0, 4.0, size=(3, 2))
+        phase = rng.uniform(0, 2 * np.pi, size=3)
+        wave = sum(np.sin(2 * np.pi * (fy * y + fx * x) + p) for (fy, fx), p in zip(f, phase))
+        channels.append(0.5 + 0.15 * wave)
+    return torch.as_tensor(np.stack(channels, -1).clip(0, 1), dtype=torch.float32)
+
+
+def degrade(photo: torch.Tensor) -> torch.Tensor:
+    """The known degradation: a 3 x 3 box blur, then a colour shift (darker, bluer)."""
+    x = photo.permute(2, 0, 1)[None]
+    x = F.avg_pool2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+    shift = torch.tensor([-0.08, -0.04, 0.06]).view(1, 3, 1, 1)
+    return (x * 0.9 + shift).clamp(0, 1)[0].permute(1, 2, 0)
+
+
+PHOTOS = {v: scene_photo(v) for v in range(8)}
+
+
+def test_pairs_hold_the_degraded_render_and_the_photo():
+    pairs = fixer.build_pairs(lambda v: degrade(PHOTOS[v]), PHOTOS, [1, 4])
+    assert [p.view for p in pairs] == [1, 4]
+    assert torch.equal(pairs[1].photo, PHOTOS[4])
+    assert torch.allclose(pairs[0].degraded, degrade(PHOTOS[1]))
+    with pytest.raises(ValueError, match="view 9 has no photo"):
+        fixer.build_pairs(lambda v: PHOTOS[0], PHOTOS, [9])
+    with pytest.raises(ValueError, match="view 2"):
+        fixer.build_pairs(lambda v: PHOTOS[v][:16], PHOTOS, [2])
+
+
+def test_held_out_views_are_the_isolated_poses():
+    centres = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 0, 0], [0.3, 0, 0], [-4, 0, 0]], float)
+    assert fixer.held_out_views(centres, range(6), 2) == [3, 5]
+    assert fixer.held_out_views(centres, [0], 1) == []
+
+
+def test_fixer_learns_to_undo_a_known_degradation_and_passes_its_check():
+    train = fixer.build_pairs(lambda v: degrade(PHOTOS[v]), PHOTOS, range(6))
+    held = fixer.build_pairs(lambda v: degrade(PHOTOS[v]), PHOTOS, [6, 7])
+    trained = fixer.train_fixer(train, fixer.FixerSettings(steps=150, crop=24, batch=4, width=8, lr=3e-3))
+    assert np.mean(trained.losses[-20:]) < 0.5 * np.mean(trained.losses[:5])
+    check = fixer.held_out_check(trained.net, held, margin_db=1.0)
+    assert check.passes, check.words()
+    assert "used" in check.words() and "not used" not in check.words()
+    fixed = fixer.fix_where_check_says(trained.net, check, held[0].degraded)
+    assert fixed.shape == held[0].degraded.shape
+
+
+def test_check_refuses_a_fixer_that_does_not_beat_the_render():
+    # Untrained: the zeroed output layer returns the render itself, a gain of exactly 0 dB.
+    net = fixer.fixer_network(8)
+    held = fixer.build_pairs(lambda v: degrade(PHOTOS[v]), PHOTOS, [6, 7])
+    check = fixer.held_out_check(net, held, margin_db=0.1)
+    assert check.gain_db == pytest.approx(0.0, abs=1e-6)
+    assert not check.passes and "not used" in check.words()
+    assert fixer.fix_where_check_says(net, check, held[0].degraded) is None
+    # A fixer trained on one degradation, checked where the render is already the photo: it harms.
+    trained = fixer.train_fixer(fixer.build_pairs(lambda v: degrade(PHOTOS[v]), PHOTOS, range(6)),
+                                fixer.FixerSettings(steps=80, crop=24, width=8, lr=3e-3))
+    perfect = fixer.build_pairs(lambda v: PHOTOS[v], PHOTOS, [6, 7])
+    check = fixer.held_out_check(trained.net, perfect)
+    assert check.gain_db < 0 and not check.passes
+    assert not fixer.FixerCheck([], [], [], 0.1).passes
+
+
+def test_loss_psnr_and_spectrum_stay_finite():
+    photo = PHOTOS[0]
+    assert fixer.psnr_db(photo, photo) == pytest.approx(100.0)
+    flat = torch.full((16, 16, 3), 0.5)
+    spectrum = fixer.error_spectrum(flat, flat)
+    assert np.isfinite(spectrum).all() and spectrum.shape == (8,)
+    # Blur errors are high-frequency, a colour shift has none (its mean is removed): they differ.
+    blur = fixer.error_spectrum(degrade(photo), photo)
+    assert fixer.spectrum_distance(blur, blur) == 0.0
+    assert fixer.spectrum_distance(blur, spectrum) > 1.0
+    # Saturated inputs (all 0 or 1) and odd sizes: padded, clamped, finite.
+    net = fixer.fixer_network(8)
+    for image in (torch.zeros(13, 17, 3), torch.ones(13, 17, 3)):
+        out = fixer.apply_fixer(net, image)
+        assert out.shape == image.shape and torch.isfinite(out).all()
+
+
+def test_fewer_gaussians_drops_the_least_visible():
+    n = 10
+    g = Gaussians(means=torch.zeros(n, 3), log_scales=torch.full((n, 3), -2.0), quats=torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                  opacity_logits=torch.linspace(-5, 5, n), sh=torch.zeros(n, 1, 3))
+    kept = fixer.fewer_gaussians(g, 0.3)
+    assert len(kept) == 3
+    assert torch.equal(kept.opacity_logits, g.opacity_logits[7:])
+    with pytest.raises(ValueError):
+        fixer.fewer_gaussians(g, 0.0)
