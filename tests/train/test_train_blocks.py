@@ -115,7 +115,7 @@ def test_a_block_starts_from_every_point_its_photos_see_not_only_its_cells(tmp_p
     from inceptiongs.runs.config import Block
     from inceptiongs.train.partition import as_block
 
-    scene = load_scene(write_demo_scene(tmp_path / "scene", size="small", progress=False))
+    scene = load_scene(copy_of_demo_scene(tmp_path / "scene", size="small"))
     split = make_split(scene, "unstructured", 0)
     plane = ground_plane(scene.cameras)
     points = np.asarray(scene.points, np.float64)
