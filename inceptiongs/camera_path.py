@@ -165,7 +165,7 @@ def looked_at_point(cameras: list[Camera], fallback: np.ndarray) -> np.ndarray:
 def orbit_up(cameras: list[Camera]) -> np.ndarray:
     """[3] unit world up for an orbit: the cameras' mean image up; but when their centres lie
     near a plane that is clearly a plane (a ring around the object: its thinnest spread under
-    a tenth of the next), that plane's normal on the same side, since cameras looking down at
+    1/10 of the next), that plane's normal on the same side, since cameras looking down at
     the object tilt their image up towards it and a tilted orbit would rise and fall."""
     up = -np.mean([c.rotation[1] for c in cameras], axis=0)
     up = up / max(np.linalg.norm(up), 1e-12)

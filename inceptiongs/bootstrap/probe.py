@@ -20,9 +20,8 @@ from dataclasses import dataclass
 from .outlook import Outlook, outlook_from_curve
 
 # The probe's share of the bootstrap: this fraction of its steps, or of its time budget when it
-# has one, whichever ends first. Long enough for the scarce views to move measurably above the
-# evaluation noise on the scenes measured (a few hundred steps of a 300-step round would be the
-# whole round: a sixth keeps most of the budget for what the outlook decides).
+# has one, whichever ends first. It leaves 5/6 of the budget for what the outlook decides; the
+# share is a chosen value, not tuned on a scene.
 PROBE_SHARE = 1.0 / 6.0
 MIN_PROBE_STEPS = 2
 
