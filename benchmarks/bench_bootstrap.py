@@ -8,7 +8,7 @@ Per scene (demo: the procedural demo scene at downscale 2; statuette: ../shared/
 or $INCEPTIONGS_DATA, downscale 4), unstructured protocol, seed fixed:
 
 1. stage I (short-run schedule) into OUT/<scene>/run (reused when it already has model.ply;
-   ``--stage1-run RUN`` copies an existing run there instead, e.g. one trained to its budget);
+   ``--stage1-run RUN`` copies an existing run there whole, its log included, e.g. one trained to its budget);
 2. the prior, trained once into OUT/<scene>/run/prior (shared by every variant but the
    untrained-prior ablation; its time is counted in every variant's total);
 3. each variant: `run_bootstrap` on j* into OUT/<scene>/<variant> (held-out PSNR/SSIM logged
@@ -134,15 +134,13 @@ def data_root() -> Path | None:
 
 
 def copy_stage1(source: Path, run_dir: Path) -> None:
-    """An existing stage-I run copied to ``run_dir`` (read-only input stays untouched: a prior
-    trained for the benchmark is written beside the copy). Copies config.json, split.json,
-    model.ply, metrics.jsonl (stage I's held-out curve: the repair outlook reads it; without it the
-    bootstrap must measure the outlook first) and the newest checkpoint (its Adam moments are what
-    the continuation resumes)."""
+    """An existing stage-I run copied whole to ``run_dir`` (read-only input stays untouched: a
+    prior trained for the benchmark is written beside the copy): config.json, split.json,
+    model.ply, its checkpoints (their Adam moments are what the continuation resumes) and its
+    metrics.jsonl (the curve the bootstrap's outlook is read from)."""
     import shutil
 
     from inceptiongs.errors import InputError
-    from inceptiongs.runs.checkpoint import latest_checkpoint
 
     for name in ("config.json", "split.json", "model.ply"):
         if not (source / name).is_file():
@@ -150,13 +148,7 @@ def copy_stage1(source: Path, run_dir: Path) -> None:
     tmp = run_dir.with_name(run_dir.name + ".copying")
     if tmp.exists():
         shutil.rmtree(tmp)
-    (tmp / "checkpoints").mkdir(parents=True)
-    for name in ("config.json", "split.json", "model.ply", "metrics.jsonl"):
-        if (source / name).is_file():
-            shutil.copy2(source / name, tmp / name)
-    checkpoint = latest_checkpoint(source)
-    if checkpoint is not None:
-        shutil.copy2(checkpoint, tmp / "checkpoints" / checkpoint.name)
+    shutil.copytree(source, tmp, symlinks=True)
     tmp.rename(run_dir)  # whole or absent: a half copy is never reused
 
 
@@ -221,6 +213,18 @@ def real_step_seconds(run_dir: Path) -> float:
     return gaps[len(gaps) // 2] if gaps else 1.0
 
 
+def last_step_wall(run_dir: Path) -> float:
+    """The wall second at which the last step of a run (log_every = 1) ended, on its own clock."""
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    steps = [r["wall_s"] for r in records if "kind" in r]
+    return steps[-1] if steps else 0.0
+
+
+def extra_of(config, prior_s: float) -> float:
+    """The prior's seconds a variant is charged beside its own run (see bench_scene)."""
+    return prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
+
+
 def eval_curve(run_dir: Path) -> list[dict]:
     records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     return [{"wall_s": r["wall_s"], "iteration": r["iteration"],
@@ -260,20 +264,24 @@ def bench_scene(name: str, args) -> dict:
         print(f"[{name}] prior: {prior_s:.0f} s", flush=True)
     stage1 = load_stage1(run_dir)
     targets = resolve_targets(stage1.scene, stage1.split, None, None, 1)
+    warm_up(stage1, out / name / "warm_up", args.seed)
     rows = {"stage I": {"seconds": 0.0, **scores(run_dir)}}
     curves = {}
     for variant, config in configs.items():
         print(f"[{name}] {variant} ...", flush=True)
         result = run_bootstrap(stage1, out / name / variant, targets, config, progress=False, overwrite=True)
         # A prior trained for the run counts towards the time of every variant that uses it.
-        extra = prior_s if config.needs_prior() and config.prior != "untrained" else 0.0
+        extra = extra_of(config, prior_s)
         rows[variant] = {"seconds": result.wall_s + extra, **scores(out / name / variant)}
         curves[variant] = eval_curve(out / name / variant)
     if configs:
         # The baseline runs as long as the longest variant; each variant is also compared with
         # the baseline's curve at its own time (at_same_time).
         longest = max(configs, key=lambda v: rows[v]["seconds"])
-        total_s = rows[longest]["seconds"]
+        # Until the longest variant's last step: the baseline's time is checked before each step
+        # and its own finish (final evaluation, saves) comes after, so the variant's finish is
+        # not given to the baseline as step time.
+        total_s = extra_of(configs[longest], prior_s) + last_step_wall(out / name / longest)
         step_s = real_step_seconds(out / name / longest)
         iterations = max(1, int(total_s / max(step_s, 1e-3)))
         baseline_dir = out / name / "baseline"
@@ -282,11 +290,27 @@ def bench_scene(name: str, args) -> dict:
             print(f"[{name}] baseline reused ({seconds:.0f} s; this run's longest variant: {total_s:.0f} s)", flush=True)
         else:
             print(f"[{name}] baseline: stage I continued {total_s:.0f} s (<= {iterations} steps)", flush=True)
+            # The variants' evaluation cadence (every eval_every steps, each in the time): the same
+            # bookkeeping per step on both sides.
             seconds = baseline_run(stage1, baseline_dir, total_s / 60.0, iterations, seed=args.seed, progress=False,
-                                   eval_every=max(iterations // 4, 1), overwrite=True).wall_s
+                                   eval_every=base_config(args).eval_every, overwrite=True).wall_s
         rows["baseline (same time)"] = {"seconds": seconds, **scores(baseline_dir)}
         curves["baseline (same time)"] = eval_curve(out / name / "baseline")
     return {"rows": rows, "curves": curves, "prior_s": prior_s}
+
+
+def warm_up(stage1, out_dir: Path, seed: int) -> None:
+    """A few untimed baseline steps and an evaluation in this process before anything is timed:
+    the first run in a process pays one-off costs (kernels compiled, caches filled; ~15 s on
+    the tiny demo scene) that would otherwise be charged to whichever run comes first, here
+    always a variant and never the baseline it is compared with."""
+    import shutil
+
+    from inceptiongs.bootstrap.runner import baseline_run
+
+    baseline_run(stage1, out_dir, None, 2, seed=seed, progress=False, eval_every=1, overwrite=True,
+                 log=lambda line: None)
+    shutil.rmtree(out_dir, ignore_errors=True)
 
 
 def at_same_time(curve: list[dict], seconds: float, key: str) -> float | None:
