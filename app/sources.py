@@ -319,11 +319,12 @@ def triangulated_splats(scene_root: Path) -> tuple[dict | None, str]:
     reason) when too few points come out. Photos at most TRIANGULATE_MAX_WIDTH wide: the
     points only need to show where the scene is."""
     from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
+    from inceptiongs.scene.photo_store import photo_tensor  # noqa: PLC0415
     from inceptiongs.train.triangulate import cached_triangulation  # noqa: PLC0415
 
     scene = load_scene(scene_root, max_width=TRIANGULATE_MAX_WIDTH)
-    images = [scene.load_image(i) for i in range(len(scene.cameras))]
-    points, colors, _ = cached_triangulation(scene.work_dir, scene.cameras, images)
+    # Photos read one at a time (from the decoded-photo cache), never all at once.
+    points, colors, _ = cached_triangulation(scene.work_dir, scene.cameras, lambda i: photo_tensor(scene, i))
     if len(points) == 0:
         return None, ("no trained model and no sparse points, and no points could be triangulated from the "
                       "photos: showing the cameras only (train to get a model)")

@@ -137,7 +137,8 @@ def train_prior(args) -> int:
     gaussians = gaussians.to(device)
     views = training_views(run_dir, scene)
     cameras = [scene.cameras[i] for i in views]
-    load_image = lambda k: scene.load_image(views[k])  # noqa: E731
+    from ..scene.photo_store import photo_tensor
+    load_image = lambda k: photo_tensor(scene, views[k]).numpy()  # noqa: E731  (the photo cache)
 
     checkpoint = prior_dir(run_dir) / CHECKPOINT_NAME
     if checkpoint.is_file() and not args.restart:

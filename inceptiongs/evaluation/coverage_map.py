@@ -95,10 +95,12 @@ def scene_coverage(scene, roi=None, max_points: int = MAX_POINTS, seed: int = 0,
     ``triangulate``); every view is a source. InputError when there are no points."""
     points, source = scene.points, "sparse points"
     if not len(points) and triangulate:
+        from ..scene.photo_store import photo_tensor
         from ..train.triangulate import training_points
 
         views = list(range(len(scene.cameras)))
-        points, _, _ = training_points(scene, views, {i: scene.load_image(i) for i in views}, True, log)
+        # One photo at a time, from the decoded-photo cache.
+        points, _, _ = training_points(scene, views, lambda i: photo_tensor(scene, i), True, log)
         source = "points triangulated from the photos"
     if not len(points):
         raise InputError(f"{scene.root}: no sparse points to measure coverage on")

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..gaussians import Gaussians
+from ..scene.photo_store import photo_tensor
 from .trainer import CHECKPOINT_NAME, PriorTrainer, prior_dir, resume_trainer, save_prior
 
 
@@ -48,7 +49,7 @@ class JointPrior:
     def _start(self, gaussians: Gaussians) -> PriorTrainer:
         views = training_views(self.run_dir, self.scene)
         cameras = [self.scene.cameras[i] for i in views]
-        load_image = lambda k: self.scene.load_image(views[k])  # noqa: E731
+        load_image = lambda k: photo_tensor(self.scene, views[k]).numpy()  # noqa: E731  (the photo cache)
         if (prior_dir(self.run_dir) / CHECKPOINT_NAME).is_file() and not self.restart:
             return resume_trainer(self.run_dir, gaussians, cameras, load_image, device=self.device)
         (prior_dir(self.run_dir) / "metrics.jsonl").unlink(missing_ok=True)

@@ -14,6 +14,7 @@ diffusion_loss(), checkpoint_state().
 
 from __future__ import annotations
 
+import collections
 import io
 import json
 import time
@@ -27,6 +28,7 @@ from tqdm import tqdm
 
 from ..io.atomic import atomic_write_bytes
 from ..io.paths import check_inside
+from ..io.photo_memory import default_budget, photo_memory
 from ..io.pickles import file_names_code
 from ..camera import Camera
 from ..errors import InputError, one_line
@@ -71,7 +73,9 @@ def patch_size_for(prior, cameras: list[Camera]) -> int:
 class PriorTrainer:
     """prior: Prior or SDPrior; gaussians: the current model (re-assign it when the geometry
     changes); cameras: training cameras; load_image(i) -> [H, W, 3] float in [0, 1] of camera i.
-    train_s: seconds spent in step() over the prior's whole life (kept across resumes)."""
+    train_s: seconds spent in step() over the prior's whole life (kept across resumes).
+    photo_budget: bytes of converted photos kept between steps (None: --photo-memory, else as
+    the photo store's default); at least one photo, least recently used first out."""
 
     prior: Prior
     gaussians: Gaussians
@@ -80,6 +84,7 @@ class PriorTrainer:
     step_count: int = 0
     losses: list[float] = field(default_factory=list)
     train_s: float = 0.0
+    photo_budget: int | None = None
 
     def __post_init__(self) -> None:
         if not self.cameras:
@@ -90,7 +95,11 @@ class PriorTrainer:
                                 self.prior.config.batch_size, "prior settings", self.prior.device)
         self.generator = torch.Generator().manual_seed(self.prior.config.seed)
         self.optimizer = adam_for(self.prior.parameter_groups())
-        self._images: dict[int, torch.Tensor] = {}
+        sizes = [3 * 4 * c.width * c.height for c in self.cameras]   # float32 [3, H, W]
+        budget = self.photo_budget if self.photo_budget is not None else photo_memory()
+        self._image_budget = max(default_budget(sum(sizes)) if budget is None else budget, max(sizes))
+        self._images: collections.OrderedDict[int, torch.Tensor] = collections.OrderedDict()
+        self._image_bytes = 0
         self._geometry: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._geometry_bytes = 0
         self._geometry_of: Gaussians | None = None  # the Gaussians object the cache was rendered from
@@ -104,15 +113,25 @@ class PriorTrainer:
         return self._on_device[1]
 
     def _image(self, index: int) -> torch.Tensor:
-        """Photo i as [3, H, W] in [-1, 1], cached (patches are drawn from it many times)."""
-        if index not in self._images:
-            camera = self.cameras[index]
-            image = np.asarray(self.load_image(index), dtype=np.float32)
-            if image.shape != (camera.height, camera.width, 3):
-                raise InputError(f"{camera.name}: image is {image.shape}, camera expects "
-                                 f"{(camera.height, camera.width, 3)}")
-            self._images[index] = torch.from_numpy(image).permute(2, 0, 1).mul(2.0).sub(1.0)
-        return self._images[index]
+        """Photo i as [3, H, W] in [-1, 1], kept within the photo budget (patches are drawn
+        from it many times; one read again is converted again, to the same values)."""
+        image = self._images.get(index)
+        if image is not None:
+            self._images.move_to_end(index)
+            return image
+        camera = self.cameras[index]
+        photo = np.asarray(self.load_image(index), dtype=np.float32)
+        if photo.shape != (camera.height, camera.width, 3):
+            raise InputError(f"{camera.name}: image is {photo.shape}, camera expects "
+                             f"{(camera.height, camera.width, 3)}")
+        image = torch.from_numpy(photo).permute(2, 0, 1).mul(2.0).sub(1.0)
+        size = image.numel() * image.element_size()
+        while self._images and self._image_bytes + size > self._image_budget:
+            _, old = self._images.popitem(last=False)
+            self._image_bytes -= old.numel() * old.element_size()
+        self._images[index] = image
+        self._image_bytes += size
+        return image
 
     def sample_batch(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(photo patches [B, 3, s, s] in [-1, 1], G-buffer patches [B, 4 + Z, s, s])."""

@@ -17,6 +17,11 @@ the points themselves:
 
 The result is cached in the scene's work folder, keyed by the views, poses, images and
 settings, so a second run starts at once.
+
+Photos are read one at a time (``photo(slot)``, e.g. from the photo store): one pass for the
+cache key, one for the features, one for the points' colours. Between passes only the
+features are kept (keypoints, and the descriptors until the matching is done), so no more
+than one photo is held however many views there are.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import hashlib
 import io
 import json
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import cv2
@@ -118,10 +124,20 @@ def connected_labels(count: int, edges: np.ndarray) -> np.ndarray:
 
 # --- pipeline -------------------------------------------------------------------------------
 
+PhotoReader = Callable[[int], np.ndarray]   # slot -> [H, W, 3] float in [0, 1] (array or CPU tensor)
+
+
+def photo_reader(images) -> PhotoReader:
+    """A list or mapping of photos, or a function slot -> photo, as slot -> [H, W, 3] float32
+    (the photo is read when asked: a mapping such as the photo store keeps what it keeps)."""
+    read = images if callable(images) and not isinstance(images, (Sequence, Mapping)) else images.__getitem__
+    return lambda slot: np.asarray(read(slot), dtype=np.float32)
+
+
 @dataclass
 class _Features:
     pixels: np.ndarray        # [K, 2] continuous pixel coordinates
-    descriptors: np.ndarray   # [K, 128] float32
+    descriptors: np.ndarray   # [K, 128] float32 (integers 0..255 as OpenCV's SIFT writes them)
 
 
 def detect(image: np.ndarray, max_features: int, contrast_threshold: float = 0.01) -> _Features:
@@ -138,6 +154,15 @@ def detect(image: np.ndarray, max_features: int, contrast_threshold: float = 0.0
     return _Features(pixels, descriptors.astype(np.float32))
 
 
+def _compact(features: _Features) -> _Features:
+    """The same features with their descriptors as uint8 when that is exact (OpenCV's SIFT
+    rounds every entry to an integer in 0..255): a quarter of the memory per view."""
+    small = features.descriptors.astype(np.uint8)
+    if np.array_equal(small, features.descriptors):
+        return _Features(features.pixels, small)
+    return features
+
+
 def match_pair(feat_a: _Features, feat_b: _Features, cam_a: Camera, cam_b: Camera,
                config: TriangulationConfig) -> np.ndarray:
     """Guided matching: [M, 2] indices (a, b).
@@ -149,7 +174,8 @@ def match_pair(feat_a: _Features, feat_b: _Features, cam_a: Camera, cam_b: Camer
     """
     if len(feat_a.pixels) < 2 or len(feat_b.pixels) < 2:
         return np.zeros((0, 2), np.int64)
-    da, db = feat_a.descriptors, feat_b.descriptors
+    da = np.asarray(feat_a.descriptors, dtype=np.float32)
+    db = np.asarray(feat_b.descriptors, dtype=np.float32)
     # Squared descriptor distances [Ka, Kb] (clamped: rounding can make them a hair negative).
     distance = np.maximum((da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * da @ db.T, 0.0)
     off_line = _epipolar_distance_matrix(fundamental_matrix(cam_a, cam_b), feat_a.pixels, feat_b.pixels)
@@ -199,15 +225,15 @@ def _tracks(features: list[_Features], matches: dict[tuple[int, int], np.ndarray
     return tracks
 
 
-def _triangulate_and_filter(tracks: list[np.ndarray], features: list[_Features], cameras: list[Camera],
-                            images: list[np.ndarray], config: TriangulationConfig
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """-> points [P, 3], colours [P, 3] uint8 of the tracks that pass every check."""
+def _filtered_tracks(tracks: list[np.ndarray], features: list[_Features], cameras: list[Camera],
+                     config: TriangulationConfig) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The tracks that pass every check, grouped by length: per group (points [T, 3], slots
+    [T, L], rows [T, L], cols [T, L]), rows/cols the observations' pixel indices (>= 0)."""
     poses = np.stack([c.world_to_camera[:3] for c in cameras])            # [V, 3, 4]
     k_inv = np.stack([np.linalg.inv(c.intrinsics) for c in cameras])      # [V, 3, 3]
     centers = np.stack([c.center for c in cameras])
     min_cos = math.cos(math.radians(config.min_angle_deg))
-    points_out, colours_out = [], []
+    kept = []
     by_length: dict[int, list[np.ndarray]] = {}
     for track in tracks:
         by_length.setdefault(len(track), []).append(track)
@@ -236,34 +262,53 @@ def _triangulate_and_filter(tracks: list[np.ndarray], features: list[_Features],
         keep = np.isfinite(points).all(1) & in_front & (error < config.reprojection_px) & (cosines < min_cos)
         if not keep.any():
             continue
-        points_out.append(points[keep])
         rows = np.clip(pixels[keep, :, 1].astype(np.int64), 0, None)
         cols = np.clip(pixels[keep, :, 0].astype(np.int64), 0, None)
-        samples = np.stack([images[s][min(r, images[s].shape[0] - 1), min(c, images[s].shape[1] - 1)]
-                            for s, r, c in zip(slots[keep].ravel(), rows.ravel(), cols.ravel())])
-        colours_out.append(samples.reshape(int(keep.sum()), length, 3).mean(1))
-    if not points_out:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
-    colours = np.clip(np.concatenate(colours_out) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return np.concatenate(points_out), colours
+        kept.append((points[keep], slots[keep], rows, cols))
+    return kept
 
 
-def triangulate_points(cameras: list[Camera], images: list[np.ndarray],
+def _track_colours(kept: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], photo: PhotoReader
+                   ) -> list[np.ndarray]:
+    """Per group of _filtered_tracks: the mean colour [T, 3] of each track's observations, the
+    photos read one at a time (each photo once, in slot order)."""
+    samples = [np.zeros(slots.shape + (3,), np.float32) for _, slots, _, _ in kept]   # [T, L, 3]
+    for slot in np.unique(np.concatenate([slots.ravel() for _, slots, _, _ in kept])):
+        image = photo(int(slot))
+        for (_, slots, rows, cols), sample in zip(kept, samples):
+            seen = slots == slot
+            if seen.any():   # a keypoint on the last row/column edge is clamped into the image
+                sample[seen] = image[np.minimum(rows[seen], image.shape[0] - 1),
+                                     np.minimum(cols[seen], image.shape[1] - 1)]
+        del image
+    return [sample.mean(1) for sample in samples]
+
+
+def triangulate_points(cameras: list[Camera], images,
                        config: TriangulationConfig = TriangulationConfig()
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """cameras (known poses) and their photos [H, W, 3] in [0, 1] -> points [P, 3] in the
+    """cameras (known poses) and their photos [H, W, 3] in [0, 1] (a list, or a function
+    slot -> photo called once per photo and pass: see photo_reader) -> points [P, 3] in the
     cameras' frame and colours [P, 3] uint8."""
-    features = [detect(image, config.max_features, config.contrast_threshold) for image in images]
+    photo = photo_reader(images)
+    features = [_compact(detect(photo(slot), config.max_features, config.contrast_threshold))
+                for slot in range(len(cameras))]
     neighbours = neighbour_views(cameras, list(range(len(cameras))), config.pair_neighbours,
                                  config.pair_max_angle_deg)
     pairs = sorted({(min(a, b), max(a, b)) for a, nbs in neighbours.items() for b in nbs})
     matches = {(a, b): match_pair(features[a], features[b], cameras[a], cameras[b], config) for a, b in pairs}
-    return _triangulate_and_filter(_tracks(features, matches), features, cameras, images, config)
+    features = [_Features(f.pixels, f.descriptors[:0]) for f in features]   # the descriptors are done with
+    kept = _filtered_tracks(_tracks(features, matches), features, cameras, config)
+    if not kept:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    colours = np.clip(np.concatenate(_track_colours(kept, photo)) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return np.concatenate([points for points, _, _, _ in kept]), colours
 
 
-def _cache_key(cameras: list[Camera], images: list[np.ndarray], config: TriangulationConfig) -> str:
+def _cache_key(cameras: list[Camera], photo: PhotoReader, config: TriangulationConfig) -> str:
     digest = hashlib.sha256(json.dumps({"version": _CACHE_VERSION, "config": asdict(config)}).encode())
-    for camera, image in zip(cameras, images):
+    for slot, camera in enumerate(cameras):
+        image = photo(slot)
         digest.update(camera.name.encode())
         digest.update(np.asarray([camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy],
                                  np.float64).tobytes())
@@ -272,15 +317,15 @@ def _cache_key(cameras: list[Camera], images: list[np.ndarray], config: Triangul
     return digest.hexdigest()[:20]
 
 
-def cached_triangulation(work_dir, cameras: list[Camera], images: list[np.ndarray],
+def cached_triangulation(work_dir, cameras: list[Camera], images,
                          config: TriangulationConfig = TriangulationConfig()
                          ) -> tuple[np.ndarray, np.ndarray, bool]:
     """triangulate_points, cached as work_dir/sparse_init/KEY.npz. Returns (points, colours,
     came_from_cache). A cache that cannot be read is recomputed; one that cannot be written is
-    skipped (the points are still returned)."""
+    skipped (the points are still returned). images: as for triangulate_points."""
     from pathlib import Path
 
-    path = Path(work_dir) / "sparse_init" / f"{_cache_key(cameras, images, config)}.npz"
+    path = Path(work_dir) / "sparse_init" / f"{_cache_key(cameras, photo_reader(images), config)}.npz"
     if path.is_file():
         try:
             with np.load(path) as stored:
@@ -297,12 +342,13 @@ def cached_triangulation(work_dir, cameras: list[Camera], images: list[np.ndarra
     return points, colours, False
 
 
-def training_points(scene, views: list[int], images: dict, enabled: bool, log,
+def training_points(scene, views: list[int], images, enabled: bool, log,
                     config: TriangulationConfig = TriangulationConfig()
                     ) -> tuple[np.ndarray, np.ndarray | None, bool]:
     """The points to initialise from: the scene's own, else (when ``enabled``) points
     triangulated from the training views ``views`` (never the held-out ones), else none
-    (random initialisation). images: index -> [H, W, 3] tensor or array in [0, 1].
+    (random initialisation). images: index -> [H, W, 3] tensor or array in [0, 1], a mapping
+    (the photo store) or a function; read one photo at a time.
     Returns (points [P, 3], colours [P, 3] uint8 or None, triangulated); logs what it did."""
     if len(scene.points) > 0 or not enabled:
         return scene.points, scene.point_colors, False
@@ -310,7 +356,8 @@ def training_points(scene, views: list[int], images: dict, enabled: bool, log,
         log("no sparse points and fewer than 2 training views: nothing to triangulate")
         return scene.points, scene.point_colors, False
     cameras = [scene.cameras[i] for i in views]
-    photos = [np.asarray(images[i], dtype=np.float32) for i in views]
+    read = photo_reader(images)
+    photos = lambda slot: read(views[slot])   # noqa: E731
     try:
         work_dir = scene.work_dir
     except Exception:  # noqa: BLE001  (no writable work folder: compute without a cache)

@@ -10,7 +10,8 @@ import pytest
 from inceptiongs.scene.demo import Textures, trace
 from inceptiongs.scene.loader import load_scene
 from inceptiongs.train.triangulate import (TriangulationConfig, connected_labels, epipolar_distance,
-                                           fundamental_matrix, training_points, triangulate_tracks)
+                                           fundamental_matrix, training_points, triangulate_points,
+                                           triangulate_tracks)
 from demo_cases import copy_of_demo_scene
 from scene_cases import known_cameras, known_points, project
 
@@ -129,3 +130,30 @@ def test_sparse_depth_samples_lie_on_the_sparse_surface():
     assert len(sparse_depth_samples(camera, image, behind, 10, np.random.default_rng(0))[0]) == 0
     gaussians, message = gaussians_from_sparse_depth([camera], [image], points, 0, seed=0, count=50)
     assert len(gaussians) == 50 and "photo-coloured" in message
+
+
+def test_triangulation_holds_one_photo_at_a_time_beside_the_store(demo_scene_without_points, monkeypatch):
+    # Stage I hands its photo store to training_points. With the store's budget at 2 photos, a
+    # pass over 28 views must never have more than those 2 plus the one being read alive
+    # (a list of every view's photo would hold 28 at the end of its first pass).
+    from inceptiongs.scene import photo_store
+    from inceptiongs.scene.photo_store import PhotoStore, photo_bytes
+    from photo_counting import AliveCount
+
+    scene = demo_scene_without_points
+    views = list(range(len(scene.cameras)))
+    assert len(views) >= 20
+    count = AliveCount()
+    monkeypatch.setattr(photo_store, "photo_tensor", count.counting(photo_store.photo_tensor))
+    store = PhotoStore(scene, views, budget=2 * photo_bytes(scene, 0))
+    config = TriangulationConfig(max_features=400, min_points=1)
+    points, colours, triangulated = training_points(scene, views, store, True, lambda line: None, config)
+    store.close()
+    assert triangulated and len(points) > 0
+    assert count.peak <= 3, count.peak
+    assert count.reads >= 2 * len(views)        # the key pass and the feature pass each read every view
+    # The same points and colours as from photos held in a dict.
+    again, again_colours = triangulate_points([scene.cameras[i] for i in views],
+                                              [scene.load_image(i) for i in views], config)
+    np.testing.assert_array_equal(again, points)
+    np.testing.assert_array_equal(again_colours, colours)
