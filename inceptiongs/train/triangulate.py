@@ -308,12 +308,11 @@ def triangulate_points(cameras: list[Camera], images,
 def _cache_key(cameras: list[Camera], photo: PhotoReader, config: TriangulationConfig) -> str:
     digest = hashlib.sha256(json.dumps({"version": _CACHE_VERSION, "config": asdict(config)}).encode())
     for slot, camera in enumerate(cameras):
-        image = photo(slot)
         digest.update(camera.name.encode())
         digest.update(np.asarray([camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy],
                                  np.float64).tobytes())
         digest.update(np.asarray(camera.world_to_camera, np.float64).round(9).tobytes())
-        digest.update(np.ascontiguousarray(image[::7, ::7], np.float32).tobytes())
+        digest.update(np.ascontiguousarray(photo(slot)[::7, ::7], np.float32).tobytes())   # the photo goes at once
     return digest.hexdigest()[:20]
 
 

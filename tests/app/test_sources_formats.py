@@ -37,3 +37,21 @@ def test_viewer_refuses_a_file_that_is_not_a_model(tmp_path):
     with pytest.raises(InputError) as info:
         open_source(broken)
     assert str(info.value).startswith(str(broken)) and "\n" not in str(info.value)
+
+
+def test_points_for_a_scene_without_any_read_its_photos_one_at_a_time(tmp_path, monkeypatch):
+    # The viewer opening a scene with no model and no sparse points triangulates points to
+    # show: its 28 photos pass through one at a time, never all held at once.
+    from inceptiongs.app.sources import triangulated_splats
+    from inceptiongs.scene import photo_store
+    from demo_cases import copy_of_demo_scene
+    from photo_counting import AliveCount
+
+    root = copy_of_demo_scene(tmp_path / "scene")
+    (root / "sparse" / "0" / "points3D.bin").write_bytes(np.uint64(0).tobytes())   # no sparse points
+    count = AliveCount()
+    monkeypatch.setattr(photo_store, "photo_tensor", count.counting(photo_store.photo_tensor))
+    splats, line = triangulated_splats(root)
+    assert splats is not None and "triangulated" in line, line
+    assert count.reads >= 2 * 20
+    assert count.peak == 1, count.peak

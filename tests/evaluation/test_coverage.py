@@ -152,3 +152,25 @@ def test_the_hemisphere_map_covers_only_the_region_of_interest():
     assert math.degrees(result.azimuth[col]) == pytest.approx(180.0, abs=10.0)   # seen from the west
     east_cells = (np.degrees(result.azimuth) < 45) | (np.degrees(result.azimuth) > 315)
     assert result.density[:, east_cells].max() < 0.01 * result.density.max()
+
+
+def test_a_scene_without_points_is_triangulated_one_photo_at_a_time(tmp_path, monkeypatch):
+    # `inceptiongs coverage SCENE` on a scene without sparse points triangulates from every
+    # view: its 28 photos must pass through one at a time, not all held for the triangulation.
+    import dataclasses
+
+    from inceptiongs.evaluation.coverage_map import scene_coverage
+    from inceptiongs.scene import photo_store
+    from inceptiongs.scene.loader import load_scene
+    from demo_cases import copy_of_demo_scene
+    from photo_counting import AliveCount
+
+    scene = load_scene(copy_of_demo_scene(tmp_path / "scene"))
+    scene = dataclasses.replace(scene, points=np.zeros((0, 3)), point_colors=None)
+    assert len(scene.cameras) >= 20
+    count = AliveCount()
+    monkeypatch.setattr(photo_store, "photo_tensor", count.counting(photo_store.photo_tensor))
+    coverage = scene_coverage(scene)
+    assert coverage.point_source == "points triangulated from the photos"
+    assert count.peak == 1, count.peak
+    assert count.reads >= 2 * len(scene.cameras)

@@ -239,3 +239,38 @@ def test_the_bootstraps_prior_is_made_and_loaded_on_the_runs_device(tmp_path):
     on_host, _ = obtain_prior(tmp_path / "run", tmp_path / "out", gaussians, cameras, lambda i: photos[i],
                               "trained", 0, None, 1, print)
     assert on_host.device.type == "cpu"
+
+
+def test_the_trainer_keeps_photos_within_the_budget_and_trains_the_same():
+    # 40 training views, a budget of 2 photos: between steps at most 2 converted photos are
+    # alive (every photo drawn so far would be with every photo kept), and the losses are those of a trainer
+    # that keeps every photo (a photo read again converts to the same values).
+    from inceptiongs.camera import Camera, look_at
+    from photo_counting import AliveCount, tensors_of_shape
+
+    gaussians, _, _ = prior_scene()
+    cameras = [Camera(f"c{i}", 24, 20, 24.0, 24.0, 12.0, 10.0,
+                      look_at(np.array([3 * np.sin(a), 0.3, -3 * np.cos(a)]), np.zeros(3)))
+               for i, a in enumerate(np.linspace(0.0, 6.0, 40))]
+    photos = np.random.default_rng(0).random((len(cameras), 20, 24, 3), dtype=np.float32)
+    config = replace(TINY, patch_size=8, batch_size=4)
+
+    def losses(budget, count):
+        torch.manual_seed(0)
+        trainer = PriorTrainer(Prior.for_gaussians(config, gaussians), gaussians, cameras,
+                               count.counting(lambda i: photos[i]), photo_budget=budget)
+        held = []
+        for step in range(6):
+            trainer.step()
+            if step % 2:
+                held.append(tensors_of_shape((3, 20, 24)))
+        return trainer.losses, max(held)
+
+    small, everything = AliveCount(), AliveCount()
+    bounded, held = losses(2 * 3 * 4 * 24 * 20, small)
+    kept_all, held_all = losses(10 ** 9, everything)
+    assert held <= 2, held
+    assert held_all > 10                       # the count sees photos kept between steps
+    assert small.peak <= config.batch_size + 2   # photos read in one batch, beside the 2 kept
+    assert small.reads > everything.reads
+    assert bounded == kept_all
