@@ -17,6 +17,7 @@ class AliveCount:
 
     def __init__(self):
         self.alive = self.peak = self.reads = 0
+        self._followed: set[int] = set()
 
     def track(self, array: np.ndarray) -> np.ndarray:
         self.alive += 1
@@ -24,6 +25,14 @@ class AliveCount:
         self.peak = max(self.peak, self.alive)
         weakref.finalize(array, self._gone)
         return array
+
+    def track_once(self, obj):
+        """track(obj) unless it is already being followed (a cached photo handed out again)."""
+        if id(obj) not in self._followed:
+            self._followed.add(id(obj))
+            weakref.finalize(obj, self._followed.discard, id(obj))
+            self.track(obj)
+        return obj
 
     def _gone(self) -> None:
         self.alive -= 1

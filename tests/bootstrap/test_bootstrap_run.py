@@ -722,3 +722,27 @@ def test_the_fixer_is_trained_checked_and_used_only_where_its_check_says(stage1,
     assert (f"fixer {'used' if used else 'not used'} at the virtual views") in lines
     fixer_variant = config.variants["fixer"]
     assert fixer_variant.state.check.passes == used
+
+
+def test_stage_two_holds_photos_within_the_budget(stage1, tmp_path, monkeypatch):
+    # Stage II with a photo budget of 3 photos on a scene of 28: the photos decoded at once (the
+    # store's, the K nearest being blended, one being read) and the prior's converted copies
+    # (kept between its steps) stay bounded by constants, not by the number of views.
+    from inceptiongs.io.photo_memory import PHOTO_MEMORY_ENV
+    from inceptiongs.prior import trainer as prior_trainer
+    from inceptiongs.scene import photo_store
+    from photo_counting import AliveCount
+
+    _, scene, _ = load_run(stage1)
+    one = 3 * 4 * scene.cameras[0].width * scene.cameras[0].height
+    monkeypatch.setenv(PHOTO_MEMORY_ENV, str(3 * one))
+    decoded, converted = AliveCount(), AliveCount()
+    monkeypatch.setattr(photo_store, "photo_tensor", decoded.counting(photo_store.photo_tensor))
+    image = prior_trainer.PriorTrainer._image
+    monkeypatch.setattr(prior_trainer.PriorTrainer, "_image", lambda self, index: converted.track_once(image(self, index)))
+    config = _config(iterations=4, prior_steps=6, save_views=0)
+    result = run_bootstrap(stage1, tmp_path / "boot", _targets(stage1), config, progress=False)
+    assert result.finished
+    assert len(scene.cameras) >= 20 and decoded.reads > 3 and converted.reads > 3
+    assert decoded.peak <= 3 + config.k + 1, decoded.peak
+    assert converted.peak <= 3 + 4, converted.peak        # the budget's 3 and one batch of 4 patches
