@@ -8,7 +8,8 @@ The pieces, each a small function:
   checkpoint (``"underfit"``), renders of the model with its least visible Gaussians dropped
   (``"fewer"``, :func:`fewer_gaussians`), or any render function a caller supplies (a model
   trained with a photo and its neighbours left out is one);
-* :func:`build_pairs`: (degraded, photo) at the given views;
+* :func:`build_pairs`: (degraded, photo) at the given views; :class:`KeptPairs` the same made
+  when asked, as many kept as a byte budget holds (the fixer's training set on a large capture);
 * :func:`held_out_views`: the training views held out of the fixer's training, the most isolated
   camera centres first -- poses like the scarce ones, whose nearest photo stands far away;
 * :func:`train_fixer`: the network (prior.unet.UNet, timestep fixed at 0, predicting a residual
@@ -22,6 +23,7 @@ The pieces, each a small function:
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 from dataclasses import dataclass, field
@@ -118,17 +120,53 @@ def build_pairs(render: Callable[[int], torch.Tensor], photos: dict, views: Sequ
     """(degraded, photo) at each of ``views``: render(view) -> [H, W, 3] the degraded side;
     photos: view -> [H, W, 3] in [0, 1]. A view without a photo, or whose render's shape differs
     from its photo's, is a ValueError naming the view."""
-    pairs = []
-    for view in views:
-        if view not in photos:
-            raise ValueError(f"fixer pairs: training view {view} has no photo")
-        photo = torch.as_tensor(photos[view], dtype=torch.float32)
-        degraded = torch.as_tensor(render(view), dtype=torch.float32).detach().clamp(0.0, 1.0)
-        if degraded.shape != photo.shape or photo.ndim != 3 or photo.shape[-1] != 3:
-            raise ValueError(f"fixer pairs: view {view}: render {tuple(degraded.shape)} and photo "
-                             f"{tuple(photo.shape)} must both be [H, W, 3]")
-        pairs.append(FixerPair(view, degraded.cpu(), photo.clamp(0.0, 1.0).cpu()))
-    return pairs
+    return [pair_at(render, photos, view) for view in views]
+
+
+def pair_at(render: Callable[[int], torch.Tensor], photos, view: int) -> FixerPair:
+    """The (degraded, photo) pair at ``view``, as build_pairs makes it."""
+    if view not in photos:
+        raise ValueError(f"fixer pairs: training view {view} has no photo")
+    photo = torch.as_tensor(photos[view], dtype=torch.float32)
+    degraded = torch.as_tensor(render(view), dtype=torch.float32).detach().clamp(0.0, 1.0)
+    if degraded.shape != photo.shape or photo.ndim != 3 or photo.shape[-1] != 3:
+        raise ValueError(f"fixer pairs: view {view}: render {tuple(degraded.shape)} and photo "
+                         f"{tuple(photo.shape)} must both be [H, W, 3]")
+    return FixerPair(view, degraded.cpu(), photo.clamp(0.0, 1.0).cpu())
+
+
+class KeptPairs(Sequence):
+    """build_pairs(render, photos, views) made when asked: at most ``budget`` bytes of pairs are
+    kept (least recently used first out, at least one), and a pair asked for again after it
+    went is made again, to the same values (render must be deterministic, as a no-grad render is)."""
+
+    def __init__(self, render: Callable[[int], torch.Tensor], photos, views: Sequence[int], budget: int):
+        self.render, self.photos, self.views, self.budget = render, photos, list(views), budget
+        for view in self.views:
+            if view not in photos:
+                raise ValueError(f"fixer pairs: training view {view} has no photo")
+        self._kept: collections.OrderedDict[int, FixerPair] = collections.OrderedDict()
+        self._kept_bytes = 0
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def __getitem__(self, index: int) -> FixerPair:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        view = self.views[index]
+        pair = self._kept.get(view)
+        if pair is not None:
+            self._kept.move_to_end(view)
+            return pair
+        pair = pair_at(self.render, self.photos, view)
+        size = 2 * pair.photo.numel() * pair.photo.element_size()
+        while self._kept and self._kept_bytes + size > self.budget:
+            _, old = self._kept.popitem(last=False)
+            self._kept_bytes -= 2 * old.photo.numel() * old.photo.element_size()
+        self._kept[view] = pair
+        self._kept_bytes += size
+        return pair
 
 
 def held_out_views(centres: np.ndarray, views: Sequence[int], count: int) -> list[int]:

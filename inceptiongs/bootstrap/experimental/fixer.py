@@ -16,8 +16,9 @@ import numpy as np
 import torch
 
 from ...errors import InputError
-from ..fixer import CHECK_MARGIN_DB, FixerSettings, build_pairs, fewer_gaussians, fix_where_check_says, \
-    held_out_check, held_out_views, train_fixer
+from ...io.photo_memory import default_budget, photo_memory
+from ..fixer import CHECK_MARGIN_DB, FixerSettings, KeptPairs, build_pairs, fewer_gaussians, \
+    fix_where_check_says, held_out_check, held_out_views, train_fixer
 from ..options import VARIANT, option
 from ..supervise import blend_supervision
 from ..variants import PlacementRequest, Variant
@@ -81,7 +82,11 @@ class Fixer(Variant):
         held = held_out_views(centres, train, self.held_out)
         fit = [v for v in train if v not in held]
         device = maker.current.means.device
-        trained = train_fixer(build_pairs(degraded, request.photos, fit),
+        # Its training set within the photo budget: a pair that went is rendered again when drawn.
+        pair_bytes = [2 * 3 * 4 * cameras[v].width * cameras[v].height for v in fit]
+        budget = photo_memory()
+        budget = default_budget(sum(pair_bytes)) if budget is None else budget
+        trained = train_fixer(KeptPairs(degraded, request.photos, fit, budget),
                               FixerSettings(steps=self.steps, width=self.width, seed=request.config.seed),
                               device=device, log=request.log)
         # The check: at the held-out poses the degraded render stands in for a scarce view's
