@@ -145,7 +145,7 @@ def refine_step(setting: Setting, config: BootstrapConfig, plan: RoundPlan, stat
         if config.eval_every and step % config.eval_every == 0:
             run = setting.run
             record.update(evaluate_held_out(model(state.train), run.scene, run.split, setting.data,
-                                            setting.rasterizer))
+                                            setting.rasterizer, run.config.output.eval_views))
         append_metrics(setting.out_dir, record)
     clock.snapshot(step, state.train.params, record)
     if (step - plan.start) % config.checkpoint_every == 0:

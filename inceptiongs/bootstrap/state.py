@@ -87,7 +87,7 @@ def held_out_scores(run: Stage1, data: TrainData, rasterizer: Callable, out_dir:
                     state: TrainState, extra: dict) -> dict:
     """Held-out scores now, logged as a metrics line with ``extra``; their time is not training."""
     began = time.perf_counter()
-    scores = evaluate_held_out(model(state), run.scene, run.split, data, rasterizer)
+    scores = evaluate_held_out(model(state), run.scene, run.split, data, rasterizer, run.config.output.eval_views)
     clock.exclude(time.perf_counter() - began)
     append_metrics(out_dir, {"iteration": state.iteration, **clock.clocks(),
                              "num_gaussians": int(state.params["means"].shape[0]), **extra, **scores})

@@ -148,6 +148,28 @@ class Split:
                      [kept for kept in (inside(cluster) for cluster in self.clusters) if kept],
                      list(self.view_names), excluded)
 
+    def scored_during_training(self, per_group: int) -> "Split":
+        """The split with at most ``per_group`` held-out views in each group (scarce, covered),
+        evenly spaced over the group's sorted views, j* kept among the scarce ones: what training
+        and the bootstrap score on their cadence (a large capture holds out hundreds of views, each
+        a full render). The dropped views are neither trained on nor scored; `inceptiongs eval`
+        scores every held-out view of the run's own split."""
+        def thin(group: list[int]) -> list[int]:
+            if len(group) <= per_group:
+                return list(group)
+            positions = [round(i * (len(group) - 1) / max(per_group - 1, 1)) for i in range(per_group)]
+            if self.target_view in group:     # j* stays scored, in place of the pick nearest to it
+                target = group.index(self.target_view)
+                positions[min(range(per_group), key=lambda k: abs(positions[k] - target))] = target
+            return sorted({group[position] for position in positions})
+
+        scarce, covered = thin(self.scarce_test), thin(self.covered_test)
+        if len(scarce) == len(self.scarce_test) and len(covered) == len(self.covered_test):
+            return self
+        test = sorted(scarce + covered)
+        return Split(self.protocol, self.seed, list(self.train), test, scarce, covered, self.target_view,
+                     [], list(self.view_names), sorted(set(range(self.num_views)) - set(self.train) - set(test)))
+
     def problem(self) -> str | None:
         """Why this split is inconsistent, or None."""
         if self.protocol not in PROTOCOLS:

@@ -185,6 +185,8 @@ class Output:
 
     log_every: int = setting(20, "steps between two lines of RUN/metrics.jsonl", "steps", at_least(1))
     eval_every: int = setting(500, "steps between two evaluations of the held-out views", "steps", at_least(1))
+    eval_views: int = setting(32, "held-out views per group (scarce, covered) those evaluations score, evenly "
+                                  "spaced; `inceptiongs eval` scores all", "views", at_least(1))
     checkpoint_every: int = setting(500, "steps between two checkpoints", "steps", at_least(1))
     keep_checkpoints: int = setting(2, "checkpoints kept in RUN/checkpoints (the newest; at least one)",
                                     "checkpoints", at_least(0))

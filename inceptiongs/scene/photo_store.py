@@ -77,15 +77,41 @@ def stored_photo(scene, index: int) -> np.ndarray:
 
 
 def _write_cache(path: Path, rgb: np.ndarray) -> None:
-    prefix = path.name.split(".")[0] + "."
     try:
         with atomic_open(path, "wb") as f:
             np.save(f, rgb, allow_pickle=False)
-        for old in path.parent.glob(f"{prefix}*.npy"):   # the same photo before it changed
-            if old != path and old.name.count(".") == path.name.count("."):
-                old.unlink(missing_ok=True)
+        for old in _earlier_versions(path):   # the same photo before it changed
+            (path.parent / old).unlink(missing_ok=True)
     except (InputError, OSError):   # a full or read-only cache only costs speed
         pass
+
+
+# Per cache folder, the names found in it when this process first wrote there, by photo: a
+# folder is listed once, not once per photo written (3,000 photos: 9 million names read).
+_FOLDER_NAMES: dict[Path, dict[str, list[str]]] = {}
+_FOLDER_LOCK = threading.Lock()
+
+
+def _photo_of(name: str) -> tuple[str, int]:
+    """A cache file's photo: its name's first part and its number of dots (a camera name with
+    dots of its own is another photo than one that only shares the first part)."""
+    return name.split(".")[0], name.count(".")
+
+
+def _earlier_versions(path: Path) -> list[str]:
+    """Names of ``path``'s photo in its folder other than ``path`` (files of the photo before it
+    changed), from one listing of the folder per process."""
+    with _FOLDER_LOCK:
+        names = _FOLDER_NAMES.get(path.parent)
+        if names is None:
+            names = {}
+            for entry in os.scandir(path.parent):
+                if entry.name.endswith(".npy"):
+                    names.setdefault(_photo_of(entry.name)[0], []).append(entry.name)
+            _FOLDER_NAMES[path.parent] = names
+        listed = names.get(_photo_of(path.name)[0], [])
+        names[_photo_of(path.name)[0]] = [path.name] + [name for name in listed if _photo_of(name) != _photo_of(path.name)]
+    return [name for name in listed if name != path.name and _photo_of(name) == _photo_of(path.name)]
 
 
 def photo_tensor(scene, index: int) -> torch.Tensor:

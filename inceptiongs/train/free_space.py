@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..camera import Camera, project_points
+from ..camera import Camera
+from .point_projection import project_cloud
 from ..constants import ALPHA_EPS, LOG_SCALE_MAX, LOG_SCALE_MIN, NEAR_PLANE, SH_MAX_DEGREE
 from ..rasterizer.backend import use_numba
 from ..rasterizer.projection import quat_to_rotation
@@ -45,7 +46,7 @@ def _camera_block(n: int) -> int:
 
 def camera_depths(points: np.ndarray, camera: Camera) -> np.ndarray:
     """Camera z of the ``points`` [P, 3] that project inside ``camera``'s image in front of it: [Q]."""
-    _, z, inside = project_points(points, camera)
+    _, z, inside = project_cloud(points, camera)
     return z[inside]
 
 

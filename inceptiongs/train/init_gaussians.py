@@ -11,12 +11,16 @@ import torch
 from ..camera import Camera, project_points
 from ..constants import SH_C0, SH_OFFSET, sh_coeff_count
 from ..gaussians import Gaussians
+from .nearest_points import mean_nearest_distance
 
 INITIAL_OPACITY = 0.1
 # Floor on the nearest-neighbour distance used as the initial scale: duplicate points
 # (distance 0) would give log(0).
 _MIN_NEIGHBOUR_DISTANCE = 1e-7
 _CHUNK = 2048
+# Above this many points the dense [P, P] distances (P^2) give way to the grid search; below
+# it they cost under a second and need no compiled code.
+_GRID_FROM = 20_000
 
 
 def scene_extent(cameras: list[Camera]) -> float:
@@ -31,11 +35,14 @@ def scene_extent(cameras: list[Camera]) -> float:
 
 
 def mean_neighbour_distance(points: torch.Tensor, k: int = 3) -> torch.Tensor:
-    """points: [P, 3] -> mean distance to the k nearest other points: [P] (chunked cdist)."""
+    """points: [P, 3] -> mean distance to the k nearest other points: [P] (chunked cdist; on a
+    grid above _GRID_FROM points, nearest_points.py)."""
     p = points.shape[0]
     k_eff = min(k, p - 1)
     if k_eff < 1:
         return torch.ones(p, dtype=points.dtype)
+    if p > _GRID_FROM:
+        return mean_nearest_distance(points, k_eff).clamp_min(_MIN_NEIGHBOUR_DISTANCE)
     out = torch.empty(p, dtype=points.dtype)
     for start in range(0, p, _CHUNK):
         block = torch.cdist(points[start:start + _CHUNK], points)

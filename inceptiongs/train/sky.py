@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ..camera import Camera, project_points
+from .point_projection import project_cloud
 from ..gaussians import gaussians_from_params
 
 # The shell's radius, in units of the sparse points' far extent (their 99th-percentile
@@ -72,7 +73,7 @@ def _cells(pixels: np.ndarray, camera: Camera) -> np.ndarray:
 
 def open_cells(camera: Camera, points: np.ndarray) -> np.ndarray:
     """[SKY_GRID * SKY_GRID] bool: the image cells no sparse point (in front) falls in."""
-    pixels, _, inside = project_points(points, camera)
+    pixels, _, inside = project_cloud(points, camera)
     occupied = np.zeros(SKY_GRID * SKY_GRID, dtype=bool)
     occupied[_cells(pixels[inside], camera)] = True
     return ~occupied
@@ -203,7 +204,7 @@ def shell_exposure(means: torch.Tensor, cameras: list[Camera], alphas: list[torc
     sky = np.zeros(len(points), dtype=bool)
     shows = np.zeros(len(points), dtype=bool)   # behind less than hidden_alpha in some view
     for camera, alpha in zip(cameras, alphas):
-        pixels, _, inside = project_points(points, camera)
+        pixels, _, inside = project_cloud(points, camera)
         rows = np.nonzero(inside)[0]
         u = np.minimum(pixels[rows, 0].astype(np.int64), camera.width - 1)
         v = np.minimum(pixels[rows, 1].astype(np.int64), camera.height - 1)

@@ -303,12 +303,17 @@ def multiview_terms(rasterizer, gaussians: Gaussians, out: dict, view: int, data
     return terms
 
 
-def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData, rasterizer=None) -> dict[str, float]:
+def evaluate_held_out(gaussians: Gaussians, scene, split, data: TrainData, rasterizer=None,
+                      per_group: int | None = None) -> dict[str, float]:
     """PSNR / SSIM over the held-out views (rendered with ``rasterizer``, default the CPU's),
-    flat keys ("all_psnr", "scarce_ssim", ...); {} when the split holds nothing out."""
+    flat keys ("all_psnr", "scarce_ssim", ...); {} when the split holds nothing out.
+    ``per_group``: score at most that many views of each group (Split.scored_during_training;
+    None: every one)."""
     if not split.test:
         return {}
     from ..evaluation.scoring import evaluate_views, flat_scores
+    if per_group is not None:
+        split = split.scored_during_training(per_group)
     return flat_scores(evaluate_views(gaussians, scene, split, photos=data.images, rasterizer=rasterizer)["groups"])
 
 

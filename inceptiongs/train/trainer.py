@@ -149,7 +149,8 @@ def _first_state(config: TrainConfig, run_dir: Path, checkpoint, payload, scene,
     state = new_state(scene, data, config, sh_max, log)
     (run_dir / "metrics.jsonl").unlink(missing_ok=True)
     # Iteration 0: the initial model's scores, the start of every PSNR-vs-time curve.
-    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data, rasterizer)
+    initial_eval = evaluate_held_out(gaussians_from_params(state.params).detach(), scene, split, data, rasterizer,
+                                     config.output.eval_views)
     if initial_eval:
         append_metrics(run_dir, {"iteration": 0, "wall_s": 0.0, "train_s": 0.0,
                                  "num_gaussians": int(state.params["means"].shape[0]), **initial_eval})
@@ -293,7 +294,7 @@ class StageOne:
         if step % self.config.output.eval_every == 0 or step == self.config.iterations:
             eval_start = time.perf_counter()
             self.last_eval = evaluate_held_out(gaussians_from_params(self.state.params).detach(), self.scene,
-                                               self.split, self.data, self.rasterizer)
+                                               self.split, self.data, self.rasterizer, self.config.output.eval_views)
             self.last_eval_iteration = step
             record.update(self.last_eval)
             self.loop.exclude(time.perf_counter() - eval_start)  # evaluation is not training time
@@ -332,7 +333,8 @@ class StageOne:
         attempt = saves.attempt
 
         if self.finished and self.last_eval_iteration != state.iteration:
-            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data, self.rasterizer)
+            self.last_eval = evaluate_held_out(gaussians, self.scene, self.split, self.data, self.rasterizer,
+                                               self.config.output.eval_views)
         # A stopped run saves its model too (stop means save: Ctrl+C, SIGTERM, the viewer's stop);
         # `--resume` continues from the checkpoint written after it.
         attempt(lambda: save_model(run_dir, gaussians, state.iteration, config, self.sh_max,

@@ -196,3 +196,29 @@ def test_excluding_an_unknown_or_a_declared_scarce_photo_is_refused():
     broken["excluded"] = [5, 6]
     with pytest.raises(InputError, match="disjoint"):
         Split.from_json(broken)
+
+
+@pytest.mark.parametrize("protocol,n", [("unstructured", 400), ("llff", 800)])
+@pytest.mark.parametrize("per_group", [1, 2, 5, 32])
+def test_the_views_scored_during_training_are_a_few_per_group_evenly_spaced_with_j_star(protocol, n, per_group):
+    """A capture that holds out hundreds of views scores at most ``per_group`` of each group on
+    training's cadence: evenly spaced over the group, j* among them, a consistent split."""
+    split = make_split(ring_cameras(n), protocol, 0)
+    thinned = split.scored_during_training(per_group)
+    assert thinned.problem() is None and thinned.train == split.train
+    for group, full in (("scarce_test", split.scarce_test), ("covered_test", split.covered_test)):
+        kept = getattr(thinned, group)
+        assert set(kept) <= set(full) and len(kept) == min(len(full), per_group)
+        if len(kept) >= 2 and split.target_view not in full:
+            assert kept[0] == full[0] and kept[-1] == full[-1]          # the ends of the group
+            gaps = np.diff([full.index(view) for view in kept])
+            assert gaps.max() - gaps.min() <= 1                         # evenly spaced
+    if split.target_view is not None:
+        assert split.target_view in thinned.scarce_test
+    assert sorted(thinned.test) == sorted(thinned.scarce_test + thinned.covered_test)
+    assert set(split.test) - set(thinned.test) <= set(thinned.excluded)
+
+
+def test_a_split_with_few_held_out_views_is_scored_whole():
+    split = make_split(ring_cameras(40), "unstructured", 0)
+    assert split.scored_during_training(len(split.test)) is split
