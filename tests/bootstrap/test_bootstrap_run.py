@@ -552,6 +552,27 @@ def test_with_nothing_to_repair_the_loop_makes_no_views_and_is_the_baseline(stag
 
 
 @pytest.mark.slow
+def test_train_longer_without_an_end_to_the_rise_is_the_baseline_to_the_bit(stage1, tmp_path, monkeypatch):
+    """"Train longer" with a curve that shows no slowing: every step is the baseline's photo
+    step and nothing else is made, so at a fixed iteration count the model is stage I continued
+    (the same-time baseline's run) to the bit."""
+    from inceptiongs.bootstrap import prepare as prepare_module
+    from inceptiongs.bootstrap.outlook import Outlook
+
+    monkeypatch.setattr(prepare_module, "run_outlook", lambda run_dir: Outlook(
+        "train longer", "train longer first: (a test's curve)", photo_first_min=None))
+    iterations = 8
+    result = run_bootstrap(stage1, tmp_path / "boot", _targets(stage1),
+                           _config(iterations=iterations, follow_outlook=True), progress=False)
+    summary = json.loads((tmp_path / "boot" / "bootstrap" / "summary.json").read_text())
+    assert summary["outlook"]["verdict"] == "train longer" and summary["photo_first_s"] is None
+    assert summary["steps"]["real"] == iterations and result.virtual_views == 0 and result.virtual_steps == 0
+    assert not (tmp_path / "boot" / "prior").exists()
+    baseline_run(stage1, tmp_path / "baseline", None, iterations, seed=2, progress=False)
+    assert (tmp_path / "boot" / "model.ply").read_bytes() == (tmp_path / "baseline" / "model.ply").read_bytes()
+
+
+@pytest.mark.slow
 def test_train_longer_takes_photo_steps_first_then_makes_the_views(stage1, tmp_path, monkeypatch):
     """While stage I's curve predicts photo steps gain more, virtual slots are photo steps; the
     round's views are made once that time has passed, from the Gaussians then, and used after."""
