@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -198,12 +199,17 @@ def test_excluding_an_unknown_or_a_declared_scarce_photo_is_refused():
         Split.from_json(broken)
 
 
+@functools.lru_cache(maxsize=None)
+def large_split(protocol: str, n: int) -> Split:
+    return make_split(ring_cameras(n), protocol, 0)
+
+
 @pytest.mark.parametrize("protocol,n", [("unstructured", 400), ("llff", 800)])
 @pytest.mark.parametrize("per_group", [1, 2, 5, 32])
 def test_the_views_scored_during_training_are_a_few_per_group_evenly_spaced_with_j_star(protocol, n, per_group):
     """A capture that holds out hundreds of views scores at most ``per_group`` of each group on
     training's cadence: evenly spaced over the group, j* among them, a consistent split."""
-    split = make_split(ring_cameras(n), protocol, 0)
+    split = large_split(protocol, n)
     thinned = split.scored_during_training(per_group)
     assert thinned.problem() is None and thinned.train == split.train
     for group, full in (("scarce_test", split.scarce_test), ("covered_test", split.covered_test)):
