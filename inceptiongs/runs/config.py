@@ -311,11 +311,9 @@ class TrainConfig(SavedConfig):
 
     # A run's config.json written before the shell's scale floor was trained with a free shell:
     # without this its shell would be raised at the first step of a bootstrap or a resume.
-    LEGACY_VALUES: ClassVar[dict] = {"free_space.sky_min_scale": 0.0, "block.global_share": 0.0}
+    LEGACY_VALUES: ClassVar[dict] = {"free_space.sky_min_scale": 0.0}
     LEGACY_REASONS: ClassVar[dict] = {"free_space.sky_min_scale": "such a run's sky shell trained without "
-                                                                  "the scale floor",
-                                      "block.global_share": "such a run in blocks trained its blocks from the "
-                                                            "sparse points, without a global stage"}
+                                                                  "the scale floor"}
 
     def __post_init__(self) -> None:
         # A section given as a dict (``TrainConfig(**config.to_json_dict())``) becomes its

@@ -360,17 +360,6 @@ def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys
     assert not (tmp_path / "r").exists()
 
 
-def test_a_run_in_blocks_saved_without_a_global_share_keeps_training_without_a_global_stage(blocks_run, tmp_path):
-    from inceptiongs.runs.config import TrainConfig
-
-    _, run, _ = blocks_run
-    data = json.loads((run / "config.json").read_text())
-    assert data["block"]["global_share"] > 0
-    del data["block"]["global_share"]
-    (tmp_path / "config.json").write_text(json.dumps(data))
-    assert TrainConfig.load(tmp_path / "config.json").block.global_share == 0.0
-
-
 def test_more_ranks_than_blocks_and_ranks_without_blocks_are_one_line(blocks_run, tmp_path, capsys, monkeypatch):
     scene, _, _ = blocks_run
     for name, value in {"RANK": "0", "WORLD_SIZE": "3", "LOCAL_RANK": "0", "LOCAL_WORLD_SIZE": "3"}.items():
