@@ -58,9 +58,11 @@ def add_arguments(parser) -> None:
                              "view_fit.json names the photos it fitted poorly (moved objects, wrong poses)")
     parser.add_argument("--blocks", metavar="auto|N",
                         help="train in N blocks on the ground plane (auto: one per "
-                             f"{PHOTOS_PER_BLOCK} training photos), each an ordinary run in RUN/blocks/, merged "
-                             "into RUN; the same command again trains only the unfinished blocks. Under torchrun "
-                             "the ranks share the blocks (docs/large_scenes.md)")
+                             f"{PHOTOS_PER_BLOCK} training photos): a global stage on every photo "
+                             "(block.global_share of --iterations), then each block, an ordinary run in "
+                             "RUN/blocks/, fine-tuned from it with its share of the rest, merged into RUN; the "
+                             "same command again trains only what is unfinished. Under torchrun the ranks share "
+                             "the blocks (docs/large_scenes.md)")
     parser.add_argument("--photo-memory", metavar="SIZE", default=None, help=PHOTO_MEMORY_HELP)
     from .prior import add_backend_arguments
     prior = parser.add_argument_group("joint diffusion-prior training")

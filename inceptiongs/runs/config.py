@@ -224,11 +224,16 @@ STRATEGY_OPTIONS: dict[str, type | None] = {"default": None, "mcmc": MCMCOptions
 STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
 
 
+BLOCK_START_KEEP = ("seen", "cell")
+
+
 @dataclass(frozen=True)
 class Block:
-    """This run is one block of a larger one (`train --blocks`, inceptiongs.train.blocks): it
-    trains on the photos that see its cell of the ground plane, starts from the sparse points
-    those photos see and the cell and its margin hold, and holds out the whole run's held-out views among its photos."""
+    """A run in blocks (`train --blocks`, inceptiongs.train.blocks). The whole run's config sets
+    global_share and start_keep; a block's (count > 0) says which block it is: it trains on the
+    photos that see its cell of the ground plane and holds out the whole run's held-out views
+    among them, starting from the whole run's global stage (start) or, without one, from the
+    sparse points those photos see and the cell and its margin hold."""
 
     count: int = setting(0, "blocks of the whole run; 0: this run is not a block", "blocks", at_least(0))
     index: int = setting(0, "this block's index, 0 .. count - 1", "-", at_least(0))
@@ -242,6 +247,18 @@ class Block:
                                     "keeps the block's Gaussians inside it", "scene units")
     margin: float = setting(0.0, "the cell is widened by this for the sparse points the block starts from",
                             "scene units", at_least(0))
+    global_share: float = setting(1.0 / 3.0, "this share of the whole run's iterations first trains one global "
+                                             "stage on every photo (RUN/blocks/global); the blocks fine-tune "
+                                             "from its Gaussians with the rest, shared equally; 0: no global "
+                                             "stage, the blocks start from the sparse points", "fraction",
+                                  within(0, 1, "[)"))
+    start_keep: str = setting("seen", "which of the global stage's Gaussians a block starts from: \"seen\" (those "
+                                      "inside its cell widened by its margin, the sky shell's and every one its "
+                                      "training photos see), \"cell\" (those inside the widened cell and the sky "
+                                      "shell's)",
+                              choices=BLOCK_START_KEEP)
+    start: str = setting("", "the run folder (the whole run's global stage) whose last checkpoint this block "
+                             "starts from; empty: the sparse points", "path")
 
 
 @dataclass
@@ -344,6 +361,8 @@ class TrainConfig(SavedConfig):
                     raise InputError(f"{source}: block.{name} must hold {size} numbers, got {getattr(block, name)}")
             if not block.photos:
                 raise InputError(f"{source}: block.photos names no photo")
+        elif block.start:
+            raise InputError(f"{source}: block.start is for a block of a run in blocks (block.count > 0)")
         return self
 
 

@@ -1,5 +1,14 @@
-"""Stage I in blocks: plan the cells (partition.py), train each block as an ordinary run in
-RUN/blocks/block_NN, merge them into RUN.
+"""Stage I in blocks: plan the cells (partition.py), train one global stage on every photo in
+RUN/blocks/global, fine-tune each block from it as an ordinary run in RUN/blocks/block_NN,
+merge them into RUN.
+
+The whole run's iterations are shared, so that a run in blocks costs the steps of one run:
+``block.global_share`` of them train the global stage (a short run of the whole scene, trained
+once, by rank 0, before the ranks split), the rest are divided equally among the blocks. Each
+block starts from the global stage's Gaussians (block_start.py), not from the sparse points: a
+block whose photos see far past its cell then only refines what one run of every photo already
+placed, instead of growing its own copy of the whole scene whose floaters, inside its cell,
+stay in front of the views that are not its own.
 
 RUN is an ordinary run folder once merged: config.json (the whole run's, ``blocks`` = their
 number), split.json (the whole scene's held-out views), model.ply (each block's Gaussians inside
@@ -8,9 +17,9 @@ blocks.json (the plane, the cells, each block's photos and how many Gaussians it
 command that opens a run opens it; each block folder is a run too (resumable, with its own
 held-out views: the whole run's among its photos).
 
-A block is finished when its folder holds BLOCK_DONE (written after its last step); the same
-command again skips those, continues a stopped one from its checkpoint and starts the others,
-so a rank that died costs only its unfinished blocks (distributed.py).
+A block (and the global stage) is finished when its folder holds BLOCK_DONE (written after its
+last step); the same command again skips those, continues a stopped one from its checkpoint and
+starts the others, so a rank that died costs only its unfinished blocks (distributed.py).
 """
 
 from __future__ import annotations
@@ -29,10 +38,11 @@ from ..errors import InputError
 from ..evaluation.protocols import make_split
 from ..gaussians import Gaussians
 from ..io.atomic import atomic_write_text, ensure_dir
+from ..io.config_json import config_value, with_values
 from ..io.paths import contained_path, read_small_text
 from ..io.ply import read_ply, write_ply
 from ..runs.checkpoint import latest_checkpoint
-from ..runs.config import Block, TrainConfig
+from ..runs.config import SCHEDULE_FIELDS, Block, TrainConfig, sized_schedule
 from ..runs.metrics import append_metrics, logged_iterations
 from ..scene.loader import load_scene
 from .distributed import Ranks, assign, barrier
@@ -40,6 +50,7 @@ from .partition import (PHOTOS_PER_BLOCK, Cell, GroundPlane, balanced_cells, cel
                         photos_seeing)
 
 BLOCKS_DIR = "blocks"
+GLOBAL_DIR = "global"
 PLAN_FILE = "blocks.json"
 BLOCK_DONE = "block_done.json"
 
@@ -70,13 +81,59 @@ class BlockPlan:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: not a block plan ({type(exc).__name__}: {exc})") from None
 
-    def block_config(self, parent: TrainConfig, index: int) -> TrainConfig:
-        """Block ``index``'s run config: the whole run's settings, its photos and its cell."""
+    def block_config(self, parent: TrainConfig, index: int, start: Path | None = None) -> TrainConfig:
+        """Block ``index``'s run config: the whole run's settings with its share of the steps
+        (stage_steps) on a schedule of that length, its photos, its cell, and ``start``: the
+        global stage's folder it starts from (None: the sparse points)."""
         plane, cell = self.plane, self.cells[index]
-        block = Block(count=len(self.cells), index=index, photos=list(self.photos[index]),
-                      origin=[float(x) for x in plane.origin], u=[float(x) for x in plane.u],
-                      v=[float(x) for x in plane.v], cell=cell.to_json(), margin=float(self.margins[index]))
-        return dataclasses.replace(parent, blocks=0, block=block)
+        block = dataclasses.replace(parent.block, count=len(self.cells), index=index, photos=list(self.photos[index]),
+                                    origin=[float(x) for x in plane.origin], u=[float(x) for x in plane.u],
+                                    v=[float(x) for x in plane.v], cell=cell.to_json(),
+                                    margin=float(self.margins[index]), start="" if start is None else str(start))
+        steps = stage_steps(parent.iterations, parent.block.global_share, len(self.cells))[1][index]
+        return dataclasses.replace(stage_config(parent, steps), blocks=0, block=block)
+
+
+def stage_steps(total: int, share: float, count: int) -> tuple[int, list[int]]:
+    """(the global stage's steps, each block's) for a run in ``count`` blocks of ``total`` steps
+    in all: round(share x total) for the global stage (at least 1 when share > 0), the rest
+    divided among the blocks, the first ones one more when it does not divide. They add up to
+    ``total``; InputError when a block would get no step."""
+    first = max(1, round(share * total)) if share > 0 else 0
+    rest = total - first
+    if rest < count:
+        raise InputError(f"--iterations {total}: too few for {count} blocks after the global stage's {first} "
+                         f"(block.global_share {share:g}); every block needs at least one step")
+    return first, [rest // count + (1 if index < rest % count else 0) for index in range(count)]
+
+
+def stage_config(parent: TrainConfig, steps: int) -> TrainConfig:
+    """``parent`` (the whole run's config, its schedule sized to all its iterations) for a stage
+    of ``steps`` steps: a milestone the schedule sized (the default's) is sized to ``steps`` as
+    the command line sizes one run, a milestone given keeps its fraction of the run. The
+    Gaussian budget stays the whole run's: it bounds each stage's model as it bounds one run's."""
+    sized = sized_schedule(parent, steps)
+    default = sized_schedule(parent, parent.iterations)
+    values = {}
+    for path in SCHEDULE_FIELDS:
+        value = config_value(parent, path)
+        if path == "densification.max_gaussians":
+            values[path] = value
+        elif value != config_value(default, path):   # given: scaled (parent.iterations >= 1)
+            values[path] = max(1, round(value * steps / parent.iterations))
+        else:
+            values[path] = config_value(sized, path)
+    return with_values(dataclasses.replace(sized, blocks=0), values)
+
+
+def global_config(parent: TrainConfig, count: int) -> TrainConfig | None:
+    """The global stage's run config (every photo, the whole run's split, its share of the
+    steps), or None when the whole run has no global stage (global_share 0)."""
+    steps = stage_steps(parent.iterations, parent.block.global_share, count)[0]
+    if not steps:
+        return None
+    return dataclasses.replace(stage_config(parent, steps), block=Block(global_share=parent.block.global_share,
+                                                                        start_keep=parent.block.start_keep))
 
 
 def block_count(asked: str | int, train_photos: int) -> int:
@@ -120,6 +177,10 @@ def block_dir(run_dir: Path, index: int) -> Path:
     return Path(run_dir) / BLOCKS_DIR / f"block_{index:02d}"
 
 
+def global_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / BLOCKS_DIR / GLOBAL_DIR
+
+
 def block_finished(folder: Path) -> bool:
     return (folder / BLOCK_DONE).is_file() and (folder / "model.ply").is_file()
 
@@ -159,6 +220,7 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
     if ranks.world > count:
         raise InputError(f"torchrun: {ranks.world} ranks for {count} blocks; start at most {count} (a rank "
                          f"without a block would only wait)")
+    stage_steps(config.iterations, config.block.global_share, count)   # too few steps: one line, nothing written
     plan = read_plan(run_dir)
     if plan is not None and len(plan.cells) != count:
         raise InputError(f"{run_dir / PLAN_FILE}: holds {len(plan.cells)} blocks, not {count} (give --blocks "
@@ -170,10 +232,17 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
         config.save(run_dir / "config.json")
     barrier(ranks)   # every rank once, whatever it found: the plan is on disk after it
     plan = plan or read_plan(run_dir)
+    first = global_config(config, count)
+    start = global_dir(run_dir) if first is not None else None
     for index in range(count):   # a plan edited by hand: one line before any block trains
-        plan.block_config(config, index).validate(str(run_dir / PLAN_FILE))
-    mine = assign(plan.train_counts, ranks.world)[ranks.rank]
+        plan.block_config(config, index, start).validate(str(run_dir / PLAN_FILE))
     result = BlocksResult(run_dir, count, [], [], False, False)
+    if first is not None and ranks.rank == 0:
+        result.stopped = not train_global(first, start, train_one, log)
+    if result.stopped:
+        return result    # as a stopped block: the same command later continues it
+    barrier(ranks)   # the global stage is finished after it: every block starts from it
+    mine = assign(plan.train_counts, ranks.world)[ranks.rank]
     for index in mine:
         folder = block_dir(run_dir, index)
         if block_finished(folder):
@@ -181,9 +250,10 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
             log(f"block {index + 1} of {count}: finished earlier ({folder})")
             continue
         resume = latest_checkpoint(folder) is not None
-        log(f"block {index + 1} of {count}: {plan.train_counts[index]} training photos"
+        block_config = plan.block_config(config, index, start)
+        log(f"block {index + 1} of {count}: {block_config.iterations} steps, {plan.train_counts[index]} training photos"
             + (" (continued from its checkpoint)" if resume else "") + f" -> {folder}")
-        trained = train_one(plan.block_config(config, index), folder, resume)
+        trained = train_one(block_config, folder, resume)
         if not trained.finished:
             result.stopped = True
             break
@@ -205,6 +275,22 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
             result.merged = True
     barrier(ranks)
     return result
+
+
+def train_global(config: TrainConfig, folder: Path, train_one, log: Callable[[str], None]) -> bool:
+    """The global stage into ``folder`` unless it finished earlier (continued from its checkpoint
+    when one is there) -> whether it is finished now."""
+    if block_finished(folder):
+        log(f"global stage: finished earlier ({folder})")
+        return True
+    resume = latest_checkpoint(folder) is not None
+    log(f"global stage: {config.iterations} steps on every training photo"
+        + (" (continued from its checkpoint)" if resume else "") + f" -> {folder}")
+    trained = train_one(config, folder, resume)
+    if trained.finished:
+        atomic_write_text(folder / BLOCK_DONE, json.dumps({"iteration": trained.iteration,
+                                                           "gaussians": trained.num_gaussians}) + "\n")
+    return trained.finished
 
 
 def merged_up_to_date(run_dir: Path, count: int) -> bool:

@@ -21,6 +21,7 @@ from ..camera import Camera
 from ..gaussians import Gaussians
 from ..scene.photo_store import PREFETCH_DEPTH, DerivedPhotos, PhotoStore, check_photo_files
 from . import losses
+from .block_start import block_start
 from ..runs.config import TrainConfig
 from .densify import DensifyStats, accumulate
 from .free_space import (ViewStats, accumulate_views, allowed_sh_degree, before_near_bound, contains_camera,
@@ -170,16 +171,20 @@ def state_on(state: TrainState, device: torch.device | str, config: TrainConfig,
 def new_state(scene, data: TrainData, config: TrainConfig, sh_degree: int, log) -> TrainState:
     cameras = [data.cameras[i] for i in data.train]
     points, colors, triangulated = training_points(scene, data.train, data.images, config.triangulate_init, log)
-    if triangulated:
-        gaussians, message = gaussians_from_sparse_depth(cameras, train_photos(data),
-                                                         points, sh_degree, config.seed)
-    else:
-        gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
-    log(message)
     sky = None
     free_space = config.free_space
-    if free_space.sky_shell:
-        gaussians, sky = with_sky_shell(gaussians, cameras, train_photos(data), points, log)
+    if config.block.start:   # a block of a run in blocks: the global stage's Gaussians and its sky shell
+        gaussians, sky, message = block_start(config.block, cameras, sh_degree, log)
+        log(message)
+    else:
+        if triangulated:
+            gaussians, message = gaussians_from_sparse_depth(cameras, train_photos(data),
+                                                             points, sh_degree, config.seed)
+        else:
+            gaussians, message = initial_gaussians(cameras, points, colors, sh_degree, config.seed)
+        log(message)
+        if free_space.sky_shell:
+            gaussians, sky = with_sky_shell(gaussians, cameras, train_photos(data), points, log)
     params = params_from_gaussians(gaussians)
     optimizer = make_optimizer(params, config, data.extent)
     generator = torch.Generator().manual_seed(config.seed)

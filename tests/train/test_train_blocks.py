@@ -4,6 +4,7 @@ with only its unfinished blocks, and one line for every bad value."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -18,15 +19,18 @@ import pytest
 
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.cli import main
+from inceptiongs.errors import InputError
+from inceptiongs.io.config_json import with_values
 from inceptiongs.evaluation.protocols import make_split
 from inceptiongs.io.ply import read_ply
 from demo_cases import copy_of_demo_scene
 from inceptiongs.scene.loader import load_scene
-from inceptiongs.train.blocks import BLOCK_DONE, PLAN_FILE, block_dir, read_plan
+from inceptiongs.train.blocks import (BLOCK_DONE, PLAN_FILE, block_dir, global_dir, read_plan, stage_config,
+                                     stage_steps)
 from inceptiongs.train.distributed import assign, ranks_from_environment
 from inceptiongs.train.partition import (Cell, balanced_cells, ground_plane, photos_seeing, visible_points)
 
-ITERATIONS = 30
+ITERATIONS = 30     # in all: the global stage's 10 (a third), then 10 for each of the 2 blocks
 # One thread everywhere: a block's bytes depend on the thread count of its numba reductions, and
 # torchrun gives each of two ranks one thread on these two cores.
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
@@ -134,6 +138,32 @@ def test_a_block_starts_from_every_point_its_photos_see_not_only_its_cells(tmp_p
     assert len(block_scene.points) == int(expected.sum())
 
 
+def test_the_global_stage_and_the_blocks_share_the_steps_of_one_run():
+    assert stage_steps(3000, 1 / 3, 4) == (1000, [500, 500, 500, 500])
+    first, blocks = stage_steps(1001, 0.25, 3)
+    assert first == 250 and blocks == [251, 250, 250] and first + sum(blocks) == 1001
+    assert stage_steps(10, 0.0, 3) == (0, [4, 3, 3])
+    assert stage_steps(3, 0.01, 2) == (1, [1, 1])            # a share > 0 gets at least one step
+    with pytest.raises(InputError, match="too few for 2 blocks"):
+        stage_steps(2, 0.4, 2)
+
+
+def test_a_stage_sizes_the_default_milestones_to_its_steps_and_scales_the_given_ones():
+    from inceptiongs.runs.config import TrainConfig, short_run_schedule, sized_schedule
+
+    whole = short_run_schedule(TrainConfig(iterations=3000))
+    stage = stage_config(whole, 1000)
+    one_run = sized_schedule(whole, 1000)      # what `train --iterations 1000` builds
+    assert stage.iterations == 1000 and stage.blocks == 0
+    assert stage.densification.densify_until == one_run.densification.densify_until != whole.densification.densify_until
+    assert stage.sh.increase_every == one_run.sh.increase_every
+    # The Gaussian budget is the whole run's.
+    assert stage.densification.max_gaussians == whole.densification.max_gaussians
+    # A milestone given keeps its fraction of the run.
+    given = with_values(whole, {"densification.densify_until": 2400})
+    assert stage_config(given, 1000).densification.densify_until == 800
+
+
 @pytest.fixture(scope="module")
 def blocks_run(tmp_path_factory):
     """A tiny town (48 views of 96x72) trained in 2 blocks, one thread (ONE_THREAD), in one process."""
@@ -167,11 +197,61 @@ def test_a_blocks_run_is_an_ordinary_run_merged_from_its_cells(blocks_run, capsy
                  str(run.parent / "r.png")]) == 0
 
 
+def test_the_global_stage_is_one_run_of_every_photo_and_the_steps_add_up(blocks_run):
+    scene, run, _ = blocks_run
+    stage = json.loads((global_dir(run) / "config.json").read_text())
+    blocks = [json.loads((block_dir(run, i) / "config.json").read_text()) for i in range(2)]
+    assert stage["iterations"] + sum(block["iterations"] for block in blocks) == ITERATIONS
+    assert stage["iterations"] == 10 and stage["block"]["count"] == 0 and stage["blocks"] == 0
+    # Every training photo, the whole run's held-out views.
+    whole = make_split(load_scene(scene), "unstructured")
+    assert json.loads((global_dir(run) / "split.json").read_text()) == json.loads((run / "split.json").read_text())
+    assert len(json.loads((global_dir(run) / "split.json").read_text())["train"]) == len(whole.train)
+    for index, block in enumerate(blocks):
+        assert block["block"]["start"] == str(global_dir(run))
+        last = json.loads((block_dir(run, index) / "metrics.jsonl").read_text().splitlines()[-1])
+        assert last["iteration"] == block["iterations"]
+
+
+def test_each_block_starts_from_the_global_stages_gaussians(blocks_run):
+    """A block's first Gaussians are the global stage's last ones (rows of its checkpoint):
+    those in the block's widened cell and those its training photos see."""
+    import torch
+
+    from inceptiongs.runs.checkpoint import load_newest_checkpoint
+    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.train.block_start import block_start, start_rows
+    from inceptiongs.train.partition import as_block
+    from inceptiongs.train.sky import in_background
+
+    scene_dir, run, _ = blocks_run
+    scene = load_scene(scene_dir)
+    _, payload = load_newest_checkpoint(global_dir(run))
+    assert payload["iteration"] == 10
+    means = payload["params"]["means"].detach().double().numpy()
+    background = in_background(payload["params"]["means"].detach(), payload.get("sky")).numpy()
+    for index in range(2):
+        config = TrainConfig.load(block_dir(run, index) / "config.json")
+        _, split = as_block(scene, make_split(scene, "unstructured"), config.block)
+        cameras = [scene.cameras[i] for i in split.train]
+        rows = start_rows(means, config.block, cameras, background)
+        start, sky, _ = block_start(config.block, cameras, 1, lambda line: None)
+        assert torch.equal(start.means, payload["params"]["means"].detach()[torch.from_numpy(rows)])
+        assert torch.equal(sky, payload["sky"]) and start.sh.shape[1] == 4
+        # The block's own log: its run began with exactly these Gaussians.
+        first = json.loads((block_dir(run, index) / "metrics.jsonl").read_text().splitlines()[0])
+        assert first["iteration"] == 0 and first["num_gaussians"] == len(start)
+        # "cell" keeps fewer: the rows the photos see outside the widened cell are left out.
+        cell_only = start_rows(means, dataclasses.replace(config.block, start_keep="cell"), cameras, background)
+        assert (cell_only <= rows).all() and cell_only.sum() < rows.sum()
+
+
 def test_the_same_command_again_writes_nothing(blocks_run):
     _, run, command = blocks_run
     before = {path: (sha(path), path.stat().st_mtime_ns) for path in run.rglob("*.ply")}
+    assert global_dir(run) / "model.ply" in before
     out = subprocess.run(command, env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0 and "nothing to do" in out.stderr
+    assert out.returncode == 0 and "nothing to do" in out.stderr and "global stage: finished earlier" in out.stderr
     assert {path: (sha(path), path.stat().st_mtime_ns) for path in run.rglob("*.ply")} == before
 
 
@@ -184,6 +264,8 @@ def test_torchrun_on_two_ranks_writes_the_same_model_as_one_process(blocks_run, 
     result = subprocess.run(launch, env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "[rank 0] merged 2 blocks" in result.stderr and "[rank 1] block" in result.stderr
+    assert "[rank 0] global stage: 10 steps" in result.stderr and "[rank 1] global stage" not in result.stderr
+    assert sha(global_dir(out) / "model.ply") == sha(global_dir(run) / "model.ply")
     assert sha(out / "model.ply") == sha(run / "model.ply")
 
 
@@ -206,9 +288,13 @@ def test_a_killed_run_trains_only_its_unfinished_blocks_again(blocks_run, tmp_pa
         process.wait(timeout=60)
     assert not (block_dir(out, second) / BLOCK_DONE).exists() and not (out / "model.ply").exists()
     kept = sha(block_dir(out, first) / "model.ply")
+    kept_global = (sha(global_dir(out) / "model.ply"), (global_dir(out) / "model.ply").stat().st_mtime_ns)
     again = subprocess.run(command, env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-2000:]
     assert f"block {first + 1} of 2: finished earlier" in again.stderr
+    # The global stage is not trained again.
+    assert "global stage: finished earlier" in again.stderr
+    assert (sha(global_dir(out) / "model.ply"), (global_dir(out) / "model.ply").stat().st_mtime_ns) == kept_global
     assert f"block {second + 1} of 2:" in again.stderr
     assert sha(block_dir(out, first) / "model.ply") == kept
     # The continued run ends where an uninterrupted one does.
@@ -222,6 +308,55 @@ def test_bad_block_counts_are_one_line(blocks_run, tmp_path, capsys, blocks, wor
     assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", blocks, "--iterations", "5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_stopped_global_stage_is_continued_from_its_checkpoint_and_trained_once(blocks_run, tmp_path):
+    """train_blocks with a stand-in for the trainer: what it is asked to train, and with which resume."""
+    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.train.blocks import train_blocks
+    from inceptiongs.train.distributed import Ranks
+    from inceptiongs.train.trainer import TrainResult
+
+    _, run, _ = blocks_run
+    config = TrainConfig.load(run / "config.json")
+    out = tmp_path / "run"
+    calls = []
+
+    def stand_in(stop_at):
+        def train_one(stage, folder, resume):
+            name = "global" if folder == global_dir(out) else f"block {stage.block.index}"
+            calls.append((name, stage.iterations, resume))
+            (folder / "checkpoints").mkdir(parents=True, exist_ok=True)
+            (folder / "checkpoints" / "step_0000005.pt").write_bytes(b"")   # what latest_checkpoint finds
+            finished = name not in stop_at
+            if finished:
+                (folder / "model.ply").write_bytes(b"")
+            return TrainResult(folder, stage.iterations if finished else 5, finished, 0)
+        return train_one
+
+    first = train_blocks(config, out, 2, Ranks(), stand_in({"global"}), lambda line: None)
+    assert first.stopped and calls == [("global", 10, False)]
+    calls.clear()
+    second = train_blocks(config, out, 2, Ranks(), stand_in({"block 0", "block 1"}), lambda line: None)
+    assert second.stopped and calls[0] == ("global", 10, True) and calls[1][0].startswith("block")
+    assert (global_dir(out) / BLOCK_DONE).is_file()
+    calls.clear()
+    third = train_blocks(config, out, 2, Ranks(), stand_in({"block 0", "block 1"}), lambda line: None)
+    assert third.stopped and [name for name, _, _ in calls] == [calls[0][0]] and calls[0][0] != "global"
+
+
+def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys):
+    scene, _, _ = blocks_run
+    assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--iterations", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--iterations 2: too few for 2 blocks" in err[0]
+    settings = tmp_path / "share.json"
+    settings.write_text(json.dumps({"block": {"global_share": 1.0}}))
+    assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--iterations", "30",
+                 "--config", str(settings)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "global_share" in err[0]
     assert not (tmp_path / "r").exists()
 
 
