@@ -43,6 +43,23 @@ def grid_cell_size(points: np.ndarray) -> float:
     return size
 
 
+@numba.njit(cache=True)
+def _offer(best, points, i, j):                          # pragma: no cover - compiled
+    """Point j as a neighbour of point i: its squared distance enters ``best`` (ascending, [k])
+    when it is below the largest kept; i itself never does."""
+    if j == i:
+        return
+    d2 = ((points[j, 0] - points[i, 0]) ** 2 + (points[j, 1] - points[i, 1]) ** 2
+          + (points[j, 2] - points[i, 2]) ** 2)
+    k = best.shape[0]
+    if d2 < best[k - 1]:
+        slot = k - 1
+        while slot > 0 and best[slot - 1] > d2:
+            best[slot] = best[slot - 1]
+            slot -= 1
+        best[slot] = d2
+
+
 @numba.njit(cache=True, parallel=True)
 def _mean_nearest(points, cell_of, starts, order, dims, size, k):      # pragma: no cover - compiled
     p = points.shape[0]
@@ -59,15 +76,7 @@ def _mean_nearest(points, cell_of, starts, order, dims, size, k):      # pragma:
             if ring > _MAX_RINGS:                 # isolated: every point
                 best[:] = np.inf
                 for j in range(p):
-                    if j != i:
-                        d2 = ((points[j, 0] - points[i, 0]) ** 2 + (points[j, 1] - points[i, 1]) ** 2
-                              + (points[j, 2] - points[i, 2]) ** 2)
-                        if d2 < best[k - 1]:
-                            slot = k - 1
-                            while slot > 0 and best[slot - 1] > d2:
-                                best[slot] = best[slot - 1]
-                                slot -= 1
-                            best[slot] = d2
+                    _offer(best, points, i, j)
                 break
             for x in range(max(cx - ring, 0), min(cx + ring, nx - 1) + 1):
                 for y in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
@@ -76,17 +85,7 @@ def _mean_nearest(points, cell_of, starts, order, dims, size, k):      # pragma:
                             continue              # read in an earlier ring
                         cell = x + nx * (y + ny * z)
                         for slot_j in range(starts[cell], starts[cell + 1]):
-                            j = order[slot_j]
-                            if j == i:
-                                continue
-                            d2 = ((points[j, 0] - points[i, 0]) ** 2 + (points[j, 1] - points[i, 1]) ** 2
-                                  + (points[j, 2] - points[i, 2]) ** 2)
-                            if d2 < best[k - 1]:
-                                slot = k - 1
-                                while slot > 0 and best[slot - 1] > d2:
-                                    best[slot] = best[slot - 1]
-                                    slot -= 1
-                                best[slot] = d2
+                            _offer(best, points, i, order[slot_j])
             # An unread point lies at least `ring` cells' widths away on some axis.
             reach = ring * size
             outside = cx - ring <= 0 and cy - ring <= 0 and cz - ring <= 0 and \
