@@ -10,7 +10,6 @@ tests/commands/test_bootstrap_config_cli.py fails when the two disagree.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -19,7 +18,7 @@ from pathlib import Path
 from inceptiongs.bootstrap.config import FLAT_CHOICES, FLAT_OPTIONS, FLAT_SWITCHES, BootstrapConfig
 from inceptiongs.bootstrap.options import ABLATION, BOOKKEEPING, DEFAULT_PATH, PRIOR_FILL
 from inceptiongs.bootstrap.variants import VARIANT_NAMES, variant_class
-from inceptiongs.io.atomic import atomic_write_text
+from inceptiongs.io.generated_doc import write_or_check
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "bootstrap_options.md"
@@ -159,18 +158,7 @@ def render_options_doc(cls=BootstrapConfig) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only compare; exit 1 when the file is stale")
-    args = parser.parse_args(argv)
-    text = render_options_doc()
-    if args.check:
-        if not DOC.is_file() or DOC.read_text() != text:
-            print(f"{DOC}: stale; run python3 scripts/gen_bootstrap_options.py")
-            return 1
-        return 0
-    atomic_write_text(DOC, text)
-    print(f"wrote {DOC}")
-    return 0
+    return write_or_check(DOC, render_options_doc(), "scripts/gen_bootstrap_options.py", __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ from the code; tests/commands/test_train_config_cli.py fails when the two disagr
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import inspect
 import json
@@ -19,7 +18,7 @@ import typing
 from pathlib import Path
 
 from inceptiongs.commands.train import COMMAND_LINE_DEFAULTS, FLAG_SETTINGS
-from inceptiongs.io.atomic import atomic_write_text
+from inceptiongs.io.generated_doc import write_or_check
 from inceptiongs.io.config_json import is_section, section_hints
 from inceptiongs.runs.config import COMMAND_LINE_SETTINGS, FLAT_KEYS, SCHEDULE_FIELDS, TrainConfig
 
@@ -147,18 +146,7 @@ def render_options_doc(cls=TrainConfig) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only compare; exit 1 when the file is stale")
-    args = parser.parse_args(argv)
-    text = render_options_doc()
-    if args.check:
-        if not DOC.is_file() or DOC.read_text() != text:
-            print(f"{DOC}: stale; run python3 scripts/gen_train_options.py")
-            return 1
-        return 0
-    atomic_write_text(DOC, text)
-    print(f"wrote {DOC}")
-    return 0
+    return write_or_check(DOC, render_options_doc(), "scripts/gen_train_options.py", __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from inceptiongs.cli import build_parser
-from inceptiongs.io.atomic import atomic_write_text
+from inceptiongs.io.generated_doc import write_or_check
 from inceptiongs.io.values import RULES, numeric_flags
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,17 +84,7 @@ def render_values_doc() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    check = "--check" in (sys.argv[1:] if argv is None else argv)
-    text = render_values_doc()
-    if check:
-        current = DOC.read_text(encoding="utf-8") if DOC.is_file() else ""
-        if current != text:
-            print(f"{DOC} is stale: run python3 scripts/gen_values.py", file=sys.stderr)
-            return 1
-        return 0
-    atomic_write_text(DOC, text)
-    print(f"wrote {DOC}")
-    return 0
+    return write_or_check(DOC, render_values_doc(), "scripts/gen_values.py", __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":
