@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import shutil
 from pathlib import Path
 
 from inceptiongs.camera import rotation_to_quat
@@ -49,3 +50,27 @@ def train_one_step(scene: Path, run: Path) -> None:
     status, _, stderr = run_main(["train", str(scene), "--out", str(run), "--iterations", "1",
                                   "--config", str(settings)])
     assert status == 0, stderr
+
+
+def save_tiny_prior(run: Path) -> None:
+    """A tiny untrained prior saved in the run (the commands that read one find it)."""
+    from inceptiongs.prior.model import Prior, PriorConfig
+    from inceptiongs.prior.trainer import PriorTrainer, save_prior
+    from inceptiongs.prior.unet import UNetConfig
+    from inceptiongs.runs.load import load_run
+
+    gaussians, loaded, _ = load_run(run)
+    config = PriorConfig(patch_size=16, batch_size=1, unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16))
+    save_prior(run, PriorTrainer(Prior.for_gaussians(config, gaussians), gaussians, loaded.cameras[:1],
+                                 lambda i: loaded.load_image(i)))
+
+
+def copy_scene_and_run(world: dict, root: Path) -> dict:
+    """A fresh copy of ``world``'s scene and run in ``root`` (the run's config points at the
+    copied scene) -> {"scene", "run", "names", "root"}."""
+    scene, run = root / "scene", root / "run"
+    shutil.copytree(world["scene"], scene)
+    shutil.copytree(world["run"], run)
+    config = run / "config.json"
+    config.write_text(config.read_text().replace(str(world["scene"]), str(scene)))
+    return {"scene": scene, "run": run, "names": world["names"], "root": root}

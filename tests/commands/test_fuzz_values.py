@@ -22,7 +22,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from fuzz_values_cases import (FLAG_VALUES, JSON_VALUES, Reached, assert_one_line_or_success,
                                bootstrap_setting_cases, camera_key_cases, flag_arguments, flag_cases, nested, run_cli,
                                subparsers, train_setting_cases, train_setting_edges)
-from shared_run_cases import train_one_step, write_text_scene
+from shared_run_cases import save_tiny_prior, train_one_step, write_text_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -78,19 +78,14 @@ def test_a_flag_value_is_parsed_or_refused_in_one_line(command, flag, monkeypatc
 def world(tmp_path_factory):
     """A 4-view scene, a one-step run on it, a tiny untrained prior saved in the run, a camera."""
     from inceptiongs.camera import write_camera_json
-    from inceptiongs.prior.model import Prior, PriorConfig
-    from inceptiongs.prior.trainer import PriorTrainer, save_prior
-    from inceptiongs.prior.unet import UNetConfig
     from inceptiongs.runs.load import load_run
 
     root = tmp_path_factory.mktemp("fuzz_values")
     scene, run = root / "scene", root / "run"
     names = write_text_scene(scene)
     train_one_step(scene, run)
-    gaussians, loaded, _ = load_run(run)
-    config = PriorConfig(patch_size=16, batch_size=1, unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16))
-    prior = Prior.for_gaussians(config, gaussians)
-    save_prior(run, PriorTrainer(prior, gaussians, loaded.cameras[:1], lambda i: loaded.load_image(i)))
+    save_tiny_prior(run)
+    _, loaded, _ = load_run(run)
     camera = root / "camera.json"
     write_camera_json(loaded.normalization.camera_to_original(loaded.cameras[0]), camera)
     return {"root": root, "scene": scene, "run": run, "view": names[1], "camera": camera}

@@ -9,15 +9,13 @@ import json
 import os
 import shutil
 import signal
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
 from inceptiongs.errors import InputError
 from fuzz_values_cases import Reached, run_cli
-from shared_run_cases import train_one_step, write_text_scene
+from shared_run_cases import copy_scene_and_run, save_tiny_prior, train_one_step, write_text_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -82,30 +80,17 @@ def test_a_flag_value_no_run_can_use_is_one_line_before_the_command_runs(argv, f
 # --- a scene, a one-step run and a tiny prior ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    from inceptiongs.prior.model import Prior, PriorConfig
-    from inceptiongs.prior.trainer import PriorTrainer, save_prior
-    from inceptiongs.prior.unet import UNetConfig
-    from inceptiongs.runs.load import load_run
-
     root = tmp_path_factory.mktemp("values")
     scene, run = root / "scene", root / "run"
     names = write_text_scene(scene)
     train_one_step(scene, run)
-    gaussians, loaded, _ = load_run(run)
-    config = PriorConfig(patch_size=16, batch_size=1, unet=UNetConfig(base_width=8, channel_mults=(1, 2), time_dim=16))
-    save_prior(run, PriorTrainer(Prior.for_gaussians(config, gaussians), gaussians, loaded.cameras[:1],
-                                 lambda i: loaded.load_image(i)))
+    save_tiny_prior(run)
     return {"scene": scene, "run": run, "names": names}
 
 
 @pytest.fixture
 def copy(world, tmp_path):
-    scene, run = tmp_path / "scene", tmp_path / "run"
-    shutil.copytree(world["scene"], scene)
-    shutil.copytree(world["run"], run)
-    config = run / "config.json"
-    config.write_text(config.read_text().replace(str(world["scene"]), str(scene)))
-    return {"scene": scene, "run": run, "names": world["names"], "root": tmp_path}
+    return copy_scene_and_run(world, tmp_path)
 
 
 # --- sizes with a ceiling from the memory --------------------------------------------------------------

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from shared_run_cases import run_main, train_one_step, write_text_scene
+from shared_run_cases import copy_scene_and_run, run_main, train_one_step, write_text_scene
 
 
 @pytest.fixture(scope="module")
@@ -32,12 +32,7 @@ def pristine(tmp_path_factory):
 @pytest.fixture
 def copy(pristine, tmp_path):
     """A fresh copy of the scene and the run (whose config points at the copied scene)."""
-    scene, run = tmp_path / "scene", tmp_path / "run"
-    shutil.copytree(pristine["scene"], scene)
-    shutil.copytree(pristine["run"], run)
-    config = run / "config.json"
-    config.write_text(config.read_text().replace(str(pristine["scene"]), str(scene)))
-    return {"scene": scene, "run": run, "names": pristine["names"], "root": tmp_path}
+    return copy_scene_and_run(pristine, tmp_path)
 
 
 def one_error_line(status: int, stderr: str, *words: str) -> str:
