@@ -449,17 +449,23 @@ class SlowSaveJob:
         (self.run_dir / "model.ply").write_bytes(b"ply\n")
 
 
+def ask_to_close_with_a_job(viewer, run: Path, save_s: float) -> None:
+    """A training job that takes ``save_s`` to save into ``run``, started, then the window's close
+    button: the viewer asks what to do with the job."""
+    viewer.jobs.factory = lambda source: SlowSaveJob(run, save_s)
+    _frames(viewer)
+    start_job(viewer, "train (new run)")
+    glfw.set_window_should_close(viewer.window, True)
+    assert viewer.run_frame() and viewer.closing.state == "asking"
+    viewer.step()
+
+
 def test_stop_and_save_keeps_the_window_until_the_save_is_on_disk(xvfb, tmp_path):
     from inceptiongs.app import closing
 
     run = tmp_path / "runs" / "job"
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 800, 600) as viewer:
-        viewer.jobs.factory = lambda source: SlowSaveJob(run, 1.5)
-        _frames(viewer)
-        start_job(viewer, "train (new run)")
-        glfw.set_window_should_close(viewer.window, True)
-        assert viewer.run_frame() and viewer.closing.state == "asking"
-        viewer.step()
+        ask_to_close_with_a_job(viewer, run, 1.5)
         click_widget(viewer, closing.STOP_AND_SAVE)
         saw_message = False
         while viewer.run_frame():
@@ -473,12 +479,7 @@ def test_a_job_kept_running_in_the_background_says_when_it_ends(xvfb, tmp_path, 
 
     run = tmp_path / "runs" / "job"
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 800, 600) as viewer:
-        viewer.jobs.factory = lambda source: SlowSaveJob(run, 0.2)
-        _frames(viewer)
-        start_job(viewer, "train (new run)")
-        glfw.set_window_should_close(viewer.window, True)
-        viewer.run_frame()
-        viewer.step()
+        ask_to_close_with_a_job(viewer, run, 0.2)
         click_widget(viewer, closing.KEEP_RUNNING)
         assert not viewer.run_frame() and viewer.closing.state == "background"
         viewer.jobs.training.control.stop.set()        # the job's end (a finished schedule)
