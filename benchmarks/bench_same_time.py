@@ -21,14 +21,15 @@ from pathlib import Path
 
 import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_bootstrap as bench  # noqa: E402
+
 VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}}, "baseline": None}
 
 
 def run_one(stage1, targets, out_dir: Path, variant: str, seed: int, minutes: float) -> dict:
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.runner import baseline_run, run_bootstrap
-    from inceptiongs.evaluation.run import evaluate_run
-    from inceptiongs.evaluation.scoring import flat_scores
 
     def log(line: str) -> None:
         print(f"  [{out_dir.name}] {line}", flush=True)
@@ -38,7 +39,7 @@ def run_one(stage1, targets, out_dir: Path, variant: str, seed: int, minutes: fl
     else:
         config = BootstrapConfig(seed=seed, iterations=10**6, minutes=minutes, **VARIANTS[variant])
         result = run_bootstrap(stage1, out_dir, targets, config, progress=False, overwrite=True, log=log)
-    scores = flat_scores(evaluate_run(out_dir, progress=False)["groups"])
+    scores = bench.scores(out_dir)
     return {"run": out_dir.name, "steps": result.iteration - result.start_iteration,
             "virtual": result.virtual_steps or 0, "wall_s": round(result.wall_s, 1),
             "scarce": round(scores["scarce_psnr"], 3), "covered": round(scores["covered_psnr"], 3),
@@ -58,7 +59,7 @@ def main(argv=None) -> int:
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(VARIANTS)}")
-    from inceptiongs.bootstrap.runner import baseline_run, resolve_targets
+    from inceptiongs.bootstrap.runner import resolve_targets
     from inceptiongs.bootstrap.stage1 import load_stage1
     from inceptiongs.threads import use_torch_threads
 
@@ -66,8 +67,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     stage1 = load_stage1(Path(args.run))
     targets = resolve_targets(stage1.scene, stage1.split, None, None, 1)
-    baseline_run(stage1, out / "warm_up", None, 2, progress=False, eval_every=1, overwrite=True,
-                 log=lambda line: None)
+    bench.warm_up(stage1, out / "warm_up", int(args.seeds.split(",")[0]))
     rows = []
     for seed in (int(s) for s in args.seeds.split(",")):
         for variant in variants:
