@@ -15,7 +15,7 @@ from inceptiongs.constants import LOG_SCALE_MAX, LOG_SCALE_MIN, QUAT_NORM_MIN
 from inceptiongs.rasterizer.rasterize import render
 from inceptiongs.runs.config import TrainConfig, short_run_schedule
 from inceptiongs.train.free_space import (ViewStats, accumulate_views, allowed_sh_degree, angular_spread_deg,
-                                          before_near_bound, contains_camera, floater_fraction, near_bounds,
+                                          before_near_bound, contains_camera, floater_fraction, near_a_camera, near_bounds,
                                           render_surface_depth, seen_through, surface_depth, surface_depth_features)
 from inceptiongs.train.sky import fibonacci_directions, in_background
 from inceptiongs.train.step import maintain
@@ -82,7 +82,7 @@ def _pair_reference(means, log_scales, quats, cameras, near, sigmas):
 
 def test_free_space_pair_tests_agree_across_backends_and_with_the_definition_on_extreme_gaussians():
     """The numba loops and the torch path (distance pre-filter, [N, B] products) flag exactly the
-    Gaussians the pair-by-pair definition flags, including at and near camera centres, behind and
+    Gaussians the pair-by-pair definitions flag (contains_camera, before_near_bound, near_a_camera), including at and near camera centres, behind and
     beside cameras, with needles, huge and tiny log-scales past the clamps, zero and denormal
     quaternions, and non-finite centres (never flagged)."""
     cameras = tc.ring_cameras(7)
@@ -110,6 +110,13 @@ def test_free_space_pair_tests_agree_across_backends_and_with_the_definition_on_
     at_camera = np.zeros(n, bool)
     at_camera[580:584] = True
     expected = _pair_reference(means, log_scales, quats, cameras, near, 3.0)
+    radii = 0.5 * near
+
+    def within_ball(points):      # near_a_camera's definition: closer than a radius to its camera
+        with np.errstate(invalid="ignore"):
+            return (np.linalg.norm(points[:, None] - centers[None], axis=-1) < radii).any(1)
+
+    assert 20 < within_ball(means).sum() < n - 20
     assert 20 < expected[0].sum() < n - 20 and 20 < expected[1].sum() < n - 20   # both sides are exercised
     tensors = [torch.tensor(a) for a in (means, log_scales, quats)]
     for dtype in (torch.float64, torch.float32):
@@ -122,11 +129,42 @@ def test_free_space_pair_tests_agree_across_backends_and_with_the_definition_on_
             assert np.flatnonzero(contains.numpy() != expected[0]).tolist() == [], (backend, dtype)
             # A centre exactly at a camera has z = 0 up to rounding, a coin toss for "0 < z": skipped.
             assert np.flatnonzero((before.numpy() != expected[1]) & ~at_camera).tolist() == [], (backend, dtype)
+            ball = near_a_camera(tensors[0], torch.tensor(centers), torch.tensor(radii), backend=backend)
+            assert np.flatnonzero(ball.numpy() != within_ball(tensors[0].double().numpy())).tolist() == [], \
+                (backend, dtype)
     # Empty inputs: no flags, no error.
     for backend in ("numba", "torch"):
         assert contains_camera(torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0, 4), torch.tensor(centers), 3.0,
                                backend=backend).shape == (0,)
         assert before_near_bound(torch.zeros(0, 3), cameras, torch.tensor(near), backend=backend).shape == (0,)
+        assert near_a_camera(torch.zeros(0, 3), torch.tensor(centers), torch.tensor(radii), backend=backend).shape == (0,)
+
+
+def test_street_of_cameras_the_numba_windows_flag_what_the_torch_path_flags():
+    """Cameras along a 60-unit street, each looking a different way with its own near bound (the
+    numba loops visit only the cameras whose centre's x lies within reach, a few of the 80): the
+    same flags as the torch path, which tests every pair, for all three tests."""
+    from inceptiongs.camera import Camera, look_at
+
+    rng = np.random.default_rng(11)
+    cameras = []
+    for k in range(80):
+        eye = np.array([rng.uniform(-30, 30), rng.uniform(-1, 1), rng.uniform(0.5, 2.0)])
+        target = eye + np.array([rng.normal(), rng.normal(), 0.2 * rng.normal()])
+        cameras.append(Camera(f"street{k:02d}", 64, 48, rng.uniform(30, 90), rng.uniform(30, 90), rng.uniform(0, 64),
+                              rng.uniform(0, 48), look_at(eye, target, up=np.array([0.0, 0.0, 1.0]))))
+    centers = torch.tensor(np.stack([c.center for c in cameras]))
+    near = torch.tensor(rng.uniform(0.2, 3.0, 80))
+    picked = centers[torch.from_numpy(rng.integers(0, 80, 6000))]
+    means = (picked + torch.tensor(rng.normal(0, 1.5, (6000, 3)))).float()
+    log_scales = torch.tensor(rng.uniform(-5.0, 1.0, (6000, 3))).float()
+    quats = torch.tensor(rng.normal(0, 1, (6000, 4))).float()
+    for name, flag in (("contains", lambda b: contains_camera(means, log_scales, quats, centers, 3.0, backend=b)),
+                       ("before", lambda b: before_near_bound(means, cameras, near, backend=b)),
+                       ("ball", lambda b: near_a_camera(means, centers, 0.5 * near, backend=b))):
+        numba_flags, torch_flags = flag("numba").numpy(), flag("torch").numpy()
+        assert 50 < torch_flags.sum() < 5950, (name, int(torch_flags.sum()))   # both sides exercised
+        assert np.flatnonzero(numba_flags != torch_flags).tolist() == [], name
 
 
 def test_gaussian_behind_a_camera_within_its_ball_is_removed_and_one_beyond_it_stays():
