@@ -37,7 +37,7 @@ Gaussian), peak_rss_mb (before full detail; peak_rss_full_mb after), moving_psnr
 upsampled as the window shows it, against the full-detail frame of that camera), settled_psnr.
 
     DISPLAY=:99 python3 benchmarks/bench_viewer.py [--ply PATH] [--frames 30] [--jobs [--seconds 20]]
-                                                   [--idle [--idle-seconds 60]]
+                                                   [--idle [--idle-seconds 60] [--settle-seconds 2]]
                                                    [--model PLY [--json OUT] [--fresh-tree]]
 """
 
@@ -177,16 +177,17 @@ def _resident_mb() -> float:
         return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
-def _idle_row(viewer, name: str, seconds: float) -> list[str]:
+def _idle_row(viewer, name: str, seconds: float, settle_s: float) -> list[str]:
     """Two rows for ``name``: the app's loop idling ``seconds`` with the pointer inside the
-    window (over the scene, right of the panel), then outside it."""
+    window (over the scene, right of the panel), then outside it, each after ``settle_s`` of the
+    pointer move's frames."""
     import glfw
 
     width, height = glfw.get_window_size(viewer.window)
     rows = []
     for where, (x, y) in (("inside", (0.7 * width, 0.5 * height)), ("outside", (-200.0, -200.0))):
         glfw.set_cursor_pos(viewer.window, x, y)  # a pointer warp: GLFW sees the move and the enter/leave
-        _loop_for(viewer, 2.0)  # the move's frames and the refine after it
+        _loop_for(viewer, settle_s)  # the move's frames and the refine after it
         memory = _resident_mb()
         cpu, frames = _loop_for(viewer, seconds)
         growth = _resident_mb() - memory
@@ -210,8 +211,9 @@ def _until_parked(viewer, quiet_s: float = 3.0) -> None:
             return
 
 
-def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
-    """The idle rows: nothing happening, a paused job, a stopped job (docstring above)."""
+def idle_rows(seconds: float, size: tuple[int, int], settle_s: float = 2.0) -> list[str]:
+    """The idle rows: nothing happening, a paused job, a stopped job (docstring above); each
+    measurement starts ``settle_s`` after the pointer moved (the paused job's parking waits as long)."""
     import tempfile
 
     from inceptiongs.app.jobs import JobSettings
@@ -223,17 +225,17 @@ def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
         scene = write_demo_scene(Path(folder) / "scene", progress=False)
         viewer = Viewer(open_source(scene), *size)
         try:
-            rows = _idle_row(viewer, "idle, no job", seconds)
+            rows = _idle_row(viewer, "idle, no job", seconds, settle_s)
             viewer.jobs.settings = JobSettings(minutes=None, iterations=100_000, downscale=2, protocol="none")
             viewer.jobs.start_training()
             deadline = time.perf_counter() + 300
             while viewer.jobs.training.progress.iteration < 5 and time.perf_counter() < deadline:
                 _loop_for(viewer, 0.5)
             viewer.jobs.training.pause()
-            _until_parked(viewer)
-            rows += _idle_row(viewer, "job paused", seconds)
+            _until_parked(viewer, quiet_s=1.5 * settle_s)
+            rows += _idle_row(viewer, "job paused", seconds, settle_s)
             viewer.jobs.training.stop(timeout=120)
-            rows += _idle_row(viewer, "job stopped", seconds)
+            rows += _idle_row(viewer, "job stopped", seconds, settle_s)
         finally:
             viewer.close()
     return rows
@@ -337,6 +339,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=20.0, help="length of each --jobs measurement")
     parser.add_argument("--idle", action="store_true", help="also the idle CPU and memory rows")
     parser.add_argument("--idle-seconds", type=float, default=60.0, help="length of each --idle measurement")
+    parser.add_argument("--settle-seconds", type=float, default=2.0,
+                        help="--idle: the loop runs this long after each pointer move before measuring")
     parser.add_argument("--model", type=Path, help="a large model: the level-of-detail figures only")
     parser.add_argument("--json", type=Path, help="with --model: also write the figures here")
     parser.add_argument("--fresh-tree", action="store_true",
@@ -355,7 +359,7 @@ def main() -> int:
         return 0
     if args.idle:
         print(f"idle rows at {width}x{height}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-        print("\n".join(idle_rows(args.idle_seconds, (width, height))), flush=True)
+        print("\n".join(idle_rows(args.idle_seconds, (width, height), args.settle_seconds)), flush=True)
     if args.jobs:
         print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
               "(figures are noisy on a shared machine)")

@@ -130,8 +130,8 @@ def test_the_benchmark_reports_idle_and_paused_cpu_and_memory(xvfb):
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_viewer.py"
-    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "1", "--size", "640x480",
-                             "--ply", "/nonexistent.ply"], capture_output=True, text=True, timeout=600)
+    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "1", "--settle-seconds", "0.5",
+                             "--size", "640x480", "--ply", "/nonexistent.ply"], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     rows = [line for line in result.stdout.splitlines() if " CPU " in line]
     names = {(line.split("mouse")[0].strip(), line.split("mouse")[1].split()[0]) for line in rows}
