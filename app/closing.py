@@ -22,6 +22,14 @@ CANCEL = "cancel"
 CHOICES = (STOP_AND_SAVE, KEEP_RUNNING, CANCEL)
 
 
+def frame_loop_control() -> JobControl:
+    """The window's stop control: its frame loop checks for a stop every frame, so it listens
+    from the start (a signal asks to close and save, never quits at once)."""
+    control = JobControl()
+    control.listening.set()
+    return control
+
+
 @dataclass
 class Closing:
     """state: "open" (no close asked), "asking" (the question shows), "stopping" (the job saves,
@@ -29,7 +37,7 @@ class Closing:
     signals.stop: set by the first Ctrl+C / SIGTERM (stop_signals.stop_on_signals)."""
 
     state: str = "open"
-    signals: JobControl = field(default_factory=JobControl)
+    signals: JobControl = field(default_factory=frame_loop_control)
     stop_asked_at: float = 0.0   # perf_counter() of "stop and save" (the saving line counts from it)
 
 

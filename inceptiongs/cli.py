@@ -102,9 +102,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        status = getattr(exc, "exit_status", None)     # stop_signals.StoppedDuringSetup: already said
+        if status is None:
+            print("interrupted", file=sys.stderr)
+        return status or 130
     finally:
         set_cache_dir(None)
         set_photo_memory(None)

@@ -16,10 +16,13 @@ from typing import Protocol
 @dataclass
 class JobControl:
     """The viewer's side of a running job: set ``pause`` to pause (clear to continue); set
-    ``stop`` to have the job checkpoint and return."""
+    ``stop`` to have the job checkpoint and return. The job sets ``listening`` when its loop
+    first checks for a stop (train.loop.StepLoop.wait_or_stop): from then on a stop is honoured
+    within a step; before it, the job is in its set-up and has nothing of its own to save."""
 
     pause: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
+    listening: threading.Event = field(default_factory=threading.Event)
 
 
 def wait_while_paused(control: JobControl | None, poll_s: float = 0.05) -> tuple[bool, float]:

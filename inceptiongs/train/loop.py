@@ -118,6 +118,8 @@ class StepLoop:
     def wait_or_stop(self) -> bool:
         """Honour a pause (both clocks move forward by it: paused time is nobody's) -> True when
         asked to stop."""
+        if self.control is not None:
+            self.control.listening.set()
         stop, paused_s = wait_while_paused(self.control)
         self._wall_clock += paused_s
         self._train_clock += paused_s

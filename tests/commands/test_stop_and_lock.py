@@ -28,6 +28,7 @@ def scene(tmp_path_factory) -> Path:
 def test_first_signal_asks_to_stop_the_second_interrupts_and_handlers_come_back():
     before = signal.getsignal(signal.SIGTERM)
     control, said = JobControl(), []
+    control.listening.set()                 # the job's loop has begun
     with pytest.raises(KeyboardInterrupt):
         with stop_on_signals(control, said.append) as request:
             os.kill(os.getpid(), signal.SIGTERM)
@@ -35,6 +36,46 @@ def test_first_signal_asks_to_stop_the_second_interrupts_and_handlers_come_back(
             assert request.exit_status == 143 and len(said) == 1 and "SIGTERM" in said[0]
             os.kill(os.getpid(), signal.SIGINT)   # again: quit now
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_signal_during_the_set_up_stops_at_once_with_its_status():
+    """Before the job's loop listens (its set-up) there is nothing to save: the first signal
+    raises at once, saying so, with the shell's status for it; the CLI prints nothing more."""
+    from inceptiongs.stop_signals import StoppedDuringSetup
+
+    control, said = JobControl(), []
+    with pytest.raises(StoppedDuringSetup) as stopped:
+        with stop_on_signals(control, said.append):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)                  # the handler runs at the next bytecode: never reached
+            raise AssertionError("the set-up went on after SIGTERM")
+    assert stopped.value.exit_status == 143 and control.stop.is_set()
+    assert said == ["SIGTERM: stopping during the set-up (nothing to save yet)"]
+
+
+def test_train_stopped_during_its_set_up_exits_at_once_and_the_same_command_starts_again(tmp_path, scene,
+                                                                                           monkeypatch, capsys):
+    """`train` whose set-up is interrupted (here: a SIGTERM while it reads the scene) exits 143
+    with one line and no traceback; what it left is resumable: --resume trains the whole run."""
+    from inceptiongs.scene import loader
+
+    real_load, signals_left = loader.load_scene, [1]
+
+    def load_then_signal(*args, **kwargs):
+        scene_loaded = real_load(*args, **kwargs)
+        if signals_left.pop() if signals_left else 0:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return scene_loaded
+
+    run = tmp_path / "run"
+    command = ["train", str(scene), "--out", str(run), "--iterations", "4", "--downscale", "4"]
+    monkeypatch.setattr(loader, "load_scene", load_then_signal)
+    assert main(command) == 143
+    err = capsys.readouterr().err
+    assert "SIGTERM: stopping during the set-up (nothing to save yet)" in err and "Traceback" not in err, err
+    assert not (run / "model.ply").exists() and not (run / LOCK_INFO_FILE).exists()
+    status = main(command + (["--resume"] if (run / "config.json").exists() else []))
+    assert status == 0 and (run / "model.ply").is_file(), capsys.readouterr().err
 
 
 def test_a_second_writer_is_refused_naming_the_holder(tmp_path, scene):

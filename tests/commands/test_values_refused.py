@@ -255,7 +255,8 @@ def test_a_stop_whose_save_meets_a_full_disk_exits_130_with_its_stopped_line(cop
     import inceptiongs.train.trainer as trainer
     from inceptiongs.io.atomic import OutputError
 
-    def stopped_then_full(config, out, **_kwargs):
+    def stopped_then_full(config, out, **kwargs):
+        kwargs["control"].listening.set()             # its loop has begun
         os.kill(os.getpid(), signal.SIGINT)           # Ctrl+C during training: the handler asks to stop
         raise OutputError(f"{out}/model.ply: cannot write (no space left on device)")
 
