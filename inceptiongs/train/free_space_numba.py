@@ -1,10 +1,11 @@
 """Numba fast paths of the three [N, C] free-space tests (:mod:`.free_space`, whose torch versions
 are the reference): every Gaussian against every training camera.
 
-The near-bound and camera-ball tests flag a Gaussian only within a bounded distance of a camera
-centre (a ball of ``reach`` around it), so those loops visit only the cameras whose centre's x
-lies within the largest reach of the Gaussian's x: the cameras are sorted by x once per call and
-two binary searches find the window (on a 3,000-camera street capture a few per cent of them).
+Each test flags a Gaussian only within a bounded distance of a camera centre (its ``reach``:
+the near bound widened by the image's corner ray, the camera ball, the Gaussian's own 3-sigma
+extent), so the loops visit only the cameras whose centre's x lies within that reach of the
+Gaussian's x: the cameras are sorted by x once per call and two binary searches find the window
+(bench_free_space: 2,625 cameras along a street, 8 s -> 0.2 s a call at 200,000 Gaussians).
 
 A loop per Gaussian over the cameras that stops at the first camera that flags it reads each
 Gaussian once and writes one flag; the torch versions stream several [N, C] float64 tables
