@@ -32,7 +32,7 @@ from .images import visualize
 from .input import InputController
 from .jobs import Jobs
 from .moving import SelectionMover
-from .runs import fresh_file, saved_dir
+from .runs import fresh_file, saved_dir, window_title
 from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
 from .view import View
@@ -91,6 +91,7 @@ class Viewer:
         self.ui = PanelState()
         self.closing = Closing()  # the close button / a stop signal with a job alive (closing.py)
         self.last_gl_error: str | None = None
+        self.title_state: str | None = None  # the job state the window title names
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
         self._last_frame_time = time.perf_counter()
@@ -122,7 +123,9 @@ class Viewer:
 
     def update_title(self) -> None:
         """The window names the model shown: the file, or the job folder it comes from."""
-        self.title = self.jobs.window_title()
+        jobs = self.jobs
+        self.title = window_title(self.view.source, jobs.run_dir, jobs.training, jobs.out_dir)
+        self.title_state = None if jobs.training is None else jobs.training.state
         glfw.set_window_title(self.window, self.title)
 
     def take_points(self) -> None:
@@ -201,6 +204,8 @@ class Viewer:
         self.paths.update()
         self.status_line.check()   # a message whose state has gone is cleared before it is drawn
         self.take_points()
+        if self.jobs.training is not None and self.jobs.training.state != self.title_state:
+            self.update_title()  # running -> paused -> finished shows in the title
         self.jobs.take_snapshot()
         if self.jobs.verdict_images_due:
             self.render_verdict()
@@ -212,7 +217,7 @@ class Viewer:
             # Later frames skip this full-window pass: the scene blit overwrites every pixel.
             screen.clear(*self.view.settings.background, 1.0)
         self.drawing.draw_scene(self.view, self.stats, self.jobs.last_snapshot_time, screen)
-        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit, screen, self.mover.pivot_and_length())
+        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit.psnr, screen, self.mover.pivot_and_length())
         if self.imgui_impl is not None:
             self.draw_ui()
         if self.capture_requested:

@@ -127,7 +127,8 @@ def job_rows(seconds: float) -> list[str]:
     """The CPU rows: a real training job alone vs with the viewer idle on it; idle CPU."""
     import tempfile
 
-    from inceptiongs.app.jobs import JobSettings, train_job_for
+    from inceptiongs.app.job_requests import train_job_for
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.app.live_training import LiveTraining
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
@@ -214,7 +215,7 @@ def idle_rows(seconds: float, size: tuple[int, int]) -> list[str]:
     """The idle rows: nothing happening, a paused job, a stopped job (docstring above)."""
     import tempfile
 
-    from inceptiongs.app.jobs import JobSettings
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.scene.demo import write_demo_scene

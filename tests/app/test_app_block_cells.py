@@ -17,7 +17,7 @@ pytestmark = pytest.mark.gl
 @pytest.fixture(scope="module")
 def blocks_run(tmp_path_factory):
     """A 6-step run of the demo scene with a 4-cell plan written as `train --blocks` writes it."""
-    from inceptiongs.app.jobs import JobSettings
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.evaluation.protocols import Split
     from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.scene.loader import load_scene

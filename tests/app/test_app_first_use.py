@@ -80,7 +80,7 @@ class FakeJob:
 def test_the_verdict_refuses_a_baseline_of_another_length_and_runs_the_right_one(xvfb, tmp_path, monkeypatch):
     """A 60-second bootstrap whose scarce score fell below stage I's (15.12 -> 15.08) read
     "better by 0.09 dB than the same-time baseline" against the demo's 66-second baseline."""
-    import inceptiongs.app.jobs as jobs_module
+    import inceptiongs.app.job_requests as jobs_module
 
     run, out = tmp_path / "run", tmp_path / "run_bootstrap"
     run.mkdir()

@@ -12,8 +12,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstrap_job_for, resume_job_for,
-                                  train_job_for)
+from inceptiongs.app.job_requests import bootstrap_job_for, resume_job_for, train_job_for
+from inceptiongs.app.job_settings import VIEWER_EVAL_EVERY, JobSettings
+from inceptiongs.app.jobs import Jobs
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
 from inceptiongs.io.config_json import with_values
@@ -536,8 +537,8 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
     second.update(psnr=7.0, poorly_fit=True)
     (run / VIEW_FIT_FILE).write_text(json.dumps(report))
     with opened(Viewer, open_source(run), 900, 1000) as viewer:
-        assert list(viewer.jobs.poorly_fit) == [second["name"], first["name"]]  # worst first
-        colors = frustum_colors(viewer.view.cameras, viewer.jobs.poorly_fit)
+        assert list(viewer.jobs.poorly_fit.psnr) == [second["name"], first["name"]]  # worst first
+        colors = frustum_colors(viewer.view.cameras, viewer.jobs.poorly_fit.psnr)
         for index, camera in enumerate(viewer.view.cameras):
             expected = POORLY_FIT_COLOR if camera.name in (first["name"], second["name"]) else TRAINING_COLOR
             assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
@@ -569,6 +570,6 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:
-        assert viewer.jobs.poorly_fit == {} and str(run / VIEW_FIT_FILE) in viewer.status
+        assert viewer.jobs.poorly_fit.psnr == {} and str(run / VIEW_FIT_FILE) in viewer.status
         viewer.step()
         assert "next poorly fit photo" not in viewer.ui.rects

@@ -15,7 +15,7 @@ import glfw
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import JobSettings
+from inceptiongs.app.job_settings import JobSettings
 from inceptiongs.errors import InputError
 from inceptiongs.io.config_json import with_values
 from viewer_cases import click_widget, opened, press_key, start_job, type_into
@@ -111,9 +111,9 @@ def test_scene_lists_its_runs_from_every_place_newest_first_with_scores(xvfb, de
         assert set(viewer.view.source.runs) >= {older, newer}
         assert viewer.jobs.run_dir == newer  # the newest opens
         viewer.step()
-        labels = [viewer.jobs.run_label(run) for run in reversed(viewer.view.source.runs)]
+        labels = [viewer.jobs.run_labels.label(run) for run in reversed(viewer.view.source.runs)]
         assert labels[0].endswith(str(newer)) and " dB" in labels[0]  # newest first, in full, scored
-        choose(viewer, "runs of this scene", viewer.jobs.run_label(older))
+        choose(viewer, "runs of this scene", viewer.jobs.run_labels.label(older))
         assert viewer.jobs.run_dir == older, viewer.status
     assert main([str(demo_scene), "--runs", str(older / "model.ply")]) == 2  # a file is no runs folder
 
