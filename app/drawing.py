@@ -23,6 +23,7 @@ from .block_cells import CELL_COLOR
 from .frustums import away_from, drawn_training_frustums, segments_for_cameras
 from .gizmo import gizmo_handles, gizmo_segments
 from .images import compose_photo, visualize
+from .navigation import nearest_camera_index
 from .overlay import OverlayRenderer, SceneTexture
 from .points import point_colours, render_points
 from .reference import ReferenceWorker, error_heatmap, side_by_side
@@ -192,7 +193,7 @@ class FrameDrawer:
             self._upload_preview(view, model)
             return "preview"
         if self.detail.version == model:
-            view.share_tree_leaves(self.detail.hierarchy)
+            level_of_detail.share_tree_leaves(view, self.detail.hierarchy)
         key = camera_key(camera)
         wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
         cut = self.detail.latest(model)
@@ -276,11 +277,11 @@ class FrameDrawer:
         else:
             self.upload_model(view)
         camera = view.current_camera(scale)
-        photo_index = view.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
+        photo_index = nearest_camera_index(view.cameras, camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
                camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
                settings.splat_scale, tuple(settings.background), settings.photo, settings.photo_alpha, photo_index)
-        photo = view.training_photo(photo_index) if photo_index is not None else None
+        photo = view.photos.photo_of(view.source.scene, photo_index, view.status) if photo_index is not None else None
         if mode == "reference":
             self.draw_reference(view)
         elif key != self.last_render_key:
@@ -406,7 +407,8 @@ class FrameDrawer:
                 slot = shown.index(flag_book.selected)
                 colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
-        cells = view.block_cell_segments() if settings.mode == "coverage" else None
+        cells = (view.block_cells.of_model(view.source, view.model_version, view.edit.base["means"], view.up, view.status)
+                 if settings.mode == "coverage" else None)
         if cells is not None and len(cells):
             self.overlay.draw_segments(camera, cells, np.tile(CELL_COLOR, (len(cells), 1)))
         if settings.crop_enabled:

@@ -319,7 +319,7 @@ class Editor:
         pixels and a Gaussian behind that surface is left out."""
         view = self.view
         pixels, depth = self.projected_means()
-        a, b = view.window_to_framebuffer(*corner_a), view.window_to_framebuffer(*corner_b)
+        a, b = view.pixels.to_framebuffer(*corner_a), view.pixels.to_framebuffer(*corner_b)
         if not visible_only:
             view.edit.select(select_rectangle(pixels, a, b), view.settings.selection_mode)
             return
@@ -339,14 +339,14 @@ class Editor:
     def lasso_select(self, points) -> None:
         """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""
         pixels, _ = self.projected_means()
-        polygon = np.array([self.view.window_to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
+        polygon = np.array([self.view.pixels.to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
         self.view.edit.select(select_lasso(pixels, polygon), self.view.settings.selection_mode)
 
     def brush_select(self, x: float, y: float, stroke_start: bool = True) -> None:
         """One dab of the brush; a drag's later dabs join its first one's undo step."""
         settings = self.view.settings
         pixels, _ = self.projected_means()
-        center = self.view.window_to_framebuffer(x, y)
+        center = self.view.pixels.to_framebuffer(x, y)
         mode = "add" if settings.selection_mode == "replace" else settings.selection_mode
         self.view.edit.select(select_brush(pixels, center, settings.brush_radius), mode, record=stroke_start)
 
@@ -411,7 +411,7 @@ class Editor:
         if not settings.crop_enabled:
             return None
         pixels, _ = project_means(box_handles(settings.crop_min, settings.crop_max), self.view.current_camera())
-        distance = np.hypot(*(pixels - np.array(self.view.window_to_framebuffer(x, y))).T)
+        distance = np.hypot(*(pixels - np.array(self.view.pixels.to_framebuffer(x, y))).T)
         distance = np.where(np.isnan(distance), np.inf, distance)
         best = int(np.argmin(distance))
         return best if distance[best] <= CROP_HANDLE_PIXELS else None
@@ -428,7 +428,7 @@ class Editor:
         length2 = float(screen_axis @ screen_axis)
         if not np.isfinite(length2) or length2 < 1e-9:
             return  # the axis points at the eye: no screen direction to drag along
-        motion = np.subtract(view.window_to_framebuffer(*end), view.window_to_framebuffer(*start))
+        motion = np.subtract(view.pixels.to_framebuffer(*end), view.pixels.to_framebuffer(*start))
         settings.crop_min, settings.crop_max = drag_box_face(
             settings.crop_min, settings.crop_max, handle, float(motion @ screen_axis) / length2)
 

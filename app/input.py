@@ -24,6 +24,16 @@ DOUBLE_CLICK_PIXELS = 4.0
 LASSO_STEP_PIXELS = 3.0
 
 
+def grab_depth(view, x: float, y: float) -> float:
+    """The camera depth a pan started at window position (x, y) of ``view`` (view.View) keeps
+    under the cursor: the surface there, else the pivot's depth, else the fly speed (a step ahead)."""
+    px, py = view.pixels.to_framebuffer(x, y)
+    depth = view.renderer.pick_depth(view.current_camera(), int(px), int(py))
+    if depth is None:
+        depth = view.nav.pivot_depth()
+    return depth if depth > 1e-6 else view.nav.speed
+
+
 class InputController:
     """GLFW callbacks for one viewer."""
 
@@ -197,7 +207,7 @@ class InputController:
         self.dragging_button = button
         self.drag_start = (x, y)
         if button == glfw.MOUSE_BUTTON_MIDDLE:
-            self.pan_depth = view.grab_depth(x, y)  # the grabbed point stays under the cursor
+            self.pan_depth = grab_depth(view, x, y)  # the grabbed point stays under the cursor
         if button == glfw.MOUSE_BUTTON_LEFT:
             self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:

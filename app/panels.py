@@ -19,7 +19,7 @@ from .notifications import draw_notification
 from .plots import draw_plots
 from .textfit import middle_ellipsis
 from .verdict import draw_verdict, outlook_before_repair
-from .navigation import UP_AXES, up_axis_name, up_label
+from .navigation import UP_AXES, nearest_camera_index, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
 from .run_list import choose_runs_folder
 from .camera_path_panel import draw_camera_path
@@ -63,7 +63,7 @@ def draw_tool_feedback(view, controls) -> None:
                       0.0, TOOL_LINE_WIDTH)
     elif tool == "brush":
         # The brush radius is in framebuffer pixels; the cursor in window pixels.
-        scale = view.window_to_framebuffer(1.0, 1.0)[0]
+        scale = view.pixels.to_framebuffer(1.0, 1.0)[0]
         draw.add_circle(imgui.ImVec2(*cursor), view.settings.brush_radius / max(scale, 1e-6), color, 0,
                         TOOL_LINE_WIDTH)
     elif tool == "lasso" and dragging and controls.lasso:
@@ -348,7 +348,7 @@ def _inspect(ui, view, drawing) -> bool:
         if changed:
             settings.photo = views[index]
         if settings.photo != "off":
-            nearest = view.nearest_camera_index(view.current_camera())
+            nearest = nearest_camera_index(view.cameras, view.current_camera())
             _hint(f"nearest training camera: {view.cameras[nearest].name}")
             if settings.photo == "blended":
                 _fit("photo weight")

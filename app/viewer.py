@@ -211,7 +211,7 @@ class Viewer:
             self.render_verdict()
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
-        width, height = self.view.framebuffer_size
+        width, height = self.view.pixels.framebuffer_size
         self.ctx.viewport = (0, 0, width, height)
         if self.drawing.scene_texture.texture is None:
             # Later frames skip this full-window pass: the scene blit overwrites every pixel.

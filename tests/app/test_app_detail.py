@@ -70,7 +70,7 @@ def _settled(viewer) -> bool:
 
 
 def _look_down_the_street(viewer) -> None:
-    width, height = viewer.view.framebuffer_size
+    width, height = viewer.view.pixels.framebuffer_size
     viewer.view.nav = NavigationState.from_camera(street_camera(width, height), speed=1.0)
     viewer.view.moved()
 

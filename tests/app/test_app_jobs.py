@@ -15,6 +15,7 @@ import pytest
 from inceptiongs.app.job_requests import bootstrap_job_for, resume_job_for, train_job_for
 from inceptiongs.app.job_settings import VIEWER_EVAL_EVERY, JobSettings
 from inceptiongs.app.jobs import Jobs
+from inceptiongs.app.navigation import nearest_camera_index
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
 from inceptiongs.io.config_json import with_values
@@ -387,7 +388,7 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
         time.sleep(0.2)  # still: the full-resolution frames follow
         viewer.step()
         photo = viewer.view.source.scene.load_image(3)
-        assert viewer.view.nearest_camera_index(viewer.view.current_camera()) == 3
+        assert nearest_camera_index(viewer.view.cameras, viewer.view.current_camera()) == 3
         render = viewer.capture_window()
         viewer.view.settings.photo, viewer.view.settings.photo_alpha = "blended", 1.0
         blended = viewer.capture_window()

@@ -217,7 +217,7 @@ def _window_pixel(viewer, camera, point) -> tuple[float, float]:
 
     pixels, _ = project_means(np.asarray(point, np.float64)[None], camera)
     window_w, _ = glfw.get_window_size(viewer.window)
-    scale = window_w / viewer.view.framebuffer_size[0]
+    scale = window_w / viewer.view.pixels.framebuffer_size[0]
     return float(pixels[0, 0] * scale), float(pixels[0, 1] * scale)
 
 
