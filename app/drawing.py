@@ -261,7 +261,7 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
-        self.still_frame_owed = moving   # the frame after the motion stops refines (Viewer.is_idle)
+        self.still_frame_owed = moving   # the frame after the motion stops refines (pacing.is_idle)
         points = view.shows_points and view.settings.mode != "reference"
         scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         detail = self.detail_engaged(view, now - model_changed_at)

@@ -40,7 +40,7 @@ class InputController:
     def __init__(self, viewer) -> None:
         self.viewer = viewer
         self.keys_down: set[int] = set()
-        self.last_event = -1e9  # perf_counter() of the last input event (Viewer.is_idle)
+        self.last_event = -1e9  # perf_counter() of the last input event (pacing.is_idle)
         self.drag_start = None
         self.last_cursor = None
         self.last_click = (-1e9, 0.0, 0.0)
@@ -63,7 +63,7 @@ class InputController:
         glfw.set_cursor_enter_callback(window, lambda _window, _entered: self.note_event())
 
     def note_event(self) -> None:
-        """Something the next frame must show arrived (Viewer.wait_for_next_frame draws it)."""
+        """Something the next frame must show arrived (pacing.wait_for_next_frame draws it)."""
         self.last_event = time.perf_counter()
 
     def on_key(self, window, key, scancode, action, mods) -> None:

@@ -16,6 +16,7 @@ from inceptiongs.app.job_requests import bootstrap_job_for, resume_job_for, trai
 from inceptiongs.app.job_settings import VIEWER_EVAL_EVERY, JobSettings
 from inceptiongs.app.jobs import Jobs
 from inceptiongs.app.navigation import nearest_camera_index
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
 from inceptiongs.io.config_json import with_values
@@ -167,7 +168,7 @@ def demo_scene(tmp_path_factory) -> Path:
 def _wait(viewer, condition, seconds=120.0) -> None:
     deadline = time.time() + seconds
     while not condition() and time.time() < deadline:
-        viewer.wait_for_next_frame()  # as run() does: the job gets the CPU between frames
+        wait_for_next_frame(viewer)  # as run() does: the job gets the CPU between frames
         viewer.step()
     assert condition(), viewer.status
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.app.navigation import nearest_camera_index
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.camera import write_camera_json
 from viewer_cases import (GOLDEN, GOLDEN_WINDOW_SIZE, front_camera, golden_window_images, opened,
                           write_grid_model)
@@ -157,7 +158,7 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
         assert viewer.view.edit.count == 0 and "triangulating" in viewer.status
         deadline = time.time() + 300
         while viewer.points_worker is not None and time.time() < deadline:
-            viewer.wait_for_next_frame()
+            wait_for_next_frame(viewer)
             viewer.step()
         assert viewer.view.edit.count > 500, viewer.status
         assert "triangulated from the photos" in viewer.status

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from inceptiongs.app.job_settings import JobSettings
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.errors import InputError
 from inceptiongs.io.config_json import with_values
 from viewer_cases import click_widget, opened, press_key, start_job, type_into
@@ -38,7 +39,7 @@ def _viewer(scene, width=1000, height=1000, **kwargs):
 def _wait(viewer, condition, seconds=120.0) -> None:
     deadline = time.time() + seconds
     while not condition() and time.time() < deadline:
-        viewer.wait_for_next_frame()
+        wait_for_next_frame(viewer)
         viewer.step()
     assert condition(), viewer.status
 
