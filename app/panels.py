@@ -754,10 +754,10 @@ def _edit(ui, editor) -> None:
         if _button(ui, "fit to the model"):
             editor.fit_crop_box()
     _fit("file")
-    _, editor.save_path = imgui.input_text("file", editor.save_path)
+    _, editor.saving.path = imgui.input_text("file", editor.saving.path)
     _remember(ui, "file")
     if _button(ui, "save PLY"):
         try:
-            editor.save_ply(editor.save_path)
+            editor.saving.save_ply(editor.saving.path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line
             editor.status.text = f"save failed: {exc}"

@@ -150,7 +150,7 @@ def test_save_ply_and_f12_never_overwrite_and_name_the_file(xvfb, tmp_path):
         second = Path(viewer.status.split(" to ", 1)[1])
         assert second != first and second.is_file(), viewer.status
         assert len(read_ply(first)) == cropped and len(read_ply(second)) == total
-        assert Path(viewer.editor.save_path) not in (first, second)   # the field shows the next name
+        assert Path(viewer.editor.saving.path) not in (first, second)   # the field shows the next name
         press_key(viewer, glfw.KEY_F12)
         one = Path(viewer.status.split(" to ", 1)[1])
         press_key(viewer, glfw.KEY_F12)

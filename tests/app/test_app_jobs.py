@@ -316,7 +316,7 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
         viewer.view.edit.select(np.arange(viewer.view.edit.count) % 2 == 0)
         viewer.editor.delete_selection()
         shown = viewer.view.edit.visible_arrays()["means"]
-        saved = viewer.editor.save_ply(source.work_dir / "edited.ply")
+        saved = viewer.editor.saving.save_ply(source.work_dir / "edited.ply")
     with opened(Viewer, open_source(demo_scene), 320, 240) as reopened:
         assert reopened.view.source.model_path == saved and "edited.ply" in reopened.title
         assert reopened.jobs.run_dir is None and "edited.ply" in reopened.status

@@ -84,7 +84,7 @@ def test_jobs_and_saves_go_where_the_command_line_writes(xvfb, demo_scene, tmp_p
         press_key(viewer, glfw.KEY_F12)
         shots = list((tmp_path / "runs" / f"{demo_scene.name}_saved").glob("view-*.png"))
         assert len(shots) == 1 and str(shots[0]) in viewer.status
-        assert Path(viewer.editor.save_path).parent == tmp_path / "runs" / f"{demo_scene.name}_saved"
+        assert Path(viewer.editor.saving.path).parent == tmp_path / "runs" / f"{demo_scene.name}_saved"
         # The panel says where the next run goes, in full; a folder typed there takes it.
         viewer.step()
         assert "new run goes to" in viewer.ui.rects

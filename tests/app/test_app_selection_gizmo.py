@@ -179,7 +179,7 @@ def test_gizmo_moves_turns_and_scales_exactly_the_selection(xvfb, tmp_path):
         np.testing.assert_array_equal(edit.base["means"][~chosen], original["means"][~chosen])
 
         # saving writes the scaled Gaussians; undo then restores the bytes, redo brings them back
-        saved = read_ply(viewer.editor.save_ply(tmp_path / "moved.ply")).numpy()
+        saved = read_ply(viewer.editor.saving.save_ply(tmp_path / "moved.ply")).numpy()
         for key in ("means", "log_scales", "quats"):
             np.testing.assert_allclose(saved[key], edit.base[key], atol=1e-6)
         scaled = edit.base["means"].copy()

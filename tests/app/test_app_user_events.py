@@ -303,7 +303,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         type_into(viewer, "file", str(out))
         click_widget(viewer, "save PLY")
         rects = viewer.ui.rects
-        assert out.is_file(), (viewer.status, viewer.editor.save_path, rects["file"], rects["save PLY"])
+        assert out.is_file(), (viewer.status, viewer.editor.saving.path, rects["file"], rects["save PLY"])
         saved = read_ply(out)
         assert len(saved) == viewer.view.edit.count, viewer.status
         np.testing.assert_allclose(saved.numpy()["means"], kept, atol=1e-6)
