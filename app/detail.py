@@ -336,3 +336,12 @@ class DetailWorker:
             self._serial += 1
             self._cut = Cut(self._serial, packed, len(nodes), hierarchy.leaf_count, settled,
                             camera_key(camera), None if settled else budget)
+
+
+def detail_state(worker: "DetailWorker | None") -> tuple:
+    """What of the LOD ``worker`` can change the picture with no event (its tree ready, its
+    progress, its newest cut, its error; () without one): a frame compares it with what the last
+    frame saw."""
+    if worker is None:
+        return ()
+    return (worker.ready, round(worker.progress, 2), worker.cut_serial, worker.error)

@@ -12,15 +12,16 @@ import time
 import moderngl
 import numpy as np
 
-from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
+from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
 from . import detail as level_of_detail
-from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
+from .detail import (BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, detail_state, next_budget,
+                     preview_arrays)
 from .editing import box_handles
 from .block_cells import CELL_COLOR
-from .frustums import away_from, drawn_training_frustums, segments_for_cameras
+from .frustums import TrainingFrustums, away_from, segments_for_cameras
 from .gizmo import gizmo_handles, gizmo_segments
 from .images import compose_photo, visualize
 from .navigation import nearest_camera_index
@@ -128,12 +129,11 @@ class FrameDrawer:
         self.last_render_key = None
         self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
         self.render_costs: dict[float, float] = {}  # scale -> running mean ms (add_render_cost)
-        self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
-        self._frustums: tuple[list[int], float] = ([], 1.0)
+        self.training_frustums = TrainingFrustums()  # which training cameras the overlays draw
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
         self.detail: DetailWorker | None = None  # made when a large model is first shown (detail.py)
         self.detail_budget = BUDGET_START
-        self.detail_seen: tuple = ()  # detail_state() when a frame last looked at the worker
+        self.detail_seen: tuple = ()  # detail.detail_state when a frame last looked at the worker
         self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
         self._detail_requested_at = -1e9  # perf_counter() of that request
         self._detail_model = None  # the model last handed to the worker
@@ -178,7 +178,7 @@ class FrameDrawer:
         model = (view.model_version, view.edit.version)
         if self.detail is None:
             self.detail = DetailWorker()
-        self.detail_seen = self.detail_state()
+        self.detail_seen = detail_state(self.detail)
         if self._model_age < MODEL_STILL_SECONDS:
             # A job's snapshots come faster than a tree builds: a fixed subset of the newest one
             # is drawn, the tree is built once the model rests.
@@ -242,14 +242,7 @@ class FrameDrawer:
     def detail_busy(self) -> bool:
         """The LOD worker is building or cutting, or made something no frame has drawn yet: a
         frame will follow without an event."""
-        return self.detail is not None and (self.detail.busy or self.detail_state() != self.detail_seen)
-
-    def detail_state(self) -> tuple:
-        """What of the LOD worker can change the picture with no event (detail_busy compares it
-        with what the last frame saw)."""
-        if self.detail is None:
-            return ()
-        return (self.detail.ready, round(self.detail.progress, 2), self.detail.cut_serial, self.detail.error)
+        return self.detail is not None and (self.detail.busy or detail_state(self.detail) != self.detail_seen)
 
     def depth_of(self, camera) -> np.ndarray:
         """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
@@ -390,7 +383,7 @@ class FrameDrawer:
         settings, edit, flags = view.settings, view.edit, flag_book.items
         camera = view.current_camera()
         screen.use()
-        drawn, depth = self.training_frustums(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
+        drawn, depth = self.training_frustums.for_cameras(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
         training = [drawn[i] for i in away_from([view.cameras[i] for i in drawn], camera.center,
                                                 FLAG_HIDE_DISTANCE * depth)]
         if settings.show_training_cameras and training:
@@ -421,16 +414,6 @@ class FrameDrawer:
         if gizmo is not None:
             self.overlay.draw_segments(camera, gizmo_segments(*gizmo), GIZMO_COLORS)
             self.overlay.draw_points(camera, gizmo_handles(*gizmo), GIZMO_COLORS, size=GIZMO_HANDLE_SIZE)
-
-    def training_frustums(self, cameras: list, poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
-        """frustums.drawn_training_frustums for ``cameras``, the poorly fit photos kept; computed
-        once per camera list and poorly-fit set."""
-        key = (id(cameras), len(cameras), tuple(sorted(poorly_fit)), fallback_depth if len(cameras) < 2 else None)
-        if self._frustums_key != key:
-            keep = {i for i, c in enumerate(cameras) if c.name in poorly_fit}
-            self._frustums = drawn_training_frustums(cameras, fallback_depth, keep)
-            self._frustums_key = key
-        return self._frustums
 
     def close(self) -> None:
         """Stop the reference and LOD workers (no GL calls: safe without a current context)."""
