@@ -78,7 +78,7 @@ def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):
 @dataclass
 class JobRequest:
     """A job asked for and not yet confirmed: the panel shows ``question`` with "start the job" /
-    "do not start" (panels._job_question) and nothing runs before the first is pressed (a
+    "do not start" (panels.draw_job_question) and nothing runs before the first is pressed (a
     mis-click never starts minutes of work). ``job``: built when asked (what could not be built
     was said at once); ``out_dir``: where it writes; ``message``: the status once it starts."""
 
