@@ -3,6 +3,7 @@ coverage mode as outlines on the ground: which block owns which part of the scen
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +62,25 @@ def _bounded(side: float, low: float, high: float) -> float:
     if abs(side) < UNBOUNDED:
         return float(side)
     return float(low if side < 0 else high)
+
+
+@dataclass
+class BlockCellOutlines:
+    """The open run's cell outlines, read once per source and model (the coverage mode draws
+    them every frame): ``key`` (id of the source, model version) they were made for."""
+
+    key: tuple | None = None
+    segments: np.ndarray | None = None
+
+    def of_model(self, source, model_version: int, means: np.ndarray, up: np.ndarray, status) -> np.ndarray | None:
+        """The cells of ``source``'s run as ground outlines [4 * C, 2, 3] over the model shown
+        (``means`` [N, 3], world ``up`` [3]), None when it was not trained in blocks; a plan that
+        cannot be read is said in ``status``."""
+        key = (id(source), model_version)
+        if self.key != key:
+            plan, problem = read_block_plan(getattr(source, "run_dir", None))
+            if problem:
+                status.text = problem
+            self.segments = None if plan is None else cell_outline_segments(plan, means, up)
+            self.key = key
+        return self.segments

@@ -12,17 +12,19 @@ import time
 import moderngl
 import numpy as np
 
-from inceptiongs.constants import SH_C0, SH_OFFSET, sh_degree_from_count
+from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
 from .coverage_mode import CoverageMode
 from . import detail as level_of_detail
-from .detail import BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, next_budget, preview_arrays
+from .detail import (BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, detail_state, next_budget,
+                     preview_arrays)
 from .editing import box_handles
 from .block_cells import CELL_COLOR
-from .frustums import away_from, drawn_training_frustums, segments_for_cameras
+from .frustums import TrainingFrustums, away_from, segments_for_cameras
 from .gizmo import gizmo_handles, gizmo_segments
 from .images import compose_photo, visualize
+from .navigation import nearest_camera_index
 from .overlay import OverlayRenderer, SceneTexture
 from .points import point_colours, render_points
 from .reference import ReferenceWorker, error_heatmap, side_by_side
@@ -127,12 +129,11 @@ class FrameDrawer:
         self.last_render_key = None
         self.moving_scale = MOVING_RENDER_SCALE  # the next moving render's (next_moving_scale)
         self.render_costs: dict[float, float] = {}  # scale -> running mean ms (add_render_cost)
-        self._frustums_key = None  # (the cameras, the poorly fit) training_frustums last chose for
-        self._frustums: tuple[list[int], float] = ([], 1.0)
+        self.training_frustums = TrainingFrustums()  # which training cameras the overlays draw
         self.coverage = CoverageMode()  # counts computed when the coverage mode is first drawn
         self.detail: DetailWorker | None = None  # made when a large model is first shown (detail.py)
         self.detail_budget = BUDGET_START
-        self.detail_seen: tuple = ()  # detail_state() when a frame last looked at the worker
+        self.detail_seen: tuple = ()  # detail.detail_state when a frame last looked at the worker
         self._detail_requested = None  # the last cut asked for: (model, camera key, settled, budget)
         self._detail_requested_at = -1e9  # perf_counter() of that request
         self._detail_model = None  # the model last handed to the worker
@@ -177,7 +178,7 @@ class FrameDrawer:
         model = (view.model_version, view.edit.version)
         if self.detail is None:
             self.detail = DetailWorker()
-        self.detail_seen = self.detail_state()
+        self.detail_seen = detail_state(self.detail)
         if self._model_age < MODEL_STILL_SECONDS:
             # A job's snapshots come faster than a tree builds: a fixed subset of the newest one
             # is drawn, the tree is built once the model rests.
@@ -192,7 +193,7 @@ class FrameDrawer:
             self._upload_preview(view, model)
             return "preview"
         if self.detail.version == model:
-            view.share_tree_leaves(self.detail.hierarchy)
+            level_of_detail.share_tree_leaves(view, self.detail.hierarchy)
         key = camera_key(camera)
         wanted = (model, key, not moving, 0 if not moving else self.detail_budget)
         cut = self.detail.latest(model)
@@ -241,14 +242,7 @@ class FrameDrawer:
     def detail_busy(self) -> bool:
         """The LOD worker is building or cutting, or made something no frame has drawn yet: a
         frame will follow without an event."""
-        return self.detail is not None and (self.detail.busy or self.detail_state() != self.detail_seen)
-
-    def detail_state(self) -> tuple:
-        """What of the LOD worker can change the picture with no event (detail_busy compares it
-        with what the last frame saw)."""
-        if self.detail is None:
-            return ()
-        return (self.detail.ready, round(self.detail.progress, 2), self.detail.cut_serial, self.detail.error)
+        return self.detail is not None and (self.detail.busy or detail_state(self.detail) != self.detail_seen)
 
     def depth_of(self, camera) -> np.ndarray:
         """The uploaded model's camera depth [h, w] at ``camera`` (0 = no surface)."""
@@ -260,7 +254,7 @@ class FrameDrawer:
         now = time.perf_counter()
         moving = (now - view.last_motion < STILL_SECONDS
                   or now - model_changed_at < MODEL_STILL_SECONDS)
-        self.still_frame_owed = moving   # the frame after the motion stops refines (Viewer.is_idle)
+        self.still_frame_owed = moving   # the frame after the motion stops refines (pacing.is_idle)
         points = view.shows_points and view.settings.mode != "reference"
         scale = self.moving_scale if moving and not points else 1.0  # points are cheap at any size
         detail = self.detail_engaged(view, now - model_changed_at)
@@ -276,11 +270,11 @@ class FrameDrawer:
         else:
             self.upload_model(view)
         camera = view.current_camera(scale)
-        photo_index = view.nearest_camera_index(camera) if settings.photo != "off" and mode == "rgb" else None
+        photo_index = nearest_camera_index(view.cameras, camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,
                camera.world_to_camera.tobytes(), camera.fy, self.uploaded_version, settings.sh_degree_cap,
                settings.splat_scale, tuple(settings.background), settings.photo, settings.photo_alpha, photo_index)
-        photo = view.training_photo(photo_index) if photo_index is not None else None
+        photo = view.photos.photo_of(view.source.scene, photo_index, view.status) if photo_index is not None else None
         if mode == "reference":
             self.draw_reference(view)
         elif key != self.last_render_key:
@@ -389,7 +383,7 @@ class FrameDrawer:
         settings, edit, flags = view.settings, view.edit, flag_book.items
         camera = view.current_camera()
         screen.use()
-        drawn, depth = self.training_frustums(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
+        drawn, depth = self.training_frustums.for_cameras(view.cameras, poorly_fit, max(view.nav.speed * 0.1, 1e-3))
         training = [drawn[i] for i in away_from([view.cameras[i] for i in drawn], camera.center,
                                                 FLAG_HIDE_DISTANCE * depth)]
         if settings.show_training_cameras and training:
@@ -406,7 +400,8 @@ class FrameDrawer:
                 slot = shown.index(flag_book.selected)
                 colors[8 * slot: 8 * slot + 8] = SELECTED_FLAG_COLOR
             self.overlay.draw_segments(camera, segments, colors)
-        cells = view.block_cell_segments() if settings.mode == "coverage" else None
+        cells = (view.block_cells.of_model(view.source, view.model_version, view.edit.base["means"], view.up, view.status)
+                 if settings.mode == "coverage" else None)
         if cells is not None and len(cells):
             self.overlay.draw_segments(camera, cells, np.tile(CELL_COLOR, (len(cells), 1)))
         if settings.crop_enabled:
@@ -419,16 +414,6 @@ class FrameDrawer:
         if gizmo is not None:
             self.overlay.draw_segments(camera, gizmo_segments(*gizmo), GIZMO_COLORS)
             self.overlay.draw_points(camera, gizmo_handles(*gizmo), GIZMO_COLORS, size=GIZMO_HANDLE_SIZE)
-
-    def training_frustums(self, cameras: list, poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
-        """frustums.drawn_training_frustums for ``cameras``, the poorly fit photos kept; computed
-        once per camera list and poorly-fit set."""
-        key = (id(cameras), len(cameras), tuple(sorted(poorly_fit)), fallback_depth if len(cameras) < 2 else None)
-        if self._frustums_key != key:
-            keep = {i for i, c in enumerate(cameras) if c.name in poorly_fit}
-            self._frustums = drawn_training_frustums(cameras, fallback_depth, keep)
-            self._frustums_key = key
-        return self._frustums
 
     def close(self) -> None:
         """Stop the reference and LOD workers (no GL calls: safe without a current context)."""

@@ -8,18 +8,14 @@ Edits never touch the loaded arrays: an :class:`EditState` keeps a boolean ``ali
 
 from __future__ import annotations
 
-import json
-
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from inceptiongs.camera import Camera
-from inceptiongs.errors import InputError
 from inceptiongs.constants import NEAR_PLANE, OPACITY_LOGIT_ABS_MAX, LOG_SCALE_MAX, LOG_SCALE_MIN
 
-from .runs import fresh_file, saved_dir
+from .saving import EditSaver
 
 # A crop-box handle is grabbed within this many pixels of the cursor.
 CROP_HANDLE_PIXELS = 12.0
@@ -298,17 +294,20 @@ class EditState:
         return {key: value[self.alive] for key, value in self.base.items()}
 
 
+def edit_state_line(verb: str, edit: EditState) -> str:
+    """"undone; 1200 Gaussians shown, 3 selected": what ``edit`` shows after ``verb``."""
+    return f"{verb}; {edit.count} Gaussians shown, {int(edit.selected.sum())} selected"
+
+
 class Editor:
     """Selection, deletion, crop box and saving on the model a view.View shows (its EditState
     ``view.edit``; the tool, selection mode and crop box are in ``view.settings``). Positions
-    are window pixels, as the mouse gives them. ``status``: the status line."""
+    are window pixels, as the mouse gives them. ``status``: the status line; ``saving``: the
+    "file" field and "save PLY" (saving.EditSaver)."""
 
     def __init__(self, view, status) -> None:
         self.view, self.status = view, status
-        # The Edit panel's "file" field: a new file in the visible NAME_saved folder beside the
-        # runs; after each save the next free name of the same series (edited.ply, edited_2.ply ...).
-        self.save_series = saved_dir(view.source, getattr(view.source, "runs_dir", None)) / "edited.ply"
-        self.save_path = self.offered_path = str(fresh_file(self.save_series))
+        self.saving = EditSaver(view, status)
 
     def projected_means(self):
         return project_means(self.view.edit.base["means"], self.view.current_camera())
@@ -319,7 +318,7 @@ class Editor:
         pixels and a Gaussian behind that surface is left out."""
         view = self.view
         pixels, depth = self.projected_means()
-        a, b = view.window_to_framebuffer(*corner_a), view.window_to_framebuffer(*corner_b)
+        a, b = view.pixels.to_framebuffer(*corner_a), view.pixels.to_framebuffer(*corner_b)
         if not visible_only:
             view.edit.select(select_rectangle(pixels, a, b), view.settings.selection_mode)
             return
@@ -339,14 +338,14 @@ class Editor:
     def lasso_select(self, points) -> None:
         """points: the lasso's window positions [(x, y), ...] (closed implicitly)."""
         pixels, _ = self.projected_means()
-        polygon = np.array([self.view.window_to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
+        polygon = np.array([self.view.pixels.to_framebuffer(x, y) for x, y in points]).reshape(-1, 2)
         self.view.edit.select(select_lasso(pixels, polygon), self.view.settings.selection_mode)
 
     def brush_select(self, x: float, y: float, stroke_start: bool = True) -> None:
         """One dab of the brush; a drag's later dabs join its first one's undo step."""
         settings = self.view.settings
         pixels, _ = self.projected_means()
-        center = self.view.window_to_framebuffer(x, y)
+        center = self.view.pixels.to_framebuffer(x, y)
         mode = "add" if settings.selection_mode == "replace" else settings.selection_mode
         self.view.edit.select(select_brush(pixels, center, settings.brush_radius), mode, record=stroke_start)
 
@@ -364,19 +363,15 @@ class Editor:
         """Undo the last edit; the status then says what is shown (a "deleted; N left" kept
         after the undo would name a state that is gone)."""
         if self.view.edit.undo():
-            self.say_edit_state(self._edit_state("undone"))
+            self.say_edit_state(edit_state_line("undone", self.view.edit))
         else:
             self.status.text = "nothing to undo"
 
     def redo(self) -> None:
         if self.view.edit.redo():
-            self.say_edit_state(self._edit_state("redone"))
+            self.say_edit_state(edit_state_line("redone", self.view.edit))
         else:
             self.status.text = "nothing to redo"
-
-    def _edit_state(self, verb: str) -> str:
-        edit = self.view.edit
-        return f"{verb}; {edit.count} Gaussians shown, {int(edit.selected.sum())} selected"
 
     def say_edit_state(self, text: str) -> None:
         """A message about the edit state (counts shown, selected): it goes once the model or
@@ -411,7 +406,7 @@ class Editor:
         if not settings.crop_enabled:
             return None
         pixels, _ = project_means(box_handles(settings.crop_min, settings.crop_max), self.view.current_camera())
-        distance = np.hypot(*(pixels - np.array(self.view.window_to_framebuffer(x, y))).T)
+        distance = np.hypot(*(pixels - np.array(self.view.pixels.to_framebuffer(x, y))).T)
         distance = np.where(np.isnan(distance), np.inf, distance)
         best = int(np.argmin(distance))
         return best if distance[best] <= CROP_HANDLE_PIXELS else None
@@ -428,7 +423,7 @@ class Editor:
         length2 = float(screen_axis @ screen_axis)
         if not np.isfinite(length2) or length2 < 1e-9:
             return  # the axis points at the eye: no screen direction to drag along
-        motion = np.subtract(view.window_to_framebuffer(*end), view.window_to_framebuffer(*start))
+        motion = np.subtract(view.pixels.to_framebuffer(*end), view.pixels.to_framebuffer(*start))
         settings.crop_min, settings.crop_max = drag_box_face(
             settings.crop_min, settings.crop_max, handle, float(motion @ screen_axis) / length2)
 
@@ -436,48 +431,3 @@ class Editor:
         settings = self.view.settings
         if self.view.edit.crop(np.array(settings.crop_min), np.array(settings.crop_max)):
             self.say_edit_state(f"cropped; {self.view.edit.count} Gaussians left")
-
-    # --- saving --------------------------------------------------------------------------------
-    def _save_view(self, model: Path) -> None:
-        """sources.saved_view_file(model): the up and the camera the edit is seen with, in the
-        model file's frame, so the file reopens level and here (its shape alone may say another
-        up: the courtyard's edit reopened 32 degrees tilted, seen from below)."""
-        from inceptiongs.io.atomic import atomic_write_text  # noqa: PLC0415
-
-        from .sources import saved_view_file  # noqa: PLC0415
-
-        camera = self.view.current_camera()
-        scene = self.view.source.scene
-        if scene is not None:   # the normalisation is a shift and a scale: the up is unchanged
-            camera = scene.normalization.camera_to_original(camera)
-        data = {"up": [float(v) for v in self.view.up], "camera": camera.to_json_dict()}
-        atomic_write_text(saved_view_file(model), json.dumps(data, indent=1))
-
-    def save_ply(self, path: str | Path) -> Path:
-        """Write the shown Gaussians (atomic) to ``path``, or to the first free name after it
-        when it exists (runs.fresh_file: a save never replaces one); the "file" field then
-        offers the next free name. Models of a scene are stored in the scene's original frame,
-        like the trainer's model.ply. -> the file written."""
-        from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 (torch only when saving)
-        from inceptiongs.io.ply import write_ply  # noqa: PLC0415
-
-        source = self.view.source
-        scene = source.scene
-        typed = Path(path).expanduser()
-        # A save never replaces a file: the first free name of the series (name_2.ply ...).
-        path = fresh_file(typed)
-        if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
-            raise InputError(f"{path}: inside the scene folder {scene.root}, which is input and never written; "
-                             f"save elsewhere (the default is {saved_dir(source, getattr(source, 'runs_dir', None))})")
-        gaussians = Gaussians.from_numpy(self.view.edit.visible_arrays())
-        if scene is not None:  # everything shown for a scene or run is in its normalised frame
-            gaussians = scene.normalization.gaussians_to_original(gaussians)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_ply(gaussians, path)
-        self._save_view(path)
-        if str(typed) != self.offered_path:   # a name the user typed starts a series of its own
-            self.save_series = typed
-        self.save_path = self.offered_path = str(fresh_file(self.save_series))
-        kept = f" ({typed.name} exists: kept)" if path != typed else ""
-        self.status.text = f"saved {len(gaussians)} Gaussians to {path}{kept}"
-        return Path(path)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from inceptiongs.camera import Camera
@@ -83,3 +85,22 @@ def drawn_training_frustums(cameras: list[Camera], fallback_depth: float,
     indices = sorted(set(spread_subset(centers, MAX_DRAWN_FRUSTUMS)) | set(keep))
     spacing = nearest_spacing(centers[indices])
     return indices, fallback_depth if spacing is None else FRUSTUM_SPACING_FRACTION * spacing
+
+
+@dataclass
+class TrainingFrustums:
+    """drawn_training_frustums, chosen once per camera list and poorly fit set: the overlays are
+    drawn every frame, the thinning runs over all the cameras. ``key``: what ``chosen`` was made for."""
+
+    key: tuple | None = None
+    chosen: tuple[list[int], float] = field(default_factory=lambda: ([], 1.0))
+
+    def for_cameras(self, cameras: list[Camera], poorly_fit, fallback_depth: float) -> tuple[list[int], float]:
+        """(indices to draw, frustum depth) for ``cameras``, those whose photo is among
+        ``poorly_fit`` (image names) always drawn."""
+        key = (id(cameras), len(cameras), tuple(sorted(poorly_fit)), fallback_depth if len(cameras) < 2 else None)
+        if self.key != key:
+            keep = {i for i, c in enumerate(cameras) if c.name in poorly_fit}
+            self.chosen = drawn_training_frustums(cameras, fallback_depth, keep)
+            self.key = key
+        return self.chosen

@@ -24,13 +24,23 @@ DOUBLE_CLICK_PIXELS = 4.0
 LASSO_STEP_PIXELS = 3.0
 
 
+def grab_depth(view, x: float, y: float) -> float:
+    """The camera depth a pan started at window position (x, y) of ``view`` (view.View) keeps
+    under the cursor: the surface there, else the pivot's depth, else the fly speed (a step ahead)."""
+    px, py = view.pixels.to_framebuffer(x, y)
+    depth = view.renderer.pick_depth(view.current_camera(), int(px), int(py))
+    if depth is None:
+        depth = view.nav.pivot_depth()
+    return depth if depth > 1e-6 else view.nav.speed
+
+
 class InputController:
     """GLFW callbacks for one viewer."""
 
     def __init__(self, viewer) -> None:
         self.viewer = viewer
         self.keys_down: set[int] = set()
-        self.last_event = -1e9  # perf_counter() of the last input event (Viewer.is_idle)
+        self.last_event = -1e9  # perf_counter() of the last input event (pacing.is_idle)
         self.drag_start = None
         self.last_cursor = None
         self.last_click = (-1e9, 0.0, 0.0)
@@ -53,7 +63,7 @@ class InputController:
         glfw.set_cursor_enter_callback(window, lambda _window, _entered: self.note_event())
 
     def note_event(self) -> None:
-        """Something the next frame must show arrived (Viewer.wait_for_next_frame draws it)."""
+        """Something the next frame must show arrived (pacing.wait_for_next_frame draws it)."""
         self.last_event = time.perf_counter()
 
     def on_key(self, window, key, scancode, action, mods) -> None:
@@ -197,7 +207,7 @@ class InputController:
         self.dragging_button = button
         self.drag_start = (x, y)
         if button == glfw.MOUSE_BUTTON_MIDDLE:
-            self.pan_depth = view.grab_depth(x, y)  # the grabbed point stays under the cursor
+            self.pan_depth = grab_depth(view, x, y)  # the grabbed point stays under the cursor
         if button == glfw.MOUSE_BUTTON_LEFT:
             self.crop_handle = editor.crop_handle_at(x, y)  # a handle wins over tools and looking
             if self.crop_handle is not None:

@@ -55,7 +55,7 @@ class SelectionMover:
         if placed is None:
             return None
         pixels, _ = project_means(gizmo_handles(*placed), self.view.current_camera())
-        distance = np.hypot(*(pixels - np.array(self.view.window_to_framebuffer(x, y))).T)
+        distance = np.hypot(*(pixels - np.array(self.view.pixels.to_framebuffer(x, y))).T)
         distance = np.where(np.isnan(distance), np.inf, distance)
         best = int(np.argmin(distance))
         return best if distance[best] <= CROP_HANDLE_PIXELS else None
@@ -75,7 +75,7 @@ class SelectionMover:
         tip = drag.pivot + drag.length * np.eye(3)[drag.axis]
         pixels, _ = project_means(np.stack([drag.pivot, tip]), camera)
         screen_axis = (pixels[1] - pixels[0]) / drag.length  # pixels per scene unit along the axis
-        motion = np.subtract(view.window_to_framebuffer(x, y), view.window_to_framebuffer(*drag.start))
+        motion = np.subtract(view.pixels.to_framebuffer(x, y), view.pixels.to_framebuffer(*drag.start))
         amount = drag_amount(screen_axis, motion)
         values = transform_rows(drag.before, np.arange(len(drag.rows)), view.settings.gizmo_mode, drag.axis,
                                 amount, drag.pivot, drag.length)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from inceptiongs.camera import Camera, look_at
+from inceptiongs.camera import Camera, look_at, pose_distance
 
 # Pitch stops this far (radians) short of looking straight along +-up: beyond it yaw about
 # `up` and pitch about the camera's x axis become the same rotation and the view would flip.
@@ -403,3 +403,43 @@ def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 
     pose = look_at(eye, center_of_interest, up)
     return NavigationState(eye, pose[:3, :3], up / np.linalg.norm(up), center_of_interest,
                            fov_y_deg, speed=max(extent * 0.3, 1e-3))
+
+
+def opening_view(cameras: list[Camera], means: np.ndarray, up: np.ndarray, width: int, height: int,
+                 covered_left: float = 0.0, saved: Camera | None = None) -> NavigationState:
+    """Where a window of ``width`` x ``height`` framebuffer pixels (``covered_left`` of them hidden
+    by the panel) opens on ``means`` [N, 3]: with ``cameras`` around the scene, framed on what they
+    look at as Home frames it, seen from the first camera's heading (a capture's first camera may
+    face away from the scene: bonsai's showed a black window); with cameras that all face one way
+    (forward_facing: fern), or without a model yet, at the first camera, which looks at the scene
+    as they all do; without cameras, at ``saved`` (the camera a saved edit was seen from), else
+    default_view."""
+    if cameras:
+        first = cameras[0]
+        centers = np.stack([c.center for c in cameras])
+        spread = float(np.linalg.norm(centers.max(0) - centers.min(0))) if len(centers) > 1 else 1.0
+        nav = NavigationState.from_camera(first, up=up, speed=max(spread * 0.5, 1e-3))
+        if len(means) == 0 or forward_facing(cameras):
+            return nav
+        return framed(nav, means, width, height, covered_left, cameras)
+    if saved is not None:   # a saved edit reopens where it was seen when saved
+        pivot = saved.center + saved.rotation[2] * _saved_pivot_distance(saved.center, means)
+        return NavigationState.from_camera(saved, up=up, speed=default_view(means, width, height).speed, pivot=pivot)
+    return default_view(means, width, height, up=up)
+
+
+def _saved_pivot_distance(center: np.ndarray, means: np.ndarray) -> float:
+    """How far ahead of a saved camera its orbit centre lies: the distance to the model's median
+    (centre [3], means [N, 3]); 1 without a model. Floored so the pivot is never at the eye."""
+    if len(means) == 0:
+        return 1.0
+    return max(float(np.linalg.norm(np.median(statistics_sample(means), axis=0) - center)), 1e-3)
+
+
+def nearest_camera_index(cameras: list[Camera], camera: Camera) -> int | None:
+    """The index of the camera in ``cameras`` closest to ``camera`` (centre distance + viewing
+    angle: camera.pose_distance), or None without cameras."""
+    if not cameras:
+        return None
+    distances = [pose_distance(camera.world_to_camera, c.world_to_camera) for c in cameras]
+    return int(np.argmin(distances))

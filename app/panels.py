@@ -13,13 +13,15 @@ from imgui_bundle import imgui
 from . import detail as level_of_detail
 from .drawing import POORLY_FIT_COLOR, SELECTION_COLOR
 from .gizmo import GIZMO_MODES
-from .jobs import SIZED_TO_BUDGET
+from .job_requests import why_no_training
+from .job_settings import SIZED_TO_BUDGET
 from .notifications import draw_notification
 from .plots import draw_plots
 from .textfit import middle_ellipsis
 from .verdict import draw_verdict, outlook_before_repair
-from .navigation import UP_AXES, up_axis_name, up_label
+from .navigation import UP_AXES, nearest_camera_index, up_axis_name, up_label
 from .progress import eta_seconds, format_duration
+from .run_list import choose_runs_folder
 from .camera_path_panel import draw_camera_path
 from .capabilities import NO_CAMERAS, bootstrap_unavailable, mode_unavailable
 from .runs import can_resume, new_train_dir, resume_blocked_reason, runs_folder
@@ -61,7 +63,7 @@ def draw_tool_feedback(view, controls) -> None:
                       0.0, TOOL_LINE_WIDTH)
     elif tool == "brush":
         # The brush radius is in framebuffer pixels; the cursor in window pixels.
-        scale = view.window_to_framebuffer(1.0, 1.0)[0]
+        scale = view.pixels.to_framebuffer(1.0, 1.0)[0]
         draw.add_circle(imgui.ImVec2(*cursor), view.settings.brush_radius / max(scale, 1e-6), color, 0,
                         TOOL_LINE_WIDTH)
     elif tool == "lasso" and dragging and controls.lasso:
@@ -346,7 +348,7 @@ def _inspect(ui, view, drawing) -> bool:
         if changed:
             settings.photo = views[index]
         if settings.photo != "off":
-            nearest = view.nearest_camera_index(view.current_camera())
+            nearest = nearest_camera_index(view.cameras, view.current_camera())
             _hint(f"nearest training camera: {view.cameras[nearest].name}")
             if settings.photo == "blended":
                 _fit("photo weight")
@@ -417,7 +419,7 @@ def _training(ui, jobs) -> None:
     _poorly_fit(ui, jobs)
     if run is None or not run.alive:
         _job_settings(ui, jobs)
-        no_training = jobs.training_unavailable()
+        no_training = why_no_training(jobs.view.source, jobs.factory)
         _job_button(ui, jobs, "train (new run)", "training", no_training)
         blocked = resume_blocked_reason(jobs.run_dir)
         if can_resume(jobs.run_dir) or blocked is not None:
@@ -531,10 +533,11 @@ def poorly_fit_line(count: int) -> str:
 def _poorly_fit(ui, jobs) -> None:
     """The open run's training photos it fits poorly (view_fit.json): how many, and a button that
     steps through them (their frustums are drawn in POORLY_FIT_COLOR)."""
-    if not jobs.poorly_fit:
+    poorly_fit = jobs.poorly_fit.psnr
+    if not poorly_fit:
         return
-    worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(jobs.poorly_fit.items())[:3])
-    line = poorly_fit_line(len(jobs.poorly_fit))
+    worst = ", ".join(f"{name} {psnr:.1f} dB" for name, psnr in list(poorly_fit.items())[:3])
+    line = poorly_fit_line(len(poorly_fit))
     imgui.text_colored(imgui.ImVec4(*POORLY_FIT_COLOR, 1.0), line)
     _remember(ui, "poorly fit photos")
     ui.texts["poorly fit photos"] = line
@@ -543,13 +546,13 @@ def _poorly_fit(ui, jobs) -> None:
                           f"disagree with the others (moved objects, wrong poses, exposure changes) or show what "
                           f"no other photo sees. Worst: {worst}")
     if _button(ui, "next poorly fit photo"):
-        jobs.next_poorly_fit_photo()
+        jobs.poorly_fit.next_photo(jobs.view, jobs.status)
     settings = jobs.settings
-    leave_out = bool(settings.exclude_photos) and set(settings.exclude_photos) == set(jobs.poorly_fit)
+    leave_out = bool(settings.exclude_photos) and set(settings.exclude_photos) == set(poorly_fit)
     changed, leave_out = imgui.checkbox("leave them out of the next run", leave_out)
     _remember(ui, "leave them out of the next run")
     if changed:
-        settings.exclude_photos = list(jobs.poorly_fit) if leave_out else []
+        settings.exclude_photos = list(poorly_fit) if leave_out else []
 
 
 def _runs(ui, jobs) -> None:
@@ -563,13 +566,13 @@ def _runs(ui, jobs) -> None:
                                          imgui.InputTextFlags_.enter_returns_true)
         _remember(ui, "runs folder")
         if changed and text.strip():
-            jobs.choose_runs_folder(Path(text.strip()))
+            jobs.status.text = choose_runs_folder(source, Path(text.strip()))
         _hint(f"a new run goes to {new_train_dir(source.scene.root, source.runs_dir)}")
         _remember(ui, "new run goes to")
     runs = list(reversed(source.runs))  # newest first
     if not runs:
         return
-    names = [jobs.run_label(run) for run in runs]
+    names = [jobs.run_labels.label(run) for run in runs]
     current = runs.index(jobs.run_dir) if jobs.run_dir in runs else -1
     changed, index = _combo(ui, "runs of this scene", current, names)
     if changed and 0 <= index < len(runs) and runs[index] != jobs.run_dir:
@@ -751,10 +754,10 @@ def _edit(ui, editor) -> None:
         if _button(ui, "fit to the model"):
             editor.fit_crop_box()
     _fit("file")
-    _, editor.save_path = imgui.input_text("file", editor.save_path)
+    _, editor.saving.path = imgui.input_text("file", editor.saving.path)
     _remember(ui, "file")
     if _button(ui, "save PLY"):
         try:
-            editor.save_ply(editor.save_path)
+            editor.saving.save_ply(editor.saving.path)
         except Exception as exc:  # noqa: BLE001 - shown in the status line
             editor.status.text = f"save failed: {exc}"

@@ -128,3 +128,13 @@ def describe_model(source, run_dir: Path | None) -> str:
     if getattr(source, "sparse_points", False):
         return f"{source.path} (sparse points, no model yet)"
     return str(source.path)
+
+
+def window_title(source, run_dir: Path | None, training=None, out_dir: Path | None = None) -> str:
+    """The window's title: the model shown, the file or the job folder it comes from (``training``:
+    the live job, a live_training.LiveTraining, writing to ``out_dir``; None: no job yet)."""
+    if training is not None and out_dir is not None:
+        shown = f"{out_dir} ({training.state})"
+    else:
+        shown = describe_model(source, run_dir)
+    return f"InceptionGS — {shown}"

@@ -4,8 +4,8 @@ result and its same-time baseline by group, never a baseline of another length; 
 sentence says so, and the panel offers to run it) and each flagged view rendered from the
 stage-I model and from the result, side by side.
 
-Reading is the library's (read_verdict); the images are rendered by the viewer
-(Viewer.render_verdict) and drawn here with imgui."""
+Reading is the library's (read_verdict); the images are rendered with the viewer's renderer
+(render_verdict_images, once a frame when due) and drawn here with imgui."""
 
 from __future__ import annotations
 
@@ -181,6 +181,26 @@ def render_flag_images(renderer, before: dict, after: dict, views: list, setting
     befores = [render(camera) for _, camera in cameras]
     renderer.set_gaussians(after)
     return [FlagImages(name, image, render(camera)) for (name, camera), image in zip(cameras, befores)]
+
+
+def render_verdict_images(jobs, view, renderer, ctx) -> bool:
+    """The ended bootstrap's flagged views of ``jobs`` (jobs.Jobs: its verdict, what a live
+    bootstrap started from) rendered from the model it started from and from the result ``view``
+    (view.View) shows, as the verdict's images (their textures uploaded to ``ctx``). -> whether
+    ``renderer`` drew them: its model is then theirs, not the window's."""
+    jobs.verdict_images_due = False
+    verdict = jobs.verdict
+    if verdict is None:
+        return False
+    # A live bootstrap started from the model shown then; an opened result from its run's.
+    before = jobs.bootstrap_base if jobs.bootstrap_base is not None else stage1_model(verdict.stage1_run)
+    views = target_views(verdict.out_dir) or jobs.bootstrap_views
+    if before is None or not views:
+        return False
+    images = render_flag_images(renderer, before, view.edit.visible_arrays(), views, view.settings)
+    upload_textures(ctx, images)
+    verdict.images = images
+    return True
 
 
 def upload_textures(ctx, images: list[FlagImages]) -> None:

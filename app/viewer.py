@@ -5,8 +5,9 @@ The state is in a few objects, each changed by the panel and the input that edit
 :class:`view.View` (camera, render settings, the model shown), :class:`flags.FlagBook`,
 :class:`editing.Editor` (selection, crop box, saving) and :class:`jobs.Jobs` (the live job, the
 open run). One frame (:meth:`Viewer.step`): poll events -> move the camera -> take the newest
-training snapshot -> draw the splats (drawing.py) -> overlays -> panels (panels.py). Input
-arrives through :class:`input.InputController`, whose handlers are the window's GLFW callbacks."""
+training snapshot -> draw the splats (drawing.py) -> overlays -> panels (panels.py); whether a
+frame is drawn at all is pacing.py's. Input arrives through :class:`input.InputController`, whose
+handlers are the window's GLFW callbacks."""
 
 from __future__ import annotations
 
@@ -25,41 +26,36 @@ from inceptiongs.io.images import write_image
 from . import closing as closing_question
 from .camera_path import PathEditor
 from .closing import Closing
-from .drawing import MODEL_STILL_SECONDS, STILL_SECONDS, FrameDrawer
+from .drawing import FrameDrawer
 from .editing import Editor
 from .flags import FlagBook
 from .images import visualize
 from .input import InputController
 from .jobs import Jobs
 from .moving import SelectionMover
-from .runs import fresh_file, saved_dir
-from .settings import GL_MODE_NAMES, MAX_TRAINING_UTILISATION, FrameStats, PanelState, StatusLine
+from .pacing import shown_state, wait_for_next_frame
+from .runs import fresh_file, saved_dir, window_title
+from .settings import GL_MODE_NAMES, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
+from .verdict import render_verdict_images
 from .view import View
 from .window import create_imgui, create_window, destroy_imgui
-
-# run() sleeps in glfw.wait_events_timeout for up to this long when nothing is changing
-# (no motion, no refine pending, no running job, no reference image awaited). Any event (input,
-# an expose, a resize) ends the wait at once and a frame follows; a wait that times out draws a
-# frame only when what the panels show changed meanwhile (Viewer.shown_state): an idle window,
-# a paused, stopped or finished job included, draws no frames at all.
-IDLE_WAIT_SECONDS = 1.0
-# After any input event the viewer draws frames for this long before it may sleep: imgui shows
-# some answers a frame or two later (the help window, sized on its first frame, appears on the
-# next; an opened combo; a hover), which an idle wait of up to IDLE_WAIT_SECONDS held back.
-UI_SETTLE_SECONDS = 0.25
-# While a job runs the viewer waits at most this long between frames (its snapshots show).
-MAX_TRAINING_WAIT_SECONDS = 0.5
-# While the level-of-detail thread works and the camera is still, the loop looks this often
-# whether its cut arrived (the settled frame follows it at once).
-DETAIL_WAIT_SECONDS = 0.02
-
 
 def read_framebuffer(screen: moderngl.Framebuffer, width: int, height: int) -> np.ndarray:
     """The window's back buffer before the swap -> [H, W, 3] float in [0, 1], row 0 = top."""
     data = screen.read(viewport=(0, 0, width, height), components=3, alignment=1)
     image = np.frombuffer(data, np.uint8).reshape(height, width, 3)[::-1]
     return image.astype(np.float32) / 255.0
+
+
+def panel_guess(with_ui: bool, width: int) -> float:
+    """The window pixels the panel will cover at the left of a window ``width`` wide before it is
+    first drawn (its default width; none without a UI), so the first view frames the scene beside it."""
+    if not with_ui:
+        return 0.0
+    from .panels import PANEL_MARGIN, PANEL_WIDTH  # noqa: PLC0415 (imgui only with a UI)
+
+    return float(min(PANEL_WIDTH + PANEL_MARGIN, 0.6 * width))
 
 
 class Viewer:
@@ -79,7 +75,7 @@ class Viewer:
         self.drawing = FrameDrawer(self.ctx, self.renderer)
         self.stats = FrameStats()
         self.status_line = StatusLine("; ".join(source.notes))
-        self.view = View(source, self.window, self.renderer, self.status_line, self.panel_guess(with_ui, width))
+        self.view = View(source, self.window, self.renderer, self.status_line, panel_guess(with_ui, width))
         # The user's flags are their work: beside the runs (./runs/NAME_saved), not in the cache.
         self.flags = FlagBook(saved_dir(source, source.runs_dir) / flag_io.FLAGS_FILE_NAME, self.view,
                               self.status_line, earlier=flag_io.flags_path(source.work_dir))
@@ -91,25 +87,16 @@ class Viewer:
         self.ui = PanelState()
         self.closing = Closing()  # the close button / a stop signal with a job alive (closing.py)
         self.last_gl_error: str | None = None
+        self.title_state: str | None = None  # the job state the window title names
         self.capture_requested = False  # step() keeps the whole window's pixels (UI included)
         self.captured: np.ndarray | None = None
         self._last_frame_time = time.perf_counter()
-        self._drawn_state: tuple | None = None  # shown_state() when the last frame was drawn
+        self.drawn_state: tuple | None = None  # pacing.shown_state when the last frame was drawn
         self.imgui_impl = imgui_impl if imgui_impl is not None else (create_imgui(self.window) if with_ui else None)
         self.points_worker = PointsWorker(source.scene.root) if source.points_pending else None
         self.input = InputController(self)
         self.input.install(self.window)
         self.update_title()
-
-    @staticmethod
-    def panel_guess(with_ui: bool, width: int) -> float:
-        """The window pixels the panel will cover at the left before it is first drawn (its
-        default width; none without a UI), so the first view frames the scene beside it."""
-        if not with_ui:
-            return 0.0
-        from .panels import PANEL_MARGIN, PANEL_WIDTH  # noqa: PLC0415 (imgui only with a UI)
-
-        return float(min(PANEL_WIDTH + PANEL_MARGIN, 0.6 * width))
 
     @property
     def status(self) -> str:
@@ -122,7 +109,9 @@ class Viewer:
 
     def update_title(self) -> None:
         """The window names the model shown: the file, or the job folder it comes from."""
-        self.title = self.jobs.window_title()
+        jobs = self.jobs
+        self.title = window_title(self.view.source, jobs.run_dir, jobs.training, jobs.out_dir)
+        self.title_state = None if jobs.training is None else jobs.training.state
         glfw.set_window_title(self.window, self.title)
 
     def take_points(self) -> None:
@@ -163,27 +152,6 @@ class Viewer:
         self.status = f"screenshot saved to {path}"
         return path
 
-    def render_verdict(self) -> None:
-        """The ended bootstrap's flagged views, from the model it started from and the result,
-        as small images in the panel's verdict (verdict.py)."""
-        from .verdict import render_flag_images, stage1_model, target_views, upload_textures  # noqa: PLC0415
-
-        jobs = self.jobs
-        jobs.verdict_images_due = False
-        verdict = jobs.verdict
-        if verdict is None:
-            return
-        # A live bootstrap started from the model shown then; an opened result from its run's.
-        before = jobs.bootstrap_base if jobs.bootstrap_base is not None else stage1_model(verdict.stage1_run)
-        views = target_views(verdict.out_dir) or jobs.bootstrap_views
-        if before is None or not views:
-            return
-        images = render_flag_images(self.renderer, before, self.view.edit.visible_arrays(), views,
-                                    self.view.settings)
-        upload_textures(self.ctx, images)
-        jobs.verdict.images = images
-        self.drawing.uploaded_version = None  # the shown model goes back to the renderer next draw
-
     def capture_window(self) -> np.ndarray:
         """Draw one frame and return the window as shown, panels included: [H, W, 3] float."""
         self.capture_requested = True
@@ -201,18 +169,20 @@ class Viewer:
         self.paths.update()
         self.status_line.check()   # a message whose state has gone is cleared before it is drawn
         self.take_points()
+        if self.jobs.training is not None and self.jobs.training.state != self.title_state:
+            self.update_title()  # running -> paused -> finished shows in the title
         self.jobs.take_snapshot()
-        if self.jobs.verdict_images_due:
-            self.render_verdict()
+        if self.jobs.verdict_images_due and render_verdict_images(self.jobs, self.view, self.renderer, self.ctx):
+            self.drawing.uploaded_version = None  # the shown model goes back to the renderer next draw
         screen = self.ctx.detect_framebuffer(0)
         screen.use()
-        width, height = self.view.framebuffer_size
+        width, height = self.view.pixels.framebuffer_size
         self.ctx.viewport = (0, 0, width, height)
         if self.drawing.scene_texture.texture is None:
             # Later frames skip this full-window pass: the scene blit overwrites every pixel.
             screen.clear(*self.view.settings.background, 1.0)
         self.drawing.draw_scene(self.view, self.stats, self.jobs.last_snapshot_time, screen)
-        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit, screen, self.mover.pivot_and_length())
+        self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit.psnr, screen, self.mover.pivot_and_length())
         if self.imgui_impl is not None:
             self.draw_ui()
         if self.capture_requested:
@@ -224,7 +194,7 @@ class Viewer:
             _ = self.ctx.error
         glfw.swap_buffers(self.window)
         self.stats.add_frame(time.perf_counter() - now)
-        self._drawn_state = self.shown_state()
+        self.drawn_state = shown_state(self)
 
     def draw_ui(self) -> None:
         from imgui_bundle import imgui  # noqa: PLC0415 (no imgui unless there is a UI)
@@ -251,68 +221,13 @@ class Viewer:
     def should_close(self) -> bool:
         return bool(glfw.window_should_close(self.window))
 
-    def is_idle(self) -> bool:
-        """Nothing will change without an event: no motion or refine pending, no fly key
-        held, no job running, no reference image awaited."""
-        now = time.perf_counter()
-        if now - self.view.last_motion < STILL_SECONDS + 0.1 or self.input.keys_down:
-            return False
-        if self.drawing.still_frame_owed:
-            return False  # the last frame was a moving one: its refine is still to be drawn
-        if now - self.input.last_event < UI_SETTLE_SECONDS:
-            return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
-        if now - self.jobs.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
-            return False  # the refine of the last snapshot is still to come
-        if self.jobs.running():
-            return False  # a paused job is idle: it publishes nothing
-        if self.points_worker is not None:
-            return False  # the triangulated points are to come
-        if self.paths.busy():
-            return False  # a path preview flies, or a video's progress is to show
-        if self.drawing.detail_busy():
-            return False  # a level-of-detail tree or cut is to come
-        return self.view.settings.mode != "reference" or self.drawing.reference_settled()
-
-    def training_frame_wait(self) -> float:
-        """Seconds to leave to a running job after a frame (Jobs.training_utilisation)."""
-        share = min(max(self.jobs.training_utilisation, 0.0), MAX_TRAINING_UTILISATION)
-        return min(self.stats.frame_ms / 1000.0 * share / (1.0 - share), MAX_TRAINING_WAIT_SECONDS)
-
-    def shown_state(self) -> tuple:
-        """What the window shows that can change with no event: the status line, the title, the
-        job's state and progress, the model shown, the points to come. An idle wait that times
-        out with this unchanged has nothing new to draw."""
-        run = self.jobs.training
-        job = None if run is None else (run.state, run.progress.iteration, run.progress.gaussian_count,
-                                        run.error, self.jobs.reported)
-        return (self.status_line.text, self.title, job, self.view.model_version,
-                self.points_worker is None, self.should_close())
-
-    def wait_for_next_frame(self) -> bool:
-        """Sleep until input arrives or the next frame is due -> whether to draw it (step() polls
-        what arrived). False only after an idle wait that saw no event and no change."""
-        still = time.perf_counter() - self.view.last_motion >= STILL_SECONDS
-        if self.is_idle():
-            began = time.perf_counter()
-            glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
-            return self.input.last_event >= began or self.shown_state() != self._drawn_state
-        if self.jobs.running() and still:
-            glfw.wait_events_timeout(self.training_frame_wait())  # a moving camera gets every frame
-        elif self.points_worker is not None and still:
-            glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the points' thread needs the CPU
-        elif self.paths.render is not None and self.paths.render.running() and still:
-            glfw.wait_events_timeout(MAX_TRAINING_WAIT_SECONDS)  # the video's child process needs the CPU
-        elif self.drawing.detail_busy() and still:
-            glfw.wait_events_timeout(DETAIL_WAIT_SECONDS)  # the LOD thread needs the CPU; its cut is soon due
-        return True
-
     def run_frame(self) -> bool:
         """One turn of the frame loop: the close button and stop signals are looked at
         (closing.py), then a frame is drawn unless an idle wait saw nothing change. -> whether
         the loop goes on."""
         if not closing_question.keep_open(self):
             return False
-        if self.wait_for_next_frame():
+        if wait_for_next_frame(self):
             self.step()
         return True
 

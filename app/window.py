@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import warnings
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import glfw
 import moderngl
@@ -15,6 +16,26 @@ GL_REQUIRED = (4, 3)
 
 class WindowError(RuntimeError):
     """No window / no GL 4.3 context; the message says what was found."""
+
+
+@dataclass(frozen=True)
+class WindowPixels:
+    """A GLFW window's two pixel grids: the window's (the mouse's, imgui's) and its framebuffer's
+    (the renderer's and the camera's), larger on a HiDPI screen."""
+
+    window: object
+
+    @property
+    def framebuffer_size(self) -> tuple[int, int]:
+        """(width, height) in framebuffer pixels; at least 1 each (a minimised window has 0)."""
+        width, height = glfw.get_framebuffer_size(self.window)
+        return max(width, 1), max(height, 1)
+
+    def to_framebuffer(self, x: float, y: float) -> tuple[float, float]:
+        """Window position or distance (x, y) -> framebuffer pixels."""
+        window_w, window_h = glfw.get_window_size(self.window)
+        fb_w, fb_h = self.framebuffer_size
+        return x * fb_w / max(window_w, 1), y * fb_h / max(window_h, 1)
 
 
 def create_window(width: int, height: int, title: str, visible: bool = True):

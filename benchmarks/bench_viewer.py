@@ -101,10 +101,12 @@ def _measure(viewer, frames: int, before_frame) -> dict:
 
 def _loop_for(viewer, seconds: float) -> tuple[float, int]:
     """Run the app's own loop (wait, then step) for ``seconds`` -> (CPU % of one core, frames)."""
+    from inceptiongs.app.pacing import wait_for_next_frame
+
     frames = viewer.stats.frames
     cpu, wall = time.process_time(), time.perf_counter()
     while time.perf_counter() - wall < seconds:
-        if viewer.wait_for_next_frame():
+        if wait_for_next_frame(viewer):
             viewer.step()
     return 100.0 * (time.process_time() - cpu) / (time.perf_counter() - wall), viewer.stats.frames - frames
 
@@ -127,7 +129,8 @@ def job_rows(seconds: float) -> list[str]:
     """The CPU rows: a real training job alone vs with the viewer idle on it; idle CPU."""
     import tempfile
 
-    from inceptiongs.app.jobs import JobSettings, train_job_for
+    from inceptiongs.app.job_requests import train_job_for
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.app.live_training import LiveTraining
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
@@ -216,7 +219,7 @@ def idle_rows(seconds: float, size: tuple[int, int], settle_s: float = 2.0) -> l
     measurement starts ``settle_s`` after the pointer moved (the paused job's parking waits as long)."""
     import tempfile
 
-    from inceptiongs.app.jobs import JobSettings
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.app.sources import open_source
     from inceptiongs.app.viewer import Viewer
     from inceptiongs.scene.demo import write_demo_scene
@@ -245,10 +248,12 @@ def _settle(viewer, timeout: float = 120.0, steps: list | None = None) -> float:
     """Run the app's loop until the settled frame of a still camera is drawn -> seconds it took
     (from now, taken as the last movement); ``steps`` collects each loop turn's seconds (how long
     input would wait)."""
+    from inceptiongs.app.pacing import wait_for_next_frame
+
     began = time.perf_counter()
     while time.perf_counter() - began < timeout:
         turn = time.perf_counter()
-        if viewer.wait_for_next_frame():
+        if wait_for_next_frame(viewer):
             viewer.step()
         if steps is not None:
             steps.append(time.perf_counter() - turn)

@@ -21,3 +21,11 @@ def build_source(version: int, names: list[str], defines: dict[str, int | float 
     lines += [f"#define {key} {value if isinstance(value, str) else repr(value)}" for key, value in (defines or {}).items()]
     lines += [shader_source(name) for name in names]
     return "\n".join(lines)
+
+
+def set_optional_uniform(program, name: str, value) -> None:
+    """Set uniform ``name`` of a moderngl program to ``value`` if the program has it."""
+    # The GLSL compiler drops uniforms a specialisation does not use (e.g. camera_center
+    # for SH degree 0 is still used, sh_degree is not): setting them must not fail.
+    if name in program:
+        program[name].value = value

@@ -35,6 +35,17 @@ def depth_order(relative_means: np.ndarray, rotation: np.ndarray, translation: n
     return np.ascontiguousarray((order if front_to_back else order[::-1]).astype(np.uint32))
 
 
+def visible_quad_elements(splats: np.ndarray, relative_means: np.ndarray, rotation: np.ndarray,
+                          translation: np.ndarray, front_to_back: bool) -> np.ndarray:
+    """The quad paths' CPU order: splats [N, 4, 4] the preprocess output (opacity in [:, 1, 3],
+    0 for a culled Gaussian), relative_means [N, 3], rotation [3, 3] and translation [3] as in
+    depth_order -> [6 M] uint32 element indices of the M visible Gaussians in draw order.
+    Culled Gaussians are left out of the draw rather than drawn as empty quads."""
+    visible = splats[:, 1, 3] > 0.0
+    order = depth_order(relative_means, rotation, translation, front_to_back)
+    return quad_elements(order[visible[order]])
+
+
 def padded_size(count: int) -> int:
     """The power of two >= count that bitonic sorting needs, at least one block."""
     size = BLOCK

@@ -1,15 +1,15 @@
 """SplatRenderer: Gaussians drawn as opacity-aware quads, or composited on the CPU cores.
 
 A frame is three passes:
-1. preprocess (transform feedback, one vertex per Gaussian): EWA projection, footprint box,
-   colour/depth/normal -> four vec4 per Gaussian;
+1. preprocess (transform feedback, one vertex per Gaussian: preprocess_gl.py): EWA projection,
+   footprint box, colour/depth/normal -> four vec4 per Gaussian;
 2. depth sort (compute-shader bitonic sort on GL >= 4.3, numpy otherwise);
 3. compositing, one of (``SplatRenderer.compositing``):
    - "cpu" (the default on software GL such as llvmpipe, whose "GPU" is the CPU cores):
      passes 1 and 2 run on the CPU cores too (renderer/preprocess_numba.py, the shader's rules
      on the packed Gaussians kept here; renderer/sort_numba.py), and the splats are composited
      front to back with the stop rule by renderer/cpu_composite.py, exactly like the torch
-     rasterizer; draw() uploads the result and shows it with one full-viewport pass;
+     rasterizer; draw() uploads the result and shows it with one full-viewport pass (present.py);
    - "fetch" (hardware GL with GL_EXT_shader_framebuffer_fetch): one quad per Gaussian (the
      oriented box of the ellipse where alpha >= ALPHA_MIN), composited front to back in the
      fragment shader, stop rule included; draw() blends back to front;
@@ -17,7 +17,8 @@ A frame is three passes:
      difference is bounded: docs/rendering.md).
 
 Uploads: set_gaussians with an unchanged version uploads nothing; a camera change only
-sets uniforms and re-runs passes 1-3. Buffers and textures are reused and only grow.
+sets uniforms and re-runs passes 1-3. Buffers and textures are reused and only grow
+(data_textures.py).
 """
 
 from __future__ import annotations
@@ -32,10 +33,13 @@ from inceptiongs.camera import Camera
 from inceptiongs.constants import ALPHA_EPS, sh_degree_from_count
 
 from .context import RendererError, check_context
+from .data_textures import grown_texture, texture_height, write_rows
 from .gl_camera import pixel_to_ndc_scale, shader_camera
 from .layout import BASE_TEXELS, MODES, SPLAT_TEXELS, TEXTURE_WIDTH, sh_texels, texels_per_gaussian
-from .shaders import build_source
-from .sorting import GpuDepthSort, depth_order, quad_elements, visible_depth_order
+from .preprocess_gl import PreprocessPass
+from .present import CompositedPresenter
+from .shaders import build_source, set_optional_uniform
+from .sorting import GpuDepthSort, visible_depth_order, visible_quad_elements
 
 COMPOSITING = ("cpu", "fetch", "blend")
 FRAMEBUFFER_FETCH = "GL_EXT_shader_framebuffer_fetch"
@@ -79,8 +83,18 @@ def is_software_renderer(ctx: moderngl.Context) -> bool:
     return any(word in name for word in ("llvmpipe", "softpipe", "swrast"))
 
 
-def _texture_height(texel_count: int) -> int:
-    return max(1, -(-texel_count // TEXTURE_WIDTH))
+def check_frame_arguments(mode: str, splat_scale: float) -> None:
+    """ValueError naming the argument unless ``mode`` is a render mode (layout.MODES) and
+    ``splat_scale`` a positive finite number."""
+    if mode not in MODES:
+        raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
+    if not (math.isfinite(splat_scale) and splat_scale > 0):
+        raise ValueError(f"splat_scale must be a positive finite number, got {splat_scale}")
+
+
+def capped_degree(degree: int, sh_degree_cap: int | None) -> int:
+    """The SH degree a frame evaluates: the model's ``degree``, at most ``sh_degree_cap`` (None: no cap)."""
+    return degree if sh_degree_cap is None else max(0, min(degree, int(sh_degree_cap)))
 
 
 class SplatRenderer:
@@ -122,7 +136,7 @@ class SplatRenderer:
             self._draw_programs[True] = ctx.program(
                 vertex_shader=vertex,
                 fragment_shader=build_source(330, ["splat_draw.frag"], {"FRONT_TO_BACK": 1}))
-        self._preprocess: dict[int, moderngl.Program] = {}
+        self._preprocess = PreprocessPass(ctx)
         self._version: int | None = None
         self._count = 0
         self._degree = 0
@@ -136,12 +150,9 @@ class SplatRenderer:
         self._index_buffer: moderngl.Buffer | None = None
         self._draw_vaos: dict[tuple, moderngl.VertexArray] = {}
         self._element_generation = 0
-        self._preprocess_vao: moderngl.VertexArray | None = None
         self._offscreen: moderngl.Framebuffer | None = None
         self._composited: np.ndarray | None = None  # the "cpu" path's frame, reused
-        self._present_texture: moderngl.Texture | None = None
-        self._present_program: moderngl.Program | None = None
-        self._present_vao: moderngl.VertexArray | None = None
+        self._presenter = CompositedPresenter(ctx)  # shows the "cpu" path's frame
 
     # --- model upload ---------------------------------------------------------------------
 
@@ -175,15 +186,15 @@ class SplatRenderer:
     def _upload(self, texels: np.ndarray) -> None:
         """texels [N, 3 + S, 4] float32 into the Gaussian texture; the preprocess output buffer sized."""
         n, per_gaussian = texels.shape[0], texels.shape[1]
-        height = _texture_height(n * per_gaussian)
+        height = texture_height(n * per_gaussian)
         if height > self.ctx.info["GL_MAX_TEXTURE_SIZE"]:
             raise RendererError(f"{n} Gaussians with SH degree {self._degree} exceed this GL's "
                                 f"texture size ({self.ctx.info['GL_MAX_TEXTURE_SIZE']})")
         if n == 0:
             return
-        self._gaussian_texture = self._grow_texture(self._gaussian_texture, height)
-        self._write_texels(texels.reshape(-1, 4))
-        splat_bytes = TEXTURE_WIDTH * _texture_height(n * SPLAT_TEXELS) * 16
+        self._gaussian_texture = grown_texture(self.ctx, self._gaussian_texture, height)
+        write_rows(self._gaussian_texture, texels.reshape(-1, 4))
+        splat_bytes = TEXTURE_WIDTH * texture_height(n * SPLAT_TEXELS) * 16
         if self._splat_buffer is None or self._splat_buffer.size != splat_bytes:
             if self._splat_buffer is not None:
                 self._splat_buffer.release()
@@ -205,39 +216,6 @@ class SplatRenderer:
             flat = np.frombuffer(self._gaussian_texture.read(), np.float32)
             self._texels = flat[: self._count * per_gaussian * 4].reshape(self._count, per_gaussian, 4)
         return self._texels
-
-    def _write_texels(self, flat: np.ndarray) -> None:
-        """flat [T, 4] float32 into the Gaussian texture, row by row of TEXTURE_WIDTH: the full
-        rows straight from ``flat`` (no padded copy of a model of millions), the last one padded."""
-        full_rows, rest = divmod(len(flat), TEXTURE_WIDTH)
-        if full_rows:
-            self._gaussian_texture.write(memoryview(flat[: full_rows * TEXTURE_WIDTH]),
-                                         viewport=(0, 0, TEXTURE_WIDTH, full_rows))
-        if rest:
-            last = np.zeros((TEXTURE_WIDTH, 4), np.float32)
-            last[:rest] = flat[full_rows * TEXTURE_WIDTH:]
-            self._gaussian_texture.write(last.tobytes(), viewport=(0, full_rows, TEXTURE_WIDTH, 1))
-
-    def _grow_texture(self, texture: moderngl.Texture | None, height: int) -> moderngl.Texture:
-        if texture is not None and texture.height == height:
-            return texture
-        if texture is not None:
-            texture.release()
-        texture = self.ctx.texture((TEXTURE_WIDTH, height), 4, dtype="f4")
-        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        return texture
-
-    def _preprocess_program(self) -> moderngl.Program:
-        program = self._preprocess.get(self._degree)
-        if program is None:
-            defines = {"TEXTURE_WIDTH": TEXTURE_WIDTH, "SH_DEGREE": self._degree,
-                       "SH_TEXELS": sh_texels((self._degree + 1) ** 2),
-                       "GAUSSIAN_TEXELS": texels_per_gaussian((self._degree + 1) ** 2)}
-            program = self.ctx.program(
-                vertex_shader=build_source(330, ["splat_common.glsl", "splat_preprocess.vert"], defines),
-                varyings=["out_screen", "out_conic", "out_value", "out_minor"])
-            self._preprocess[self._degree] = program
-        return program
 
     # --- frame ------------------------------------------------------------------------------
 
@@ -295,7 +273,7 @@ class SplatRenderer:
             framebuffer.use()
             if clear_colour is not None:
                 framebuffer.clear(*clear_colour)
-            self._present(raw, framebuffer)
+            self._presenter.present(raw, framebuffer)
             self.timings["draw_ms"] += 1e3 * (time.perf_counter() - start)
             return
         self._frame(camera, mode, framebuffer, clear_colour, sh_degree_cap, splat_scale,
@@ -323,44 +301,10 @@ class SplatRenderer:
             fbo = self._offscreen = self.ctx.framebuffer(color_attachments=[colour])
         return fbo
 
-    def _check_frame_arguments(self, mode: str, splat_scale: float) -> None:
-        if mode not in MODES:
-            raise ValueError(f"unknown render mode {mode!r}; expected one of {', '.join(MODES)}")
-        if not (math.isfinite(splat_scale) and splat_scale > 0):
-            raise ValueError(f"splat_scale must be a positive finite number, got {splat_scale}")
-
-    def _capped_degree(self, sh_degree_cap: int | None) -> int:
-        """The SH degree a frame evaluates: the model's, at most ``sh_degree_cap`` (None: no cap)."""
-        return self._degree if sh_degree_cap is None else max(0, min(self._degree, int(sh_degree_cap)))
-
-    def _preprocess_pass(self, camera: Camera, mode: str, sh_degree_cap: int | None, splat_scale: float):
-        """Pass 1 into the splat buffer; returns the anchor-relative ShaderCamera."""
-        ctx = self.ctx
-        cam = shader_camera(camera, self._anchor)
-        degree = self._capped_degree(sh_degree_cap)
-        program = self._preprocess_program()
-        program["rotation"].write(cam.rotation.T.astype(np.float32).tobytes())  # column-major
-        program["translation"].value = tuple(map(float, cam.translation))
-        self._set_optional(program, "camera_center", tuple(map(float, cam.center)))
-        program["intrinsics"].value = tuple(map(float, cam.intrinsics))
-        program["image_size"].value = tuple(map(float, cam.size))
-        program["mode"].value = MODES[mode]
-        self._set_optional(program, "sh_degree", degree)
-        program["splat_scale"].value = float(splat_scale)
-        self._set_optional(program, "gaussians", 0)
-        self._gaussian_texture.use(0)
-        if self._preprocess_vao is None or self._preprocess_vao.program is not program:
-            if self._preprocess_vao is not None:
-                self._preprocess_vao.release()
-            self._preprocess_vao = ctx.vertex_array(program, [])
-        self._preprocess_vao.transform(self._splat_buffer, mode=moderngl.POINTS, vertices=self._count)
-        ctx.finish()
-        return cam
-
     def _frame(self, camera: Camera, mode: str, fbo: moderngl.Framebuffer, clear_colour,
                sh_degree_cap: int | None, splat_scale: float, flip_y: bool,
                front_to_back: bool) -> None:
-        self._check_frame_arguments(mode, splat_scale)
+        check_frame_arguments(mode, splat_scale)
         ctx = self.ctx
         fbo.use()
         if clear_colour is not None:
@@ -370,7 +314,9 @@ class SplatRenderer:
             return
         self._texels_in_gl()
         start = time.perf_counter()
-        cam = self._preprocess_pass(camera, mode, sh_degree_cap, splat_scale)
+        cam = shader_camera(camera, self._anchor)
+        self._preprocess.run(self._gaussian_texture, self._splat_buffer, self._count, self._degree, cam, mode,
+                             capped_degree(self._degree, sh_degree_cap), splat_scale)
         preprocess_done = time.perf_counter()
 
         if self.sort == "gpu":
@@ -381,12 +327,10 @@ class SplatRenderer:
             generation = ("gpu", front_to_back, sorter.generation)
             element_count = 6 * self._count
         else:
-            # Culled Gaussians (opacity 0 in the preprocess output) are left out of the draw.
-            conics = np.frombuffer(self._splat_buffer.read(size=self._count * SPLAT_TEXELS * 16),
+            splats = np.frombuffer(self._splat_buffer.read(size=self._count * SPLAT_TEXELS * 16),
                                    np.float32).reshape(self._count, SPLAT_TEXELS, 4)
-            visible = conics[:, 1, 3] > 0.0
-            order = depth_order(self._relative_means, cam.rotation, cam.translation, front_to_back)
-            elements = quad_elements(order[visible[order]])
+            elements = visible_quad_elements(splats, self._relative_means, cam.rotation, cam.translation,
+                                             front_to_back)
             element_count = elements.size
             if self._index_buffer is None or self._index_buffer.size < max(elements.nbytes, 4):
                 if self._index_buffer is not None:
@@ -399,7 +343,7 @@ class SplatRenderer:
             generation = ("cpu", self._element_generation)
         # The splat texture exists for the quad paths only: CPU compositing reads the buffer
         # (a model of millions saves its 64 bytes per Gaussian).
-        self._splat_texture = self._grow_texture(self._splat_texture, _texture_height(self._count * SPLAT_TEXELS))
+        self._splat_texture = grown_texture(ctx, self._splat_texture, texture_height(self._count * SPLAT_TEXELS))
         self._splat_texture.write(self._splat_buffer)
         ctx.finish()
         sort_done = time.perf_counter()
@@ -420,7 +364,7 @@ class SplatRenderer:
         draw["pixel_to_ndc"].value = pixel_to_ndc_scale(cam.size[0], cam.size[1], flip_y)
         draw["image_size"].value = tuple(map(float, cam.size))
         draw["flip_height"].value = float(cam.size[1]) if flip_y else 0.0
-        self._set_optional(draw, "splats", 0)
+        set_optional_uniform(draw, "splats", 0)
         self._splat_texture.use(0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         if front_to_back:
@@ -445,7 +389,7 @@ class SplatRenderer:
         from .cpu_composite import composite_splats  # numba: compiled on first use only
         from .preprocess_numba import preprocess_splats
 
-        self._check_frame_arguments(mode, splat_scale)
+        check_frame_arguments(mode, splat_scale)
         width, height = int(camera.width), int(camera.height)
         self.timings = {"preprocess_ms": 0.0, "sort_ms": 0.0, "draw_ms": 0.0}
         if self._count == 0:
@@ -454,7 +398,7 @@ class SplatRenderer:
             return empty
         start = time.perf_counter()
         cam = shader_camera(camera, self._anchor)
-        degree = self._capped_degree(sh_degree_cap)
+        degree = capped_degree(self._degree, sh_degree_cap)
         splats = self._cpu_splats = preprocess_splats(self._texels_on_cpu(), degree, cam, MODES[mode], splat_scale,
                                                       out=self._cpu_splats)
         preprocess_done = time.perf_counter()
@@ -467,57 +411,24 @@ class SplatRenderer:
                         "draw_ms": 1e3 * (end - sort_done)}
         return self._composited
 
-    def _present(self, raw: np.ndarray, framebuffer: moderngl.Framebuffer) -> None:
-        """Blend a CPU-composited frame [H, W, 4] (row 0 = top) upright over ``framebuffer``."""
-        ctx = self.ctx
-        height, width = raw.shape[:2]
-        texture = self._present_texture
-        if texture is None or texture.size != (width, height):
-            if texture is not None:
-                texture.release()
-            texture = self._present_texture = ctx.texture((width, height), 4, dtype="f4")
-            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        texture.write(raw)
-        if self._present_program is None:
-            self._present_program = ctx.program(vertex_shader=build_source(330, ["splat_present.vert"]),
-                                                fragment_shader=build_source(330, ["splat_present.frag"]))
-            self._present_vao = ctx.vertex_array(self._present_program, [])
-        self._set_optional(self._present_program, "composited", 0)
-        self._present_program["image_height"].value = height
-        texture.use(0)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        ctx.enable(moderngl.BLEND)
-        ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
-        ctx.blend_equation = moderngl.FUNC_ADD
-        self._present_vao.render(mode=moderngl.TRIANGLES, vertices=3)
-        ctx.disable(moderngl.BLEND)
-
-    @staticmethod
-    def _set_optional(program: moderngl.Program, name: str, value) -> None:
-        # The GLSL compiler drops uniforms a specialisation does not use (e.g. camera_center
-        # for SH degree 0 is still used, sh_degree is not): setting them must not fail.
-        if name in program:
-            program[name].value = value
-
     def release(self) -> None:
         """Free every GL object this renderer made (the context stays the caller's)."""
         objects = [self._gaussian_texture, self._splat_buffer, self._splat_texture, self._index_buffer,
-                   *self._draw_vaos.values(), self._preprocess_vao, *self._draw_programs.values(),
-                   *self._preprocess.values(), self._present_vao, self._present_program, self._present_texture]
+                   *self._draw_vaos.values(), *self._draw_programs.values()]
         if self._offscreen is not None:
             objects += list(self._offscreen.color_attachments) + [self._offscreen]
         for obj in objects:
             if obj is not None:
                 obj.release()
+        self._preprocess.release()
+        self._presenter.release()
         for sorter in self._gpu_sorts.values():
             sorter.release()
         self._gpu_sorts.clear()
         self._draw_vaos.clear()
         self._draw_programs.clear()
-        self._preprocess.clear()
         self._gaussian_texture = self._splat_buffer = self._splat_texture = None
-        self._index_buffer = self._preprocess_vao = self._offscreen = None
-        self._present_vao = self._present_program = self._present_texture = None
+        self._index_buffer = self._offscreen = None
         self._composited = self._texels = self._cpu_splats = None
         self._count = 0
         self._version = None

@@ -17,7 +17,7 @@ pytestmark = pytest.mark.gl
 @pytest.fixture(scope="module")
 def blocks_run(tmp_path_factory):
     """A 6-step run of the demo scene with a 4-cell plan written as `train --blocks` writes it."""
-    from inceptiongs.app.jobs import JobSettings
+    from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.evaluation.protocols import Split
     from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.scene.loader import load_scene
@@ -64,7 +64,9 @@ def test_coverage_mode_outlines_the_cells_of_a_run_trained_in_blocks(xvfb, block
         coverage = viewer.capture_window()
         # Drawn in the coverage mode only, and in the cells' colour.
         assert _cyan(coverage).mean() > 5 * _cyan(rgb).mean() + 1e-4, (_cyan(coverage).mean(), _cyan(rgb).mean())
-        segments = viewer.view.block_cell_segments()
+        view = viewer.view
+        segments = view.block_cells.of_model(view.source, view.model_version, view.edit.base["means"], view.up,
+                                             view.status)
         assert segments.shape == (16, 2, 3)
     # The outlines: each cell's four sides, in the plane's coordinates the cell's own (outer
     # sides at the model's extent), all at one height along the plane's normal.

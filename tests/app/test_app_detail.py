@@ -15,6 +15,7 @@ import pytest
 
 from inceptiongs.app import detail
 from inceptiongs.app.navigation import NavigationState
+from inceptiongs.app.pacing import is_idle, wait_for_next_frame
 from inceptiongs.camera import Camera, look_at
 from inceptiongs.evaluation.metrics import psnr
 from inceptiongs.gaussians import Gaussians
@@ -60,7 +61,7 @@ def _run_until(viewer, done, seconds: float = 60.0) -> None:
     deadline = time.perf_counter() + seconds
     while not done():
         assert time.perf_counter() < deadline, f"not reached in {seconds} s: {viewer.drawing.drawn}"
-        if viewer.wait_for_next_frame():
+        if wait_for_next_frame(viewer):
             viewer.step()
 
 
@@ -70,7 +71,7 @@ def _settled(viewer) -> bool:
 
 
 def _look_down_the_street(viewer) -> None:
-    width, height = viewer.view.framebuffer_size
+    width, height = viewer.view.pixels.framebuffer_size
     viewer.view.nav = NavigationState.from_camera(street_camera(width, height), speed=1.0)
     viewer.view.moved()
 
@@ -145,7 +146,7 @@ def test_the_window_draws_a_preview_while_the_tree_builds(xvfb, large_model, mon
         viewer.step()
         drawn, total, how = viewer.drawing.drawn
         assert (drawn, total) == (5_000, SIDE * SIDE) and how.startswith("preview, building the tree")
-        assert not viewer.is_idle()   # the tree is to come
+        assert not is_idle(viewer)   # the tree is to come
         began = time.perf_counter()
         _run_until(viewer, lambda: _settled(viewer))
         assert built and time.perf_counter() - began >= 0.5

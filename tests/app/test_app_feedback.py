@@ -118,7 +118,7 @@ class FakeBootstrap:
 def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_baseline(xvfb, tmp_path, monkeypatch):
     """It ended with "held-out PSNR covered 22.30 dB": no value before, none for the flagged
     view, none for the same time spent on the photos alone."""
-    import inceptiongs.app.jobs as jobs_module
+    import inceptiongs.app.job_requests as jobs_module
 
     run, out = tmp_path / "run", tmp_path / "run_bootstrap"
     run.mkdir()

@@ -80,7 +80,7 @@ class FakeJob:
 def test_the_verdict_refuses_a_baseline_of_another_length_and_runs_the_right_one(xvfb, tmp_path, monkeypatch):
     """A 60-second bootstrap whose scarce score fell below stage I's (15.12 -> 15.08) read
     "better by 0.09 dB than the same-time baseline" against the demo's 66-second baseline."""
-    import inceptiongs.app.jobs as jobs_module
+    import inceptiongs.app.job_requests as jobs_module
 
     run, out = tmp_path / "run", tmp_path / "run_bootstrap"
     run.mkdir()
@@ -150,7 +150,7 @@ def test_save_ply_and_f12_never_overwrite_and_name_the_file(xvfb, tmp_path):
         second = Path(viewer.status.split(" to ", 1)[1])
         assert second != first and second.is_file(), viewer.status
         assert len(read_ply(first)) == cropped and len(read_ply(second)) == total
-        assert Path(viewer.editor.save_path) not in (first, second)   # the field shows the next name
+        assert Path(viewer.editor.saving.path) not in (first, second)   # the field shows the next name
         press_key(viewer, glfw.KEY_F12)
         one = Path(viewer.status.split(" to ", 1)[1])
         press_key(viewer, glfw.KEY_F12)

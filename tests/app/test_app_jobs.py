@@ -12,8 +12,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import (VIEWER_EVAL_EVERY, Jobs, JobSettings, bootstrap_job_for, resume_job_for,
-                                  train_job_for)
+from inceptiongs.app.job_requests import bootstrap_job_for, resume_job_for, train_job_for
+from inceptiongs.app.job_settings import VIEWER_EVAL_EVERY, JobSettings
+from inceptiongs.app.jobs import Jobs
+from inceptiongs.app.navigation import nearest_camera_index
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.app.runs import fresh_folder, new_bootstrap_dir, new_train_dir
 from inceptiongs.app.settings import StatusLine
 from inceptiongs.io.config_json import with_values
@@ -165,7 +168,7 @@ def demo_scene(tmp_path_factory) -> Path:
 def _wait(viewer, condition, seconds=120.0) -> None:
     deadline = time.time() + seconds
     while not condition() and time.time() < deadline:
-        viewer.wait_for_next_frame()  # as run() does: the job gets the CPU between frames
+        wait_for_next_frame(viewer)  # as run() does: the job gets the CPU between frames
         viewer.step()
     assert condition(), viewer.status
 
@@ -313,7 +316,7 @@ def test_scene_folder_opens_its_newest_model(xvfb, demo_scene):
         viewer.view.edit.select(np.arange(viewer.view.edit.count) % 2 == 0)
         viewer.editor.delete_selection()
         shown = viewer.view.edit.visible_arrays()["means"]
-        saved = viewer.editor.save_ply(source.work_dir / "edited.ply")
+        saved = viewer.editor.saving.save_ply(source.work_dir / "edited.ply")
     with opened(Viewer, open_source(demo_scene), 320, 240) as reopened:
         assert reopened.view.source.model_path == saved and "edited.ply" in reopened.title
         assert reopened.jobs.run_dir is None and "edited.ply" in reopened.status
@@ -386,7 +389,7 @@ def test_nearest_training_photo_blended_and_beside(xvfb, demo_scene):
         time.sleep(0.2)  # still: the full-resolution frames follow
         viewer.step()
         photo = viewer.view.source.scene.load_image(3)
-        assert viewer.view.nearest_camera_index(viewer.view.current_camera()) == 3
+        assert nearest_camera_index(viewer.view.cameras, viewer.view.current_camera()) == 3
         render = viewer.capture_window()
         viewer.view.settings.photo, viewer.view.settings.photo_alpha = "blended", 1.0
         blended = viewer.capture_window()
@@ -536,8 +539,8 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
     second.update(psnr=7.0, poorly_fit=True)
     (run / VIEW_FIT_FILE).write_text(json.dumps(report))
     with opened(Viewer, open_source(run), 900, 1000) as viewer:
-        assert list(viewer.jobs.poorly_fit) == [second["name"], first["name"]]  # worst first
-        colors = frustum_colors(viewer.view.cameras, viewer.jobs.poorly_fit)
+        assert list(viewer.jobs.poorly_fit.psnr) == [second["name"], first["name"]]  # worst first
+        colors = frustum_colors(viewer.view.cameras, viewer.jobs.poorly_fit.psnr)
         for index, camera in enumerate(viewer.view.cameras):
             expected = POORLY_FIT_COLOR if camera.name in (first["name"], second["name"]) else TRAINING_COLOR
             assert np.allclose(colors[8 * index:8 * index + 8], expected), camera.name
@@ -569,6 +572,6 @@ def test_poorly_fit_photos_are_drawn_apart_and_stepped_through(xvfb, demo_scene,
     # A report that is not one: the viewer still opens, says which file, shows none.
     (run / VIEW_FIT_FILE).write_text("{not json")
     with opened(Viewer, open_source(run), 640, 480) as viewer:
-        assert viewer.jobs.poorly_fit == {} and str(run / VIEW_FIT_FILE) in viewer.status
+        assert viewer.jobs.poorly_fit.psnr == {} and str(run / VIEW_FIT_FILE) in viewer.status
         viewer.step()
         assert "next poorly fit photo" not in viewer.ui.rects

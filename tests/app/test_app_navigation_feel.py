@@ -23,7 +23,7 @@ def _window_pixels(viewer, points: np.ndarray) -> np.ndarray:
     from inceptiongs.app.editing import project_means
 
     pixels, _ = project_means(np.asarray(points, np.float64), viewer.view.current_camera())
-    return pixels * (glfw.get_window_size(viewer.window)[0] / viewer.view.framebuffer_size[0])
+    return pixels * (glfw.get_window_size(viewer.window)[0] / viewer.view.pixels.framebuffer_size[0])
 
 
 def _grid_with_a_far_shell(path):

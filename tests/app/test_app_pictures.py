@@ -10,6 +10,8 @@ import sys
 import numpy as np
 import pytest
 
+from inceptiongs.app.navigation import nearest_camera_index
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.camera import write_camera_json
 from viewer_cases import (GOLDEN, GOLDEN_WINDOW_SIZE, front_camera, golden_window_images, opened,
                           write_grid_model)
@@ -111,7 +113,7 @@ def test_panel_follows_the_window_and_never_clips(xvfb, demo_scene):
             glfw.set_window_size(viewer.window, width, height)
             viewer.step()
             viewer.step()
-            assert viewer.view.framebuffer_size == (width, height)
+            assert viewer.view.pixels.framebuffer_size == (width, height)
             _assert_panel_fits(viewer, width, height, "idle, every section open")
         viewer.jobs.start_training()  # (its button, below the open sections, is tested elsewhere)
         for _ in range(5):
@@ -156,7 +158,7 @@ def test_scene_without_sparse_points_shows_triangulated_points(xvfb):
         assert viewer.view.edit.count == 0 and "triangulating" in viewer.status
         deadline = time.time() + 300
         while viewer.points_worker is not None and time.time() < deadline:
-            viewer.wait_for_next_frame()
+            wait_for_next_frame(viewer)
             viewer.step()
         assert viewer.view.edit.count > 500, viewer.status
         assert "triangulated from the photos" in viewer.status
@@ -182,7 +184,7 @@ def test_training_photo_chosen_in_the_panel(xvfb, demo_scene):
         assert viewer.view.settings.photo == "beside"
         time.sleep(0.2)  # still: the full-resolution frame
         window = viewer.capture_window()
-        photo = viewer.view.source.scene.load_image(viewer.view.nearest_camera_index(viewer.view.current_camera()))
+        photo = viewer.view.source.scene.load_image(nearest_camera_index(viewer.view.cameras, viewer.view.current_camera()))
         inset_w = int(900 * PHOTO_INSET_FRACTION)
         inset_h = int(round(inset_w * photo.shape[0] / photo.shape[1]))
         inset = cv2.resize(photo, (inset_w, inset_h), interpolation=cv2.INTER_AREA)

@@ -15,7 +15,8 @@ import glfw
 import numpy as np
 import pytest
 
-from inceptiongs.app.jobs import JobSettings
+from inceptiongs.app.job_settings import JobSettings
+from inceptiongs.app.pacing import wait_for_next_frame
 from inceptiongs.errors import InputError
 from inceptiongs.io.config_json import with_values
 from viewer_cases import click_widget, opened, press_key, start_job, type_into
@@ -38,7 +39,7 @@ def _viewer(scene, width=1000, height=1000, **kwargs):
 def _wait(viewer, condition, seconds=120.0) -> None:
     deadline = time.time() + seconds
     while not condition() and time.time() < deadline:
-        viewer.wait_for_next_frame()
+        wait_for_next_frame(viewer)
         viewer.step()
     assert condition(), viewer.status
 
@@ -83,7 +84,7 @@ def test_jobs_and_saves_go_where_the_command_line_writes(xvfb, demo_scene, tmp_p
         press_key(viewer, glfw.KEY_F12)
         shots = list((tmp_path / "runs" / f"{demo_scene.name}_saved").glob("view-*.png"))
         assert len(shots) == 1 and str(shots[0]) in viewer.status
-        assert Path(viewer.editor.save_path).parent == tmp_path / "runs" / f"{demo_scene.name}_saved"
+        assert Path(viewer.editor.saving.path).parent == tmp_path / "runs" / f"{demo_scene.name}_saved"
         # The panel says where the next run goes, in full; a folder typed there takes it.
         viewer.step()
         assert "new run goes to" in viewer.ui.rects
@@ -111,9 +112,9 @@ def test_scene_lists_its_runs_from_every_place_newest_first_with_scores(xvfb, de
         assert set(viewer.view.source.runs) >= {older, newer}
         assert viewer.jobs.run_dir == newer  # the newest opens
         viewer.step()
-        labels = [viewer.jobs.run_label(run) for run in reversed(viewer.view.source.runs)]
+        labels = [viewer.jobs.run_labels.label(run) for run in reversed(viewer.view.source.runs)]
         assert labels[0].endswith(str(newer)) and " dB" in labels[0]  # newest first, in full, scored
-        choose(viewer, "runs of this scene", viewer.jobs.run_label(older))
+        choose(viewer, "runs of this scene", viewer.jobs.run_labels.label(older))
         assert viewer.jobs.run_dir == older, viewer.status
     assert main([str(demo_scene), "--runs", str(older / "model.ply")]) == 2  # a file is no runs folder
 

@@ -63,7 +63,7 @@ def _hidden_box(viewer):
     edit = viewer.view.edit
     pixels, _ = viewer.editor.projected_means()
     hidden = pixels[edit.base["means"][:, 2] > 0.5]
-    scale = viewer.view.window_to_framebuffer(1.0, 1.0)[0]
+    scale = viewer.view.pixels.to_framebuffer(1.0, 1.0)[0]
     lo, hi = hidden.min(axis=0) / scale - 10, hidden.max(axis=0) / scale + 10
     return tuple(lo), tuple(hi)
 
@@ -94,7 +94,7 @@ def _handle_pixel(viewer, axis: int):
     from inceptiongs.app.gizmo import gizmo_handles
 
     pixels, _ = project_means(gizmo_handles(*viewer.mover.pivot_and_length()), viewer.view.current_camera())
-    scale = viewer.view.window_to_framebuffer(1.0, 1.0)[0]
+    scale = viewer.view.pixels.to_framebuffer(1.0, 1.0)[0]
     return tuple(pixels[axis] / scale)
 
 
@@ -136,7 +136,7 @@ def test_gizmo_moves_turns_and_scales_exactly_the_selection(xvfb, tmp_path):
         from inceptiongs.app.editing import project_means
         before_px, _ = project_means(pivot[None], viewer.view.current_camera())
         after_px, _ = project_means((pivot + offset[0])[None], viewer.view.current_camera())
-        scale = viewer.view.window_to_framebuffer(1.0, 1.0)[0]
+        scale = viewer.view.pixels.to_framebuffer(1.0, 1.0)[0]
         assert abs((after_px - before_px)[0, 0] / scale - 60) < 1.0
         for key in ("quats", "log_scales", "sh", "opacity_logits"):
             np.testing.assert_array_equal(edit.base[key], original[key])
@@ -179,7 +179,7 @@ def test_gizmo_moves_turns_and_scales_exactly_the_selection(xvfb, tmp_path):
         np.testing.assert_array_equal(edit.base["means"][~chosen], original["means"][~chosen])
 
         # saving writes the scaled Gaussians; undo then restores the bytes, redo brings them back
-        saved = read_ply(viewer.editor.save_ply(tmp_path / "moved.ply")).numpy()
+        saved = read_ply(viewer.editor.saving.save_ply(tmp_path / "moved.ply")).numpy()
         for key in ("means", "log_scales", "quats"):
             np.testing.assert_allclose(saved[key], edit.base[key], atol=1e-6)
         scaled = edit.base["means"].copy()

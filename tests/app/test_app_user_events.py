@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inceptiongs.app.pacing import training_frame_wait
 from viewer_cases import (choose, click_at, click_widget, open_grid_viewer, open_viewer, opened, press_key,
                           scroll_panel_to, start_job, type_into, write_grid_model, write_table_model)
 
@@ -101,11 +102,11 @@ def test_the_jobs_share_of_the_cpu_is_a_slider_the_user_drags(xvfb, tmp_path):
         start_job(viewer, "train (new run)")
         for _ in range(3):
             viewer.step()
-        default_wait = viewer.training_frame_wait()
+        default_wait = training_frame_wait(viewer.stats.frame_ms, viewer.jobs.training_utilisation)
         x0, y0, _, y1 = viewer.ui.rects["job's share of the CPU"]
         _drag(viewer, (x0 + 40, 0.5 * (y0 + y1)), (x0 - 30, 0.5 * (y0 + y1)))  # to the left end
         assert viewer.jobs.training_utilisation == pytest.approx(0.5)
-        assert viewer.training_frame_wait() < default_wait
+        assert training_frame_wait(viewer.stats.frame_ms, viewer.jobs.training_utilisation) < default_wait
 
 
 def _collapse(viewer, *headers: str) -> None:
@@ -217,7 +218,7 @@ def _window_pixel(viewer, camera, point) -> tuple[float, float]:
 
     pixels, _ = project_means(np.asarray(point, np.float64)[None], camera)
     window_w, _ = glfw.get_window_size(viewer.window)
-    scale = window_w / viewer.view.framebuffer_size[0]
+    scale = window_w / viewer.view.pixels.framebuffer_size[0]
     return float(pixels[0, 0] * scale), float(pixels[0, 1] * scale)
 
 
@@ -302,7 +303,7 @@ def test_crop_to_box_fit_box_frame_model_and_save_ply(xvfb, tmp_path):
         type_into(viewer, "file", str(out))
         click_widget(viewer, "save PLY")
         rects = viewer.ui.rects
-        assert out.is_file(), (viewer.status, viewer.editor.save_path, rects["file"], rects["save PLY"])
+        assert out.is_file(), (viewer.status, viewer.editor.saving.path, rects["file"], rects["save PLY"])
         saved = read_ply(out)
         assert len(saved) == viewer.view.edit.count, viewer.status
         np.testing.assert_allclose(saved.numpy()["means"], kept, atol=1e-6)

@@ -235,7 +235,7 @@ def test_edit_select_delete_undo_save(xvfb, model, tmp_path):
         after = viewer.render_image()
         assert viewer.view.edit.count == total - selected
         assert np.abs(after[:, 380:] - before[:, 380:]).mean() > 1e-3  # right side changed
-        saved = viewer.editor.save_ply(tmp_path / "edited.ply")
+        saved = viewer.editor.saving.save_ply(tmp_path / "edited.ply")
         assert len(read_ply(saved)) == total - selected
         viewer.input.on_key(viewer.window, __import__("glfw").KEY_Z, 0, 1, __import__("glfw").MOD_CONTROL)
         viewer.step()

@@ -160,7 +160,7 @@ def test_only_an_unedited_model_is_replaced_by_the_tree_leaves():
     from types import SimpleNamespace
 
     from inceptiongs.app.editing import EditState
-    from inceptiongs.app.view import View
+    from inceptiongs.app.detail import share_tree_leaves
     from inceptiongs.lod.hierarchy import build_hierarchy
 
     arrays = _cloud(500)
@@ -170,9 +170,9 @@ def test_only_an_unedited_model_is_replaced_by_the_tree_leaves():
     edited.delete_selected()
     for edit in (edited, EditState(arrays, selected=np.arange(500) < 3)):
         holder = SimpleNamespace(edit=edit, source=SimpleNamespace(gaussians=arrays))
-        assert View.share_tree_leaves(holder, tree) is False and holder.edit is edit
+        assert share_tree_leaves(holder, tree) is False and holder.edit is edit
     holder = SimpleNamespace(edit=EditState(arrays), source=SimpleNamespace(gaussians=arrays))
-    assert View.share_tree_leaves(holder, tree) is True
+    assert share_tree_leaves(holder, tree) is True
     assert np.shares_memory(holder.edit.base["sh"], tree.sh) and holder.source.gaussians is holder.edit.base
     assert holder.edit.count == 500
-    assert View.share_tree_leaves(holder, tree) is False   # once
+    assert share_tree_leaves(holder, tree) is False   # once
