@@ -24,7 +24,10 @@ import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch load
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_bootstrap as bench  # noqa: E402
 
-VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}}, "baseline": None}
+VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}},
+            "fixer_whole": {"variants": {"fixer": {"target": "whole"}}, "agreement_min_db": None},
+            "fixer_long": {"variants": {"fixer": {"target": "whole", "steps": 1200}}, "agreement_min_db": None},
+            "baseline": None}
 
 
 def run_one(stage1, targets, out_dir: Path, variant: str, seed: int, minutes: float) -> dict:

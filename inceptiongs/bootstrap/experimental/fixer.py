@@ -3,8 +3,10 @@ views are made, a small network (bootstrap/fixer.py) is trained on this scene's 
 render of the model with its least visible Gaussians dropped at a training pose, and the photo
 there -- with the most isolated training poses held out. Its held-out check (fixed render
 against the render, on photos it never trained on) decides whether the loop uses it; the check
-is logged. Where it passed, the fixed render is the fill: what I* keeps where the photos' blend
-does not reach. Its training runs inside the loop's clock, so its time is the bootstrap's.
+is logged. Where it passed, the fixed render is the fill (``target`` "fill": what I* keeps where
+the photos' blend does not reach) or the whole of I* (``target`` "whole": every pixel, the
+warped photos left out, so the warps' agreement does not judge the view: the held-out check is
+its gate). Its training runs inside the loop's clock, so its time is the bootstrap's.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from ..fixer import CHECK_MARGIN_DB, FixerSettings, KeptPairs, build_pairs, fewe
     fix_where_check_says, held_out_check, held_out_views, train_fixer
 from ..options import VARIANT, option
 from ..supervise import blend_supervision
+from ..view_supervision import ViewSupervision
 from ..variants import PlacementRequest, Variant
 
 
@@ -45,6 +48,8 @@ class Fixer(Variant):
     margin_db: float = option(CHECK_MARGIN_DB, "the held-out gain over the render it must reach to be used",
                               "dB", VARIANT)
     width: int = option(16, "the fixer UNet's base width", "-", VARIANT)
+    target: str = option("fill", "what the fixed render is at a virtual view: \"fill\" (where no photo's warp "
+                                 "reaches) or \"whole\" (all of I*, no warps)", "-", VARIANT)
 
     @property
     def state(self) -> FixerState:
@@ -59,6 +64,8 @@ class Fixer(Variant):
                              f"got {config.fill!r}")
         if not 0.0 < self.keep_fraction <= 1.0:
             raise InputError(f"{source}: variants.fixer.keep_fraction must be in (0, 1], got {self.keep_fraction}")
+        if self.target not in ("fill", "whole"):
+            raise InputError(f"{source}: variants.fixer.target must be \"fill\" or \"whole\", got {self.target!r}")
         if self.steps < 1 or self.held_out < 1 or self.width < 2:
             raise InputError(f"{source}: variants.fixer: steps and held_out must be >= 1 and width >= 2")
 
@@ -104,4 +111,9 @@ class Fixer(Variant):
         fixed = fix_where_check_says(self.state.net, self.state.check, context.render())
         if fixed is None:
             return None
-        return blend_supervision(replace(context, fill=fixed.to(context.fill.device)))
+        fixed = fixed.to(context.fill.device)
+        if self.target == "whole":
+            # Every pixel trusted; no warps, so no agreement margin to judge the view by.
+            return ViewSupervision(fixed.detach().float().clamp(0.0, 1.0), torch.ones_like(fixed[..., :1]),
+                                   {"agreement_db": None})
+        return blend_supervision(replace(context, fill=fixed))
