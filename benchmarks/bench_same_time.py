@@ -27,6 +27,7 @@ import bench_bootstrap as bench  # noqa: E402
 VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}},
             "fixer_whole": {"variants": {"fixer": {"target": "whole"}}, "agreement_min_db": None},
             "fixer_long": {"variants": {"fixer": {"target": "whole", "steps": 1200}}, "agreement_min_db": None},
+            "fixer_guided": {"variants": {"fixer": {"target": "guided", "steps": 600}}, "agreement_min_db": None},
             "baseline": None}
 
 

@@ -6,7 +6,11 @@ against the render, on photos it never trained on) decides whether the loop uses
 is logged. Where it passed, the fixed render is the fill (``target`` "fill": what I* keeps where
 the photos' blend does not reach) or the whole of I* (``target`` "whole": every pixel, the
 warped photos left out, so the warps' agreement does not judge the view: the held-out check is
-its gate). Its training runs inside the loop's clock, so its time is the bootstrap's.
+its gate). ``target`` "guided" is "whole" with a fixer that also sees the nearest photos: its
+input is the render, the blend of the K nearest training photos warped into the view with the
+render's depth, and that blend's mask (at a training pose the pose's own photo is left out of the
+blend, so the fixer learns where the warps beat the render rather than copying the answer). Its
+training runs inside the loop's clock, so its time is the bootstrap's.
 """
 
 from __future__ import annotations
@@ -22,9 +26,22 @@ from ...io.photo_memory import default_budget, photo_memory
 from ..fixer import CHECK_MARGIN_DB, FixerSettings, KeptPairs, build_pairs, fewer_gaussians, \
     fix_where_check_says, held_out_check, held_out_views, train_fixer
 from ..options import VARIANT, option
-from ..supervise import blend_supervision
-from ..view_supervision import ViewSupervision
+from ..supervise import blend_supervision, placed_blend
+from ..view_supervision import ViewContext, ViewSupervision
+from ..view_targets import ModelRenders, blend_sources
 from ..variants import PlacementRequest, Variant
+
+
+# The guide's channels: the nearest photos' blend [3] and its mask [1].
+GUIDE_CHANNELS = 4
+
+
+def guided_input(context) -> torch.Tensor:
+    """[H, W, 7]: the render, the blend of the context's source photos warped into its view with
+    the render's depth (over the render where none reaches), and the blend's mask."""
+    render = context.render().float().clamp(0.0, 1.0)
+    placed = placed_blend(replace(context, source_depth=None), render, context.own_depth())
+    return torch.cat([render, placed.image.float().clamp(0.0, 1.0), placed.mask.float()], dim=-1)
 
 
 @dataclass
@@ -49,7 +66,8 @@ class Fixer(Variant):
                               "dB", VARIANT)
     width: int = option(16, "the fixer UNet's base width", "-", VARIANT)
     target: str = option("fill", "what the fixed render is at a virtual view: \"fill\" (where no photo's warp "
-                                 "reaches) or \"whole\" (all of I*, no warps)", "-", VARIANT)
+                                 "reaches), \"whole\" (all of I*, no warps) or \"guided\" (all of I*, made from "
+                                 "the render and the nearest photos' warps)", "-", VARIANT)
 
     @property
     def state(self) -> FixerState:
@@ -64,8 +82,9 @@ class Fixer(Variant):
                              f"got {config.fill!r}")
         if not 0.0 < self.keep_fraction <= 1.0:
             raise InputError(f"{source}: variants.fixer.keep_fraction must be in (0, 1], got {self.keep_fraction}")
-        if self.target not in ("fill", "whole"):
-            raise InputError(f"{source}: variants.fixer.target must be \"fill\" or \"whole\", got {self.target!r}")
+        if self.target not in ("fill", "whole", "guided"):
+            raise InputError(f"{source}: variants.fixer.target must be \"fill\", \"whole\" or \"guided\", "
+                             f"got {self.target!r}")
         if self.steps < 1 or self.held_out < 1 or self.width < 2:
             raise InputError(f"{source}: variants.fixer: steps and held_out must be >= 1 and width >= 2")
 
@@ -81,16 +100,32 @@ class Fixer(Variant):
         reduced = fewer_gaussians(maker.current.detach(), self.keep_fraction)
         rasterizer = maker.setting.rasterizer
 
-        def degraded(view: int) -> torch.Tensor:
+        degraded_renders = ModelRenders(reduced, rasterizer, maker.renders.sky)
+
+        def fixer_input_at(view: int, renders: ModelRenders) -> torch.Tensor:
+            """The fixer's input at training view ``view`` from ``renders``' model; its own photo is
+            left out of the guide's blend. The renders are dropped after each view, so a large
+            capture's pairs stay within the photo budget."""
+            camera = cameras[view]
+            others = [v for v in train if v != view]
             with torch.no_grad():
-                return rasterizer(reduced, cameras[view], outputs=("rgb",))["rgb"].float().cpu()
+                context = ViewContext(request.config, camera, renders.rgb(camera),
+                                      blend_sources(camera, cameras, others, request.config), cameras,
+                                      request.photos, renders.depth, renders.rgb)
+                made = self.fixer_input(context).float().cpu()
+            renders.forget()
+            return made
+
+        def degraded(view: int) -> torch.Tensor:
+            return fixer_input_at(view, degraded_renders)
 
         centres = np.array([camera.center for camera in cameras])
         held = held_out_views(centres, train, self.held_out)
         fit = [v for v in train if v not in held]
         device = maker.current.means.device
         # Its training set within the photo budget: a pair that went is rendered again when drawn.
-        pair_bytes = [2 * 3 * 4 * cameras[v].width * cameras[v].height for v in fit]
+        channels = 3 + (GUIDE_CHANNELS if self.target == "guided" else 0) + 3
+        pair_bytes = [channels * 4 * cameras[v].width * cameras[v].height for v in fit]
         budget = photo_memory()
         budget = default_budget(sum(pair_bytes)) if budget is None else budget
         trained = train_fixer(KeptPairs(degraded, request.photos, fit, budget),
@@ -100,19 +135,26 @@ class Fixer(Variant):
         # render (it must be beaten by margin_db); the plain render there is already fitted to
         # its photo, and the fixer must not harm it by more than |margin_db|.
         check = held_out_check(trained.net, build_pairs(degraded, request.photos, held), self.margin_db)
-        fitted = held_out_check(trained.net, build_pairs(lambda v: maker.renders.rgb(cameras[v]).cpu(),
+        fitted_renders = ModelRenders(maker.current.detach(), rasterizer, maker.renders.sky)
+        fitted = held_out_check(trained.net, build_pairs(lambda v: fixer_input_at(v, fitted_renders),
                                                          request.photos, held), -abs(self.margin_db))
         request.log(f"{check.words()}; on the fitted render there {fitted.gain_db:+.2f} dB")
         if not fitted.passes:
             check.margin_db = float("inf")        # refused: it harms a fitted render
         return trained.net, check
 
+    def fixer_input(self, context) -> torch.Tensor:
+        """[H, W, 3 + G]: the render at the context's view, and for "guided" its guide channels."""
+        if self.target == "guided":
+            return guided_input(context)
+        return context.render()
+
     def supervise(self, context):
-        fixed = fix_where_check_says(self.state.net, self.state.check, context.render())
+        fixed = fix_where_check_says(self.state.net, self.state.check, self.fixer_input(context))
         if fixed is None:
             return None
         fixed = fixed.to(context.fill.device)
-        if self.target == "whole":
+        if self.target in ("whole", "guided"):
             # Every pixel trusted; no warps, so no agreement margin to judge the view by.
             return ViewSupervision(fixed.detach().float().clamp(0.0, 1.0), torch.ones_like(fixed[..., :1]),
                                    {"agreement_db": None})
