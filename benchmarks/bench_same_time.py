@@ -28,6 +28,8 @@ VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}},
             "fixer_whole": {"variants": {"fixer": {"target": "whole"}}, "agreement_min_db": None},
             "fixer_long": {"variants": {"fixer": {"target": "whole", "steps": 1200}}, "agreement_min_db": None},
             "fixer_guided": {"variants": {"fixer": {"target": "guided", "steps": 600}}, "agreement_min_db": None},
+            "fixer_far": {"variants": {"fixer": {"target": "guided", "steps": 600, "guide_sources": "far"}},
+                          "agreement_min_db": None, "regenerate_every": 200},
             "baseline": None}
 
 

@@ -29,6 +29,8 @@ from ..options import VARIANT, option
 from ..supervise import blend_supervision, placed_blend
 from ..view_supervision import ViewContext, ViewSupervision
 from ..view_targets import ModelRenders, blend_sources
+from ..virtual_views import DEFAULT_ROTATION_WEIGHT
+from ...camera import pose_distance
 from ..variants import PlacementRequest, Variant
 
 
@@ -65,6 +67,11 @@ class Fixer(Variant):
     margin_db: float = option(CHECK_MARGIN_DB, "the held-out gain over the render it must reach to be used",
                               "dB", VARIANT)
     width: int = option(16, "the fixer UNet's base width", "-", VARIANT)
+    guide_sources: str = option("nearest", "\"guided\": the photos a training pose's guide is blended from: "
+                                           "\"nearest\" (its K nearest others) or \"far\" (its K nearest among "
+                                           "those at least half the targets' median distance to their nearest "
+                                           "photo away, so the warps are as far as at the virtual views)", "-",
+                                VARIANT)
     target: str = option("fill", "what the fixed render is at a virtual view: \"fill\" (where no photo's warp "
                                  "reaches), \"whole\" (all of I*, no warps) or \"guided\" (all of I*, made from "
                                  "the render and the nearest photos' warps)", "-", VARIANT)
@@ -82,6 +89,9 @@ class Fixer(Variant):
                              f"got {config.fill!r}")
         if not 0.0 < self.keep_fraction <= 1.0:
             raise InputError(f"{source}: variants.fixer.keep_fraction must be in (0, 1], got {self.keep_fraction}")
+        if self.guide_sources not in ("nearest", "far"):
+            raise InputError(f"{source}: variants.fixer.guide_sources must be \"nearest\" or \"far\", "
+                             f"got {self.guide_sources!r}")
         if self.target not in ("fill", "whole", "guided"):
             raise InputError(f"{source}: variants.fixer.target must be \"fill\", \"whole\" or \"guided\", "
                              f"got {self.target!r}")
@@ -102,12 +112,21 @@ class Fixer(Variant):
 
         degraded_renders = ModelRenders(reduced, rasterizer, maker.renders.sky)
 
+        gap = 0.0
+        if self.guide_sources == "far" and request.goal:
+            gap = 0.5 * float(np.median([min(pose_distance(t.camera.world_to_camera, cameras[v].world_to_camera,
+                                                           DEFAULT_ROTATION_WEIGHT) for v in train)
+                                         for t in request.goal]))
+            request.log(f"fixer guides blended from photos at least {gap:.3f} away (pose distance)")
+
         def fixer_input_at(view: int, renders: ModelRenders) -> torch.Tensor:
             """The fixer's input at training view ``view`` from ``renders``' model; its own photo is
             left out of the guide's blend. The renders are dropped after each view, so a large
             capture's pairs stay within the photo budget."""
             camera = cameras[view]
-            others = [v for v in train if v != view]
+            others = [v for v in train if v != view and (gap <= 0.0 or pose_distance(
+                cameras[v].world_to_camera, camera.world_to_camera, DEFAULT_ROTATION_WEIGHT) >= gap)] or \
+                [v for v in train if v != view]
             with torch.no_grad():
                 context = ViewContext(request.config, camera, renders.rgb(camera),
                                       blend_sources(camera, cameras, others, request.config), cameras,
