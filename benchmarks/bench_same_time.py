@@ -24,7 +24,13 @@ import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch load
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_bootstrap as bench  # noqa: E402
 
-VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}}, "baseline": None}
+VARIANTS = {"default": {}, "fixer": {"variants": {"fixer": {}}},
+            "fixer_whole": {"variants": {"fixer": {"target": "whole"}}, "agreement_min_db": None},
+            "fixer_long": {"variants": {"fixer": {"target": "whole", "steps": 1200}}, "agreement_min_db": None},
+            "fixer_guided": {"variants": {"fixer": {"target": "guided", "steps": 600}}, "agreement_min_db": None},
+            "fixer_far": {"variants": {"fixer": {"target": "guided", "steps": 600, "guide_sources": "far"}},
+                          "agreement_min_db": None, "regenerate_every": 200},
+            "baseline": None}
 
 
 def run_one(stage1, targets, out_dir: Path, variant: str, seed: int, minutes: float) -> dict:

@@ -45,7 +45,9 @@ CHECK_MARGIN_DB = 0.1
 
 @dataclass(frozen=True)
 class FixerPair:
-    """degraded, photo: [H, W, 3] float32 in [0, 1] at training view ``view``."""
+    """degraded: [H, W, 3 + G] float32 in [0, 1], the degraded render and G guide channels (none,
+    or the nearest photos' blend and its mask: a guided fixer); photo: [H, W, 3]; at training
+    view ``view``."""
 
     view: int
     degraded: torch.Tensor
@@ -129,9 +131,10 @@ def pair_at(render: Callable[[int], torch.Tensor], photos, view: int) -> FixerPa
         raise ValueError(f"fixer pairs: training view {view} has no photo")
     photo = torch.as_tensor(photos[view], dtype=torch.float32)
     degraded = torch.as_tensor(render(view), dtype=torch.float32).detach().clamp(0.0, 1.0)
-    if degraded.shape != photo.shape or photo.ndim != 3 or photo.shape[-1] != 3:
+    if (photo.ndim != 3 or photo.shape[-1] != 3 or degraded.ndim != 3 or degraded.shape[:2] != photo.shape[:2]
+            or degraded.shape[-1] < 3):
         raise ValueError(f"fixer pairs: view {view}: render {tuple(degraded.shape)} and photo "
-                         f"{tuple(photo.shape)} must both be [H, W, 3]")
+                         f"{tuple(photo.shape)} must be [H, W, 3 + G] and [H, W, 3]")
     return FixerPair(view, degraded.cpu(), photo.clamp(0.0, 1.0).cpu())
 
 
@@ -160,13 +163,17 @@ class KeptPairs(Sequence):
             self._kept.move_to_end(view)
             return pair
         pair = pair_at(self.render, self.photos, view)
-        size = 2 * pair.photo.numel() * pair.photo.element_size()
+        size = pair_bytes(pair)
         while self._kept and self._kept_bytes + size > self.budget:
             _, old = self._kept.popitem(last=False)
-            self._kept_bytes -= 2 * old.photo.numel() * old.photo.element_size()
+            self._kept_bytes -= pair_bytes(old)
         self._kept[view] = pair
         self._kept_bytes += size
         return pair
+
+
+def pair_bytes(pair: FixerPair) -> int:
+    return (pair.degraded.numel() + pair.photo.numel()) * pair.photo.element_size()
 
 
 def held_out_views(centres: np.ndarray, views: Sequence[int], count: int) -> list[int]:
@@ -183,16 +190,21 @@ def held_out_views(centres: np.ndarray, views: Sequence[int], count: int) -> lis
     return sorted(views[i] for i in order)
 
 
-def fixer_network(width: int) -> UNet:
-    """The UNet (two levels) with its output layer zeroed: an untrained fixer adds nothing."""
+def fixer_network(width: int, in_channels: int = 3) -> UNet:
+    """The UNet (two levels) with its output layer zeroed: an untrained fixer adds nothing.
+    in_channels: 3 (the render) plus its guide channels; the output is always 3 (the residual
+    added to the render)."""
     net = UNet(UNetConfig(image_channels=3, base_width=width, channel_mults=(1, 2), time_dim=16))
+    if in_channels != 3:
+        net.encoder.conv_in = torch.nn.Conv2d(in_channels, width, 3, padding=1)
     torch.nn.init.zeros_(net.decoder.conv_out.weight)
     torch.nn.init.zeros_(net.decoder.conv_out.bias)
     return net
 
 
 def apply_fixer(net: UNet, render: torch.Tensor) -> torch.Tensor:
-    """render [H, W, 3] in [0, 1] -> the fixed render [H, W, 3] in [0, 1]. The image is padded
+    """render [H, W, 3 + G] in [0, 1] (the render and the net's guide channels) -> the fixed
+    render [H, W, 3] in [0, 1]. The image is padded
     (replicate) to the UNet's multiple and the residual is added in [-1, 1] space."""
     factor = net.config.downsample_factor
     h, w = render.shape[:2]
@@ -203,15 +215,16 @@ def apply_fixer(net: UNet, render: torch.Tensor) -> torch.Tensor:
 
 
 def fixed_batch(net: UNet, x: torch.Tensor) -> torch.Tensor:
-    """x: [B, 3, H, W] in [0, 1] -> [B, 3, H, W] in [0, 1]: render + residual, clamped."""
+    """x: [B, 3 + G, H, W] in [0, 1] (render first) -> [B, 3, H, W] in [0, 1]: render + residual,
+    clamped."""
     t = torch.zeros(x.shape[0], dtype=torch.long, device=x.device)
-    return (x + net(x * 2.0 - 1.0, t)).clamp(0.0, 1.0)
+    return (x[:, :3] + net(x * 2.0 - 1.0, t)).clamp(0.0, 1.0)
 
 
 def random_crops(pairs: Sequence[FixerPair], crop: int, batch: int, rng: np.random.Generator,
                  device) -> tuple[torch.Tensor, torch.Tensor]:
-    """``batch`` random crops [B, 3, crop, crop] of degraded and photo from random pairs (an image
-    smaller than ``crop`` is padded by replication first)."""
+    """``batch`` random crops ([B, 3 + G, crop, crop] of degraded, [B, 3, crop, crop] of photo)
+    from random pairs (an image smaller than ``crop`` is padded by replication first)."""
     degraded, photos = [], []
     for _ in range(batch):
         pair = pairs[int(rng.integers(len(pairs)))]
@@ -221,8 +234,8 @@ def random_crops(pairs: Sequence[FixerPair], crop: int, batch: int, rng: np.rand
         y = int(rng.integers(both.shape[1] - crop + 1))
         x = int(rng.integers(both.shape[2] - crop + 1))
         window = both[:, y:y + crop, x:x + crop]
-        degraded.append(window[:3])
-        photos.append(window[3:])
+        degraded.append(window[:-3])
+        photos.append(window[-3:])
     return torch.stack(degraded).to(device), torch.stack(photos).to(device)
 
 
@@ -235,7 +248,7 @@ def train_fixer(pairs: Sequence[FixerPair], settings: FixerSettings = FixerSetti
     if settings.crop % 2 or settings.crop < 8:
         raise ValueError(f"fixer: crop must be an even number of pixels >= 8, got {settings.crop}")
     torch.manual_seed(settings.seed)
-    net = fixer_network(settings.width).to(device)
+    net = fixer_network(settings.width, pairs[0].degraded.shape[-1]).to(device)
     optimiser = torch.optim.Adam(net.parameters(), lr=settings.lr)
     rng = np.random.default_rng(settings.seed)
     trained, start = TrainedFixer(net), time.perf_counter()
@@ -266,7 +279,7 @@ def held_out_check(net: UNet, pairs: Sequence[FixerPair], margin_db: float = CHE
     render_db, fixed_db = [], []
     with torch.no_grad():
         for pair in pairs:
-            render_db.append(psnr_db(pair.degraded, pair.photo))
+            render_db.append(psnr_db(pair.degraded[..., :3], pair.photo))
             fixed_db.append(psnr_db(apply_fixer(net, pair.degraded).cpu(), pair.photo))
     return FixerCheck([p.view for p in pairs], render_db, fixed_db, margin_db)
 

@@ -52,6 +52,10 @@ class ModelRenders:
                 self._cache[key] = compute()
         return self._cache[key]
 
+    def forget(self) -> None:
+        """Drop every kept render (a caller that visits many views once keeps none of them)."""
+        self._cache.clear()
+
     def depth(self, camera: Camera) -> torch.Tensor:
         """[H, W, 1] the scene's own surface depth: the sky shell blended in pulls a faint
         surface's depth far behind it, and the warps then place the photos wrongly and reject them."""

@@ -727,15 +727,17 @@ def test_virtual_steps_are_counted_by_their_branches_only():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("margin_db, used", [(-100.0, True), (100.0, False)])
-def test_the_fixer_is_trained_checked_and_used_only_where_its_check_says(stage1, tmp_path, margin_db, used):
+@pytest.mark.parametrize("margin_db, used, target", [(-100.0, True, "fill"), (100.0, False, "fill"),
+                                                      (-100.0, True, "guided")])
+def test_the_fixer_is_trained_checked_and_used_only_where_its_check_says(stage1, tmp_path, margin_db, used, target):
     """The variant "fixer": trained before the first round's views, its held-out check logged, and
-    the fill the fixed render only when the check passed (a margin of -100 dB always passes, +100
-    never)."""
+    the fill (or with target "guided" all of I*, from the render and the warps of the nearest photos
+    far enough away) the fixed render only when the check passed (a margin of -100 dB always passes, +100 never)."""
     lines: list[str] = []
     out = tmp_path / f"fixer_{used}"
-    config = _config(iterations=4, fill="render", save_views=0, regenerate_every=0,
-                     variants={"fixer": {"steps": 3, "width": 4, "held_out": 1, "margin_db": margin_db}})
+    config = _config(iterations=4, fill="render", save_views=0, regenerate_every=0, virtual_every=2,
+                     variants={"fixer": {"steps": 3, "width": 4, "held_out": 1, "margin_db": margin_db,
+                                         "target": target, "guide_sources": "far" if target == "guided" else "nearest"}})
     result = run_bootstrap(stage1, out, _targets(stage1), config, progress=False, log=lines.append)
     assert result.finished and (out / "model.ply").is_file()
     checks = [line for line in lines if line.startswith("fixer held-out check on 1 photos")]
@@ -743,6 +745,9 @@ def test_the_fixer_is_trained_checked_and_used_only_where_its_check_says(stage1,
     assert (f"fixer {'used' if used else 'not used'} at the virtual views") in lines
     fixer_variant = config.variants["fixer"]
     assert fixer_variant.state.check.passes == used
+    assert result.virtual_steps >= 1 and fixer_variant.state.net.encoder.conv_in.in_channels == \
+        (7 if target == "guided" else 3)
+    assert any(line.startswith("fixer guides blended from photos at least") for line in lines) == (target == "guided")
 
 
 def test_stage_two_holds_photos_within_the_budget(stage1, tmp_path, monkeypatch):
