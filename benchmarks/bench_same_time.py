@@ -4,8 +4,11 @@
 
 RUN: a stage-I run folder (read, never written). Each variant is a time-budgeted bootstrap of RUN
 (``--minutes``, no step cap) into OUT/<variant><seed>: "default" (the defaults), "fixer" (the
-experimental scene-adaptive fixer, docs/bootstrap_options.md), and "baseline" (stage I continued
-on the photos, `baseline_run`) for the same minutes. An untimed two-step warm-up runs first, so
+experimental scene-adaptive fixer as the fill, docs/bootstrap_options.md), "fixer_whole" and
+"fixer_long" (the fixed render as all of I*, 300 and 1 200 fixer steps), "fixer_guided" (a fixer
+that also sees the nearest photos' blend), "fixer_far" (the same with far photos' guides), and
+"baseline" (stage I continued on the photos, `baseline_run`) for the same minutes; the fixer
+variants leave no view out by the warps' agreement (their held-out check is the gate). An untimed two-step warm-up runs first, so
 no run pays the process's one-off costs. Each finished run is scored by `evaluate_run` on every
 held-out view; one JSON line per run (steps, virtual steps, wall seconds, scarce / covered PSNR)
 and OUT/rows.json. Prints figures; asserts nothing.
