@@ -56,7 +56,7 @@ class FixerState:
 
 @dataclass(frozen=True)
 class Fixer(Variant):
-    """The fill made by a per-scene fixer where its held-out check passed."""
+    """The fill, or all of I* (``target``), made by a per-scene fixer where its held-out check passed."""
 
     NAME: ClassVar[str] = "fixer"
 
