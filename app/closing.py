@@ -118,6 +118,9 @@ def wait_in_background(viewer, poll_s: float = 0.5) -> None:
             jobs.training.stop(timeout=0)
         jobs.training.join(poll_s)
     if jobs.training is not None:
+        # The hidden window's frame loop no longer folds the job's snapshots into its progress:
+        # the last one (the final iteration) is folded in here, or the line says an old one.
+        jobs.training.poll()
         jobs.report_job_end()
         print(f"the job in the background ended: {viewer.status}", file=sys.stderr, flush=True)
 

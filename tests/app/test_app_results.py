@@ -213,6 +213,9 @@ def test_keep_running_hides_the_window_and_the_job_finishes(xvfb, demo_scene, tm
         from inceptiongs.app.closing import wait_in_background
         wait_in_background(viewer)
         assert viewer.jobs.training.state == "finished" and (run / "model.ply").is_file()
+        ended = capsys.readouterr().err.strip().splitlines()[-1]
+        # The hidden window polled no snapshot: the line still says the job's last iteration.
+        assert ended.startswith("the job in the background ended:") and "at iteration 30;" in ended, ended
 
 
 @pytest.mark.gl
