@@ -57,9 +57,9 @@ def test_train_stopped_during_its_set_up_exits_at_once_and_the_same_command_star
                                                                                            monkeypatch, capsys):
     """`train` whose set-up is interrupted (here: a SIGTERM while it reads the scene) exits 143
     with one line and no traceback; what it left is resumable: --resume trains the whole run."""
-    from inceptiongs.scene import loader
+    from inceptiongs.train import trainer
 
-    real_load, signals_left = loader.load_scene, [1]
+    real_load, signals_left = trainer.load_scene, [1]
 
     def load_then_signal(*args, **kwargs):
         scene_loaded = real_load(*args, **kwargs)
@@ -69,7 +69,7 @@ def test_train_stopped_during_its_set_up_exits_at_once_and_the_same_command_star
 
     run = tmp_path / "run"
     command = ["train", str(scene), "--out", str(run), "--iterations", "4", "--downscale", "4"]
-    monkeypatch.setattr(loader, "load_scene", load_then_signal)
+    monkeypatch.setattr(trainer, "load_scene", load_then_signal)     # the name the trainer's set-up calls
     assert main(command) == 143
     err = capsys.readouterr().err
     assert "SIGTERM: stopping during the set-up (nothing to save yet)" in err and "Traceback" not in err, err
