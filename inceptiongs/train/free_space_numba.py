@@ -26,6 +26,13 @@ from ..constants import LOG_SCALE_MAX, LOG_SCALE_MIN
 from ..rasterizer.projection_numba import rotation_into, unit_quat
 
 
+@njit(cache=True)
+def _window(sorted_x, x, reach):                              # pragma: no cover - compiled
+    """(first, last): the range of ascending ``sorted_x`` within ``reach`` of ``x`` (empty for a
+    NaN x: both searches land past the end)."""
+    return np.searchsorted(sorted_x, x - reach), np.searchsorted(sorted_x, x + reach, side="right")
+
+
 @njit(parallel=True, cache=True)
 def _before_near_bound_kernel(means, rotations, translations, near, intrinsics, centre_x, reach, out):
     """means [N, 3]; rotations [C, 3, 3], translations [C, 3] (world to camera); near [C];
@@ -35,8 +42,7 @@ def _before_near_bound_kernel(means, rotations, translations, near, intrinsics, 
         mx = means[n, 0]
         my = means[n, 1]
         mz = means[n, 2]
-        first = np.searchsorted(centre_x, mx - reach)                 # NaN: past the end, no camera
-        last = np.searchsorted(centre_x, mx + reach, side="right")
+        first, last = _window(centre_x, mx, reach)
         for c in range(first, last):
             z = rotations[c, 2, 0] * mx + rotations[c, 2, 1] * my + rotations[c, 2, 2] * mz + translations[c, 2]
             if not (z > 0.0 and z < near[c]):  # also False for NaN
@@ -65,9 +71,7 @@ def _contains_camera_kernel(means, log_scales, quats, centers, sigmas, out):
         rotation = np.empty((0, 0))   # built at the first centre within reach (most have none)
         rotation_ready = False
         # Only centres within sqrt(reach_sq) of the mean in x can pass the pre-test below.
-        reach = math.sqrt(reach_sq) * (1.0 + 1e-9)
-        first = np.searchsorted(centers[:, 0], means[n, 0] - reach)   # NaN: past the end, no camera
-        last = np.searchsorted(centers[:, 0], means[n, 0] + reach, side="right")
+        first, last = _window(centers[:, 0], means[n, 0], math.sqrt(reach_sq) * (1.0 + 1e-9))
         for c in range(first, last):
             d0 = centers[c, 0] - means[n, 0]
             d1 = centers[c, 1] - means[n, 1]
@@ -93,8 +97,7 @@ def _near_a_camera_kernel(means, centers, radii, reach, out):
     """means [N, 3], centers [C, 3] sorted by x, radii [C], reach >= every radius; writes out [N]
     bool: the centre lies closer than some camera's radius to that camera's centre."""
     for n in prange(means.shape[0]):
-        first = np.searchsorted(centers[:, 0], means[n, 0] - reach)   # NaN: past the end, no camera
-        last = np.searchsorted(centers[:, 0], means[n, 0] + reach, side="right")
+        first, last = _window(centers[:, 0], means[n, 0], reach)
         for c in range(first, last):
             d0 = means[n, 0] - centers[c, 0]
             d1 = means[n, 1] - centers[c, 1]
