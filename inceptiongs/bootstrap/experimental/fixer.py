@@ -42,7 +42,7 @@ def guided_input(context) -> torch.Tensor:
     """[H, W, 7]: the render, the blend of the context's source photos warped into its view with
     the render's depth (over the render where none reaches), and the blend's mask."""
     render = context.render().float().clamp(0.0, 1.0)
-    placed = placed_blend(replace(context, source_depth=None), render, context.own_depth())
+    placed = placed_blend(context, render, context.own_depth())
     return torch.cat([render, placed.image.float().clamp(0.0, 1.0), placed.mask.float()], dim=-1)
 
 
@@ -124,12 +124,14 @@ class Fixer(Variant):
             left out of the guide's blend. The renders are dropped after each view, so a large
             capture's pairs stay within the photo budget."""
             camera = cameras[view]
-            others = [v for v in train if v != view and (gap <= 0.0 or pose_distance(
-                cameras[v].world_to_camera, camera.world_to_camera, DEFAULT_ROTATION_WEIGHT) >= gap)] or \
-                [v for v in train if v != view]
+            sources = []
+            if self.target == "guided":          # only a guided fixer's input warps photos in
+                others = [v for v in train if v != view]
+                far = [v for v in others if pose_distance(cameras[v].world_to_camera, camera.world_to_camera,
+                                                          DEFAULT_ROTATION_WEIGHT) >= gap] if gap > 0.0 else others
+                sources = blend_sources(camera, cameras, far or others, request.config)
             with torch.no_grad():
-                context = ViewContext(request.config, camera, renders.rgb(camera),
-                                      blend_sources(camera, cameras, others, request.config), cameras,
+                context = ViewContext(request.config, camera, renders.rgb(camera), sources, cameras,
                                       request.photos, renders.depth, renders.rgb)
                 made = self.fixer_input(context).float().cpu()
             renders.forget()
