@@ -9,10 +9,14 @@ import time
 import glfw
 import pytest
 
-from inceptiongs.app.pacing import MAX_TRAINING_WAIT_SECONDS, is_idle, training_frame_wait, wait_for_next_frame
+from inceptiongs.app.pacing import IDLE_WAIT_SECONDS, MAX_TRAINING_WAIT_SECONDS, is_idle, training_frame_wait, wait_for_next_frame
 from viewer_cases import MovingGridJob, open_viewer, opened, write_grid_model
 
 pytestmark = pytest.mark.gl
+
+# An idle loop this long holds at least one whole idle wait (IDLE_WAIT_SECONDS): a window that
+# drew a frame every wait would draw at least one in it.
+IDLE_CHECK_SECONDS = IDLE_WAIT_SECONDS + 0.2
 
 
 def _loop(viewer, seconds: float) -> int:
@@ -96,16 +100,16 @@ def test_paused_stopped_and_finished_jobs_draw_no_frames_with_the_mouse_inside_o
             _cursor_to(viewer, x, y)
             _settle(viewer)
             _loop(viewer, 0.5)  # the events of the move itself
-            assert _loop(viewer, 2.5) == 0, ("paused", x, y)
+            assert _loop(viewer, IDLE_CHECK_SECONDS) == 0, ("paused", x, y)
         steps = job.steps
         viewer.jobs.training.stop(timeout=10)
         _loop(viewer, 0.5)
         assert not viewer.jobs.training.alive and job.steps == steps
         _settle(viewer)
         _loop(viewer, 0.5)  # the closing line and the last snapshot's refine are drawn
-        assert _loop(viewer, 2.5) == 0, "stopped"
+        assert _loop(viewer, IDLE_CHECK_SECONDS) == 0, "stopped"
         rss = _rss_bytes()
-        assert _loop(viewer, 2.0) == 0 and _rss_bytes() - rss < 8e6  # no memory growth
+        assert _loop(viewer, IDLE_CHECK_SECONDS) == 0 and _rss_bytes() - rss < 8e6  # no memory growth
 
 
 def test_an_event_while_idle_draws_a_frame(xvfb, tmp_path):
@@ -130,7 +134,8 @@ def test_the_benchmark_reports_idle_and_paused_cpu_and_memory(xvfb):
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_viewer.py"
-    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "1", "--settle-seconds", "0.5",
+    # The rows' figures are the benchmark's to judge; here: every row is there and says what it measured.
+    result = subprocess.run([sys.executable, str(script), "--idle", "--idle-seconds", "0.3", "--settle-seconds", "0.2",
                              "--size", "640x480", "--ply", "/nonexistent.ply"], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     rows = [line for line in result.stdout.splitlines() if " CPU " in line]
@@ -138,4 +143,4 @@ def test_the_benchmark_reports_idle_and_paused_cpu_and_memory(xvfb):
     assert names == {(name, where) for name in ("idle, no job", "job paused", "job stopped")
                      for where in ("inside", "outside")}, result.stdout
     for line in rows:
-        assert "frames in 1 s" in line and "memory" in line, line
+        assert "frames in 0.3 s" in line and "memory" in line, line

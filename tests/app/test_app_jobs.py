@@ -279,7 +279,7 @@ def test_viewer_job_sized_to_its_budget_ends_decayed(xvfb, demo_scene, monkeypat
     from inceptiongs.train.budget import BUDGET_FREEZE
     from viewer_cases import click_widget
 
-    minutes = 0.2
+    minutes = 0.1
     monkeypatch.setattr("inceptiongs.runs.config.BUDGET_STEPS_PER_MINUTE_GUESS", 6000)
     with opened(Viewer, open_source(demo_scene), 1100, 1000) as viewer:
         viewer.jobs.settings = JobSettings(minutes=minutes, downscale=4, protocol="unstructured")
