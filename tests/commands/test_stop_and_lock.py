@@ -161,7 +161,7 @@ def test_ctrl_c_during_a_bootstrap_saves_and_resume_continues(tmp_path, scene):
     stopped_at = list_checkpoints(out)[-1][0]
     again = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and "--resume" in again.stderr      # refused, pointing at --resume
-    resumed = subprocess.run(command + ["--resume", "--minutes", "0.05"], capture_output=True, text=True,
+    resumed = subprocess.run(command + ["--resume", "--minutes", "0.01"], capture_output=True, text=True,
                              timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     assert f"resumed at step {stopped_at}" in resumed.stderr
