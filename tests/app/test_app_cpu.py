@@ -9,14 +9,23 @@ import time
 import glfw
 import pytest
 
-from inceptiongs.app.pacing import IDLE_WAIT_SECONDS, MAX_TRAINING_WAIT_SECONDS, is_idle, training_frame_wait, wait_for_next_frame
+from inceptiongs.app import pacing
+from inceptiongs.app.pacing import MAX_TRAINING_WAIT_SECONDS, is_idle, training_frame_wait, wait_for_next_frame
 from viewer_cases import MovingGridJob, open_viewer, opened, write_grid_model
 
 pytestmark = pytest.mark.gl
 
-# An idle loop this long holds at least one whole idle wait (IDLE_WAIT_SECONDS): a window that
-# drew a frame every wait would draw at least one in it.
-IDLE_CHECK_SECONDS = IDLE_WAIT_SECONDS + 0.2
+# The tests that count the frames of idle loops shorten the idle wait (pacing.IDLE_WAIT_SECONDS,
+# how long an idle loop sleeps before it looks again): what is checked is that a wait with no
+# event and no change draws nothing, whatever its length. An idle loop of IDLE_CHECK_SECONDS holds
+# at least one whole wait: a window that drew a frame every wait would draw at least one in it.
+SHORT_IDLE_WAIT_SECONDS = 0.25
+IDLE_CHECK_SECONDS = SHORT_IDLE_WAIT_SECONDS + 0.2
+
+
+@pytest.fixture
+def short_idle_waits(monkeypatch):
+    monkeypatch.setattr(pacing, "IDLE_WAIT_SECONDS", SHORT_IDLE_WAIT_SECONDS)
 
 
 def _loop(viewer, seconds: float) -> int:
@@ -36,12 +45,12 @@ def _settle(viewer) -> None:
         time.sleep(0.05)
 
 
-def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
+def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path, short_idle_waits):
     job = MovingGridJob()
     with opened(open_viewer, write_grid_model(tmp_path / "model.ply"), job_factory=lambda source: job) as viewer:
         viewer.step()
         _settle(viewer)
-        assert _loop(viewer, 1.2) <= 2  # waits for events (up to 2 s at a time)
+        assert _loop(viewer, 1.2) <= 2  # waits for events
         viewer.jobs.start_training()
         viewer.jobs.training_utilisation = 0.98  # the viewer draws ~2 % of the time
         assert not is_idle(viewer)
@@ -60,7 +69,7 @@ def test_idle_and_paused_cost_no_frames_and_a_running_job_few(xvfb, tmp_path):
         assert job.steps == steps
 
 
-def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path):
+def test_reference_mode_computes_its_comparison_once_per_change(xvfb, tmp_path, short_idle_waits):
     with opened(open_viewer, write_grid_model(tmp_path / "model.ply")) as viewer:
         viewer.view.settings.mode = "reference"
         deadline = time.perf_counter() + 60
@@ -86,7 +95,8 @@ def _cursor_to(viewer, x: float, y: float) -> None:
     viewer.step()
 
 
-def test_paused_stopped_and_finished_jobs_draw_no_frames_with_the_mouse_inside_or_outside(xvfb, tmp_path):
+def test_paused_stopped_and_finished_jobs_draw_no_frames_with_the_mouse_inside_or_outside(xvfb, tmp_path,
+                                                                                          short_idle_waits):
     """Idle means idle: once the refine is done, nothing changes and nothing is drawn, whatever
     the job's state and wherever the mouse is; each of these cost a frame every wait before."""
     job = MovingGridJob()
@@ -112,13 +122,13 @@ def test_paused_stopped_and_finished_jobs_draw_no_frames_with_the_mouse_inside_o
         assert _loop(viewer, IDLE_CHECK_SECONDS) == 0 and _rss_bytes() - rss < 8e6  # no memory growth
 
 
-def test_an_event_while_idle_draws_a_frame(xvfb, tmp_path):
+def test_an_event_while_idle_draws_a_frame(xvfb, tmp_path, short_idle_waits):
     with opened(open_viewer, write_grid_model(tmp_path / "model.ply")) as viewer:
         viewer.step()
         _settle(viewer)
-        assert _loop(viewer, 1.5) == 0
+        assert _loop(viewer, 2 * IDLE_CHECK_SECONDS) == 0
         viewer.status = "a new line"  # a change the panel shows, without an event
-        assert _loop(viewer, 1.5) == 1
+        assert _loop(viewer, 2 * IDLE_CHECK_SECONDS) == 1  # one frame, then idle again for the waits after it
         glfw.set_window_size(viewer.window, 700, 500)  # a resize is an event: answered at once
         assert _loop(viewer, 0.3) >= 1
 
