@@ -195,7 +195,7 @@ def _idle_row(viewer, name: str, seconds: float, settle_s: float) -> list[str]:
         cpu, frames = _loop_for(viewer, seconds)
         growth = _resident_mb() - memory
         verdict = "ok" if cpu < 5.0 and growth < 5.0 else "ABOVE target (5 % CPU, no growth)"
-        rows.append(f"  {name:22s} mouse {where:7s} CPU {cpu:5.1f} %  {frames:4d} frames in {seconds:.0f} s  "
+        rows.append(f"  {name:22s} mouse {where:7s} CPU {cpu:5.1f} %  {frames:4d} frames in {seconds:g} s  "
                     f"memory {growth:+6.1f} MB  {verdict}")
     return rows
 

@@ -9,6 +9,7 @@ import glfw
 import numpy as np
 import pytest
 
+from demo_cases import copy_of_demo_scene
 from viewer_cases import opened, press_key
 
 pytestmark = pytest.mark.gl
@@ -19,14 +20,13 @@ def blocks_run(tmp_path_factory):
     """A 6-step run of the demo scene with a 4-cell plan written as `train --blocks` writes it."""
     from inceptiongs.app.job_settings import JobSettings
     from inceptiongs.evaluation.protocols import Split
-    from inceptiongs.scene.demo import write_demo_scene
     from inceptiongs.scene.loader import load_scene
     from inceptiongs.train.blocks import PLAN_FILE, BlockPlan
     from inceptiongs.train.partition import balanced_cells, ground_plane
     from inceptiongs.train.trainer import train
 
     root = tmp_path_factory.mktemp("blocks")
-    scene_dir = write_demo_scene(root / "scene", progress=False)
+    scene_dir = copy_of_demo_scene(root / "scene")
     run = root / "run"
     train(JobSettings(minutes=None, iterations=6, downscale=4).train_config(scene_dir), run, progress=False)
     scene = load_scene(scene_dir)

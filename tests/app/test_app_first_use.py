@@ -246,9 +246,9 @@ def test_bonsai_opens_framed_on_what_its_cameras_look_at(xvfb):
 
 @pytest.fixture(scope="module")
 def demo_scene(tmp_path_factory):
-    from inceptiongs.scene.demo import write_demo_scene
+    from demo_cases import copy_of_demo_scene
 
-    return write_demo_scene(tmp_path_factory.mktemp("first_use") / "scene", progress=False)
+    return copy_of_demo_scene(tmp_path_factory.mktemp("first_use") / "scene")
 
 
 def test_sparse_points_are_points_in_every_mode_and_in_screenshots(xvfb, demo_scene, tmp_path):

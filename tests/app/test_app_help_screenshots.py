@@ -66,13 +66,16 @@ def test_a_run_screenshot_defaults_to_the_window_size(tmp_path):
     assert screenshot_camera(source, None, (64, 48)).width == 64  # --size still decides
 
 
-def test_unknown_screenshot_format_is_one_line_error(tmp_path):
+def test_unknown_screenshot_format_is_one_line_error(tmp_path, capfd, monkeypatch):
+    """The viewer's main() in this process, its stderr read at the fd (the whole process's one
+    line on a bad input is tested in test_app_viewer.test_bad_source_is_one_line_error_exit_2)."""
+    from inceptiongs.app.main import main
+
     model = write_grid_model(tmp_path / "model.ply")
-    result = subprocess.run([sys.executable, "-m", "inceptiongs.app.main", str(model), "--screenshot",
-                             str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120,
-                            env={k: v for k, v in __import__("os").environ.items() if k != "DISPLAY"})
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
+    monkeypatch.delenv("DISPLAY", raising=False)
+    capfd.readouterr()
+    assert main([str(model), "--screenshot", str(tmp_path / "x.gif")]) == 2
+    lines = capfd.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "x.gif" in lines[0] and "unknown image format" in lines[0]
 
 

@@ -119,12 +119,21 @@ def test_screenshot_matches_render_command(xvfb, model, tmp_path):
     assert mean <= 0.5 / 255 and p99 <= 2 / 255, (mean, p99)
 
 
-def test_bad_source_is_one_line_error_exit_2(tmp_path):
+def test_bad_source_is_one_line_error_exit_2(tmp_path, capfd, monkeypatch):
+    from inceptiongs.app.main import main
+
     (tmp_path / "notes.txt").write_text("hello")
-    for bad in (tmp_path / "missing", tmp_path / "notes.txt", tmp_path):
-        result = _run_viewer_cli(bad, "--screenshot", tmp_path / "x.png", env_display=False)
-        assert result.returncode == 2
-        lines = result.stderr.strip().splitlines()
+    # The whole process once (its exit status, nothing else on stderr from start to exit) ...
+    result = _run_viewer_cli(tmp_path / "missing", "--screenshot", tmp_path / "x.png", env_display=False)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and str(tmp_path / "missing") in lines[0]
+    # ... then each other kind of bad source through the same main(), its stderr read at the fd.
+    monkeypatch.delenv("DISPLAY", raising=False)
+    for bad in (tmp_path / "notes.txt", tmp_path):
+        capfd.readouterr()
+        assert main([str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+        lines = capfd.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and str(bad) in lines[0]
 
 

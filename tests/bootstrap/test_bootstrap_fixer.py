@@ -9,6 +9,9 @@ from torch.nn import functional as F
 from inceptiongs.bootstrap import fixer
 from inceptiongs.gaussians import Gaussians
 
+# Tiny networks: one torch thread (conftest.one_torch_thread) is faster than two on two busy cores.
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 
 def scene_photo(view: int, size: int = 32) -> torch.Tensor:
     """[size, size, 3] a smooth random texture per view (sums of sinusoids), in [0, 1]."""

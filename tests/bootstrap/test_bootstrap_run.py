@@ -678,7 +678,7 @@ def test_a_tiny_budget_covers_the_whole_bootstrap(stage1, tmp_path):
     and the refinement's long schedule was cut by it."""
     import time
 
-    budget_s = 6.0
+    budget_s = 4.0
     config = _config(minutes=budget_s / 60.0, prior_minutes=1.0, prior_steps=None, iterations=100_000)
     began = time.perf_counter()
     result = run_bootstrap(stage1, tmp_path / "out", _targets(stage1), config, progress=False)

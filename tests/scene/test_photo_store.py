@@ -20,8 +20,8 @@ from inceptiongs.scene.photo_store import PhotoStore, cache_file, photo_bytes, p
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory) -> Path:
-    from inceptiongs.scene.demo import write_demo_scene
-    return write_demo_scene(tmp_path_factory.mktemp("photos") / "scene", progress=False)
+    from demo_cases import copy_of_demo_scene
+    return copy_of_demo_scene(tmp_path_factory.mktemp("photos") / "scene")
 
 
 @pytest.mark.parametrize("downscale", [1, 4])

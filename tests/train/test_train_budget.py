@@ -56,9 +56,9 @@ def demo_scene(tmp_path_factory):
 
 def test_a_sized_run_shrinks_an_impossible_schedule_to_its_budget(tmp_path, demo_scene):
     scene = demo_scene
-    # 5000 steps in 5 seconds is out of reach on any machine: the trainer must re-size.
+    # 5000 steps in 2.4 seconds is out of reach on any machine: the trainer must re-size.
     config = short_run_schedule(with_values(
-        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.08,
+        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.04,
                     size_to_minutes=True, pgsr=False),
         {"output.eval_every": 10_000, "output.checkpoint_every": 10_000}))
     messages = []
@@ -110,7 +110,7 @@ def test_a_sized_run_grows_only_to_what_its_time_affords(tmp_path, demo_scene, m
     monkeypatch.setattr(trainer_module, "fit_step_cost", lambda points: (0.0, 1e-5))
     scene = demo_scene
     config = short_run_schedule(with_values(
-        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.1,
+        TrainConfig(scene=str(scene), downscale=4, protocol="unstructured", iterations=5000, minutes=0.05,
                     size_to_minutes=True, pgsr=False, strategy="mcmc"),
         {"output.eval_every": 10_000, "output.checkpoint_every": 10_000}))
     messages = []
