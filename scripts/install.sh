@@ -33,3 +33,7 @@ if [ "$dev" = 1 ]; then
 else
   python3 -m pip install -q --disable-pip-version-check -e .
 fi
+
+# The CPU kernels compiled once now (numba caches them beside the code), so the first run does
+# not stop for the compiler.
+python3 scripts/compile_kernels.py
