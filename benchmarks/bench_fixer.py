@@ -2,16 +2,18 @@
 
     python3 benchmarks/bench_fixer.py OUT [--scene bonsai] [--downscale 8] [--iterations 800]
         [--early 200] [--keep 0.5] [--steps 300] [--held-out 3] [--stage1 RUN]
-        [--ways fewer,underfit,left-out]
+        [--ways fewer,underfit,left-out] [--left-out-clusters 2]
 
 Stage I on the scene (unstructured protocol, seed 0, short schedule, a checkpoint every
 ``--early`` steps kept; or ``--stage1 RUN``, an existing run, read only), then per way of
 degrading -- "underfit" (the stage-I checkpoint at ``--early``), "fewer" (the final model keeping
 ``--keep`` of its Gaussians, the most visible), "left-out" (stage I's schedule trained again
-without the training photos of one of the split's clusters, the one whose size is nearest the
-scarce cluster's: at those poses it renders what it never saw, as the final model does at the
-scarce views) -- a fixer trained on the way's views but the ``--held-out`` most isolated ones
-(the training views; for "left-out" the left-out cluster's), and:
+without the training photos of ``--left-out-clusters`` of the split's clusters, those whose
+sizes are nearest the scarce cluster's: at those poses it renders what it never saw, as the
+final model does at the scarce views) -- a fixer trained on the way's views but the
+``--held-out`` most isolated ones (the training views; for "left-out" its check is the last
+left-out cluster's views, never near a pose it trained on, or with one cluster its
+``--held-out`` most isolated views), and:
 
 * how much the way's errors at the training views resemble the final model's errors at the
   scarce held-out views (RMS distance of the mean log error spectra, decades; the covered
@@ -65,20 +67,20 @@ def stage1(out: Path, scene: Path, downscale: int, iterations: int, early: int) 
     return run_dir
 
 
-def left_out_cluster(split) -> list[int]:
-    """The training views of the cluster (not the scarce one) whose count is nearest the scarce
-    cluster's held-out count."""
+def left_out_clusters(split, count: int) -> list[list[int]]:
+    """The training views of the ``count`` clusters (not the scarce one) whose sizes are nearest
+    the scarce cluster's held-out count."""
     scarce, train = set(split.scarce_test), set(split.train)
     clusters = [[v for v in cluster if v in train] for cluster in split.clusters if not scarce & set(cluster)]
-    if not clusters:
-        raise SystemExit("the left-out way needs the unstructured protocol's clusters")
-    return min(clusters, key=lambda cluster: abs(len(cluster) - len(scarce)))
+    if len(clusters) < count:
+        raise SystemExit(f"the left-out way needs {count} clusters besides the scarce one (unstructured protocol)")
+    return sorted(clusters, key=lambda cluster: abs(len(cluster) - len(scarce)))[:count]
 
 
 def left_out_model(out: Path, config, views: list[int]) -> Path:
-    """Stage I's config trained again into OUT/left_out with ``views`` left out of its training
+    """Stage I's config trained again into OUT/left_out_N (N: how many views) with ``views`` left out of its training
     views (its held-out views as stage I's: the split is stage I's, less ``views``)."""
-    run_dir = out / "left_out"
+    run_dir = out / f"left_out_{len(views)}"
     if (run_dir / "model.ply").is_file():
         return run_dir
     gone = set(views)
@@ -110,6 +112,7 @@ def main() -> None:
     parser.add_argument("--held-out", type=int, default=3)
     parser.add_argument("--stage1", type=Path, help="an existing stage-I run to use (read only)")
     parser.add_argument("--ways", default="fewer,underfit,left-out")
+    parser.add_argument("--left-out-clusters", type=int, default=2)
     args = parser.parse_args()
     use_torch_threads()
     wanted = args.ways.split(",")
@@ -131,12 +134,15 @@ def main() -> None:
         ways["underfit"] = (gaussians_from_params(load_checkpoint(early[0])["params"]), fit, held)
     left_s = 0.0
     if "left-out" in wanted:
-        cluster = left_out_cluster(split)
+        clusters = left_out_clusters(split, args.left_out_clusters)
         left_began = time.perf_counter()
-        left = load_stage1(left_out_model(args.out, run.config, cluster)).gaussians
+        left = load_stage1(left_out_model(args.out, run.config, sum(clusters, []))).gaussians
         left_s = time.perf_counter() - left_began
-        left_held = held_out_views(np.array([c.center for c in cameras]), cluster, args.held_out)
-        ways["left-out"] = (left, [v for v in cluster if v not in left_held], left_held)
+        if len(clusters) > 1:
+            left_held = clusters[-1]
+        else:
+            left_held = held_out_views(np.array([c.center for c in cameras]), clusters[0], args.held_out)
+        ways["left-out"] = (left, [v for v in sum(clusters, []) if v not in left_held], left_held)
 
     def renderer(gaussians):
         cache = {}
