@@ -2,7 +2,7 @@
 
     python3 benchmarks/bench_fixer.py OUT [--scene bonsai] [--downscale 8] [--iterations 800]
         [--early 200] [--keep 0.5] [--steps 300] [--held-out 3] [--stage1 RUN]
-        [--ways fewer,underfit,left-out] [--left-out-clusters 2]
+        [--ways fewer,underfit,left-out] [--left-out-clusters 2] [--left-out-each]
 
 Stage I on the scene (unstructured protocol, seed 0, short schedule, a checkpoint every
 ``--early`` steps kept; or ``--stage1 RUN``, an existing run, read only), then per way of
@@ -13,7 +13,9 @@ sizes are nearest the scarce cluster's: at those poses it renders what it never 
 final model does at the scarce views) -- a fixer trained on the way's views but the
 ``--held-out`` most isolated ones (the training views; for "left-out" its check is the last
 left-out cluster's views, never near a pose it trained on, or with one cluster its
-``--held-out`` most isolated views), and:
+``--held-out`` most isolated views; with ``--left-out-each`` one model per left-out cluster,
+each trained without that cluster only, so the fixer learns unseen poses all around the scene),
+and:
 
 * how much the way's errors at the training views resemble the final model's errors at the
   scarce held-out views (RMS distance of the mean log error spectra, decades; the covered
@@ -78,9 +80,9 @@ def left_out_clusters(split, count: int) -> list[list[int]]:
 
 
 def left_out_model(out: Path, config, views: list[int]) -> Path:
-    """Stage I's config trained again into OUT/left_out_N (N: how many views) with ``views`` left out of its training
+    """Stage I's config trained again into OUT/left_out_FIRST_N (its first view, how many) with ``views`` left out of its training
     views (its held-out views as stage I's: the split is stage I's, less ``views``)."""
-    run_dir = out / f"left_out_{len(views)}"
+    run_dir = out / f"left_out_{min(views)}_{len(views)}"
     if (run_dir / "model.ply").is_file():
         return run_dir
     gone = set(views)
@@ -113,6 +115,8 @@ def main() -> None:
     parser.add_argument("--stage1", type=Path, help="an existing stage-I run to use (read only)")
     parser.add_argument("--ways", default="fewer,underfit,left-out")
     parser.add_argument("--left-out-clusters", type=int, default=2)
+    parser.add_argument("--left-out-each", action="store_true",
+                        help="one left-out model per cluster (each without that cluster only)")
     args = parser.parse_args()
     use_torch_threads()
     wanted = args.ways.split(",")
@@ -136,7 +140,12 @@ def main() -> None:
     if "left-out" in wanted:
         clusters = left_out_clusters(split, args.left_out_clusters)
         left_began = time.perf_counter()
-        left = load_stage1(left_out_model(args.out, run.config, sum(clusters, []))).gaussians
+        if args.left_out_each:     # each cluster's poses rendered by the model trained without it
+            models = [load_stage1(left_out_model(args.out, run.config, cluster)).gaussians for cluster in clusters]
+            owner = {v: i for i, cluster in enumerate(clusters) for v in cluster}
+            left = lambda v: models[owner[v]]     # noqa: E731
+        else:
+            left = load_stage1(left_out_model(args.out, run.config, sum(clusters, []))).gaussians
         left_s = time.perf_counter() - left_began
         if len(clusters) > 1:
             left_held = clusters[-1]
@@ -145,12 +154,14 @@ def main() -> None:
         ways["left-out"] = (left, [v for v in sum(clusters, []) if v not in left_held], left_held)
 
     def renderer(gaussians):
+        """gaussians: a model, or view -> the model that renders it."""
         cache = {}
 
         def render(v):
             if v not in cache:
+                model = gaussians(v) if callable(gaussians) else gaussians
                 with torch.no_grad():
-                    cache[v] = rasterizer(gaussians, cameras[v], outputs=("rgb",))["rgb"].float().clamp(0, 1)
+                    cache[v] = rasterizer(model, cameras[v], outputs=("rgb",))["rgb"].float().clamp(0, 1)
             return cache[v]
         return render
 
