@@ -3,6 +3,7 @@
     python3 benchmarks/bench_fixer.py OUT [--scene bonsai] [--downscale 8] [--iterations 800]
         [--early 200] [--keep 0.5] [--steps 300] [--held-out 3] [--stage1 RUN]
         [--ways fewer,underfit,left-out] [--left-out-clusters 2] [--left-out-each]
+        [--left-out-keep 0]
 
 Stage I on the scene (unstructured protocol, seed 0, short schedule, a checkpoint every
 ``--early`` steps kept; or ``--stage1 RUN``, an existing run, read only), then per way of
@@ -14,8 +15,9 @@ final model does at the scarce views) -- a fixer trained on the way's views but 
 ``--held-out`` most isolated ones (the training views; for "left-out" its check is the last
 left-out cluster's views, never near a pose it trained on, or with one cluster its
 ``--held-out`` most isolated views; with ``--left-out-each`` one model per left-out cluster,
-each trained without that cluster only, so the fixer learns unseen poses all around the scene),
-and:
+each trained without that cluster only, so the fixer learns unseen poses all around the scene;
+``--left-out-keep S`` trains on every 1/S-th photo of a left-out cluster still, as the scarce
+cluster keeps a few of its photos), and:
 
 * how much the way's errors at the training views resemble the final model's errors at the
   scarce held-out views (RMS distance of the mean log error spectra, decades; the covered
@@ -115,6 +117,8 @@ def main() -> None:
     parser.add_argument("--stage1", type=Path, help="an existing stage-I run to use (read only)")
     parser.add_argument("--ways", default="fewer,underfit,left-out")
     parser.add_argument("--left-out-clusters", type=int, default=2)
+    parser.add_argument("--left-out-keep", type=float, default=0.0,
+                        help="share of each left-out cluster's photos still trained on (evenly spaced)")
     parser.add_argument("--left-out-each", action="store_true",
                         help="one left-out model per cluster (each without that cluster only)")
     args = parser.parse_args()
@@ -139,6 +143,9 @@ def main() -> None:
     left_s = 0.0
     if "left-out" in wanted:
         clusters = left_out_clusters(split, args.left_out_clusters)
+        if args.left_out_keep > 0.0:    # each cluster keeps evenly spaced photos, as the scarce one keeps a few
+            clusters = [[v for v in cluster if v not in cluster[::max(1, round(1 / args.left_out_keep))]]
+                        for cluster in clusters]
         left_began = time.perf_counter()
         if args.left_out_each:     # each cluster's poses rendered by the model trained without it
             models = [load_stage1(left_out_model(args.out, run.config, cluster)).gaussians for cluster in clusters]
