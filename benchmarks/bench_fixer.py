@@ -82,8 +82,9 @@ def left_out_clusters(split, count: int) -> list[list[int]]:
 
 
 def left_out_model(out: Path, config, views: list[int]) -> Path:
-    """Stage I's config trained again into OUT/left_out_FIRST_N (its first view, how many) with ``views`` left out of its training
-    views (its held-out views as stage I's: the split is stage I's, less ``views``)."""
+    """Stage I's config trained again into OUT/left_out_FIRST_N (its first view, how many) with
+    ``views`` left out of its training views (its held-out views as stage I's: the split is stage
+    I's, less ``views``)."""
     run_dir = out / f"left_out_{min(views)}_{len(views)}"
     if (run_dir / "model.ply").is_file():
         return run_dir
