@@ -94,7 +94,8 @@ def left_out_model(out: Path, config, views: list[int]) -> Path:
         split = make_split(*args, **kwargs)
         clusters = [[v for v in cluster if v not in gone] for cluster in split.clusters]
         return replace(split, train=[v for v in split.train if v not in gone],
-                       clusters=[cluster for cluster in clusters if cluster], excluded=sorted(set(split.excluded) | gone))
+                       clusters=[cluster for cluster in clusters if cluster],
+                       excluded=sorted(set(split.excluded) | gone))
 
     with mock.patch("inceptiongs.train.trainer.make_split", without):
         train(config, run_dir, progress=False)
