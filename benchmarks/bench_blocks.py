@@ -37,7 +37,7 @@ def train(scene: Path, out: Path, iterations: int, args, blocks: int | None) -> 
     if blocks:
         settings = out.parent / "blocks_settings.json"
         settings.write_text(json.dumps({"block": {"global_share": args.global_share,
-                                                  "start_keep": args.start_keep}}))
+                                                  "start_keep": args.start_keep, "schedule": args.schedule}}))
         command += ["--blocks", str(blocks), "--config", str(settings)]
     began = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)
@@ -73,6 +73,7 @@ def main() -> int:
     parser.add_argument("--global-share", type=float, default=1.0 / 3.0,
                         help="share of the steps the global stage trains (block.global_share)")
     parser.add_argument("--start-keep", default="seen", choices=("seen", "cell"), help="block.start_keep")
+    parser.add_argument("--schedule", default="restart", choices=("restart", "continue"), help="block.schedule")
     parser.add_argument("--reuse-single", metavar="RUN", help="the single run's folder, kept across invocations")
     parser.add_argument("--downscale", type=int, default=4)
     parser.add_argument("--protocol", default="unstructured")
@@ -104,7 +105,7 @@ def main() -> int:
     print(f"scene {scene.name}, {args.iterations} steps in all, downscale {args.downscale}, protocol {args.protocol}")
     print(f"global stage: share {args.global_share:.3f}, {global_steps} steps; blocks: {args.blocks} of "
           f"{block_steps} steps (sum with the global stage {global_steps + sum(block_steps)}), start_keep "
-          f"{args.start_keep}")
+          f"{args.start_keep}, schedule {args.schedule}")
     print(f"training photos per block {[b['train_photos'] for b in plan['blocks']]}, "
           f"Gaussians kept per block {plan['kept_gaussians']}")
     print(f"{'run':8s} {'wall s':>8s} {'scarce':>8s} {'covered':>8s} {'all':>8s}")

@@ -225,6 +225,7 @@ STRATEGY_NAMES = tuple(STRATEGY_OPTIONS)
 
 
 BLOCK_START_KEEP = ("seen", "cell")
+BLOCK_SCHEDULES = ("restart", "continue")
 
 
 @dataclass(frozen=True)
@@ -257,6 +258,12 @@ class Block:
                                       "training photos see), \"cell\" (those inside the widened cell and the sky "
                                       "shell's)",
                               choices=BLOCK_START_KEEP)
+    schedule: str = setting("restart", "a block's schedule after the global stage: \"restart\" (a run of its own "
+                                       "steps: the full position step size, its own densification window), "
+                                       "\"continue\" (the rest of the whole run's schedule after the global "
+                                       "stage's steps, compressed into the block's: the step size the whole run "
+                                       "would have there, its remaining densification window, the SH degree "
+                                       "already reached)", choices=BLOCK_SCHEDULES)
     start: str = setting("", "the run folder (the whole run's global stage) whose last checkpoint this block "
                              "starts from; empty: the sparse points", "path")
 

@@ -90,8 +90,11 @@ class BlockPlan:
                                     origin=[float(x) for x in plane.origin], u=[float(x) for x in plane.u],
                                     v=[float(x) for x in plane.v], cell=cell.to_json(),
                                     margin=float(self.margins[index]), start="" if start is None else str(start))
-        steps = stage_steps(parent.iterations, parent.block.global_share, len(self.cells))[1][index]
-        return dataclasses.replace(stage_config(parent, steps), blocks=0, block=block)
+        first, steps = stage_steps(parent.iterations, parent.block.global_share, len(self.cells))
+        config = stage_config(parent, steps[index])
+        if parent.block.schedule == "continue" and first:
+            config = continued_schedule(config, parent, first)
+        return dataclasses.replace(config, blocks=0, block=block)
 
 
 def stage_steps(total: int, share: float, count: int) -> tuple[int, list[int]]:
@@ -124,6 +127,32 @@ def stage_config(parent: TrainConfig, steps: int) -> TrainConfig:
         else:
             values[path] = config_value(sized, path)
     return with_values(dataclasses.replace(sized, blocks=0), values)
+
+
+def continued_schedule(block: TrainConfig, parent: TrainConfig, done: int) -> TrainConfig:
+    """``block`` (a block's stage config, block.iterations steps) on the rest of the whole run's
+    schedule after its global stage's ``done`` steps, compressed into the block's steps: the
+    position step size starts where the whole run's would be at ``done`` (and decays to its
+    final value as the whole run's does), a milestone of the whole run maps to the block's step
+    in the same place of the rest (before ``done``: the block's first step; densification ends
+    at once when the whole run's window has closed), and the SH degree the global stage reached
+    comes back within its first steps."""
+    whole = stage_config(parent, parent.iterations)
+    rest = max(1, parent.iterations - done)
+
+    def mapped(step: int) -> int:     # the whole run's step -> the block's
+        return max(0, round((step - done) * block.iterations / rest))
+
+    rates = parent.learning_rates
+    t = min(1.0, done / max(1, parent.iterations))
+    values = {"learning_rates.means": math.exp((1 - t) * math.log(rates.means) + t * math.log(rates.means_final)),
+              "sh.increase_every": 1}
+    for path in ("densification.densify_from", "densification.densify_until", "densification.prune_large_from",
+                 "pgsr_terms.normal_from", "pgsr_terms.multiview_from"):
+        values[path] = mapped(config_value(whole, path))
+    d = whole.densification
+    values["densification.densify_every"] = max(1, round(d.densify_every * block.iterations / rest))
+    return with_values(block, values)
 
 
 def global_config(parent: TrainConfig, count: int) -> TrainConfig | None:

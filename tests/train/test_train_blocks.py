@@ -25,8 +25,8 @@ from inceptiongs.evaluation.protocols import make_split
 from inceptiongs.io.ply import read_ply
 from demo_cases import copy_of_demo_scene
 from inceptiongs.scene.loader import load_scene
-from inceptiongs.train.blocks import (BLOCK_DONE, PLAN_FILE, block_dir, global_dir, read_plan, stage_config,
-                                     stage_steps)
+from inceptiongs.train.blocks import (BLOCK_DONE, PLAN_FILE, block_dir, continued_schedule, global_dir, read_plan,
+                                     stage_config, stage_steps)
 from inceptiongs.train.distributed import assign, ranks_from_environment
 from inceptiongs.train.partition import (Cell, balanced_cells, ground_plane, photos_seeing, visible_points)
 
@@ -162,6 +162,32 @@ def test_a_stage_sizes_the_default_milestones_to_its_steps_and_scales_the_given_
     # A milestone given keeps its fraction of the run.
     given = with_values(whole, {"densification.densify_until": 2400})
     assert stage_config(given, 1000).densification.densify_until == 800
+
+
+def test_a_continued_block_lives_through_the_rest_of_the_whole_runs_schedule():
+    """schedule "continue": block step b has the position step size the whole run has at step
+    done + b x rest / steps, and the whole run's milestones land at the same place of the rest."""
+    from inceptiongs.runs.config import TrainConfig, short_run_schedule
+    from inceptiongs.train.optim import position_learning_rate
+
+    whole = short_run_schedule(TrainConfig(iterations=3000))
+    for done, steps in ((1000, 500), (2000, 250)):
+        restarted = stage_config(whole, steps)
+        block = continued_schedule(restarted, whole, done)
+        for b in (0, steps // 3, steps):
+            at = done + b * (3000 - done) / steps
+            assert position_learning_rate(b, block, 1.0) == pytest.approx(position_learning_rate(at, whole, 1.0),
+                                                                            rel=1e-9)
+        # A restarted block begins at the full step size: the thing "continue" avoids.
+        assert position_learning_rate(0, restarted, 1.0) > 2 * position_learning_rate(0, block, 1.0)
+        until = whole.densification.densify_until
+        assert block.densification.densify_until == max(0, round((until - done) * steps / (3000 - done)))
+        assert block.sh.increase_every == 1
+    # The whole run densifies until step 1500: a block after 1000 steps densifies a quarter of its
+    # steps, one after 2000 not at all.
+    assert whole.densification.densify_until == 1500
+    assert continued_schedule(stage_config(whole, 500), whole, 1000).densification.densify_until == 125
+    assert continued_schedule(stage_config(whole, 250), whole, 2000).densification.densify_until == 0
 
 
 @pytest.fixture(scope="module")
