@@ -1,5 +1,5 @@
 """Compiles the CPU kernels once, at install time: numba caches each compiled kernel beside its
-module (``__pycache__/*.nbi``), so the first training run, viewer session or test does not wait
+module (``__pycache__/*.nbi``), so training, the viewer and the tests start without waiting
 about a minute for the compiler.
 
     python3 scripts/compile_kernels.py
