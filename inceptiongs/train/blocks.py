@@ -46,6 +46,7 @@ from ..runs.config import SCHEDULE_FIELDS, Block, TrainConfig, sized_schedule
 from ..runs.metrics import append_metrics, logged_iterations
 from ..scene.loader import load_scene
 from .distributed import Ranks, assign, barrier
+from .optim import position_learning_rate
 from .partition import (PHOTOS_PER_BLOCK, Cell, GroundPlane, balanced_cells, cell_margin, ground_plane,
                         photos_seeing)
 
@@ -143,15 +144,13 @@ def continued_schedule(block: TrainConfig, parent: TrainConfig, done: int) -> Tr
     def mapped(step: int) -> int:     # the whole run's step -> the block's
         return max(0, round((step - done) * block.iterations / rest))
 
-    rates = parent.learning_rates
-    t = min(1.0, done / max(1, parent.iterations))
-    values = {"learning_rates.means": math.exp((1 - t) * math.log(rates.means) + t * math.log(rates.means_final)),
-              "sh.increase_every": 1}
+    # The whole run's step size at ``done``, per unit of scene extent (the block scales it by its own).
+    values = {"learning_rates.means": position_learning_rate(done, parent, 1.0), "sh.increase_every": 1,
+              "densification.densify_every": max(1, round(whole.densification.densify_every
+                                                          * block.iterations / rest))}
     for path in ("densification.densify_from", "densification.densify_until", "densification.prune_large_from",
                  "pgsr_terms.normal_from", "pgsr_terms.multiview_from"):
         values[path] = mapped(config_value(whole, path))
-    d = whole.densification
-    values["densification.densify_every"] = max(1, round(d.densify_every * block.iterations / rest))
     return with_values(block, values)
 
 
