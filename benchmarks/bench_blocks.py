@@ -3,7 +3,7 @@ held-out views.
 
     python benchmarks/bench_blocks.py [--scene ../shared/data/bonsai] [--blocks 4] [--iterations 4000]
         [--global-share 0.333] [--start-keep seen|cell] [--downscale 4] [--protocol unstructured]
-        [--seed 0] [--out /tmp/bench_blocks] [--reuse-single RUN]
+        [--seed 0] [--out /tmp/bench_blocks] [--reuse-single RUN] [--reuse-global FOLDER]
 
 Trains the scene once as one run of --iterations steps and once in --blocks blocks with the same
 --iterations in all (`inceptiongs train --blocks`: --global-share of them train the global stage
@@ -12,6 +12,9 @@ stage alone) on the whole scene's held-out views and prints: wall time, Gaussian
 covered / all PSNR of each, and per held-out view the blocks' PSNR minus the single run's (the
 worst view names a seam). --reuse-single RUN takes the single run from RUN when it is a finished
 run of the same scene, steps, downscale, protocol and seed (trained there first when RUN is empty).
+--out is emptied first; --reuse-global FOLDER copies a finished global stage (RUN/blocks/global of
+an earlier blocks run of the same scene, downscale, protocol, seed and global steps) into the new
+blocks run, which then skips it ("global stage: finished earlier").
 Targets (issue "Captures of thousands of photos"): scarce and covered within 0.3 dB of the single
 run; no held-out view below it by more than 1 dB.
 """
@@ -59,6 +62,25 @@ def reusable(run: Path, scene: Path, args) -> bool:
             and last.get("iteration") == args.iterations)
 
 
+def copy_global(source: Path, target: Path, scene: Path, args) -> None:
+    """``source`` (a finished global stage) copied to ``target`` when it was trained for this
+    comparison (scene, downscale, protocol, seed, the global share's steps); else SystemExit."""
+    try:
+        config = json.loads((source / "config.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"--reuse-global {source}: no readable config.json ({exc})")
+    steps = max(1, round(args.global_share * args.iterations)) if args.global_share > 0 else 0
+    wanted = {"scene": str(scene.resolve()), "downscale": args.downscale, "protocol": args.protocol,
+              "seed": args.seed, "iterations": steps}
+    wrong = {key: config.get(key) for key, value in wanted.items() if config.get(key) != value}
+    if wrong or not (source / "block_done.json").is_file():
+        raise SystemExit(f"--reuse-global {source}: not a finished global stage of this comparison "
+                         f"(block_done.json {'present' if (source / 'block_done.json').is_file() else 'missing'}; "
+                         f"differs in {wrong or 'nothing'}; wanted {wanted})")
+    shutil.copytree(source, target)
+    print(f"global stage reused from {source}")
+
+
 def evaluate(run: Path) -> dict:
     result = subprocess.run([sys.executable, "-m", "inceptiongs", "eval", str(run), "--json"],
                             capture_output=True, text=True, check=True)
@@ -75,6 +97,7 @@ def main() -> int:
     parser.add_argument("--start-keep", default="seen", choices=("seen", "cell"), help="block.start_keep")
     parser.add_argument("--schedule", default="restart", choices=("restart", "continue"), help="block.schedule")
     parser.add_argument("--reuse-single", metavar="RUN", help="the single run's folder, kept across invocations")
+    parser.add_argument("--reuse-global", metavar="FOLDER", help="a finished global stage to copy in (module doc)")
     parser.add_argument("--downscale", type=int, default=4)
     parser.add_argument("--protocol", default="unstructured")
     parser.add_argument("--seed", type=int, default=0)
@@ -91,6 +114,8 @@ def main() -> int:
         if args.reuse_single:
             shutil.rmtree(single_dir, ignore_errors=True)
         single_s = train(scene, single_dir, args.iterations, args, None)
+    if args.reuse_global:
+        copy_global(Path(args.reuse_global), out / "blocks" / "blocks" / "global", scene, args)
     blocks_s = train(scene, out / "blocks", args.iterations, args, args.blocks)
     single, blocks = evaluate(single_dir), evaluate(out / "blocks")
     plan = json.loads((out / "blocks" / "blocks.json").read_text())
@@ -111,7 +136,8 @@ def main() -> int:
     print(f"{'run':8s} {'wall s':>8s} {'scarce':>8s} {'covered':>8s} {'all':>8s}")
     for name, scores, seconds in stages:
         groups = scores["groups"]
-        print(f"{name:8s} {seconds:8.0f} " + " ".join(f"{groups.get(g, {}).get('psnr', float('nan')):8.2f}"
+        # A protocol without a scarce group (llff) scores it as null: printed as nan.
+        print(f"{name:8s} {seconds:8.0f} " + " ".join(f"{(groups.get(g) or {}).get('psnr') or float('nan'):8.2f}"
                                                        for g in ("scarce", "covered", "all")))
     by_view = {view["name"]: view["psnr"] for view in single["views"]}
     for name, scores, _ in stages[1:]:
@@ -119,7 +145,7 @@ def main() -> int:
         print(f"{name} - single per held-out view (dB): worst "
               + ", ".join(f"{view} {gap:+.2f}" for gap, view in gaps[:5]) + f"; best {gaps[-1][1]} {gaps[-1][0]:+.2f}")
     for group in ("scarce", "covered"):
-        if group in single["groups"]:
+        if (single["groups"].get(group) or {}).get("psnr") is not None:
             print(f"{group}: blocks - single = {blocks['groups'][group]['psnr'] - single['groups'][group]['psnr']:+.2f} dB")
     return 0
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io.atomic import OutputError
-from ..io.config_json import check_seed, with_values
+from ..io.config_json import check_seed, config_value, setting_paths, with_values
 from ..io.photo_memory import PHOTO_MEMORY_HELP
 from ..io.paths import contained_path, read_small_text
 from ..train.distributed import ranks_from_environment
@@ -218,6 +218,17 @@ def run(args) -> int:
     return 0
 
 
+def changed_settings(stored: TrainConfig, asked: TrainConfig, shown: int = 1) -> list[str]:
+    """The settings (dotted paths, at most ``shown`` of them, then a count) in which ``asked``
+    differs from ``stored``, as "PATH V (asked W)"; the first is the one a user most likely gave
+    (top-level settings come first; a milestone sized from --iterations follows it). The device
+    is left out: a run continues on any device (checkpoints hold CPU tensors)."""
+    changed = [f"{path} {config_value(stored, path)!r} (asked {config_value(asked, path)!r})"
+               for path in setting_paths(type(stored)) if path != "device"
+               and config_value(stored, path) != config_value(asked, path)]
+    return changed[:shown] + ([f"{len(changed) - shown} more setting(s)"] if len(changed) > shown else [])
+
+
 def run_blocks(args, out: Path) -> int:
     """`train --blocks`: plan, train this process's blocks, merge (inceptiongs.train.blocks); under
     torchrun each rank trains its share and rank 0 merges."""
@@ -241,11 +252,15 @@ def run_blocks(args, out: Path) -> int:
         previous = TrainConfig.load(stored)
         if not previous.blocks:
             raise InputError(f"{out}: run folder already holds a run that is not in blocks (give another --out)")
-        config = dataclasses.replace(previous, device=config.device)
         count = previous.blocks
         if args.blocks != "auto" and str(args.blocks) != str(count):
             raise InputError(f"{out}: holds a run in {count} blocks, not {args.blocks} (give --blocks {count} to "
                              f"continue it, or another --out)")
+        changed = changed_settings(previous, dataclasses.replace(config, blocks=count))
+        if changed:
+            raise InputError(f"{out}: holds a run in blocks trained with other settings ({'; '.join(changed)}); "
+                             f"the command that started it continues it, or give another --out")
+        config = dataclasses.replace(previous, device=config.device)
     else:
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
         split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)

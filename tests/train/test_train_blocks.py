@@ -281,6 +281,24 @@ def test_the_same_command_again_writes_nothing(blocks_run):
     assert {path: (sha(path), path.stat().st_mtime_ns) for path in run.rglob("*.ply")} == before
 
 
+def test_the_same_folder_with_other_settings_is_one_line_and_writes_nothing(blocks_run, capsys):
+    """A finished (or half-finished) run in blocks is continued by the command that started it;
+    another --iterations or --seed would otherwise be ignored with "nothing to do"."""
+    scene, run, command = blocks_run
+    before = {path: sha(path) for path in run.rglob("*") if path.is_file()}
+    for flag, value, shown in (("--iterations", str(ITERATIONS + 10), f"iterations {ITERATIONS} (asked {ITERATIONS + 10})"),
+                               ("--seed", "3", "seed 0 (asked 3)")):
+        asked = [*command[3:]]
+        if flag in asked:
+            asked[asked.index(flag) + 1] = value
+        else:
+            asked += [flag, value]
+        assert main(asked) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "other settings" in err[0] and shown in err[0], err
+    assert {path: sha(path) for path in run.rglob("*") if path.is_file()} == before
+
+
 def test_torchrun_on_two_ranks_writes_the_same_model_as_one_process(blocks_run, tmp_path):
     scene, run, command = blocks_run
     out = tmp_path / "run"
