@@ -16,11 +16,13 @@ alone (:func:`in_background`).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Iterable
 
 import cv2
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from ..camera import Camera, project_points
 from .point_projection import project_cloud
@@ -188,6 +190,7 @@ HIDDEN_ALPHA = 0.99
 # silhouettes must stay sharp (the demo's 96-pixel views rendered 4x smaller filled 17k shell
 # Gaussians instead of 4k and cost its covered views 0.18 dB).
 FILL_RENDER_WIDTH = 320
+FILL_BAR_VIEWS = 200    # fewer take a few seconds: no bar
 # Rows of hidden Gaussians per distance block: [rows, seen] float32 stays under ~50 MB.
 FILL_BLOCK_ROWS = 1024
 
@@ -242,19 +245,22 @@ def fill_hidden_shell(params: dict[str, torch.Tensor], hidden: torch.Tensor, don
 
 
 def fill_shell_behind_scene(params: dict[str, torch.Tensor], sphere: torch.Tensor, cameras: list[Camera],
-                            rasterizer, hidden_alpha: float = HIDDEN_ALPHA) -> int:
+                            rasterizer, hidden_alpha: float = HIDDEN_ALPHA, progress: bool = False) -> int:
     """The end-of-training fill: the shell (beyond BACKGROUND_FRACTION of ``sphere`` [4]) hidden
     behind the scene (foreground alpha >= ``hidden_alpha``) in every training camera (``cameras``)
     takes its sky-seen neighbours' colour. rasterizer: the run's
     rasterizer (inceptiongs.rasterizer.interface.Rasterizer), which draws the scene's own
-    Gaussians' alpha at most FILL_RENDER_WIDTH pixels wide. Returns how many were filled."""
+    Gaussians' alpha at most FILL_RENDER_WIDTH pixels wide (tens of ms a view on two CPU cores:
+    ``progress`` shows a bar when there are more than FILL_BAR_VIEWS). Returns how many were filled."""
     background = in_background(params["means"].detach(), sphere)
     if not bool(background.any()) or bool(background.all()):
         return 0
     small = [camera.scaled(max(1.0, camera.width / FILL_RENDER_WIDTH)) for camera in cameras]
     with torch.no_grad():
         scene_part = gaussians_from_params(params).detach().subset(~background)     # built once for every view
-        alphas = [rasterizer(scene_part, camera, outputs=("alpha",))["alpha"][..., 0] for camera in small]
+        shown = tqdm(small, desc="sky shell: views it hides behind", unit="view", file=sys.stderr, leave=False,
+                     disable=not progress or len(small) <= FILL_BAR_VIEWS)
+        alphas = [rasterizer(scene_part, camera, outputs=("alpha",))["alpha"][..., 0] for camera in shown]
     exposure = shell_exposure(params["means"][background], small, alphas, hidden_alpha)
     hidden = torch.zeros_like(background)
     donors = torch.zeros_like(background)

@@ -313,7 +313,8 @@ class StageOne:
         if self.state.sky is None:
             return False
         train_cameras = [self.data.cameras[i] for i in self.data.train]
-        filled = fill_shell_behind_scene(self.state.params, self.state.sky, train_cameras, self.rasterizer)
+        filled = fill_shell_behind_scene(self.state.params, self.state.sky, train_cameras, self.rasterizer,
+                                         progress=self.loop.progress)
         if filled:
             self.log(f"sky shell: {filled} Gaussians no training view saw (behind the scene) take the colour "
                      f"of their seen neighbours")
