@@ -677,7 +677,7 @@ def _minutes_typed(value: float) -> float:
 def _progress(jobs, run) -> None:
     progress, plan = run.progress, run.plan
     if not run.alive and jobs.reported:
-        imgui.text_wrapped(jobs.status.text)  # the closing line: time, iteration, final scores
+        imgui.text_wrapped(jobs.closing)  # the closing line: time, iteration, final scores
     else:
         done = progress.iteration - plan.start_iteration
         total = plan.steps

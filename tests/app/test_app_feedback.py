@@ -158,6 +158,47 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
         assert _region(window, rect).std() > 0.05
 
 
+def test_the_panel_keeps_the_jobs_closing_line_when_the_status_moves_on(xvfb, tmp_path, monkeypatch):
+    """Under "job writes: RUN_bootstrap" the panel drew whatever the status line said last: after
+    the bootstrap a saved video's "video saved to .../video_1.mp4" stood there as if the job had
+    written it, and the job's result (time, scores, verdict) was gone."""
+    import inceptiongs.app.job_requests as jobs_module
+    from inceptiongs.app import panels
+
+    run, out = tmp_path / "run", tmp_path / "run_bootstrap"
+    run.mkdir()
+    monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
+    drawn: list[str] = []
+    real_text_wrapped = panels.imgui.text_wrapped
+
+    def recording(text, *args):
+        drawn.append(str(text))
+        return real_text_wrapped(text, *args)
+
+    monkeypatch.setattr(panels.imgui, "text_wrapped", recording)
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+        viewer.jobs.run_dir = run
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
+        deadline = time.time() + 60
+        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+            viewer.step()
+        closing = viewer.status
+        assert " finished in " in closing and "saved in" in closing, closing
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)                    # a later action: the status line moves on
+        assert viewer.status.startswith("flagged the current view"), viewer.status
+        drawn.clear()
+        _frames(viewer)
+        assert closing in drawn, drawn                   # still under the job in the panel
+        assert viewer.status not in drawn, drawn         # said in the notification area, not as the job's
+
+
 def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb, tmp_path):
     """A PSNR axis spanning 22.22-22.30 made 0.08 dB of noise look like large swings, the
     Gaussians axis read "94683.4 / 94683.2", and hovering the loss plot's x axis painted a
