@@ -154,3 +154,9 @@ def test_a_resume_that_makes_no_step_keeps_the_scores_it_stopped_with(stage1, tm
     after = json.loads((out / "bootstrap" / "summary.json").read_text())
     assert after["last_eval"] == before["last_eval"], (after["last_eval"], before["last_eval"])
     assert resumed.last_eval == before["last_eval"]
+    # A new budget already spent is said, not left to read from an unchanged iteration count.
+    logged: list[str] = []
+    again = run_bootstrap(stage1, out, None, _config(minutes=before["wall_s"] / 120.0), progress=False, resume=True,
+                          log=logged.append)
+    assert again.iteration == stopped.iteration
+    assert any("was spent before it stopped" in line and "no step will be made" in line for line in logged), logged
