@@ -59,6 +59,7 @@ class Jobs:
         self.bootstrap_base: dict | None = None  # the Gaussians shown when it started (stage I)
         self.bootstrap_views: list = []           # [(flag name, Camera)] it repairs
         self.verdict_images_due = self.verdict is not None  # the viewer renders them on its next frame
+        self.retired_textures: list = []  # a replaced verdict's textures, released after the frame (verdict.py)
         self.pending: JobRequest | None = None  # a job asked for, waiting for the user's "start"
         self.baseline_of: Path | None = None  # the bootstrap result a running baseline was asked for
         # The open run's training photos it fits poorly: drawn apart, stepped through by the panel.
@@ -202,10 +203,11 @@ class Jobs:
         self.closing = self.status.text
 
     def set_verdict(self, verdict) -> None:
-        """The verdict the panel shows (None: none); the previous one's images are let go."""
-        from .verdict import release_textures  # noqa: PLC0415
+        """The verdict the panel shows (None: none); the previous one's images are let go once the
+        frame is rendered (verdict.retire_textures)."""
+        from .verdict import retire_textures  # noqa: PLC0415
 
-        release_textures(self.verdict)
+        retire_textures(self.verdict, self.retired_textures)
         self.verdict = verdict
 
     # --- the scene's runs --------------------------------------------------------------------------

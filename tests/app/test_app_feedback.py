@@ -176,7 +176,7 @@ def test_the_panel_keeps_the_jobs_closing_line_when_the_status_moves_on(xvfb, tm
         return real_text_wrapped(text, *args)
 
     monkeypatch.setattr(panels.imgui, "text_wrapped", recording)
-    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "closing.ply"), 900, 1000) as viewer:
         viewer.jobs.run_dir = run
         _frames(viewer)
         viewer.input.on_cursor(viewer.window, 700, 500)
@@ -197,6 +197,40 @@ def test_the_panel_keeps_the_jobs_closing_line_when_the_status_moves_on(xvfb, tm
         _frames(viewer)
         assert closing in drawn, drawn                   # still under the job in the panel
         assert viewer.status not in drawn, drawn         # said in the notification area, not as the job's
+
+
+def test_a_job_started_under_the_verdicts_images_does_not_end_the_viewer(xvfb, tmp_path, monkeypatch):
+    """The statuette's bootstrap result opened, its verdict's before / after images in view, and
+    "run the same-time baseline" answered with "start the job": starting the job let the images'
+    GL textures go inside the frame whose draw data still named them, imgui's backend bound a
+    released texture (GLError 1282, glBindTexture) and the viewer ended with a traceback, its
+    baseline stopped at step 0."""
+    import inceptiongs.app.job_requests as jobs_module
+
+    run, out = tmp_path / "run", tmp_path / "run_bootstrap"
+    run.mkdir()
+    monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "restart.ply"), 900, 1200) as viewer:
+        viewer.jobs.run_dir = run
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
+        deadline = time.time() + 60
+        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+            viewer.step()
+        _frames(viewer)
+        (shown,) = viewer.jobs.verdict.images
+        assert shown.textures, "the verdict's images are drawn from GL textures"
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        rect = viewer.ui.rects["verdict"]
+        assert _inside_window(viewer, rect), rect     # the images are drawn in the frame of the click
+        start_job(viewer, "Bootstrap flagged views")  # the frame that starts it draws, and renders
+        assert viewer.jobs.training is not None and viewer.jobs.verdict is None
+        _frames(viewer)
+        assert not shown.textures
 
 
 def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb, tmp_path):
