@@ -112,10 +112,16 @@ def resume_blocked_reason(run_dir: Path | None) -> str | None:
     A bootstrap's result holds a stage-I config and checkpoints, so resuming it would continue
     stage-I training on the repaired model, undoing what the virtual views taught it, and the
     bootstrap itself cannot continue from a checkpoint."""
-    if is_bootstrap_run(run_dir):
-        return ("resume continues stage-I training, which would undo this bootstrap's repair: "
-                "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
-    return None
+    from inceptiongs.bootstrap.runner import BOOTSTRAP_DIR, TARGETS_FILE  # noqa: PLC0415
+
+    if not is_bootstrap_run(run_dir):
+        return None
+    if not (Path(run_dir) / BOOTSTRAP_DIR / TARGETS_FILE).is_file():   # the loop without targets: a baseline
+        return ("this is a same-time baseline (stage I continued on the photos for its bootstrap's time): "
+                "resumed, it would run longer than its bootstrap and no verdict would count it; open its "
+                "stage-I run to train further")
+    return ("resume continues stage-I training, which would undo this bootstrap's repair: "
+            "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
 
 
 def describe_model(source, run_dir: Path | None) -> str:
