@@ -508,3 +508,32 @@ def test_a_progress_bars_label_reads_on_its_fill(xvfb, tmp_path):
         lighter, darker = sorted((_relative_luminance((fill.x, fill.y, fill.z)),
                                   _relative_luminance((text.x, text.y, text.z))), reverse=True)
         assert (lighter + 0.05) / (darker + 0.05) >= 4.5, (fill, text)
+
+
+def test_what_was_typed_shows_before_the_window_goes_idle(xvfb, tmp_path):
+    """Typed fast into a field (xdotool, 30 ms a key, the viewer at 4 FPS), the "file" field
+    showed "sert" of "/tmp/usertry2/exp/fromviewer.splat" until the mouse moved, 30 s later:
+    imgui takes its queued input a little per frame, and the loop went idle with keys queued."""
+    from inceptiongs.app.pacing import UI_SETTLE_SECONDS, is_idle
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "typing.ply"), 900, 1000) as viewer:
+        click_widget(viewer, "Edit")
+        scroll_panel_to(viewer, "file")
+        x0, y0, x1, y1 = viewer.ui.rects["file"]
+        click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
+        _frames(viewer)
+        before = viewer.editor.saving.path
+        typed = "abcdefgh"
+        for char in typed:   # all in one poll, as GLFW hands them over after a slow frame
+            key = glfw.KEY_A + ord(char) - ord("a")
+            viewer.input.on_key(viewer.window, key, 0, glfw.PRESS, 0)
+            viewer.input.on_char(viewer.window, ord(char))
+            viewer.input.on_key(viewer.window, key, 0, glfw.RELEASE, 0)
+        viewer.step()
+        time.sleep(UI_SETTLE_SECONDS + 0.05)   # no further event: only what imgui still holds
+        frames = 0
+        while not is_idle(viewer) and frames < 200:
+            viewer.step()
+            frames += 1
+        # Inserted where the click put the cursor (the field's left end), every key of it.
+        assert viewer.editor.saving.path == typed + before, (viewer.editor.saving.path, frames)
