@@ -35,12 +35,20 @@ def fresh_folder(base: Path) -> Path:
     return base.with_name(f"{base.name}_{number}")
 
 
+# A double extension a name keeps whole when it is numbered: edited.compressed_2.ply would be read
+# as a plain PLY.
+KEPT_SUFFIXES = (".compressed.ply",)
+
+
 def fresh_file(path: Path) -> Path:
-    """``path`` when nothing exists there, else the first free STEM_2.EXT, STEM_3.EXT ..."""
+    """``path`` when nothing exists there, else the first free STEM_2.EXT, STEM_3.EXT ... (EXT
+    whole: .compressed.ply stays one)."""
     path = Path(path)
+    suffix = next((kept for kept in KEPT_SUFFIXES if path.name.lower().endswith(kept)), path.suffix)
+    stem = path.name[:len(path.name) - len(suffix)]
     candidate, number = path, 2
     while candidate.exists():
-        candidate = path.with_name(f"{path.stem}_{number}{path.suffix}")
+        candidate = path.with_name(f"{stem}_{number}{suffix}")
         number += 1
     return candidate
 
