@@ -396,6 +396,24 @@ def test_an_empty_folder_is_named_once_in_a_flat_message(tmp_path):
     assert "no recognisable scene" in line and ".ply" in line
 
 
+def test_a_folder_inside_a_run_names_the_run_to_open(tmp_path):
+    """RUN/bootstrap (the folder a user may drop instead of the run) was read as a run for its
+    config.json, and refused with "unknown key 'agreement_min_db'; docs/train_options.md lists
+    the keys"; RUN/checkpoints said "no recognisable scene". Both name the run to open."""
+    run = tmp_path / "run_bootstrap"
+    for folder in ("bootstrap", "checkpoints"):
+        (run / folder).mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    (run / "split.json").write_text("{}")
+    (run / "bootstrap" / "config.json").write_text('{"agreement_min_db": -1.0}')
+    for inner in (run / "bootstrap", run / "checkpoints"):
+        result = _viewer_command(str(inner))
+        assert result.returncode == 2
+        (line,) = result.stderr.strip().splitlines()
+        assert f"inside the run {run}" in line and f"inceptiongs-viewer {run}" in line, line
+        assert "unknown key" not in line and "no recognisable scene" not in line, line
+
+
 @pytest.mark.slow
 def test_a_screenshot_of_an_llff_scene_without_points_waits_for_them(tmp_path):
     """`inceptiongs-viewer fern/ --screenshot x.png` wrote an all-black image, taken before the
