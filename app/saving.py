@@ -71,6 +71,7 @@ class EditSaver:
             self.series = typed
         self.path = self.offered = str(fresh_file(self.series))
         kept = f" ({typed.name} exists: kept)" if path != typed else ""
-        notes = "".join(f"; {note}" for note in written.notes)   # what the format dropped or clamped
+        # What the format dropped or clamped, without the path the line has just named.
+        notes = "".join(f"; {note.removeprefix(f'{path}: ')}" for note in written.notes)
         self.status.text = f"saved {len(gaussians)} Gaussians to {path}{kept}{notes}"
         return Path(path)

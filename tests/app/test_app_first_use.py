@@ -510,6 +510,7 @@ def test_save_writes_the_format_its_name_says(xvfb, tmp_path):
             saved = Path(viewer.status.split(" to ", 1)[1].split(" (", 1)[0].split(";", 1)[0])
             assert saved.is_file() and open_model(saved).format == format_name, (viewer.status, saved)
             assert len(read_model(saved)) == shown
+            assert viewer.status.count(str(saved)) == 1, viewer.status   # a format's note does not repeat it
         assert (tmp_path / "web_2.compressed.ply").is_file(), viewer.status   # numbered, its format kept
         type_into(viewer, "file", str(tmp_path / "web.txt"))
         click_widget(viewer, "save PLY")
