@@ -43,6 +43,9 @@ class Jobs:
         self.run_dir = run_dir_of(view.source)  # the open run: what Resume continues, Bootstrap repairs
         self.out_dir: Path | None = None  # where the current (or last) job writes
         self.reported = False  # the closing line of the last job has replaced the status
+        # That closing line, which the Training panel keeps under the job while the status line
+        # moves on to later actions ("video saved to ..." read as the job's result there).
+        self.closing = ""
         self.fold_settings = False  # panels.py closes the job dialog once a job has started
         self.last_snapshot_time = -1e9  # when a job's snapshot last replaced the model
         self.run_labels = RunLabels()  # the panel's line for each of the scene's runs
@@ -56,6 +59,7 @@ class Jobs:
         self.bootstrap_base: dict | None = None  # the Gaussians shown when it started (stage I)
         self.bootstrap_views: list = []           # [(flag name, Camera)] it repairs
         self.verdict_images_due = self.verdict is not None  # the viewer renders them on its next frame
+        self.retired_textures: list = []  # a replaced verdict's textures, released after the frame (verdict.py)
         self.pending: JobRequest | None = None  # a job asked for, waiting for the user's "start"
         self.baseline_of: Path | None = None  # the bootstrap result a running baseline was asked for
         # The open run's training photos it fits poorly: drawn apart, stepped through by the panel.
@@ -180,6 +184,7 @@ class Jobs:
         self.reported = True
         if run.error:
             self.status.text = f"{run.plan.kind} failed after {format_duration(run.elapsed_s)}: {run.error}"
+            self.closing = self.status.text
             return
         self.status.text = closing_line(run.plan.kind, run.state, run.elapsed_s, run.progress.iteration,
                                         final_scores(run.progress.psnr), self.out_dir)
@@ -195,12 +200,14 @@ class Jobs:
             self.verdict_images_due = self.verdict is not None
             if self.verdict is not None:
                 self.status.text += f"; {verdict_line(self.verdict)}"
+        self.closing = self.status.text
 
     def set_verdict(self, verdict) -> None:
-        """The verdict the panel shows (None: none); the previous one's images are let go."""
-        from .verdict import release_textures  # noqa: PLC0415
+        """The verdict the panel shows (None: none); the previous one's images are let go once the
+        frame is rendered (verdict.retire_textures)."""
+        from .verdict import retire_textures  # noqa: PLC0415
 
-        release_textures(self.verdict)
+        retire_textures(self.verdict, self.retired_textures)
         self.verdict = verdict
 
     # --- the scene's runs --------------------------------------------------------------------------

@@ -317,12 +317,31 @@ def looked_at(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
     return seen
 
 
-def scene_of_interest(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+def inside_shell(means: np.ndarray, cameras: list[Camera], points: np.ndarray | None) -> np.ndarray:
+    """[N] bool: which of ``means`` [N, 3] lie inside the sky shell stage I puts around a capture
+    (sky.shell_geometry: a sphere around the cameras' centroid at SKY_RADIUS_FACTOR times the far
+    extent of the scene's sparse ``points`` [P, 3] and the cameras), closer than the fraction of
+    its radius that sky.in_background calls background. All True without cameras or points."""
+    from inceptiongs.train.sky import BACKGROUND_FRACTION, shell_geometry  # noqa: PLC0415 (torch: only here)
+
+    if not len(cameras) or points is None or len(points) == 0:
+        return np.ones(len(means), bool)
+    centre, radius = shell_geometry(list(cameras), points)
+    return np.linalg.norm(np.asarray(means, np.float64) - centre, axis=1) <= BACKGROUND_FRACTION * radius
+
+
+def scene_of_interest(means: np.ndarray, cameras: list[Camera], points: np.ndarray | None = None) -> np.ndarray:
     """The Gaussians [M, 3] Home frames, out of ``means`` [N, 3] (a strided sample of at most
     FRAME_MAX_POINTS): those the cameras look at (looked_at), far outliers and the sky shell
-    left out (FRAME_OUTLIER_FACTOR). All of the sample when nothing would be left."""
+    left out (FRAME_OUTLIER_FACTOR). With the scene's sparse ``points`` [P, 3] the shell is left
+    out first by where stage I puts it (inside_shell): on the statuette most Gaussians are
+    shell, their median lay on it, and Home framed the shell with the statuette a dot inside.
+    All of the sample when nothing would be left."""
     means = np.asarray(means, np.float64)
     means = means[:: max(len(means) // FRAME_MAX_POINTS, 1)]
+    inside = means[inside_shell(means, cameras, points)]
+    if len(inside) >= 3:
+        means = inside
     seen = means[looked_at(means, cameras)]
     if len(seen) < 3:
         seen = means
@@ -334,12 +353,12 @@ def scene_of_interest(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
 
 
 def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, covered_left: float = 0.0,
-           cameras: list[Camera] = ()) -> NavigationState:
+           cameras: list[Camera] = (), points: np.ndarray | None = None) -> NavigationState:
     """``nav`` moved back along its viewing direction until the scene's robust bounds (the
-    Gaussians of scene_of_interest) fit the part of the ``width`` x ``height`` image right of
-    ``covered_left`` pixels (the panel over the window's left), centred there; the pivot at
-    the scene's centre."""
-    center, radius = robust_bounds(scene_of_interest(means, list(cameras)))
+    Gaussians of scene_of_interest; ``points``: the scene's sparse points) fit the part of the
+    ``width`` x ``height`` image right of ``covered_left`` pixels (the panel over the window's
+    left), centred there; the pivot at the scene's centre."""
+    center, radius = robust_bounds(scene_of_interest(means, list(cameras), points))
     rotation = looking_down(nav.rotation, nav.up, FRAME_ELEVATION_DEG) if len(cameras) else nav.rotation
     covered_left = float(np.clip(covered_left, 0.0, 0.6 * width))  # a panel over most of it: frame anyway
     focal = 0.5 * height / math.tan(math.radians(nav.fov_y_deg) * 0.5)
@@ -406,7 +425,8 @@ def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 
 
 
 def opening_view(cameras: list[Camera], means: np.ndarray, up: np.ndarray, width: int, height: int,
-                 covered_left: float = 0.0, saved: Camera | None = None) -> NavigationState:
+                 covered_left: float = 0.0, saved: Camera | None = None,
+                 points: np.ndarray | None = None) -> NavigationState:
     """Where a window of ``width`` x ``height`` framebuffer pixels (``covered_left`` of them hidden
     by the panel) opens on ``means`` [N, 3]: with ``cameras`` around the scene, framed on what they
     look at as Home frames it, seen from the first camera's heading (a capture's first camera may
@@ -421,7 +441,7 @@ def opening_view(cameras: list[Camera], means: np.ndarray, up: np.ndarray, width
         nav = NavigationState.from_camera(first, up=up, speed=max(spread * 0.5, 1e-3))
         if len(means) == 0 or forward_facing(cameras):
             return nav
-        return framed(nav, means, width, height, covered_left, cameras)
+        return framed(nav, means, width, height, covered_left, cameras, points)
     if saved is not None:   # a saved edit reopens where it was seen when saved
         pivot = saved.center + saved.rotation[2] * _saved_pivot_distance(saved.center, means)
         return NavigationState.from_camera(saved, up=up, speed=default_view(means, width, height).speed, pivot=pivot)

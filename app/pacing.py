@@ -39,6 +39,8 @@ def is_idle(viewer) -> bool:
         return False  # the last frame was a moving one: its refine is still to be drawn
     if now - viewer.input.last_event < UI_SETTLE_SECONDS:
         return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
+    if imgui_input_queued(viewer):
+        return False  # keys typed faster than frames are drawn: imgui takes them over several
     if now - viewer.jobs.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
         return False  # the refine of the last snapshot is still to come
     if viewer.jobs.running():
@@ -50,6 +52,14 @@ def is_idle(viewer) -> bool:
     if viewer.drawing.detail_busy():
         return False  # a level-of-detail tree or cut is to come
     return viewer.view.settings.mode != "reference" or viewer.drawing.reference_settled()
+
+
+def imgui_input_queued(viewer) -> bool:
+    """Whether imgui still holds input events for later frames: it trickles a frame's queued
+    events (a key's press and release, the characters typed with it) over several frames, and an
+    idle loop showed a field with half of what was typed until the next event."""
+    impl = viewer.imgui_impl
+    return impl is not None and len(impl.contexts[0].input_events_queue) > 0
 
 
 def training_frame_wait(frame_ms: float, utilisation: float) -> float:

@@ -251,7 +251,10 @@ def _stats(ui, s, edit, gl_error: str | None) -> None:
     """The frame statistics (settings.FrameStats), the model's size, a GL error if one came."""
     figures = ([f"points {s.draw_ms:.1f} ms"] if s.drawn_by == "points"   # points need no sort (points.py)
                else [f"sort {s.sort_ms:.1f} ms", f"draw {s.draw_ms:.1f} ms"])
-    _flow(ui, "stats", [f"{s.fps:.1f} FPS", f"frame {s.frame_ms:.1f} ms", *figures])
+    # The panel is drawn inside the frame it times: the first frame has no rate yet, and an idle
+    # window kept showing "0.0 FPS frame 0.0 ms" beside that frame's 6 s draw.
+    rate = [f"{s.fps:.1f} FPS", f"frame {s.frame_ms:.1f} ms"] if s.frames else ["first frame"]
+    _flow(ui, "stats", [*rate, *figures])
     _flow(ui, "model", [f"{edit.count} Gaussians", f"render scale {s.rendered_scale:.2f}"])
     if gl_error:
         imgui.text_colored(imgui.ImVec4(1, 0.6, 0.2, 1), f"GL reported {gl_error}")
@@ -677,7 +680,7 @@ def _minutes_typed(value: float) -> float:
 def _progress(jobs, run) -> None:
     progress, plan = run.progress, run.plan
     if not run.alive and jobs.reported:
-        imgui.text_wrapped(jobs.status.text)  # the closing line: time, iteration, final scores
+        imgui.text_wrapped(jobs.closing)  # the closing line: time, iteration, final scores
     else:
         done = progress.iteration - plan.start_iteration
         total = plan.steps

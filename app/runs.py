@@ -35,12 +35,20 @@ def fresh_folder(base: Path) -> Path:
     return base.with_name(f"{base.name}_{number}")
 
 
+# A double extension a name keeps whole when it is numbered: edited.compressed_2.ply would be read
+# as a plain PLY.
+KEPT_SUFFIXES = (".compressed.ply",)
+
+
 def fresh_file(path: Path) -> Path:
-    """``path`` when nothing exists there, else the first free STEM_2.EXT, STEM_3.EXT ..."""
+    """``path`` when nothing exists there, else the first free STEM_2.EXT, STEM_3.EXT ... (EXT
+    whole: .compressed.ply stays one)."""
     path = Path(path)
+    suffix = next((kept for kept in KEPT_SUFFIXES if path.name.lower().endswith(kept)), path.suffix)
+    stem = path.name[:len(path.name) - len(suffix)]
     candidate, number = path, 2
     while candidate.exists():
-        candidate = path.with_name(f"{path.stem}_{number}{path.suffix}")
+        candidate = path.with_name(f"{stem}_{number}{suffix}")
         number += 1
     return candidate
 
@@ -112,10 +120,16 @@ def resume_blocked_reason(run_dir: Path | None) -> str | None:
     A bootstrap's result holds a stage-I config and checkpoints, so resuming it would continue
     stage-I training on the repaired model, undoing what the virtual views taught it, and the
     bootstrap itself cannot continue from a checkpoint."""
-    if is_bootstrap_run(run_dir):
-        return ("resume continues stage-I training, which would undo this bootstrap's repair: "
-                "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
-    return None
+    from inceptiongs.bootstrap.runner import BOOTSTRAP_DIR, TARGETS_FILE  # noqa: PLC0415
+
+    if not is_bootstrap_run(run_dir):
+        return None
+    if not (Path(run_dir) / BOOTSTRAP_DIR / TARGETS_FILE).is_file():   # the loop without targets: a baseline
+        return ("this is a same-time baseline (stage I continued on the photos for its bootstrap's time): "
+                "resumed, it would run longer than its bootstrap and no verdict would count it; open its "
+                "stage-I run to train further")
+    return ("resume continues stage-I training, which would undo this bootstrap's repair: "
+            "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
 
 
 def describe_model(source, run_dir: Path | None) -> str:

@@ -1,7 +1,8 @@
-"""Saving the edited model: the shown Gaussians written to a PLY in the user's frame (a scene's
-original frame, as the trainer's model.ply), never over an existing file nor into the scene
-folder, with the up and the camera it was seen with beside it (sources.saved_view_file), so the
-file reopens level and where it was seen."""
+"""Saving the edited model: the shown Gaussians written to a model file in the format its name
+says (.ply, .compressed.ply, .splat, .spz) in the user's frame (a scene's original frame, as the
+trainer's model.ply), never over an existing file nor into the scene folder, with the up and
+the camera it was seen with beside it (sources.saved_view_file), so the file reopens level and
+where it was seen."""
 
 from __future__ import annotations
 
@@ -46,11 +47,15 @@ class EditSaver:
         offers the next free name. Models of a scene are stored in the scene's original frame,
         like the trainer's model.ply. -> the file written."""
         from inceptiongs.gaussians import Gaussians  # noqa: PLC0415 (torch only when saving)
-        from inceptiongs.io.ply import write_ply  # noqa: PLC0415
+        from inceptiongs.io.models import write_format, write_model  # noqa: PLC0415
 
         source = self.view.source
         scene = source.scene
         typed = Path(path).expanduser()
+        # The format the name says (.ply, .compressed.ply, .splat, .spz), as `convert` writes it:
+        # a typed .splat got a PLY under that name, which no .splat reader opens. InputError for
+        # a name that is no model file, before anything is written.
+        write_format(typed)
         # A save never replaces a file: the first free name of the series (name_2.ply ...).
         path = fresh_file(typed)
         if scene is not None and Path(scene.root).resolve() in [path.resolve(), *path.resolve().parents]:
@@ -60,11 +65,13 @@ class EditSaver:
         if scene is not None:  # everything shown for a scene or run is in its normalised frame
             gaussians = scene.normalization.gaussians_to_original(gaussians)
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_ply(gaussians, path)
+        written = write_model(path, gaussians)
         write_saved_view(path, self.view)
         if str(typed) != self.offered:   # a name the user typed starts a series of its own
             self.series = typed
         self.path = self.offered = str(fresh_file(self.series))
         kept = f" ({typed.name} exists: kept)" if path != typed else ""
-        self.status.text = f"saved {len(gaussians)} Gaussians to {path}{kept}"
+        # What the format dropped or clamped, without the path the line has just named.
+        notes = "".join(f"; {note.removeprefix(f'{path}: ')}" for note in written.notes)
+        self.status.text = f"saved {len(gaussians)} Gaussians to {path}{kept}{notes}"
         return Path(path)

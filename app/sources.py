@@ -231,6 +231,19 @@ def open_source(path: str | Path, runs_dir: Path | None = None, say=None) -> Vie
     return source
 
 
+# Folders a run keeps inside itself: opened by mistake, the bootstrap's (its config.json) was read
+# as a run and refused with "unknown key 'agreement_min_db'; docs/train_options.md lists the keys".
+RUN_INNER_FOLDERS = ("bootstrap", "checkpoints", "prior")
+
+
+def check_not_inside_a_run(path: Path) -> None:
+    """InputError naming the run when the folder ``path`` is one a run keeps inside itself."""
+    run = path.absolute().parent
+    if path.name in RUN_INNER_FOLDERS and (run / "config.json").is_file() and (run / "split.json").is_file():
+        raise InputError(f"{path}: the {path.name} folder inside the run {path.parent}; open the run itself: "
+                         f"inceptiongs-viewer {path.parent}")
+
+
 def check_openable(path: str | Path) -> None:
     """InputError (the line open_source would give) when ``path`` is clearly nothing the viewer
     opens: missing, a file that is no model file, a folder that is neither a run, a scene nor holds
@@ -245,6 +258,7 @@ def check_openable(path: str | Path) -> None:
         if not is_model_file(path):
             raise InputError(f"{path}: not a scene folder, a model file (.ply, .splat, .spz) or a run folder")
         return
+    check_not_inside_a_run(path)
     if (path / "config.json").is_file():
         return
     try:
@@ -276,6 +290,7 @@ def _open_source(path: Path, runs_dir: Path | None, say) -> ViewerSource:
                             model_path=path, saved_up=up, saved_camera=camera, notes=[problem] if problem else [])
     from inceptiongs.scene.loader import load_scene  # noqa: PLC0415
 
+    check_not_inside_a_run(path)
     if (path / "config.json").is_file():
         say(f"reading the run {path.name}: its model and its scene's cameras")
         return _open_run(path)

@@ -204,7 +204,7 @@ def render_verdict_images(jobs, view, renderer, ctx) -> bool:
 
 
 def upload_textures(ctx, images: list[FlagImages]) -> None:
-    """A GL texture (moderngl) for each image, so imgui can draw it; release_textures frees them."""
+    """A GL texture (moderngl) for each image, so imgui can draw it; retire_textures and release_retired free them."""
     for shown in images:
         shown.textures = tuple(_texture(ctx, image) for image in (shown.before, shown.after))
 
@@ -217,11 +217,21 @@ def _texture(ctx, image: np.ndarray):
     return ctx.texture((width, height), 4, rgba.tobytes())  # row 0 first: imgui's uv (0, 0) is the top
 
 
-def release_textures(verdict: Verdict | None) -> None:
+def retire_textures(verdict: Verdict | None, retired: list) -> None:
+    """Move ``verdict``'s GL textures to ``retired``, for release_retired once the frame that may
+    have drawn them is rendered: a job started by a click is started inside the panel's frame,
+    whose draw data still names the images, and imgui's backend binding a released texture
+    (GLError 1282) ended the viewer."""
     for shown in [] if verdict is None else verdict.images:
-        for texture in shown.textures:
-            texture.release()
+        retired.extend(shown.textures)
         shown.textures = ()
+
+
+def release_retired(retired: list) -> None:
+    """Release the textures retire_textures set aside (after the frame is rendered, or at close)."""
+    for texture in retired:
+        texture.release()
+    retired.clear()
 
 
 def outlook_before_repair(run_dir: Path | None) -> str | None:

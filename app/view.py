@@ -22,6 +22,13 @@ from .training_photos import TrainingPhotoCache
 from .window import WindowPixels
 
 
+def scene_points(source) -> np.ndarray | None:
+    """The sparse points [P, 3] of the scene ``source`` shows (normalised frame, as its cameras),
+    or None (a bare model, a scene without points): Home leaves the sky shell out by them."""
+    points = getattr(getattr(source, "scene", None), "points", None)
+    return None if points is None or len(points) == 0 else np.asarray(points, np.float64)
+
+
 class View:
     """The camera on one window and the model it shows. ``window``: the GLFW window (its sizes);
     ``renderer``: the splat renderer (depth under the cursor); ``status``: the status line."""
@@ -74,7 +81,7 @@ class View:
         width, height = self.pixels.framebuffer_size
         covered, _ = self.pixels.to_framebuffer(self.covered_left, 0.0)
         return opening_view(self.cameras, self.edit.base["means"], self.up, width, height, covered,
-                            getattr(self.source, "saved_camera", None))
+                            getattr(self.source, "saved_camera", None), scene_points(self.source))
 
     def open_at_model(self) -> None:
         """A model arrived for a window opened without one (triangulated points): unless the
@@ -136,7 +143,8 @@ class View:
         pivot at its centre."""
         width, height = self.pixels.framebuffer_size
         covered, _ = self.pixels.to_framebuffer(self.covered_left, 0.0)
-        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width, height, covered, self.cameras)
+        self.nav = framed(self.nav, self.edit.visible_arrays()["means"], width, height, covered, self.cameras,
+                          scene_points(self.source))
         self.moved()
 
     def pan(self, dx: float, dy: float, depth: float) -> None:

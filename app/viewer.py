@@ -37,7 +37,7 @@ from .pacing import shown_state, wait_for_next_frame
 from .runs import fresh_file, saved_dir, window_title
 from .settings import GL_MODE_NAMES, FrameStats, PanelState, StatusLine
 from .sources import PointsWorker, ViewerSource
-from .verdict import render_verdict_images
+from .verdict import release_retired, render_verdict_images
 from .view import View
 from .window import create_imgui, create_window, destroy_imgui
 
@@ -185,6 +185,7 @@ class Viewer:
         self.drawing.draw_overlays(self.view, self.flags, self.jobs.poorly_fit.psnr, screen, self.mover.pivot_and_length())
         if self.imgui_impl is not None:
             self.draw_ui()
+        release_retired(self.jobs.retired_textures)   # drawn by the frame just rendered, if at all
         if self.capture_requested:
             self.captured = read_framebuffer(screen, width, height)
             self.capture_requested = False
@@ -261,6 +262,7 @@ class Viewer:
         self.drawing.close()
         self.paths.close()
         self.jobs.set_verdict(None)  # its GL textures
+        release_retired(self.jobs.retired_textures)
         if self.imgui_impl is not None:
             self.note_gl_error()  # PyOpenGL in imgui's shutdown raises on an error left pending
             destroy_imgui(self.imgui_impl)

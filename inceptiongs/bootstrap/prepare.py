@@ -92,15 +92,36 @@ def resume_folder(out_dir: Path) -> Path:
 
 def input_scores(out_dir: Path) -> dict:
     """The held-out scores of the input, as the first metrics line of RUN2 holds them."""
+    for record in _metric_records(out_dir):
+        if record.get("phase") == "input":
+            return _scores_of(record)
+    return {}
+
+
+def newest_scores(out_dir: Path) -> dict:
+    """The newest held-out scores RUN2's metrics hold ({} when none): where a resumed bootstrap
+    stands before its first step. Started from the input's instead, a resume that made no step
+    (its budget already spent) wrote the input's scores as its result."""
+    scored = [_scores_of(record) for record in _metric_records(out_dir)]
+    return next((scores for scores in reversed(scored) if scores), {})
+
+
+def _metric_records(out_dir: Path) -> list[dict]:
+    """RUN2/metrics.jsonl's records, oldest first (a torn or foreign line skipped)."""
     path = out_dir / "metrics.jsonl"
+    records = []
     for line in (path.read_text(encoding="utf-8", errors="replace").splitlines() if path.is_file() else []):
         try:
             record = json.loads(line)
         except json.JSONDecodeError:
             continue
-        if isinstance(record, dict) and record.get("phase") == "input":
-            return {k: v for k, v in record.items() if k.endswith(("_psnr", "_ssim"))}
-    return {}
+        if isinstance(record, dict):
+            records.append(record)
+    return records
+
+
+def _scores_of(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k.endswith(("_psnr", "_ssim"))}
 
 
 def fill_words(config: BootstrapConfig) -> str:
@@ -219,7 +240,8 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
         else None
     setting = Setting(run, out_dir, boot_dir, train_config, data, cpu_photos, sh_max, rasterizer, log, cache, prior,
                       prior_hash, prior_text, lpips, watched, initial)
-    return setting, plan, LoopState(train, clock, conscience, summary, initial, probe=probe), ViewPool(sampler)
+    last = initial if resume is None else (newest_scores(out_dir) or initial)
+    return setting, plan, LoopState(train, clock, conscience, summary, last, probe=probe), ViewPool(sampler)
 
 
 def within_budget(photo_until_s: float, config: BootstrapConfig) -> float:

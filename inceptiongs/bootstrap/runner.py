@@ -170,6 +170,10 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
         first_round, steps_left, state.rounds_done = point.first_round, point.steps_left, point.rounds_done
         if steps_left is not None:
             log(f"resumed at step {state.train.iteration} (round {first_round + 1}, {steps_left} steps of it left)")
+        spent_s = float(payload["wall_s"])
+        if config.minutes is not None and spent_s >= 60.0 * config.minutes:   # else it ends with no step, unsaid
+            log(f"its budget of {config.minutes:g} min was spent before it stopped ({spent_s:.0f} s): no step will "
+                f"be made; give --minutes more than {spent_s / 60.0:.2f} to go on")
     try:
         run_rounds(setting, config, plan, state, pool, first_round, steps_left)
     finally:

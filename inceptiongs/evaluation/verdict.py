@@ -41,6 +41,29 @@ class BootstrapVerdict:
     outlook: str | None = None
     virtual_steps: int | None = None
     iterations: tuple | None = None
+    no_virtual_why: str | None = None   # why no virtual step ran, as the summary tells it (None: not told)
+
+
+def no_virtual_reason(data: dict) -> str | None:
+    """Why a bootstrap's summary ``data`` ran no virtual step, in words: its rounds held their
+    views back (the outlook said nothing to repair, or a photo-first time the run ended within),
+    or the agreement gate left out every view made; None when the summary does not tell."""
+    rounds = [r for r in data.get("rounds", ()) if isinstance(r, dict)] if isinstance(data.get("rounds"), list) else []
+    if not rounds:
+        return None
+    outlook = data.get("outlook")
+    said = outlook.get("verdict") if isinstance(outlook, dict) and isinstance(outlook.get("verdict"), str) else None
+    deferred = [r.get("deferred") for r in rounds if isinstance(r.get("deferred"), str)]
+    if deferred and all(d == "every step on the photos" for d in deferred):
+        return f'the outlook said "{said}", so every step went to the photos' if said \
+            else "every step went to the photos"
+    if deferred:
+        return f"the virtual views were held back ({deferred[-1]}) and the run ended first"
+    views = [v for r in rounds if isinstance(r.get("views"), list) for v in r["views"] if isinstance(v, dict)]
+    if views and not any(v.get("supervised") for v in views):
+        return (f"the agreement gate left out all {len(views)} virtual views: their warped photos agreed worse "
+                f"with each other than with the render")
+    return None
 
 
 def scores_of(data: dict, key: str) -> dict:
@@ -111,7 +134,8 @@ def read_bootstrap_verdict(out_dir: Path | None, folders: list[Path] | None = No
         baseline_dir=None if found is None else found[0], refused=refused, seconds=run_seconds(data),
         outlook=outlook.get("line") if isinstance(outlook, dict) and isinstance(outlook.get("line"), str) else None,
         virtual_steps=virtual_step_count(steps) if counted else None,
-        iterations=(start, end) if isinstance(start, int) and isinstance(end, int) else None)
+        iterations=(start, end) if isinstance(start, int) and isinstance(end, int) else None,
+        no_virtual_why=no_virtual_reason(data))
 
 
 def score_rows(verdict: BootstrapVerdict) -> list[tuple[str, float, float, float | None]]:
@@ -172,8 +196,8 @@ def verdict_line(verdict: BootstrapVerdict) -> str:
     if verdict.iterations is not None and verdict.iterations[1] <= verdict.iterations[0]:
         parts.append(f"the bootstrap made no step (iterations {verdict.iterations[0]}..{verdict.iterations[1]})")
     elif verdict.virtual_steps == 0:
-        parts.append("no virtual step ran (the loop followed the outlook, or every view was left out), so "
-                     "this is stage I trained longer")
+        why = verdict.no_virtual_why or "the loop followed the outlook, or every view was left out"
+        parts.append(f"no virtual step ran ({why}), so this is stage I trained longer")
     elif baseline is None:
         parts.append("part of the change may be the extra training alone")
     return "; ".join(parts)

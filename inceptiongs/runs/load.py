@@ -9,6 +9,7 @@ from ..gaussians import gaussians_from_params
 from .checkpoint import latest_checkpoint, load_newest_checkpoint
 from .config import TrainConfig
 from .frames import to_normalized_frame
+from .lock import run_folder_writer
 
 
 def load_run(run_dir: str | Path):
@@ -29,6 +30,11 @@ def load_run(run_dir: str | Path):
     if model.is_file():
         return to_normalized_frame(read_model(model), scene.normalization), scene, config
     if latest_checkpoint(run_dir) is None:
+        writer = run_folder_writer(run_dir)
+        if writer is not None:   # a run being trained: say when there will be something to open
+            raise InputError(f"{run_dir}: still being trained by {writer} and no checkpoint written yet (one "
+                             f"every {config.output.checkpoint_every} steps, model.ply at the end); open it "
+                             f"again then")
         raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint")
     params = load_newest_checkpoint(run_dir)[1]["params"]
     return gaussians_from_params(params).detach(), scene, config

@@ -29,6 +29,27 @@ def _holder(run_dir: Path) -> str:
     return f"pid {text}" if text.isdigit() else "another process"
 
 
+def run_folder_writer(run_dir: str | Path) -> str | None:
+    """Who writes ``run_dir`` now ("pid N", "another process"), or None when no job holds its
+    lock. Asked with a shared lock taken and given back at once, so a crashed job's stale
+    ``.lock`` file does not count."""
+    try:
+        fd = os.open(run_dir, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return _holder(Path(run_dir))
+            return None
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def run_folder_lock(run_dir: str | Path) -> Iterator[Path]:
     """Hold ``run_dir``'s lock (the folder is created when missing; a folder this call made is

@@ -158,6 +158,81 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
         assert _region(window, rect).std() > 0.05
 
 
+def test_the_panel_keeps_the_jobs_closing_line_when_the_status_moves_on(xvfb, tmp_path, monkeypatch):
+    """Under "job writes: RUN_bootstrap" the panel drew whatever the status line said last: after
+    the bootstrap a saved video's "video saved to .../video_1.mp4" stood there as if the job had
+    written it, and the job's result (time, scores, verdict) was gone."""
+    import inceptiongs.app.job_requests as jobs_module
+    from inceptiongs.app import panels
+
+    run, out = tmp_path / "run", tmp_path / "run_bootstrap"
+    run.mkdir()
+    monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
+    drawn: list[str] = []
+    real_text_wrapped = panels.imgui.text_wrapped
+
+    def recording(text, *args):
+        drawn.append(str(text))
+        return real_text_wrapped(text, *args)
+
+    monkeypatch.setattr(panels.imgui, "text_wrapped", recording)
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "closing.ply"), 900, 1000) as viewer:
+        viewer.jobs.run_dir = run
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
+        deadline = time.time() + 60
+        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+            viewer.step()
+        closing = viewer.status
+        assert " finished in " in closing and "saved in" in closing, closing
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)                    # a later action: the status line moves on
+        assert viewer.status.startswith("flagged the current view"), viewer.status
+        drawn.clear()
+        _frames(viewer)
+        assert closing in drawn, drawn                   # still under the job in the panel
+        assert viewer.status not in drawn, drawn         # said in the notification area, not as the job's
+
+
+def test_a_job_started_under_the_verdicts_images_does_not_end_the_viewer(xvfb, tmp_path, monkeypatch):
+    """The statuette's bootstrap result opened, its verdict's before / after images in view, and
+    "run the same-time baseline" answered with "start the job": starting the job let the images'
+    GL textures go inside the frame whose draw data still named them, imgui's backend bound a
+    released texture (GLError 1282, glBindTexture) and the viewer ended with a traceback, its
+    baseline stopped at step 0."""
+    import inceptiongs.app.job_requests as jobs_module
+
+    run, out = tmp_path / "run", tmp_path / "run_bootstrap"
+    run.mkdir()
+    monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "restart.ply"), 900, 1200) as viewer:
+        viewer.jobs.run_dir = run
+        _frames(viewer)
+        viewer.input.on_cursor(viewer.window, 700, 500)
+        _frames(viewer)
+        press_key(viewer, glfw.KEY_F)
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        start_job(viewer, "Bootstrap flagged views")
+        deadline = time.time() + 60
+        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+            viewer.step()
+        _frames(viewer)
+        (shown,) = viewer.jobs.verdict.images
+        assert shown.textures, "the verdict's images are drawn from GL textures"
+        scroll_panel_to(viewer, "Bootstrap flagged views")
+        rect = viewer.ui.rects["verdict"]
+        assert _inside_window(viewer, rect), rect     # the images are drawn in the frame of the click
+        start_job(viewer, "Bootstrap flagged views")  # the frame that starts it draws, and renders
+        assert viewer.jobs.training is not None and viewer.jobs.verdict is None
+        _frames(viewer)
+        assert not shown.textures
+
+
 def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb, tmp_path):
     """A PSNR axis spanning 22.22-22.30 made 0.08 dB of noise look like large swings, the
     Gaussians axis read "94683.4 / 94683.2", and hovering the loss plot's x axis painted a
@@ -321,6 +396,24 @@ def test_an_empty_folder_is_named_once_in_a_flat_message(tmp_path):
     assert "no recognisable scene" in line and ".ply" in line
 
 
+def test_a_folder_inside_a_run_names_the_run_to_open(tmp_path):
+    """RUN/bootstrap (the folder a user may drop instead of the run) was read as a run for its
+    config.json, and refused with "unknown key 'agreement_min_db'; docs/train_options.md lists
+    the keys"; RUN/checkpoints said "no recognisable scene". Both name the run to open."""
+    run = tmp_path / "run_bootstrap"
+    for folder in ("bootstrap", "checkpoints"):
+        (run / folder).mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    (run / "split.json").write_text("{}")
+    (run / "bootstrap" / "config.json").write_text('{"agreement_min_db": -1.0}')
+    for inner in (run / "bootstrap", run / "checkpoints"):
+        result = _viewer_command(str(inner))
+        assert result.returncode == 2
+        (line,) = result.stderr.strip().splitlines()
+        assert f"inside the run {run}" in line and f"inceptiongs-viewer {run}" in line, line
+        assert "unknown key" not in line and "no recognisable scene" not in line, line
+
+
 @pytest.mark.slow
 def test_a_screenshot_of_an_llff_scene_without_points_waits_for_them(tmp_path):
     """`inceptiongs-viewer fern/ --screenshot x.png` wrote an all-black image, taken before the
@@ -413,3 +506,66 @@ def test_a_stage_i_run_says_its_repair_outlook_before_a_bootstrap_starts(xvfb, t
         assert _inside_window(viewer, viewer.ui.rects["repair outlook"])
     (run / "bootstrap").mkdir()
     assert outlook_before_repair(run) is None      # a bootstrap's result: its verdict speaks instead
+
+
+def _relative_luminance(rgb) -> float:
+    """WCAG relative luminance of an sRGB colour in [0, 1]."""
+    linear = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in rgb]
+    return 0.2126 * linear[0] + 0.7152 * linear[1] + 0.0722 * linear[2]
+
+
+def test_a_progress_bars_label_reads_on_its_fill(xvfb, tmp_path):
+    """A bootstrap's bar read "iteration 1285 / 1305" in white on imgui's bright amber, a
+    contrast of 1.9:1: the part over the fill was hard to read. WCAG's minimum for text is 4.5:1."""
+    from imgui_bundle import imgui
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        _frames(viewer, 1)
+        style = imgui.get_style()
+        fill, text = style.color_(imgui.Col_.plot_histogram), style.color_(imgui.Col_.text)
+        lighter, darker = sorted((_relative_luminance((fill.x, fill.y, fill.z)),
+                                  _relative_luminance((text.x, text.y, text.z))), reverse=True)
+        assert (lighter + 0.05) / (darker + 0.05) >= 4.5, (fill, text)
+
+
+def test_what_was_typed_shows_before_the_window_goes_idle(xvfb, tmp_path):
+    """Typed fast into a field (xdotool, 30 ms a key, the viewer at 4 FPS), the "file" field
+    showed "sert" of "/tmp/usertry2/exp/fromviewer.splat" until the mouse moved, 30 s later:
+    imgui takes its queued input a little per frame, and the loop went idle with keys queued."""
+    from inceptiongs.app.pacing import UI_SETTLE_SECONDS, is_idle
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "typing.ply"), 900, 1000) as viewer:
+        click_widget(viewer, "Edit")
+        scroll_panel_to(viewer, "file")
+        x0, y0, x1, y1 = viewer.ui.rects["file"]
+        click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
+        _frames(viewer)
+        before = viewer.editor.saving.path
+        typed = "abcdefgh"
+        for char in typed:   # all in one poll, as GLFW hands them over after a slow frame
+            key = glfw.KEY_A + ord(char) - ord("a")
+            viewer.input.on_key(viewer.window, key, 0, glfw.PRESS, 0)
+            viewer.input.on_char(viewer.window, ord(char))
+            viewer.input.on_key(viewer.window, key, 0, glfw.RELEASE, 0)
+        viewer.step()
+        time.sleep(UI_SETTLE_SECONDS + 0.05)   # no further event: only what imgui still holds
+        frames = 0
+        while not is_idle(viewer) and frames < 200:
+            viewer.step()
+            frames += 1
+        # Inserted where the click put the cursor (the field's left end), every key of it.
+        assert viewer.editor.saving.path == typed + before, (viewer.editor.saving.path, frames)
+
+
+def test_the_first_frame_says_so_instead_of_zero_fps(xvfb, tmp_path):
+    """The window opened on the statuette read "0.0 FPS frame 0.0 ms sort 2409.8 ms draw 5994.9 ms"
+    and, idle, kept it: the panel is drawn inside the frame it times, before any was counted."""
+    from inceptiongs.app.settings import FrameStats
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "first.ply"), 640, 480) as viewer:
+        viewer.stats = FrameStats()          # as when the window opens
+        viewer.step()
+        assert viewer.ui.texts["stats"][0] == "first frame", viewer.ui.texts["stats"]
+        _frames(viewer, 2)
+        shown = viewer.ui.texts["stats"]
+        assert shown[0].endswith(" FPS") and shown[0] != "0.0 FPS" and shown[1].startswith("frame "), shown

@@ -487,3 +487,32 @@ def test_a_job_kept_running_in_the_background_says_when_it_ends(xvfb, tmp_path, 
     lines = capsys.readouterr().err.strip().splitlines()
     assert "keeps running in the background" in lines[0]
     assert lines[-1].startswith("the job in the background ended:") and "stopped" in lines[-1], lines
+
+
+def test_save_writes_the_format_its_name_says(xvfb, tmp_path):
+    """"save PLY" to a typed fromviewer.splat wrote a PLY under that name (3 MB, 'ply' header),
+    which neither the viewer nor `convert` could open ("not a whole number of 32-byte splats").
+    The file gets the format its name says, as `convert` writes it; a name of no model format
+    is refused in the status line and nothing is written."""
+    from inceptiongs.io.models import open_model, read_model
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        viewer.step()
+        for header in ("View", "Inspect", "Flags", "Training"):
+            click_widget(viewer, header)
+        click_widget(viewer, "Edit")
+        shown = viewer.view.edit.count
+        for name, format_name in (("web.splat", "splat"), ("web.spz", "spz"), ("web.compressed.ply", "compressed-ply"),
+                                  ("web.compressed.ply", "compressed-ply")):   # again: a fresh name, same format
+            scroll_panel_to(viewer, "save PLY")
+            type_into(viewer, "file", str(tmp_path / name))
+            click_widget(viewer, "save PLY")
+            saved = Path(viewer.status.split(" to ", 1)[1].split(" (", 1)[0].split(";", 1)[0])
+            assert saved.is_file() and open_model(saved).format == format_name, (viewer.status, saved)
+            assert len(read_model(saved)) == shown
+            assert viewer.status.count(str(saved)) == 1, viewer.status   # a format's note does not repeat it
+        assert (tmp_path / "web_2.compressed.ply").is_file(), viewer.status   # numbered, its format kept
+        type_into(viewer, "file", str(tmp_path / "web.txt"))
+        click_widget(viewer, "save PLY")
+        assert "save failed" in viewer.status and "not a model file name" in viewer.status, viewer.status
+        assert not (tmp_path / "web.txt").exists()

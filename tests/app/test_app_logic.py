@@ -433,3 +433,19 @@ def test_box_handles_and_face_drag():
     assert (lo, hi) == ([0, 0, 0], [2, 5.5, 6])
     lo, hi = editing.drag_box_face([0, 0, 0], [2, 4, 6], 0, 5.0)  # past the opposite face: stops there
     assert lo[0] == 2 and hi[0] == 2
+
+
+def test_resume_on_a_same_time_baseline_says_what_it_is(tmp_path):
+    """A same-time baseline run from the verdict's button became the open run and the greyed
+    "resume" said it "would undo this bootstrap's repair": a baseline repairs nothing."""
+    from inceptiongs.app.runs import resume_blocked_reason
+
+    for name, targets in (("run_bootstrap", True), ("run_baseline", False)):
+        (tmp_path / name / "bootstrap").mkdir(parents=True)
+        (tmp_path / name / "bootstrap" / "config.json").write_text("{}")
+        if targets:
+            (tmp_path / name / "bootstrap" / "targets.json").write_text("[]")
+    assert "undo this bootstrap's repair" in resume_blocked_reason(tmp_path / "run_bootstrap")
+    baseline = resume_blocked_reason(tmp_path / "run_baseline")
+    assert "same-time baseline" in baseline and "repair" not in baseline, baseline
+    assert resume_blocked_reason(tmp_path) is None

@@ -138,3 +138,25 @@ def test_a_bootstrap_killed_before_its_first_save_can_simply_be_run_again(stage1
     with pytest.raises(InputError, match="without --resume"):
         from inceptiongs.bootstrap.runner import resumable
         resumable(out)
+
+
+def test_a_resume_that_makes_no_step_keeps_the_scores_it_stopped_with(stage1, tmp_path):
+    """`bootstrap --resume --minutes M` with M already spent makes no step; its summary said the
+    input's scores were the result ("scarce 19.34 -> 19.34 dB" for a model that scored 19.63)."""
+    out = tmp_path / "boot"
+    stopped = _stopped(stage1, out, at=stage1_start(stage1) + 5)
+    before = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert before["last_eval"] != before["initial_eval"]       # the stop scored the model it saved
+    control = JobControl()
+    control.stop.set()                                          # nothing left to do: no step
+    resumed = run_bootstrap(stage1, out, None, _config(), control=control, progress=False, resume=True)
+    assert resumed.iteration == stopped.iteration
+    after = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert after["last_eval"] == before["last_eval"], (after["last_eval"], before["last_eval"])
+    assert resumed.last_eval == before["last_eval"]
+    # A new budget already spent is said, not left to read from an unchanged iteration count.
+    logged: list[str] = []
+    again = run_bootstrap(stage1, out, None, _config(minutes=before["wall_s"] / 120.0), progress=False, resume=True,
+                          log=logged.append)
+    assert again.iteration == stopped.iteration
+    assert any("was spent before it stopped" in line and "no step will be made" in line for line in logged), logged

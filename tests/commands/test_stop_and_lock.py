@@ -163,3 +163,22 @@ def test_ctrl_c_during_a_bootstrap_saves_and_resume_continues(tmp_path, scene, c
     assert main(command[3:]) == 2 and "--resume" in capsys.readouterr().err     # refused, pointing at --resume
     assert main(command[3:] + ["--resume", "--minutes", "0.01"]) == 0
     assert f"resumed at step {stopped_at}" in capsys.readouterr().err
+
+
+def test_opening_a_run_still_in_its_first_steps_says_it_is_being_trained(tmp_path, scene):
+    """A run whose job holds its lock and has written neither a checkpoint nor model.ply yet (a
+    user opening a `train` still running) is named as being trained, by whom, and when there will
+    be something to open; once the job is gone the plain line stays (a stale .lock file is not a
+    writer)."""
+    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.runs.load import load_run
+
+    run = tmp_path / "run"
+    with run_folder_lock(run):
+        TrainConfig(scene=str(scene), downscale=4).save(run / "config.json")
+        with pytest.raises(InputError, match=rf"still being trained by pid {os.getpid()} and no checkpoint written "
+                                             r"yet \(one every 500 steps, model.ply at the end\)"):
+            load_run(run)
+    (run / LOCK_INFO_FILE).write_text("12345\n")   # what a killed job leaves
+    with pytest.raises(InputError, match="run has neither model.ply nor a checkpoint"):
+        load_run(run)

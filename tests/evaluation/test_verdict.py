@@ -121,3 +121,25 @@ def test_eval_of_a_bootstrap_prints_its_verdict_against_the_same_time_baseline_o
     assert verdict["line"].startswith("scarce views: better by 0.06 dB than the same-time baseline; it scored below "
                                       "stage I (15.12 -> 15.08 dB)")
     assert verdict["refused"] == [{"folder": str(tmp_path / "run_baseline"), "why": "it ran 66 s, the bootstrap 60 s"}]
+
+
+def test_the_sentence_says_why_no_virtual_step_ran_as_the_summary_records_it(tmp_path):
+    """A bootstrap of the statuette's flags said "no virtual step ran (the loop followed the
+    outlook, or every view was left out)" when its summary said which: the outlook's "nothing to
+    repair" had kept every step on the photos. The agreement gate leaving out every view is named
+    too; a summary without rounds keeps the general words."""
+    run = tmp_path / "run"
+    outlook = {"outlook": {"verdict": "nothing to repair"},
+               "rounds": [{"round": 1, "views": [], "deferred": "every step on the photos"}]}
+    gated = {"rounds": [{"round": 1, "views": [{"supervised": False}, {"supervised": False}]}]}
+    lines = {}
+    for name, extra in (("outlook", outlook), ("gated", gated), ("plain", {})):
+        folder = write_summary(tmp_path / name, run, False, 60.0, virtual_steps=0)
+        data = json.loads((folder / "bootstrap" / "summary.json").read_text())
+        (folder / "bootstrap" / "summary.json").write_text(json.dumps({**data, **extra}), encoding="utf-8")
+        lines[name] = verdict_line(read_bootstrap_verdict(folder, folders=[]))
+    assert ('no virtual step ran (the outlook said "nothing to repair", so every step went to the photos), so this '
+            'is stage I trained longer') in lines["outlook"], lines["outlook"]
+    assert ("no virtual step ran (the agreement gate left out all 2 virtual views: their warped photos agreed worse "
+            "with each other than with the render)") in lines["gated"], lines["gated"]
+    assert "(the loop followed the outlook, or every view was left out)" in lines["plain"], lines["plain"]
