@@ -25,6 +25,7 @@ from ..gaussians import Gaussians
 from ..rasterizer.interface import rasterizer_device
 from ..threads import use_torch_threads
 from .budget import (BUDGET_CALIBRATION_STEPS, BUDGET_CHECK_FRACTION, BUDGET_COST_RATIO, BUDGET_FREEZE,
+                     BUDGET_RESIZE_TOLERANCE,
                      RateWindow, affordable_count, budget_iterations, far_off, fit_step_cost,
                      growing_budget_iterations)
 from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint, save_checkpoint
@@ -174,7 +175,23 @@ class ScheduleSizer:
         return cls(config, budget_s, (iteration, train_s), (iteration + BUDGET_CALIBRATION_STEPS, 0.0))
 
     def due(self, step: int, train_s: float) -> bool:
-        return step >= self.next_check[0] and train_s >= self.next_check[1]
+        """Whether to re-plan now: a slice of the budget has passed since the last check, or the
+        schedule ended early (ended_early)."""
+        return (step >= self.next_check[0] and train_s >= self.next_check[1]) or self.ended_early(step, train_s)
+
+    def ended_early(self, step: int, train_s: float) -> bool:
+        """Whether the schedule has ended with more than BUDGET_RESIZE_TOLERANCE of the budget
+        left (a rate measured while the kernels compiled sized a 3-minute run to 26 steps, over
+        after 39 s): the budget is looked at again. A plan fills BUDGET_FILL of the time left, so
+        a schedule that ends within the tolerance simply ends."""
+        return step >= self.config.iterations and train_s < (1.0 - BUDGET_RESIZE_TOLERANCE) * self.budget_s
+
+    def warmed_up(self, step: int, train_s: float) -> None:
+        """After the process's first step: the rate is measured from its end. The first step
+        compiles the CPU kernels when their cache is cold (seconds each) and fills the photo
+        cache, which no later step pays."""
+        self.rate_mark = (step, train_s)
+        self.next_check = (step + BUDGET_CALIBRATION_STEPS, self.next_check[1])
 
     def plan(self, step: int, count: int, rate: float, remaining_s: float) -> tuple[int | None, int | None]:
         """(new schedule length or None, new Gaussian budget or None) at this check."""
@@ -249,7 +266,9 @@ class StageOne:
         budget_s = None if self.config.minutes is None else self.config.minutes * 60.0
         sizer = (ScheduleSizer.starting(self.config, budget_s, self.state.iteration, self.loop.train_s())
                  if self.config.size_to_minutes and budget_s is not None else None)
-        while self.state.iteration < self.config.iterations:
+        first = self.state.iteration
+        while self.state.iteration < self.config.iterations or (sizer is not None and sizer.ended_early(
+                self.state.iteration, self.loop.train_s())):   # the re-plan below may extend it
             if budget_s is not None and self.loop.train_s() >= budget_s:
                 break
             if sizer is not None and sizer.due(self.state.iteration, self.loop.train_s()):
@@ -258,12 +277,17 @@ class StageOne:
                     self.config = sizer.config
                     self.config.save(self.run_dir / "config.json")
                     self.loop.bar.total = self.config.iterations
+                if self.state.iteration >= self.config.iterations:
+                    break
             if self.loop.wait_or_stop():
                 self.finished = False
                 break
             record = self.step()
             if sizer is not None:
-                sizer.window.add(record["num_gaussians"])
+                if self.state.iteration == first + 1:
+                    sizer.warmed_up(self.state.iteration, self.loop.train_s())
+                else:
+                    sizer.window.add(record["num_gaussians"])
 
     def step(self) -> dict:
         """One training step with its metrics line, snapshot, checkpoint and ``after_step``."""

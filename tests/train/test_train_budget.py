@@ -149,3 +149,43 @@ def test_a_rate_measured_while_the_model_grew_is_fitted_at_the_window_mean_count
     stale = fit_step_cost(end_points)
     assert stale[1] < 0.8 * per and affordable_count(stale, 4 * cost(30_000)) > 1.2 * budget
     assert RateWindow().mean_count(7) == 7.0                 # an empty window: the current count
+
+
+def test_a_slow_first_step_does_not_end_a_sized_run_early(tmp_path, demo_scene, monkeypatch):
+    """The first step of a process may compile the CPU kernels (seconds on a cold cache): a rate
+    measured over it sized a 3-minute run to 26 steps, over after 39 s. The rate is measured from
+    the first step's end, and a schedule that ends with much of the budget left is re-planned."""
+    import time
+
+    import inceptiongs.train.trainer as trainer_module
+
+    real_step, calls = trainer_module.train_step, []
+
+    def slow_first(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            time.sleep(3.0)   # as a cold kernel cache costs
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(trainer_module, "train_step", slow_first)
+    budget_s = 9.0
+    config = short_run_schedule(with_values(
+        TrainConfig(scene=str(demo_scene), downscale=4, protocol="unstructured", iterations=40,
+                    minutes=budget_s / 60.0, size_to_minutes=True, pgsr=False),
+        {"output.eval_every": 10_000, "output.checkpoint_every": 10_000}))
+    train(config, tmp_path / "run", progress=False, log=lambda line: None)
+    last = json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[-1])
+    # It trains into the last quarter of its budget, however slow this machine is.
+    assert last["train_s"] >= 0.75 * budget_s, last
+
+
+def test_the_sizer_looks_again_when_the_schedule_ends_with_budget_left():
+    from inceptiongs.train.trainer import ScheduleSizer
+
+    sizer = ScheduleSizer.starting(TrainConfig(iterations=26, size_to_minutes=True, minutes=3.0), 180.0, 0, 0.0)
+    assert not sizer.due(5, 30.0)                 # neither the calibration steps nor a slice have passed
+    assert sizer.ended_early(26, 39.0) and sizer.due(26, 39.0)   # the schedule ended at 39 s of 180
+    assert not sizer.ended_early(25, 39.0)        # not ended
+    assert not sizer.ended_early(26, 150.0)       # ended within a quarter of the budget: it ends
+    sizer.warmed_up(1, 3.0)
+    assert sizer.rate_mark == (1, 3.0) and sizer.next_check[0] == 11
