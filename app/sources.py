@@ -158,9 +158,14 @@ def newest_model(work_dir: Path, runs: list[Path] | None = None, saved: Path | N
 
 
 def saved_view_file(model: Path) -> Path:
-    """NAME.view.json beside a saved edit NAME.ply: the up and the camera it was saved with, so
-    it reopens level and where it was seen (a model alone only guesses its up from its shape)."""
-    return model.with_name(model.stem + ".view.json")
+    """NAME.view.json beside a saved edit NAME.ply, NAME.EXT.view.json beside another format's
+    (web.splat and web.spz saved side by side shared one web.view.json): the up and the camera it
+    was saved with, so it reopens level and where it was seen (a model alone only guesses its up
+    from its shape)."""
+    model = Path(model)
+    if model.suffix.lower() == ".ply":
+        return model.with_name(model.stem + ".view.json")
+    return model.with_name(model.name + ".view.json")
 
 
 def read_saved_view(model: Path) -> tuple[np.ndarray | None, Camera | None, str | None]:

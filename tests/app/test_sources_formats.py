@@ -3,6 +3,8 @@ and refuses other files with one line."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -55,3 +57,15 @@ def test_points_for_a_scene_without_any_read_its_photos_one_at_a_time(tmp_path, 
     assert splats is not None and "triangulated" in line, line
     assert count.reads >= 2 * 20
     assert count.peak == 1, count.peak
+
+
+def test_each_saved_format_has_a_view_file_of_its_own():
+    """web.splat and web.spz saved side by side shared web.view.json: the second save's camera
+    was the one both reopened at."""
+    from inceptiongs.app.sources import saved_view_file
+
+    names = [saved_view_file(Path("/out") / name).name for name in
+             ("web.ply", "web.compressed.ply", "web.splat", "web.spz", "WEB.PLY")]
+    assert names == ["web.view.json", "web.compressed.view.json", "web.splat.view.json", "web.spz.view.json",
+                     "WEB.view.json"]
+    assert len(set(names)) == len(names)
