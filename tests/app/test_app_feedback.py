@@ -252,7 +252,8 @@ def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb,
                     time.sleep(0.01)
                     continue
                 step += 1
-                box.publish(step, None, {"loss": 0.30 + 0.001 * (step % 3), "num_gaussians": 94683})
+                box.publish(step, None, {"loss": 4.6 + 0.01 * (step % 3), "l1": 0.08 + 0.002 * (step % 4),
+                                         "num_gaussians": 94683})
                 time.sleep(0.02)
 
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
@@ -270,6 +271,11 @@ def test_plots_do_not_magnify_noise_count_in_integers_and_ignore_the_mouse(xvfb,
         assert high - low >= 1.0 and low <= 20.0 and high >= 22.30
         (_, _), (low, high) = limits["Gaussians"]
         assert high - low >= 10 and low < 94683 < high
+        # The L1 (about 0.08) has an axis of its own: on the loss's (about 4.6) it was a flat line.
+        (_, _), (low, high) = limits["training loss"]
+        assert low < 4.6 < high and low > 1.0
+        (_, _), (low, high) = limits["training loss (right)"]
+        assert low < 0.08 and 0.086 < high < 0.5
         x0, y0, x1, y1 = viewer.ui.rects["plot area/training loss"]
         frame = viewer.ui.rects["plot/training loss"]
         assert _inside_window(viewer, frame)
