@@ -175,7 +175,9 @@ def missing_baseline_phrase(verdict: BootstrapVerdict) -> str:
 
 
 def verdict_line(verdict: BootstrapVerdict) -> str:
-    """One sentence: how the result compares on the scarce views (else the first group scored)
+    """One sentence: how the result compares on the held-out scarce views (else the first group
+    scored; "held-out": a flagged view has no photo to score, and a user read "scarce views" as
+    the views they had flagged)
     with its same-time baseline, or with stage I when there is none (saying so, and which
     baselines were refused); then whether it made no step or no virtual step, and whether it
     scored below stage I."""
@@ -185,9 +187,9 @@ def verdict_line(verdict: BootstrapVerdict) -> str:
     group, before, after, baseline = rows[0]
     parts = []
     if baseline is not None:
-        parts.append(f"{group} views: {change_phrase(after - baseline, 'the same-time baseline')}")
+        parts.append(f"held-out {group} views: {change_phrase(after - baseline, 'the same-time baseline')}")
     else:
-        parts.append(f"{group} views: {change_phrase(after - before, 'stage I')}")
+        parts.append(f"held-out {group} views: {change_phrase(after - before, 'stage I')}")
     # Said unless the first part already says "worse ... than stage I".
     if after < before and (baseline is not None or before - after < SAME_DB):
         parts.append(f"it scored below stage I ({before:.2f} -> {after:.2f} dB)")

@@ -144,7 +144,7 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
         _frames(viewer)
         verdict = viewer.jobs.verdict
         assert verdict is not None and verdict.baseline_dir == tmp_path / "run_baseline"
-        assert "scarce views: better by 0.50 dB than the same-time baseline" in viewer.status, viewer.status
+        assert "held-out scarce views: better by 0.50 dB than the same-time baseline" in viewer.status, viewer.status
         # The flagged view from stage I (the grid where it was) and from the result (moved).
         (shown,) = verdict.images
         assert shown.name == "flag 1" and shown.before.shape == shown.after.shape
@@ -478,14 +478,14 @@ def test_the_verdict_sentence_reads_as_a_comparison():
 
     flat = _scores(20.00, 22.00)
     same = Verdict(Path("boot"), None, flat, _scores(20.02, 22.00), seconds=90.0)
-    assert verdict_line(same).startswith("scarce views: about the same as stage I (+0.02 dB); no same-time baseline "
+    assert verdict_line(same).startswith("held-out scarce views: about the same as stage I (+0.02 dB); no same-time baseline "
                                          "(stage I continued on the photos alone for 1 min 30 s) was run")
     worse = Verdict(Path("boot"), None, flat, _scores(19.00, 22.00), baseline=_scores(19.50, 22.00))
-    assert verdict_line(worse) == ("scarce views: worse by 0.50 dB than the same-time baseline; it scored below "
+    assert verdict_line(worse) == ("held-out scarce views: worse by 0.50 dB than the same-time baseline; it scored below "
                                    "stage I (20.00 -> 19.00 dB)")
     # No virtual step ran (the loop followed the outlook): the change is stage I trained longer.
     photos_only = Verdict(Path("boot"), None, flat, _scores(19.54, 22.00), virtual_steps=0)
-    assert verdict_line(photos_only) == ("scarce views: worse by 0.46 dB than stage I; no same-time baseline (stage I "
+    assert verdict_line(photos_only) == ("held-out scarce views: worse by 0.46 dB than stage I; no same-time baseline (stage I "
                                          "continued on the photos alone for the bootstrap's time) was run; no "
                                          "virtual step ran (the loop followed the outlook, or every view was left "
                                          "out), so this is stage I trained longer")

@@ -53,17 +53,17 @@ def test_the_sentence_says_no_step_no_virtual_step_and_below_stage_i():
     nothing = BootstrapVerdict(Path("boot"), None, flat, _scores(15.26, 22.0), seconds=4.0, iterations=(536, 536),
                                refused=((Path("run_baseline"), "it ran 66 s, the bootstrap 4 s"),))
     line = verdict_line(nothing)
-    assert line.startswith("scarce views: better by 0.14 dB than stage I; no same-time baseline (stage I continued on "
+    assert line.startswith("held-out scarce views: better by 0.14 dB than stage I; no same-time baseline (stage I continued on "
                            "the photos alone for 4 s) was run; run_baseline is not one: it ran 66 s, the bootstrap 4 s")
     assert line.endswith("the bootstrap made no step (iterations 536..536)")
     photos = BootstrapVerdict(Path("boot"), None, flat, _scores(15.29, 22.0), baseline=_scores(15.25, 22.0),
                               virtual_steps=0, iterations=(536, 700))
-    assert verdict_line(photos) == ("scarce views: about the same as the same-time baseline (+0.04 dB); no virtual "
+    assert verdict_line(photos) == ("held-out scarce views: about the same as the same-time baseline (+0.04 dB); no virtual "
                                     "step ran (the loop followed the outlook, or every view was left out), so this "
                                     "is stage I trained longer")
     below = BootstrapVerdict(Path("boot"), None, flat, _scores(15.08, 22.0), baseline=_scores(14.99, 22.0),
                              virtual_steps=30, iterations=(536, 800))
-    assert verdict_line(below) == ("scarce views: better by 0.09 dB than the same-time baseline; it scored below "
+    assert verdict_line(below) == ("held-out scarce views: better by 0.09 dB than the same-time baseline; it scored below "
                                    "stage I (15.12 -> 15.08 dB)")
 
 
@@ -92,7 +92,7 @@ def test_report_compares_a_bootstrap_only_with_its_same_time_baseline(tmp_path, 
         write_log(folder, [{"wall_s": 1.0, "iteration": 536, "scarce_psnr": 15.1, "covered_psnr": 22.0}])
     assert main(["report", str(boot), str(base)]) == 0
     printed = capsys.readouterr().out
-    assert "boot: scarce views: better by 0.14 dB than stage I; no same-time baseline" in printed
+    assert "boot: held-out scarce views: better by 0.14 dB than stage I; no same-time baseline" in printed
     assert "base is not one: it ran 66 s, the bootstrap 4 s" in printed
     assert "made no step (iterations 536..536)" in printed and "than the same-time baseline" not in printed
 
@@ -111,14 +111,14 @@ def test_eval_of_a_bootstrap_prints_its_verdict_against_the_same_time_baseline_o
     write_summary(tmp_path / "run_baseline", tmp_path / "run", True, 66.0, after=(14.99, 22.4))
     assert main(["eval", str(boot)]) == 0
     printed = capsys.readouterr().out
-    assert "repair verdict (the bootstrap's own evaluations): scarce views: about the same as stage I" in printed
+    assert "repair verdict (the bootstrap's own evaluations): held-out scarce views: about the same as stage I" in printed
     assert "run_baseline is not one: it ran 66 s, the bootstrap 60 s" in printed
     assert "than the same-time baseline" not in printed
     write_summary(tmp_path / "run_baseline_2", tmp_path / "run", True, 61.0, after=(15.02, 22.3))
     assert main(["eval", str(boot), "--json"]) == 0
     verdict = json.loads(capsys.readouterr().out)["verdict"]
     assert verdict["same_time_baseline"] == str(tmp_path / "run_baseline_2")
-    assert verdict["line"].startswith("scarce views: better by 0.06 dB than the same-time baseline; it scored below "
+    assert verdict["line"].startswith("held-out scarce views: better by 0.06 dB than the same-time baseline; it scored below "
                                       "stage I (15.12 -> 15.08 dB)")
     assert verdict["refused"] == [{"folder": str(tmp_path / "run_baseline"), "why": "it ran 66 s, the bootstrap 60 s"}]
 
