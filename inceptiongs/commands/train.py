@@ -263,10 +263,11 @@ def run_blocks(args, out: Path) -> int:
         with stop_on_signals(control) as stopping:
             result = train_blocks(config, out, count, ranks,
                                   lambda block, folder, resume: train(block, folder, resume=resume, control=control,
-                                                                      progress=not ranks.distributed, log=say), say)
+                                                                      progress=not ranks.distributed, log=say), say,
+                                  stop_requested=control.stop.is_set)
     finally:
         end_group(ranks)
-    if stopping.signum is not None or result.stopped:
+    if result.stopped:   # a stop that came after the last block's last step leaves a finished, merged run
         print(f"{out}: stopped; finished blocks are kept (continue with the same command)", file=sys.stderr)
         return stopping.exit_status if stopping.signum is not None else 130
     if result.merged:
