@@ -433,6 +433,22 @@ def test_a_stop_during_the_last_blocks_last_step_leaves_a_merged_run_and_says_so
     assert "2 blocks merged" in captured.out and (out / "model.ply").is_file()
 
 
+def test_blocks_auto_trains_a_capture_of_one_blocks_photos_as_one_run(blocks_run, tmp_path, capsys):
+    """--blocks auto on fewer training photos than a block holds: one ordinary run (docs: "a smaller
+    capture trains as one run"), not a global stage and one block, and the same command again
+    continues it."""
+    scene, _, _ = blocks_run
+    out = tmp_path / "run"
+    command = ["train", str(scene), "--out", str(out), "--blocks", "auto", "--iterations", "4"]
+    assert main(command) == 0
+    err = capsys.readouterr().err
+    assert "--blocks auto:" in err and "as one run" in err
+    assert not (out / "blocks").exists() and not (out / PLAN_FILE).exists()
+    assert json.loads((out / "config.json").read_text())["blocks"] == 0 and (out / "model.ply").is_file()
+    assert main(command) == 0
+    assert "--blocks auto: continues the one run" in capsys.readouterr().err
+
+
 def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys):
     scene, _, _ = blocks_run
     assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--iterations", "2"]) == 2
