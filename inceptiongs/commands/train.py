@@ -230,6 +230,7 @@ def run_blocks(args, out: Path) -> int:
     from ..evaluation.protocols import make_split
     from ..live import JobControl
     from ..scene.loader import load_scene
+    from ..scene.photo_store import photo_budget
     from ..stop_signals import stop_on_signals
     from ..train.blocks import block_count, train_blocks
     from ..train.distributed import end_group, start_group
@@ -257,6 +258,7 @@ def run_blocks(args, out: Path) -> int:
     else:
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
         split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
+        photo_budget(scene, split.train)   # a budget below one photo: one line before the plan is written
         count = block_count(args.blocks, len(split.train))
         if count == 1 and args.blocks == "auto" and not ranks.distributed:
             return as_one_run(args, out, f"{len(split.train)} training photos, at most {PHOTOS_PER_BLOCK} a "

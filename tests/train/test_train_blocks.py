@@ -449,6 +449,16 @@ def test_blocks_auto_trains_a_capture_of_one_blocks_photos_as_one_run(blocks_run
     assert "--blocks auto: continues the one run" in capsys.readouterr().err
 
 
+def test_a_photo_budget_below_one_photo_is_one_line_and_no_run_folder(blocks_run, tmp_path, capsys):
+    scene, _, _ = blocks_run
+    out = tmp_path / "r"
+    assert main(["train", str(scene), "--out", str(out), "--blocks", "2", "--photo-memory", "1K",
+                 "--iterations", str(ITERATIONS)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--photo-memory" in err[0] and "smaller than one photo" in err[0]
+    assert not out.exists()
+
+
 def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys):
     scene, _, _ = blocks_run
     assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--iterations", "2"]) == 2
