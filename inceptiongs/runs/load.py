@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..errors import InputError
 from ..gaussians import gaussians_from_params
 from .checkpoint import latest_checkpoint, load_newest_checkpoint
 from .config import TrainConfig
+from .lock import writer_of
 from .frames import to_normalized_frame
 
 
-def load_run(run_dir: str | Path):
+def load_run(run_dir: str | Path, warn=None):
     """RUN -> (Gaussians in the normalised frame (float32, CPU), Scene, TrainConfig).
 
-    The final model.ply when training finished, else the newest checkpoint.
+    The final model.ply when training finished, else the newest checkpoint; of a run another job
+    is still training, a line through ``warn`` (default: stderr) says that it reads a checkpoint of
+    a run in progress (and which).
     """
     from ..io.models import read_model
     from ..scene.loader import load_scene
@@ -26,9 +30,17 @@ def load_run(run_dir: str | Path):
     config = TrainConfig.load(config_path)
     scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
     model = run_dir / "model.ply"
+    writer = writer_of(run_dir)
+    say = warn or (lambda line: print(f"note: {line}", file=sys.stderr))
     if model.is_file():
+        if writer:   # a stopped run resumed: its model.ply is the one it stopped with
+            say(f"{run_dir}: still being trained by {writer}; reading the model.ply it saved before")
         return to_normalized_frame(read_model(model), scene.normalization), scene, config
     if latest_checkpoint(run_dir) is None:
-        raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint")
-    params = load_newest_checkpoint(run_dir)[1]["params"]
-    return gaussians_from_params(params).detach(), scene, config
+        raise InputError(f"{run_dir}: run has neither model.ply nor a checkpoint"
+                         + (f" yet ({writer} is training it; try again once it has saved one)" if writer else ""))
+    path, payload = load_newest_checkpoint(run_dir, warn=warn)
+    if writer:
+        say(f"{run_dir}: still being trained by {writer}; reading its newest checkpoint, {path.name} "
+            f"(iteration {payload.get('iteration', '?')} of {config.iterations})")
+    return gaussians_from_params(payload["params"]).detach(), scene, config
