@@ -184,3 +184,10 @@ def test_split_for_other_views_is_rejected(tmp_path, scene_root):
     other.save(tmp_path / "run" / "split.json")
     assert main(["eval", str(tmp_path / "run")]) == 2
     assert isinstance(Split.load(tmp_path / "run" / "split.json"), Split)
+
+
+def test_eval_of_a_missing_run_folder_is_one_line(tmp_path, capsys):
+    """The error alone: no device line before it (the device is chosen for a run that exists)."""
+    assert main(["eval", str(tmp_path / "no_such_run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "run folder does not exist" in err[0]
