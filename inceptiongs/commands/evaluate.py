@@ -78,7 +78,8 @@ def run(args) -> int:
     else:
         print(format_table(summary))
         if outlook is not None:
-            print(f"repair outlook {outlook[0]}: {outlook[1].line}")
+            # The "unknown" lines name themselves ("repair outlook: unknown (...)"): said once here.
+            print(f"repair outlook {outlook[0]}: {outlook[1].line.removeprefix('repair outlook: ')}")
         if verdict is not None:
             print(f"repair verdict (the bootstrap's own evaluations): {verdict_line(verdict)}")
         if generated:

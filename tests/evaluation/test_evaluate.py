@@ -191,3 +191,12 @@ def test_eval_of_a_missing_run_folder_is_one_line(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "no_such_run")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "run folder does not exist" in err[0]
+
+
+def test_an_unknown_outlook_is_named_once(tmp_path, scene_root, capsys):
+    """eval prefixes the outlook with "repair outlook ...:", so the line's own prefix goes."""
+    write_run(tmp_path / "run", scene_root, known_gaussians(seed=1))
+    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"iteration": 0, "covered_psnr": 15.0}) + "\n")
+    assert main(["eval", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr().out
+    assert "repair outlook for a bootstrap: unknown (" in out and out.count("repair outlook") == 1
