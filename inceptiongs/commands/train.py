@@ -271,6 +271,10 @@ def run_blocks(args, out: Path) -> int:
     control = JobControl()
     say = lambda line: print(line if not ranks.distributed else f"[rank {ranks.rank}] {line}",  # noqa: E731
                              file=sys.stderr, flush=True)
+    if config.minutes is not None and ranks.rank == 0:   # said before the hours it may mean
+        stages = count + (config.block.global_share > 0)
+        say(f"--minutes {config.minutes:g} is each stage's own budget: the {stages} stages (global stage and "
+            f"blocks) take up to {stages * config.minutes:g} min in all, shared by {ranks.world} process(es)")
     start_group(ranks, cuda=device.torch_device.type == "cuda")
     try:
         with stop_on_signals(control) as stopping:

@@ -459,6 +459,13 @@ def test_a_photo_budget_below_one_photo_is_one_line_and_no_run_folder(blocks_run
     assert not out.exists()
 
 
+def test_a_time_budget_in_blocks_says_what_it_adds_up_to(blocks_run, tmp_path, capsys):
+    """--minutes is each stage's budget (docs): the command says what the whole run may take."""
+    scene, _, _ = blocks_run
+    assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--minutes", "0.05"]) == 0
+    assert "--minutes 0.05 is each stage's own budget: the 3 stages" in capsys.readouterr().err
+
+
 def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys):
     scene, _, _ = blocks_run
     assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--iterations", "2"]) == 2
