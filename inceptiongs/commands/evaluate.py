@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from ..errors import InputError
 from ..io.photo_memory import PHOTO_MEMORY_HELP
@@ -50,6 +51,8 @@ def run(args) -> int:
     from ..evaluation.scoring import format_table
 
     steps = parse_steps(args.ddim_steps) if args.generated else None
+    if not Path(args.run).is_dir():   # before the device line: the error alone
+        raise InputError(f"{args.run}: run folder does not exist")
     # One device for the render and the prior; an unusable one fails before any work.
     device = command_device(args.device, args.run)
     if device.note:
@@ -75,7 +78,8 @@ def run(args) -> int:
     else:
         print(format_table(summary))
         if outlook is not None:
-            print(f"repair outlook {outlook[0]}: {outlook[1].line}")
+            # The "unknown" lines name themselves ("repair outlook: unknown (...)"): said once here.
+            print(f"repair outlook {outlook[0]}: {outlook[1].line.removeprefix('repair outlook: ')}")
         if verdict is not None:
             print(f"repair verdict (the bootstrap's own evaluations): {verdict_line(verdict)}")
         if generated:

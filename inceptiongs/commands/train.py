@@ -58,7 +58,7 @@ def add_arguments(parser) -> None:
                              "view_fit.json names the photos it fitted poorly (moved objects, wrong poses)")
     parser.add_argument("--blocks", metavar="auto|N",
                         help="train in N blocks on the ground plane (auto: one per "
-                             f"{PHOTOS_PER_BLOCK} training photos): a global stage on every photo "
+                             f"{PHOTOS_PER_BLOCK} training photos; fewer train as one ordinary run): a global stage on every photo "
                              "(block.global_share of --iterations), then each block, an ordinary run in "
                              "RUN/blocks/, fine-tuned from it with its share of the rest, merged into RUN; the "
                              "same command again trains only what is unfinished. Under torchrun the ranks share "
@@ -164,18 +164,24 @@ def photos_to_exclude(value: str | None) -> list[str]:
 
 
 def run(args) -> int:
-    from ..live import JobControl
-    from ..stop_signals import stop_on_signals
     from ..runs.folder import default_run_dir
-    from ..train.trainer import train
 
     scene = Path(args.scene)
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
     out = Path(args.out) if args.out else default_run_dir(scene)
-    ranks = ranks_from_environment()
     if args.blocks is not None:
         return run_blocks(args, out)
+    return run_one(args, out)
+
+
+def run_one(args, out: Path) -> int:
+    """`train` without --blocks (or --blocks auto on a capture of one block): one run into ``out``."""
+    from ..live import JobControl
+    from ..stop_signals import stop_on_signals
+    from ..train.trainer import train
+
+    ranks = ranks_from_environment()
     if ranks.distributed:
         raise InputError(f"torchrun ({ranks.world} ranks): only `train --blocks` spreads over ranks")
     stored = out / "config.json"
@@ -235,6 +241,7 @@ def run_blocks(args, out: Path) -> int:
     from ..evaluation.protocols import make_split
     from ..live import JobControl
     from ..scene.loader import load_scene
+    from ..scene.photo_store import photo_budget
     from ..stop_signals import stop_on_signals
     from ..train.blocks import block_count, train_blocks
     from ..train.distributed import end_group, start_group
@@ -250,6 +257,8 @@ def run_blocks(args, out: Path) -> int:
     stored = out / "config.json"
     if stored.is_file():
         previous = TrainConfig.load(stored)
+        if not previous.blocks and args.blocks == "auto" and not ranks.distributed:
+            return as_one_run(args, out, "continues the one run it trained this capture as", resume=True)
         if not previous.blocks:
             raise InputError(f"{out}: run folder already holds a run that is not in blocks (give another --out)")
         count = previous.blocks
@@ -264,7 +273,11 @@ def run_blocks(args, out: Path) -> int:
     else:
         scene = load_scene(config.scene, downscale=config.downscale, max_width=config.max_width)
         split = make_split(scene, config.protocol, config.seed, config.scarce_views, config.exclude_photos)
+        photo_budget(scene, split.train)   # a budget below one photo: one line before the plan is written
         count = block_count(args.blocks, len(split.train))
+        if count == 1 and args.blocks == "auto" and not ranks.distributed:
+            return as_one_run(args, out, f"{len(split.train)} training photos, at most {PHOTOS_PER_BLOCK} a "
+                                         f"block: trains them as one run", resume=False)
         config = dataclasses.replace(config, blocks=count)
     if ranks.world > count:   # before joining the group: the ranks it would wait for never come
         raise InputError(f"torchrun: {ranks.world} ranks for {count} blocks; start at most {count} (a rank "
@@ -273,20 +286,32 @@ def run_blocks(args, out: Path) -> int:
     control = JobControl()
     say = lambda line: print(line if not ranks.distributed else f"[rank {ranks.rank}] {line}",  # noqa: E731
                              file=sys.stderr, flush=True)
+    if config.minutes is not None and ranks.rank == 0:   # said before the hours it may mean
+        stages = count + (config.block.global_share > 0)
+        say(f"--minutes {config.minutes:g} is each stage's own budget: the {stages} stages (global stage and "
+            f"blocks) take up to {stages * config.minutes:g} min in all, shared by {ranks.world} process(es)")
     start_group(ranks, cuda=device.torch_device.type == "cuda")
     try:
         with stop_on_signals(control) as stopping:
             result = train_blocks(config, out, count, ranks,
                                   lambda block, folder, resume: train(block, folder, resume=resume, control=control,
-                                                                      progress=not ranks.distributed, log=say), say)
+                                                                      progress=not ranks.distributed, log=say), say,
+                                  stop_requested=control.stop.is_set)
     finally:
         end_group(ranks)
-    if stopping.signum is not None or result.stopped:
+    if result.stopped:   # a stop that came after the last block's last step leaves a finished, merged run
         print(f"{out}: stopped; finished blocks are kept (continue with the same command)", file=sys.stderr)
         return stopping.exit_status if stopping.signum is not None else 130
     if result.merged:
         print(f"{out}: {count} blocks merged, {result.num_gaussians} Gaussians (inceptiongs eval {out})")
     return 0
+
+
+def as_one_run(args, out: Path, what: str, resume: bool) -> int:
+    """`--blocks auto` on a capture whose training photos fill one block: an ordinary run (a global
+    stage and one block would be two schedules of the same photos), continued by the same command."""
+    print(f"--blocks auto: {what} ({out})", file=sys.stderr)
+    return run_one(argparse.Namespace(**{**vars(args), "blocks": None, "resume": resume}), out)
 
 
 def joint_prior(args, out: Path, config, device):

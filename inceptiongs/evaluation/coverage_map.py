@@ -127,8 +127,15 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     opacity = torch.sigmoid(gaussians.opacity_logits.reshape(-1)).numpy()
     if not len(opacity):
         raise InputError(f"{run_dir}: the run has no Gaussians")
+    # The sky shell's Gaussians (4 x the scene's extent away, opaque from their start) are no
+    # surface of the scene: on a town trained briefly they were most of the opaque ones, and the
+    # map measured the sky around the town instead of the town.
+    scene_part = ~shell_rows(gaussians.means, scene, split, config).numpy()
+    if not scene_part.any():
+        raise InputError(f"{run_dir}: the run has no Gaussians inside its sky shell")
+    opacity = opacity[scene_part]
     # A barely trained run (every opacity still near its initial 0.1) keeps its more opaque half.
-    points = gaussians.means.numpy()[opacity >= min(OPAQUE_MIN, float(np.median(opacity)))]
+    points = gaussians.means.numpy()[scene_part][opacity >= min(OPAQUE_MIN, float(np.median(opacity)))]
     depths = []
     log(f"rendering depth for {len(scene.cameras)} views")
     with torch.no_grad():
@@ -140,6 +147,21 @@ def run_coverage(run_dir: str | Path, roi=None, max_points: int = MAX_POINTS, se
     return compute(_subsample(points, max_points, seed), list(scene.cameras), sources, depths,
                    roi=_roi_normalised(roi, scene.normalization), kind="run", point_source="opaque Gaussian centres",
                    groups={"scarce": list(split.scarce_test), "covered": list(split.covered_test)})
+
+
+def shell_rows(means, scene, split, config):
+    """[N] bool torch: the rows of ``means`` [N, 3] (normalised frame) that lie in the run's sky
+    shell, the sphere stage I placed it on (inceptiongs.train.sky.shell_geometry of the training
+    cameras and the scene's sparse points); all False for a run without a shell, or one whose
+    scene has no sparse points (its shell was placed around triangulated points, not known here)."""
+    import torch
+
+    from ..train.sky import in_background, shell_geometry
+
+    if not config.free_space.sky_shell or not len(scene.points) or not len(split.train):
+        return torch.zeros(len(means), dtype=torch.bool)
+    centre, radius = shell_geometry([scene.cameras[i] for i in split.train], scene.points)
+    return in_background(means, torch.tensor([*centre, radius], dtype=means.dtype))
 
 
 def summary(c: Coverage, listed: int = SCARCE_VIEWS_LISTED) -> dict:

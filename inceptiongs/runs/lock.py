@@ -29,21 +29,20 @@ def _holder(run_dir: Path) -> str:
     return f"pid {text}" if text.isdigit() else "another process"
 
 
-def run_folder_writer(run_dir: str | Path) -> str | None:
-    """Who writes ``run_dir`` now ("pid N", "another process"), or None when no job holds its
-    lock. Asked with a shared lock taken and given back at once, so a crashed job's stale
-    ``.lock`` file does not count."""
+def writer_of(run_dir: str | Path) -> str | None:
+    """Who writes ``run_dir`` now ("pid N", "another process"), or None when no job holds its lock
+    (or it is no folder). Takes and drops a shared lock: it never waits and never blocks a writer
+    that comes later."""
+    run_dir = Path(run_dir)
     try:
         fd = os.open(run_dir, os.O_RDONLY | os.O_DIRECTORY)
     except OSError:
         return None
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except OSError as exc:
-            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                return _holder(Path(run_dir))
-            return None
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError as exc:
+        return _holder(run_dir) if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES) else None
+    else:
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
     finally:

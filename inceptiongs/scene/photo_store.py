@@ -192,6 +192,21 @@ class _Held:
             self.thread = None
 
 
+def photo_budget(scene, views, budget: int | None = None) -> int:
+    """Bytes a store of ``scene``'s ``views`` may hold: ``budget``, else --photo-memory, else the
+    default (all of them within a share of the free memory, at least one photo). InputError when
+    a budget given is smaller than the largest photo: a command checks it before it writes."""
+    largest = max((photo_bytes(scene, v) for v in views), default=0)
+    if budget is None:
+        budget = photo_memory()
+    if budget is None:
+        budget = max(default_budget(sum(photo_bytes(scene, v) for v in views)), largest)
+    if views and budget < largest:
+        raise InputError(f"--photo-memory: {budget} bytes is smaller than one photo "
+                         f"({largest} bytes as float32 at the training resolution)")
+    return budget
+
+
 class PhotoStore(Mapping):
     """index -> photo [H, W, 3] float32 on ``device``, for the views ``views`` of ``scene``,
     holding at most ``budget`` bytes of photos on the host (the device gets one per read)."""
@@ -200,15 +215,7 @@ class PhotoStore(Mapping):
                  _held: _Held | None = None):
         if _held is None:
             views = sorted({int(v) for v in views})
-            largest = max((photo_bytes(scene, v) for v in views), default=0)
-            if budget is None:
-                budget = photo_memory()
-            if budget is None:
-                budget = max(default_budget(sum(photo_bytes(scene, v) for v in views)), largest)
-            if views and budget < largest:
-                raise InputError(f"--photo-memory: {budget} bytes is smaller than one photo "
-                                 f"({largest} bytes as float32 at the training resolution)")
-            _held = _Held(scene, views, budget)
+            _held = _Held(scene, views, photo_budget(scene, views, budget))
         self._held, self.device = _held, torch.device(device)
 
     @property

@@ -240,10 +240,12 @@ class BlocksResult:
 
 
 def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ranks, train_one,
-                 log: Callable[[str], None]) -> BlocksResult:
+                 log: Callable[[str], None], stop_requested: Callable[[], bool] = lambda: False) -> BlocksResult:
     """Train ``config`` in ``count`` blocks into ``run_dir`` (module doc): this rank's share of
     them (distributed.assign), then, on rank 0 once every rank is done, the merge.
-    ``train_one(config, folder, resume)`` trains one block and returns its TrainResult."""
+    ``train_one(config, folder, resume)`` trains one block and returns its TrainResult.
+    ``stop_requested()``: whether a stop (Ctrl+C, SIGTERM) came; a stage that finishes while one
+    is pending is kept, and no further stage starts."""
     run_dir = Path(run_dir)
     if ranks.world > count:
         raise InputError(f"torchrun: {ranks.world} ranks for {count} blocks; start at most {count} (a rank "
@@ -267,12 +269,18 @@ def train_blocks(config: TrainConfig, run_dir: str | Path, count: int, ranks: Ra
     result = BlocksResult(run_dir, count, [], [], False, False)
     if first is not None and ranks.rank == 0:
         result.stopped = not train_global(first, start, train_one, log)
+    # A stop that came as a stage finished ends the run here: the next stage would only set up
+    # (and leave a step-0 checkpoint) before it honoured it.
+    result.stopped = result.stopped or stop_requested()
     if result.stopped:
         return result    # as a stopped block: the same command later continues it
     barrier(ranks)   # the global stage is finished after it: every block starts from it
     mine = assign(plan.train_counts, ranks.world)[ranks.rank]
     for index in mine:
         folder = block_dir(run_dir, index)
+        if stop_requested() and not block_finished(folder):
+            result.stopped = True
+            break
         if block_finished(folder):
             result.skipped.append(index)
             log(f"block {index + 1} of {count}: finished earlier ({folder})")

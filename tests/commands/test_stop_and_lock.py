@@ -93,6 +93,24 @@ def test_a_second_writer_is_refused_naming_the_holder(tmp_path, scene):
         pass
 
 
+def test_reading_a_run_another_job_still_trains_says_so(tmp_path, scene, capsys):
+    """eval (and every command that opens a run) on a run in progress reads its newest checkpoint:
+    it says so, naming the job and the step, instead of scoring a half-trained model unsaid."""
+    run = tmp_path / "run"
+    assert main(["train", str(scene), "--out", str(run), "--iterations", "2", "--downscale", "4"]) == 0
+    (run / "model.ply").unlink()     # as while it trains: checkpoints only
+    step = list_checkpoints(run)[-1][1].name
+    capsys.readouterr()
+    with run_folder_lock(run):
+        assert main(["eval", str(run)]) == 0
+        err = capsys.readouterr().err
+        assert f"still being trained by pid {os.getpid()}" in err and step in err
+        for _, path in list_checkpoints(run):
+            path.unlink()
+        assert main(["eval", str(run)]) == 2
+        assert f"still being trained by pid {os.getpid()} and no checkpoint written yet" in capsys.readouterr().err
+
+
 def _wait_for(predicate, timeout_s: float) -> bool:
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:

@@ -174,3 +174,30 @@ def test_a_scene_without_points_is_triangulated_one_photo_at_a_time(tmp_path, mo
     assert coverage.point_source == "points triangulated from the photos"
     assert count.peak == 1, count.peak
     assert count.reads >= 2 * len(scene.cameras)
+
+
+def test_a_runs_coverage_measures_the_scene_not_its_sky_shell(tmp_path):
+    """The sky shell (4 x the scene's extent away, opaque from its start) is no surface: a briefly
+    trained town's map took most of its points from it and measured the sky around the town."""
+    import torch
+
+    from inceptiongs.cli import main
+    from inceptiongs.evaluation.coverage_map import run_coverage
+    from inceptiongs.evaluation.protocols import Split
+    from inceptiongs.runs.load import load_run
+    from inceptiongs.train.sky import in_background, shell_geometry
+
+    scene_dir, run = tmp_path / "town", tmp_path / "run"
+    assert main(["demo-scene", str(scene_dir), "--scene", "town", "--views", "32", "--size", "tiny"]) == 0
+    assert main(["train", str(scene_dir), "--out", str(run), "--iterations", "20"]) == 0
+    gaussians, scene, _ = load_run(run)
+    split = Split.load(run / "split.json", scene.cameras)
+    centre, radius = shell_geometry([scene.cameras[i] for i in split.train], scene.points)
+    sphere = torch.tensor([*centre, radius], dtype=gaussians.means.dtype)
+    opacity = torch.sigmoid(gaussians.opacity_logits.reshape(-1))
+    shell = in_background(gaussians.means, sphere)
+    # The shell is there and opaque enough to pass the coverage's opacity cut.
+    assert shell.sum() > 100 and (opacity[shell] >= 0.2).float().mean() > 0.5
+    coverage = run_coverage(run)
+    distance = np.linalg.norm(coverage.points - centre, axis=1)
+    assert len(coverage.points) > 10 and distance.max() <= 0.5 * radius

@@ -184,3 +184,19 @@ def test_split_for_other_views_is_rejected(tmp_path, scene_root):
     other.save(tmp_path / "run" / "split.json")
     assert main(["eval", str(tmp_path / "run")]) == 2
     assert isinstance(Split.load(tmp_path / "run" / "split.json"), Split)
+
+
+def test_eval_of_a_missing_run_folder_is_one_line(tmp_path, capsys):
+    """The error alone: no device line before it (the device is chosen for a run that exists)."""
+    assert main(["eval", str(tmp_path / "no_such_run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "run folder does not exist" in err[0]
+
+
+def test_an_unknown_outlook_is_named_once(tmp_path, scene_root, capsys):
+    """eval prefixes the outlook with "repair outlook ...:", so the line's own prefix goes."""
+    write_run(tmp_path / "run", scene_root, known_gaussians(seed=1))
+    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"iteration": 0, "covered_psnr": 15.0}) + "\n")
+    assert main(["eval", str(tmp_path / "run")]) == 0
+    out = capsys.readouterr().out
+    assert "repair outlook for a bootstrap: unknown (" in out and out.count("repair outlook") == 1

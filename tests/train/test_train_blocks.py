@@ -8,6 +8,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -388,6 +389,99 @@ def test_a_stopped_global_stage_is_continued_from_its_checkpoint_and_trained_onc
     calls.clear()
     third = train_blocks(config, out, 2, Ranks(), stand_in({"block 0", "block 1"}), lambda line: None)
     assert third.stopped and [name for name, _, _ in calls] == [calls[0][0]] and calls[0][0] != "global"
+
+
+def test_a_stop_that_comes_as_a_stage_finishes_starts_no_other_stage(blocks_run, tmp_path):
+    """Ctrl+C during a stage's last step: that stage finishes and is kept, the next one does not
+    start (it would set up and leave a step-0 checkpoint first), and the run says it stopped."""
+    from inceptiongs.runs.config import TrainConfig
+    from inceptiongs.train.blocks import train_blocks
+    from inceptiongs.train.distributed import Ranks
+    from inceptiongs.train.trainer import TrainResult
+
+    _, run, _ = blocks_run
+    config = TrainConfig.load(run / "config.json")
+    out = tmp_path / "run"
+    calls, stop = [], []
+
+    def train_one(stage, folder, resume):   # finishes, with a stop requested during its last step
+        calls.append(folder.name)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "model.ply").write_bytes(b"")
+        stop.append(True)
+        return TrainResult(folder, stage.iterations, True, 0)
+
+    first = train_blocks(config, out, 2, Ranks(), train_one, lambda line: None, stop_requested=lambda: bool(stop))
+    assert first.stopped and not first.merged and calls == ["global"]
+    assert (global_dir(out) / BLOCK_DONE).is_file()
+    assert not block_dir(out, 0).exists() and not block_dir(out, 1).exists()
+    stop.clear()
+    calls.clear()
+    second = train_blocks(config, out, 2, Ranks(), train_one, lambda line: None, stop_requested=lambda: bool(stop))
+    assert second.stopped and len(calls) == 1 and calls[0].startswith("block_")
+    assert sum(block_dir(out, i).exists() for i in range(2)) == 1
+
+
+def test_a_stop_during_the_last_blocks_last_step_leaves_a_merged_run_and_says_so(blocks_run, tmp_path, capsys,
+                                                                                 monkeypatch):
+    """Ctrl+C while the last block takes its last step: the block finishes, the run is merged, and
+    the command says so (exit 0), not "stopped ... continue with the same command"."""
+    import inceptiongs.train.trainer as trainer
+
+    scene, run, _ = blocks_run
+    last = assign(read_plan(run).train_counts, 1)[0][-1]
+
+    def stand_in(config, folder, resume=False, control=None, **_):   # the fixture's models, as trained
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        source = global_dir(run) if folder == global_dir(out) else block_dir(run, config.block.index)
+        shutil.copyfile(source / "model.ply", folder / "model.ply")
+        if folder == block_dir(out, last):
+            control.listening.set()
+            os.kill(os.getpid(), signal.SIGINT)    # the handler sets control.stop, as Ctrl+C does
+        return trainer.TrainResult(folder, config.iterations, True, 0)
+
+    out = tmp_path / "run"
+    monkeypatch.setattr(trainer, "train", stand_in)
+    status = main(["train", str(scene), "--out", str(out), "--iterations", str(ITERATIONS), "--protocol",
+                   "unstructured", "--blocks", "2"])
+    captured = capsys.readouterr()
+    assert "SIGINT" in captured.err
+    assert status == 0 and "stopped" not in captured.err
+    assert "2 blocks merged" in captured.out and (out / "model.ply").is_file()
+
+
+def test_blocks_auto_trains_a_capture_of_one_blocks_photos_as_one_run(blocks_run, tmp_path, capsys):
+    """--blocks auto on fewer training photos than a block holds: one ordinary run (docs: "a smaller
+    capture trains as one run"), not a global stage and one block, and the same command again
+    continues it."""
+    scene, _, _ = blocks_run
+    out = tmp_path / "run"
+    command = ["train", str(scene), "--out", str(out), "--blocks", "auto", "--iterations", "4"]
+    assert main(command) == 0
+    err = capsys.readouterr().err
+    assert "--blocks auto:" in err and "as one run" in err
+    assert not (out / "blocks").exists() and not (out / PLAN_FILE).exists()
+    assert json.loads((out / "config.json").read_text())["blocks"] == 0 and (out / "model.ply").is_file()
+    assert main(command) == 0
+    assert "--blocks auto: continues the one run" in capsys.readouterr().err
+
+
+def test_a_photo_budget_below_one_photo_is_one_line_and_no_run_folder(blocks_run, tmp_path, capsys):
+    scene, _, _ = blocks_run
+    out = tmp_path / "r"
+    assert main(["train", str(scene), "--out", str(out), "--blocks", "2", "--photo-memory", "1K",
+                 "--iterations", str(ITERATIONS)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--photo-memory" in err[0] and "smaller than one photo" in err[0]
+    assert not out.exists()
+
+
+def test_a_time_budget_in_blocks_says_what_it_adds_up_to(blocks_run, tmp_path, capsys):
+    """--minutes is each stage's budget (docs): the command says what the whole run may take."""
+    scene, _, _ = blocks_run
+    assert main(["train", str(scene), "--out", str(tmp_path / "r"), "--blocks", "2", "--minutes", "0.05"]) == 0
+    assert "--minutes 0.05 is each stage's own budget: the 3 stages" in capsys.readouterr().err
 
 
 def test_too_few_steps_and_a_bad_share_are_one_line(blocks_run, tmp_path, capsys):
