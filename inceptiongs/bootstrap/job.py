@@ -34,6 +34,9 @@ class BootstrapJob:
         targets = resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds,
                                   run_dir=self.run_dir)
         out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
+        if stage1.config.blocks:
+            self.run_blocks(stage1, out_dir, targets, control, out)
+            return
         result = run_bootstrap(stage1, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False, overwrite=self.overwrite)
@@ -41,6 +44,25 @@ class BootstrapJob:
                 else f"{result.supervised_views} of {result.virtual_views} virtual views used (the others' photos "
                      f"agree with the render better than with each other)")
         out.finish("bootstrap", result.iteration, result.finished, result.last_eval, f"{used}, {out_dir}")
+
+    def run_blocks(self, stage1, out_dir: Path, targets, control: JobControl, out: JobPublisher) -> None:
+        """A run trained in blocks: only the blocks the flagged views see are refined, as `inceptiongs
+        bootstrap` refines them (blocks.bootstrap_blocks; the viewer's job refined the whole merged
+        model). A block's own model is not the scene, so no snapshot is shown while it is refined:
+        the merged result is, once written."""
+        from ..runs.load import load_run
+        from .blocks import bootstrap_blocks
+        from .runner import run_bootstrap
+
+        result = bootstrap_blocks(stage1, out_dir, targets, self.config,
+                                  lambda run, block_out, block_targets, block_config: run_bootstrap(
+                                      run, block_out, block_targets, block_config, control=control, log=out.log,
+                                      progress=False, overwrite=self.overwrite), out.log)
+        iteration = max((block.iteration for block in result.results), default=stage1.config.iterations)
+        out.snapshot(iteration, load_run(out_dir, warn=out.log)[0], {})
+        refined = ", ".join(str(index + 1) for index in result.refined)
+        out.finish("bootstrap", iteration, result.finished, {},
+                   f"block(s) {refined} refined, the others kept, {out_dir}")
 
 
 # A baseline job runs for its time, not for a number of steps: its step cap is out of reach.

@@ -563,3 +563,36 @@ def test_a_bootstrap_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path)
         start_before, start_after = start_before + count_before, start_after + count_after
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     assert summary["blocks_refined"] == refined and summary["virtual_steps"] > 0
+
+
+def test_the_viewers_bootstrap_job_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path):
+    """The viewer's "Bootstrap flagged views" refined the whole merged model of a run in blocks
+    (117,520 Gaussians on a town), where `inceptiongs bootstrap` refines the flagged blocks only."""
+    from inceptiongs.bootstrap.blocks import blocks_holding
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.job import BootstrapJob
+    from inceptiongs.bootstrap.targets import Target
+    from inceptiongs.io.flags import Flag, save_flags
+    from inceptiongs.live import JobControl, SnapshotBox
+
+    scene_dir, run, _ = blocks_run
+    scene = load_scene(scene_dir)
+    plan = read_plan(run)
+    flagged = next(camera for camera in scene.cameras
+                   if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 1)
+    flags = tmp_path / "flags.json"
+    save_flags(flags, [Flag("flag 1", flagged, "")])
+    out, box = tmp_path / "boot", SnapshotBox()
+    BootstrapJob(run, out, flags, BootstrapConfig(iterations=8, follow_outlook=False)).run(box, JobControl())
+    written = json.loads((out / PLAN_FILE).read_text())
+    assert len(written["refined"]) == 1
+    kept = written["kept_gaussians"]
+    unrefined = [i for i in range(len(kept)) if i not in written["refined"]][0]
+    start = sum(kept[:unrefined])
+    before_start = sum(json.loads((run / PLAN_FILE).read_text())["kept_gaussians"][:unrefined])
+    before, after = read_ply(run / "model.ply"), read_ply(out / "model.ply")
+    assert np.array_equal(before.means[before_start:before_start + kept[unrefined]].numpy(),
+                          after.means[start:start + kept[unrefined]].numpy())
+    last = box.latest()
+    assert last is not None and len(last.gaussians["means"]) == len(after) == sum(kept)
+    assert "refined" in last.message and "bootstrap finished" in last.message, last.message
