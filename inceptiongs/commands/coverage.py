@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
         device = command_device(args.device, path)   # what renders the views' depth
         if device.note:
             log(device.note)
-        result = coverage_map.run_coverage(path, roi=args.roi, log=log, rasterizer=device.rasterizer)
+        result = coverage_map.run_coverage(path, roi=args.roi, log=log, rasterizer=device.rasterizer,
+                                              progress=True)
     else:
         from ..scene.loader import load_scene
 
