@@ -15,7 +15,7 @@ import numpy as np
 from inceptiongs.constants import sh_degree_from_count
 from inceptiongs.evaluation.metrics import psnr
 
-from .coverage_mode import CoverageMode
+from .coverage_mode import COUNTING_SLICE_S, CoverageMode
 from . import detail as level_of_detail
 from .detail import (BUDGET_START, SETTLED_GRANULARITY_PX, DetailWorker, camera_key, detail_state, next_budget,
                      preview_arrays)
@@ -143,9 +143,11 @@ class FrameDrawer:
         self.drawn = (0, 0, "")  # splats drawn, of the model's total, and how (the panel's LOD line)
         self.shown_arrays: dict | None = None  # what upload_model last handed over (coverage colours included)
 
-    def upload_model(self, view) -> None:
+    def upload_model(self, view, slice_s: float | None = None) -> None:
         """Hand the view's visible Gaussians to the renderer when they changed (recoloured by
-        their view counts in the coverage mode)."""
+        their view counts in the coverage mode). ``slice_s``: the coverage counts may take this
+        long in this call (the window's frame: CoverageMode.update); meanwhile the model shows
+        its own colours. None: counted to the end (a screenshot, a picture)."""
         model = (view.model_version, view.edit.version)
         coverage = view.settings.mode == "coverage"
         version = model + (("coverage",) if coverage else ())
@@ -154,7 +156,12 @@ class FrameDrawer:
             if coverage:
                 # Depth for the occlusion test comes from the model as it is (its own colours).
                 self.renderer.set_gaussians(arrays, version=hash(model) & 0x7FFFFFFF)
-                arrays = self.coverage.update(arrays, view.cameras, self.depth_of, model)
+                coloured = self.coverage.update(arrays, view.cameras, self.depth_of, model, slice_s)
+                if coloured is None:   # still counting: this frame shows the model's own colours
+                    self.uploaded_version = model + ("counting",)
+                    self.shown_arrays = arrays
+                    return
+                arrays = coloured
             self.renderer.set_gaussians(arrays, version=hash(version) & 0x7FFFFFFF)
             self.uploaded_version = version
             self.shown_arrays = arrays
@@ -268,7 +275,7 @@ class FrameDrawer:
             if shown == "preview":
                 scale = self.moving_scale   # a stand-in: not worth the full size's time
         else:
-            self.upload_model(view)
+            self.upload_model(view, COUNTING_SLICE_S)
         camera = view.current_camera(scale)
         photo_index = nearest_camera_index(view.cameras, camera) if settings.photo != "off" and mode == "rgb" else None
         key = (mode, settings.reference_view, scale, camera.width, camera.height,

@@ -41,6 +41,8 @@ def is_idle(viewer) -> bool:
         return False  # imgui answers some input on a later frame (a window it sizes first, a hover)
     if imgui_input_queued(viewer):
         return False  # keys typed faster than frames are drawn: imgui takes them over several
+    if viewer.drawing.coverage.counting is not None:
+        return False  # the coverage counts go on a slice a frame
     if now - viewer.jobs.last_snapshot_time < MODEL_STILL_SECONDS + 0.1:
         return False  # the refine of the last snapshot is still to come
     if viewer.jobs.running():

@@ -369,6 +369,12 @@ def _coverage(ui, coverage) -> bool:
     suggestion was asked for."""
     from inceptiongs.evaluation.coverage import ramp_colours
 
+    if coverage.counting is not None:   # CoverageMode: a slice of the cameras a frame
+        done, total = coverage.counting
+        imgui.text_wrapped(f"counting the views that see each splat: {done} / {total} (the model's own "
+                           f"colours until then)")
+        if coverage.arrays is None:   # no counts yet: a bar of nothing would read as "seen by none"
+            return False
     vmax = coverage.vmax
     imgui.text(f"views seeing each splat: 0 (dark) .. {vmax:.0f}+ (bright)")
     for step, colour in enumerate(ramp_colours(np.linspace(0, vmax, 6), vmax)):

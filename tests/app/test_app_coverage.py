@@ -72,6 +72,26 @@ def test_coverage_mode_counts_the_cameras_and_suggests_the_lone_view():
     assert mode.suggest(arrays, cameras, _no_occlusion, k=1) == [3]
 
 
+def test_coverage_counts_a_slice_of_the_cameras_a_frame_and_end_where_all_at_once_do():
+    """The window counts a slice of the cameras a frame (a 300-view town's counts froze it for
+    about 100 s); the counts end the same as all at once, and a new model starts over."""
+    from inceptiongs.app.coverage_mode import CoverageMode
+
+    arrays, cameras = _grid(), _cameras()
+    whole = CoverageMode()
+    expected = whole.update(arrays, cameras, _no_occlusion, version=1)
+    sliced = CoverageMode()
+    seen = []
+    while (coloured := sliced.update(arrays, cameras, _no_occlusion, version=1, slice_s=0.0)) is None:
+        seen.append(sliced.counting)
+    assert seen == [(k, len(cameras)) for k in range(1, len(cameras))]   # one camera a call
+    assert sliced.counting is None and np.array_equal(sliced.counts, whole.counts)
+    assert np.array_equal(coloured["sh"], expected["sh"])
+    assert sliced.update(arrays, cameras, _no_occlusion, version=2, slice_s=0.0) is None   # another model
+    assert sliced.counting == (1, len(cameras))
+    assert sliced.update(arrays, cameras, _no_occlusion, version=3) is not None and sliced.counting is None
+
+
 @pytest.mark.gl
 def test_coverage_mode_golden_screenshot_and_flag_suggestion(xvfb, tmp_path):
     from inceptiongs.app.sources import ViewerSource
