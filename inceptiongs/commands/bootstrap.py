@@ -97,6 +97,10 @@ def run(args) -> int:
         out_dir = check_default_out_dir(next_free_folder(check_default_out_dir(default_out_dir(run_dir))))
     if out_dir.resolve() == run_dir.resolve():     # said first: no other word about the folder applies
         raise InputError(f"{out_dir}: --out must differ from the input run (the bootstrap writes a new run folder)")
+    from ..io.paths import check_outside_scene
+    from .render import run_scene_path
+
+    check_outside_scene(out_dir, run_scene_path(run_dir) if run_dir.is_dir() else None)
     config = config_from_args(args, out_dir if args.resume else None)
     if run_in_blocks(run_dir):
         return run_blocks(args, run_dir, out_dir, config)

@@ -45,6 +45,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--roi: the box corners must be finite numbers, got {' '.join(map(str, args.roi))}")
     if Path(args.out).suffix.lower() != ".png":
         raise InputError(f"{args.out}: the coverage figure must be a .png file")
+    from ..io.paths import check_outside_scene
+    from .render import run_scene_path
+
+    # The figure never goes into the scene folder (input): the one given, or the run's.
+    check_outside_scene(args.out, run_scene_path(path) if (path / "config.json").is_file() else path)
     log = (lambda message: None) if args.json else (lambda message: print(message, flush=True))
     if (path / "config.json").is_file():
         device = command_device(args.device, path)   # what renders the views' depth

@@ -37,7 +37,7 @@ from ..io.limits import check_image_size
 from ..camera import Camera, read_camera_json
 from ..constants import ALPHA_EPS
 from ..errors import InputError
-from ..io.paths import read_small_text
+from ..io.paths import check_outside_scene, read_small_text
 from .device import add_device_argument, command_device
 from ..io.values import flag, shown
 
@@ -124,6 +124,13 @@ def run_scene_path(run_dir: Path) -> str | None:
     if scene is not None and not isinstance(scene, str):
         raise InputError(f"{config}: scene must be a string (the scene folder), got {shown(scene)}")
     return scene
+
+
+def check_out_outside_scenes(args, out: Path) -> None:
+    """InputError when ``out`` lies in the --scene folder or the run's scene folder (input, never written)."""
+    model = Path(args.model)
+    for scene in (args.scene, run_scene_path(model) if model.is_dir() else None):
+        check_outside_scene(out, scene)
 
 
 def load_model_and_camera(args):
@@ -267,6 +274,7 @@ def run(args) -> int:
     if out.suffix.lower() not in (".png", ".npy"):
         raise InputError(f"{out}: output must end in .png or .npy")
     background = parse_background(args.background)
+    check_out_outside_scenes(args, out)
     check_writable_dir(out.parent)  # a bad --out is one line before any work
     if args.width is not None and args.height is not None:
         check_image_size(args.width, args.height, "--width/--height")

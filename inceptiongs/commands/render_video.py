@@ -191,6 +191,8 @@ def run_video(args) -> int:
         raise InputError(f"--width/--height: must be positive, got {args.width}x{args.height}")
     background = parse_background(args.background)
     from ..io.atomic import check_writable_dir
+    from .render import check_out_outside_scenes
+    check_out_outside_scenes(args, out)
     check_writable_dir(out.parent)
     gaussians, cameras = model_and_cameras(args.model, args.scene)
     path = video_path(args, gaussians, cameras)

@@ -12,7 +12,7 @@ from ..errors import InputError
 from ..io.atomic import OutputError
 from ..io.config_json import check_seed, config_value, setting_paths, with_values
 from ..io.photo_memory import PHOTO_MEMORY_HELP
-from ..io.paths import contained_path, read_small_text
+from ..io.paths import check_outside_scene, contained_path, read_small_text
 from ..train.distributed import ranks_from_environment
 from .device import add_device_argument, command_device
 
@@ -170,6 +170,7 @@ def run(args) -> int:
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
     out = Path(args.out) if args.out else default_run_dir(scene)
+    check_outside_scene(out, scene)
     if args.blocks is not None:
         return run_blocks(args, out)
     return run_one(args, out)

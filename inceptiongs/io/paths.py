@@ -151,3 +151,16 @@ def check_readable_file(path: Path, what: str) -> None:
     if not path.is_file():
         raise InputError(f"{path}: {what} file does not exist" if not path.exists() else f"{path}: not a file")
     check_read_inside_named_folder(path)
+
+
+def check_outside_scene(out: str | Path, scene: str | Path | None, flag: str = "--out") -> None:
+    """InputError when ``out`` (a file or folder a command is about to write) lies in the scene
+    folder ``scene`` (None: no scene, nothing to check): a scene folder is the user's input and is
+    never written, whichever command is asked to."""
+    if scene is None or not Path(scene).is_dir():
+        return
+    root = resolved(scene, flag)
+    target = resolved(Path(out).absolute(), flag)
+    if target == root or is_inside(target, root):
+        raise InputError(f"{out}: {flag} is inside the scene folder {scene}, which is input and never written; "
+                         f"give {flag} outside it")
