@@ -51,10 +51,11 @@ def run(args) -> int:
     from ..evaluation.scoring import format_table
 
     steps = parse_steps(args.ddim_steps) if args.generated else None
-    if not Path(args.run).is_dir():   # before the device line: the error alone
-        raise InputError(f"{args.run}: run folder does not exist")
-    # One device for the render and the prior; an unusable one fails before any work.
+    # One device for the render and the prior; an unusable one fails before any work (the run
+    # need not exist for that), and a missing run is the error alone, before the device's note.
     device = command_device(args.device, args.run)
+    if not Path(args.run).is_dir():
+        raise InputError(f"{args.run}: run folder does not exist")
     if device.note:
         print(device.note, file=sys.stderr)
     summary = evaluate_run(args.run, lpips_weights=args.lpips_weights, fid_weights=args.fid_weights, device=device)

@@ -170,7 +170,6 @@ def run(args) -> int:
     if not scene.exists():
         raise InputError(f"{scene}: scene folder does not exist")
     out = Path(args.out) if args.out else default_run_dir(scene)
-    check_outside_scene(out, scene)
     if args.blocks is not None:
         return run_blocks(args, out)
     return run_one(args, out)
@@ -200,6 +199,8 @@ def run_one(args, out: Path) -> int:
     # A device that cannot run here: one line before anything starts. The trainer resolves
     # config.device by the same rule (and prints what auto chose once its start has succeeded).
     device = command_device(args.device, out if resuming else None)
+    # After the settings and the device have had their say (each their own one line), before any write.
+    check_outside_scene(out, args.scene)
     joint = joint_prior(args, out, config, device.torch_device) if args.prior is not None else None
     control = JobControl()
     with stop_on_signals(control) as stopping:
@@ -284,6 +285,7 @@ def run_blocks(args, out: Path) -> int:
         raise InputError(f"torchrun: {ranks.world} ranks for {count} blocks; start at most {count} (a rank "
                          f"without a block would only wait)")
     device = command_device(args.device, None)
+    check_outside_scene(out, args.scene)   # before the plan is written
     control = JobControl()
     say = lambda line: print(line if not ranks.distributed else f"[rank {ranks.rank}] {line}",  # noqa: E731
                              file=sys.stderr, flush=True)
