@@ -74,6 +74,9 @@ class InputController:
         if action == glfw.RELEASE:
             self.keys_down.discard(key)
             return
+        if action == glfw.PRESS and key == glfw.KEY_Q and mods & glfw.MOD_CONTROL:
+            glfw.set_window_should_close(viewer.window, True)   # Ctrl+Q quits from a text field too
+            return
         if ui_wants_keyboard(viewer.imgui_impl):
             return
         if action == glfw.PRESS:

@@ -575,3 +575,21 @@ def test_the_first_frame_says_so_instead_of_zero_fps(xvfb, tmp_path):
         _frames(viewer, 2)
         shown = viewer.ui.texts["stats"]
         assert shown[0].endswith(" FPS") and shown[0] != "0.0 FPS" and shown[1].startswith("frame "), shown
+
+
+def test_ctrl_q_quits_while_a_text_field_has_the_keys(xvfb, tmp_path):
+    """Ctrl+Q did nothing while a text field had focus (the panel took every key)."""
+    from inceptiongs.app.window import ui_wants_keyboard
+
+    with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
+        viewer.step()
+        for header in ("View", "Inspect", "Flags", "Training"):
+            click_widget(viewer, header)
+        click_widget(viewer, "Edit")
+        scroll_panel_to(viewer, "save PLY")
+        x0, y0, x1, y1 = viewer.ui.rects["file"]
+        click_at(viewer, x0 + 6, 0.5 * (y0 + y1))
+        _frames(viewer, 2)
+        assert ui_wants_keyboard(viewer.imgui_impl)          # the field has the keys
+        press_key(viewer, glfw.KEY_Q, glfw.MOD_CONTROL)
+        assert viewer.should_close()
