@@ -290,6 +290,27 @@ def type_into(viewer, label: str, text: str) -> None:
     viewer.step()
 
 
+def flag_a_view(viewer) -> None:
+    """Flag the current view as a user does (F with the cursor over the scene, right of the panel)
+    and scroll the Training panel to "Bootstrap flagged views"."""
+    import glfw
+
+    for _ in range(3):
+        viewer.step()
+    viewer.input.on_cursor(viewer.window, 700, 500)
+    for _ in range(3):
+        viewer.step()
+    press_key(viewer, glfw.KEY_F)
+    scroll_panel_to(viewer, "Bootstrap flagged views")
+
+
+def wait_for_job_end(viewer, seconds: float = 60.0) -> None:
+    """Step the viewer until its job has ended and its closing line is reported (at most ``seconds``)."""
+    deadline = time.time() + seconds
+    while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
+        viewer.step()
+
+
 def start_job(viewer, button: str) -> None:
     """Press a job button of the Training panel ("train (new run)", "resume", "Bootstrap flagged
     views", ...) and answer its question with "start the job", as a user starts a job (a button

@@ -15,8 +15,8 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (click_at, click_widget, open_grid_viewer, opened, press_key, scroll_panel_to,
-                          start_job, synthetic_gaussians, write_grid_model)
+from viewer_cases import (click_at, click_widget, flag_a_view, open_grid_viewer, opened, press_key,
+                          scroll_panel_to, start_job, synthetic_gaussians, wait_for_job_end, write_grid_model)
 
 pytestmark = pytest.mark.gl
 
@@ -127,20 +127,14 @@ def test_the_bootstrap_ends_with_its_verdict_flagged_view_before_after_and_basel
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
         # The window shows the run the stand-in repairs (a bare PLY offers no bootstrap: capabilities.py).
         viewer.jobs.run_dir = run
-        _frames(viewer)
-        viewer.input.on_cursor(viewer.window, 700, 500)
-        _frames(viewer)
-        press_key(viewer, glfw.KEY_F)                          # the flagged view
-        scroll_panel_to(viewer, "Bootstrap flagged views")     # below the window's bottom edge
+        flag_a_view(viewer)                                    # the flagged view, the button below the edge
         from inceptiongs.app.verdict import Verdict
 
         stale = Verdict(tmp_path / "earlier_result", None, _scores(10.0, 11.0), _scores(10.5, 11.0))
         viewer.jobs.set_verdict(stale)
         start_job(viewer, "Bootstrap flagged views")
         assert viewer.jobs.verdict is not stale      # an earlier result's verdict goes when the job starts
-        deadline = time.time() + 60
-        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
-            viewer.step()
+        wait_for_job_end(viewer)
         _frames(viewer)
         verdict = viewer.jobs.verdict
         assert verdict is not None and verdict.baseline_dir == tmp_path / "run_baseline"
@@ -178,15 +172,9 @@ def test_the_panel_keeps_the_jobs_closing_line_when_the_status_moves_on(xvfb, tm
     monkeypatch.setattr(panels.imgui, "text_wrapped", recording)
     with opened(open_grid_viewer, write_grid_model(tmp_path / "closing.ply"), 900, 1000) as viewer:
         viewer.jobs.run_dir = run
-        _frames(viewer)
-        viewer.input.on_cursor(viewer.window, 700, 500)
-        _frames(viewer)
-        press_key(viewer, glfw.KEY_F)
-        scroll_panel_to(viewer, "Bootstrap flagged views")
+        flag_a_view(viewer)
         start_job(viewer, "Bootstrap flagged views")
-        deadline = time.time() + 60
-        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
-            viewer.step()
+        wait_for_job_end(viewer)
         closing = viewer.status
         assert " finished in " in closing and "saved in" in closing, closing
         viewer.input.on_cursor(viewer.window, 700, 500)
@@ -212,15 +200,9 @@ def test_a_job_started_under_the_verdicts_images_does_not_end_the_viewer(xvfb, t
     monkeypatch.setattr(jobs_module, "bootstrap_job_for", lambda *args, **kwargs: FakeBootstrap(run, out))
     with opened(open_grid_viewer, write_grid_model(tmp_path / "restart.ply"), 900, 1200) as viewer:
         viewer.jobs.run_dir = run
-        _frames(viewer)
-        viewer.input.on_cursor(viewer.window, 700, 500)
-        _frames(viewer)
-        press_key(viewer, glfw.KEY_F)
-        scroll_panel_to(viewer, "Bootstrap flagged views")
+        flag_a_view(viewer)
         start_job(viewer, "Bootstrap flagged views")
-        deadline = time.time() + 60
-        while (viewer.jobs.training.alive or not viewer.jobs.reported) and time.time() < deadline:
-            viewer.step()
+        wait_for_job_end(viewer)
         _frames(viewer)
         (shown,) = viewer.jobs.verdict.images
         assert shown.textures, "the verdict's images are drawn from GL textures"

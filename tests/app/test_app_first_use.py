@@ -14,8 +14,8 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (MovingGridJob, click_at, click_widget, open_grid_viewer, open_viewer, opened, press_key,
-                          scroll_panel_to, start_job, synthetic_gaussians, type_into, write_grid_model)
+from viewer_cases import (MovingGridJob, click_at, click_widget, flag_a_view, open_grid_viewer, open_viewer, opened,
+                          press_key, scroll_panel_to, start_job, synthetic_gaussians, type_into, write_grid_model)
 
 pytestmark = pytest.mark.gl
 
@@ -98,11 +98,7 @@ def test_the_verdict_refuses_a_baseline_of_another_length_and_runs_the_right_one
     monkeypatch.setattr(jobs_module, "baseline_job_for", baseline_job, raising=False)
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 900, 1000) as viewer:
         viewer.jobs.run_dir = run
-        _frames(viewer)
-        viewer.input.on_cursor(viewer.window, 700, 500)
-        _frames(viewer)
-        press_key(viewer, glfw.KEY_F)
-        scroll_panel_to(viewer, "Bootstrap flagged views")
+        flag_a_view(viewer)
         start_job(viewer, "Bootstrap flagged views")
         _wait(viewer, lambda: viewer.jobs.training is not None and viewer.jobs.reported)
         verdict = viewer.jobs.verdict

@@ -524,16 +524,21 @@ def test_a_plan_with_a_block_no_photo_sees_is_one_line(blocks_run, tmp_path, cap
     assert len(err) == 1 and "block.photos names no photo" in err[0]
 
 
-def test_a_bootstrap_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path):
+def one_block_view(scene, plan):
+    """A camera of ``scene`` that sees one block's cell only (most views of this small scene see
+    both): the flag that makes a bootstrap refine one block."""
     from inceptiongs.bootstrap.blocks import blocks_holding
     from inceptiongs.bootstrap.targets import Target
 
+    return next(camera for camera in scene.cameras
+                if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 1)
+
+
+def test_a_bootstrap_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path):
     scene_dir, run, _ = blocks_run
     scene = load_scene(scene_dir)
     plan = read_plan(run)
-    # A view that sees one block's cell only (most views of this small scene see both).
-    flagged = next(camera for camera in scene.cameras
-                   if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 1)
+    flagged = one_block_view(scene, plan)
     out = tmp_path / "boot"
     settings = tmp_path / "virtual.json"
     settings.write_text(json.dumps({"follow_outlook": False}))
@@ -568,18 +573,15 @@ def test_a_bootstrap_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path)
 def test_the_viewers_bootstrap_job_refines_only_the_blocks_the_flag_sees(blocks_run, tmp_path):
     """The viewer's "Bootstrap flagged views" refined the whole merged model of a run in blocks
     (117,520 Gaussians on a town), where `inceptiongs bootstrap` refines the flagged blocks only."""
-    from inceptiongs.bootstrap.blocks import blocks_holding
     from inceptiongs.bootstrap.config import BootstrapConfig
     from inceptiongs.bootstrap.job import BootstrapJob
-    from inceptiongs.bootstrap.targets import Target
     from inceptiongs.io.flags import Flag, save_flags
     from inceptiongs.live import JobControl, SnapshotBox
 
     scene_dir, run, _ = blocks_run
     scene = load_scene(scene_dir)
     plan = read_plan(run)
-    flagged = next(camera for camera in scene.cameras
-                   if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 1)
+    flagged = one_block_view(scene, plan)
     flags = tmp_path / "flags.json"
     save_flags(flags, [Flag("flag 1", flagged, "")])
     out, box = tmp_path / "boot", SnapshotBox()
