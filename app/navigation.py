@@ -322,12 +322,15 @@ def inside_shell(means: np.ndarray, cameras: list[Camera], points: np.ndarray | 
     (sky.shell_geometry: a sphere around the cameras' centroid at SKY_RADIUS_FACTOR times the far
     extent of the scene's sparse ``points`` [P, 3] and the cameras), closer than the fraction of
     its radius that sky.in_background calls background. All True without cameras or points."""
-    from inceptiongs.train.sky import BACKGROUND_FRACTION, shell_geometry  # noqa: PLC0415 (torch: only here)
+    import torch  # noqa: PLC0415 (torch: only here)
+
+    from inceptiongs.train.sky import in_background, shell_geometry  # noqa: PLC0415
 
     if not len(cameras) or points is None or len(points) == 0:
         return np.ones(len(means), bool)
     centre, radius = shell_geometry(list(cameras), points)
-    return np.linalg.norm(np.asarray(means, np.float64) - centre, axis=1) <= BACKGROUND_FRACTION * radius
+    sphere = torch.tensor([*centre, radius], dtype=torch.float64)
+    return ~in_background(torch.from_numpy(np.asarray(means, np.float64)), sphere).numpy()
 
 
 def scene_of_interest(means: np.ndarray, cameras: list[Camera], points: np.ndarray | None = None) -> np.ndarray:
