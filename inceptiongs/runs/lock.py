@@ -19,6 +19,8 @@ from ..errors import InputError
 from ..io.atomic import ensure_dir, output_error
 
 LOCK_INFO_FILE = ".lock"
+# What a non-blocking flock raises when another process holds the lock.
+HELD_ERRNOS = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
 
 
 def _holder(run_dir: Path) -> str:
@@ -41,7 +43,7 @@ def writer_of(run_dir: str | Path) -> str | None:
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except OSError as exc:
-        return _holder(run_dir) if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES) else None
+        return _holder(run_dir) if exc.errno in HELD_ERRNOS else None
     else:
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
@@ -66,7 +68,7 @@ def run_folder_lock(run_dir: str | Path) -> Iterator[Path]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            if exc.errno in HELD_ERRNOS:
                 raise InputError(f"{run_dir}: in use by {_holder(run_dir)} (a job writing this run); wait for it "
                                  f"to end or choose another output folder") from None
             raise
