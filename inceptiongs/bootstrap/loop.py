@@ -203,20 +203,19 @@ def virtual_or_photo_step(setting: Setting, config: BootstrapConfig, state: Loop
         record = virtual_step(step, state.train, s.data, s.train_config, s.sh_max, view, choice, config,
                               s.rasterizer, s.lpips, scale=scale)
     counts[record["virtual_branch"]] += 1
-    pool.view_use[view.name] = pool.view_use.get(view.name, 0) + 1
     return record
 
 
 # --- saving ----------------------------------------------------------------------------------------
 def checkpoint(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool, round_number: int) -> None:
     """The stage-I checkpoint of the state now, plus the bootstrap's entry: the round, the
-    config and the sampler's Langevin pose (what `--resume` continues from)."""
+    config and the sampler's Langevin pose and visits (what `--resume` continues from)."""
     train = state.train
     train.wall_s, train.train_s = state.clock.wall_s(), state.clock.train_s()
     body = train.payload(setting.train_config)
     pose = pool.sampler.pose
     body["bootstrap"] = {"round": round_number, "config": config.to_json_dict(),
-                         "pose": None if pose is None else pose.tolist()}
+                         "pose": None if pose is None else pose.tolist(), "visits": dict(pool.sampler.visits)}
     save_checkpoint(setting.out_dir, train.iteration, body, setting.train_config.output.keep_checkpoints)
 
 
@@ -252,7 +251,7 @@ def write_summary(setting: Setting, plan: RoundPlan, state: LoopState, pool: Vie
         iteration=train.iteration, finished=state.finished, stopped=clock.stopped_by_user(),
         rounds_done=state.rounds_done, wall_s=clock.wall_s(),
         cache_hits=setting.cache.hits, cache_misses=setting.cache.misses, virtual_views=len(pool.entries),
-        last_eval=state.last_eval, steps=state.counts, view_use=pool.view_use,
+        last_eval=state.last_eval, steps=state.counts, view_use=pool.sampler.visits,
         regenerations=pool.regenerations,
         conscience=None if conscience is None else {
             "views": [setting.run.scene.cameras[i].name for i in setting.conscience_views],

@@ -24,13 +24,13 @@ class ViewPool:
     random generator and Langevin pose); pending_round: the (0-based) round whose views are made
     once the photo-first time has passed (None: none); mark: the newest placement's step applied
     to every view's I* made from then on (a variant's placement, variants.PlacedViews; None:
-    none); view_use: how often each view was chosen; regenerations: one record per regeneration."""
+    none); regenerations: one record per regeneration (how often each view was chosen: the
+    sampler's ``visits``)."""
 
     sampler: ViewSampler
     entries: list[VirtualTarget] = field(default_factory=list)
     pending_round: int | None = None
     mark: Callable | None = None
-    view_use: dict[str, int] = field(default_factory=dict)
     regenerations: list[dict] = field(default_factory=list)
 
 

@@ -232,9 +232,10 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
     summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
     cache = GenerationCache(boot_dir / "cache")
     sampler = ViewSampler(config.seed)
-    pose = (resume or {}).get("bootstrap", {}).get("pose")
-    if pose is not None:
-        sampler.pose = np.asarray(pose, dtype=np.float64)
+    saved = (resume or {}).get("bootstrap", {})
+    if saved.get("pose") is not None:
+        sampler.pose = np.asarray(saved["pose"], dtype=np.float64)
+    sampler.visits = {str(name): int(count) for name, count in (saved.get("visits") or {}).items()}
     watched = conscience_views(run, plan, config)
     conscience = Conscience(config.conscience_tolerance) if config.conscience_tolerance is not None and watched \
         else None

@@ -41,6 +41,13 @@ NO_RESET = 10**12
 L1_MAX_FOR_P = 10.0
 # The tau test's divisor never goes below this (a view with no weighted pixel is not sampled).
 MIN_WEIGHTED_SHARE = 1e-3
+# A Langevin step moves the pose by ~0.03 scene units, while the virtual views of several
+# flags lie units apart: left alone the chain stays among the first views for hundreds of
+# steps (bonsai, 23 flags: 10 of them refined in 150 virtual steps, the other 13 never, and
+# those lost 0.2-0.7 dB to the photo steps they gave up). A view refined more than this many
+# times as often as the least refined one (plus one) restarts the chain at that least refined
+# view: every view is refined, and the chain may still prefer the worse ones up to this ratio.
+RESTART_RATIO = 2
 
 
 def continuation_config(stage1: TrainConfig, start: int, steps: int, variants: Iterable[Variant] = ()) -> TrainConfig:
@@ -80,13 +87,17 @@ class ViewSampler:
 
     The pose state starts at the first view of the pool; after each Langevin step it is
     snapped to the nearest virtual view and continues from that view's pose (the state stays
-    on the pool, so it cannot drift away from the views that have an I*). Its state is the
-    random generator and the pose (a checkpoint keeps the pose).
+    on the pool, so it cannot drift away from the views that have an I*). Before a step, a
+    chain sitting on a view refined more than RESTART_RATIO times as often as the least
+    refined one (plus one) restarts there (:func:`restart_view`). Its state is the random
+    generator, the pose and ``visits`` (view name -> times chosen; a checkpoint keeps the
+    pose and the visits).
     """
 
     def __init__(self, seed: int) -> None:
         self.rng = np.random.default_rng(seed)
         self.pose: np.ndarray | None = None
+        self.visits: dict[str, int] = {}
         self._poses: np.ndarray | None = None
         self._pool_names: tuple[str, ...] = ()
 
@@ -104,11 +115,12 @@ class ViewSampler:
         """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index]);
         ``config``: the sampling and its Langevin step and noise."""
         if config.sampling == "uniform":
-            return ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0)
+            return self._chose(pool, ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0))
         poses = self._pool_poses(pool)
         if self.pose is None:
             self.pose = poses[0].copy()
-        current = int(snap_to_nearest(self.pose, poses))
+        current = restart_view(int(snap_to_nearest(self.pose, poses)), [self.visits.get(v.name, 0) for v in pool])
+        self.pose = poses[current].copy()
         camera = pool[current].camera
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
         # pose through the differentiable rasterizer, chained to the 7-D pose by langevin.py).
@@ -121,7 +133,20 @@ class ViewSampler:
         with torch.no_grad():
             l1 = float(loss_at(chosen, torch.as_tensor(pool[chosen].camera.world_to_camera)))
         p = probability(l1)
-        return ViewChoice(chosen, 1.0 / p, p)  # p >= 1: the division is safe
+        return self._chose(pool, ViewChoice(chosen, 1.0 / p, p))  # p >= 1: the division is safe
+
+    def _chose(self, pool: Sequence[VirtualTarget], choice: ViewChoice) -> ViewChoice:
+        name = pool[choice.index].name
+        self.visits[name] = self.visits.get(name, 0) + 1
+        return choice
+
+
+def restart_view(current: int, visits: Sequence[int]) -> int:
+    """The view a Langevin step starts from: ``current``, or the least refined view (the first
+    of ties) when ``current`` was refined more than RESTART_RATIO times as often plus one.
+    visits: [V] times each pool view was chosen."""
+    least = int(np.argmin(visits))
+    return least if visits[current] > RESTART_RATIO * visits[least] + 1 else current
 
 
 def pixel_weights(mask: torch.Tensor, generated_weight: float) -> torch.Tensor | None:

@@ -77,6 +77,10 @@ def test_a_stopped_bootstrap_saves_and_resumes_where_it_stopped(stage1, tmp_path
     assert steps == list(range(stopped.start_iteration + 1, stopped.start_iteration + STEPS + 1))  # each once
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     assert summary["resumed_at"] == stopped.iteration and summary["stopped"] is False
+    # The sampler's visits went into the checkpoint: view_use counts the virtual steps of both parts.
+    virtual = [line for line in (out / "metrics.jsonl").read_text().splitlines()
+               if json.loads(line).get("kind") == "virtual"]
+    assert sum(summary["view_use"].values()) == len(virtual) > 0
     check_output_folder(out, overwrite=True)
     with pytest.raises(InputError, match="already holds a result"):   # a finished one: nothing to resume
         check_output_folder(out, overwrite=False)

@@ -1,0 +1,51 @@
+"""The view sampler (refine.ViewSampler): every virtual view of a spread-out pool is refined."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from inceptiongs.bootstrap.config import BootstrapConfig
+from inceptiongs.bootstrap.refine import RESTART_RATIO, ViewSampler, restart_view
+
+
+def _pool(count: int, spacing: float) -> list:
+    """``count`` views on the x axis ``spacing`` scene units apart, all looking the same way."""
+    views = []
+    for i in range(count):
+        world_to_camera = np.eye(4)
+        world_to_camera[0, 3] = -spacing * i          # centre at x = spacing * i
+        views.append(SimpleNamespace(name=f"v{i:02d}", camera=SimpleNamespace(world_to_camera=world_to_camera)))
+    return views
+
+
+def _flat_loss(index: int, world_to_camera: torch.Tensor) -> torch.Tensor:
+    # The same L1 at every pose: no drift, only the chain's noise moves it.
+    return 0.1 + 0.0 * world_to_camera[:3, 3].sum()
+
+
+def test_every_view_of_a_pool_spread_over_units_is_refined():
+    """Twenty views 0.5 units apart (flags along a street): the chain moves ~0.03 units a step,
+    so without its restarts it stays on the first views; with them each view is chosen within
+    a few passes, and no view is chosen far more often than the least chosen one."""
+    pool, sampler = _pool(20, 0.5), ViewSampler(seed=0)
+    chosen = [sampler.choose(pool, _flat_loss, BootstrapConfig()).index for _ in range(80)]
+    assert set(chosen) == set(range(20)), sorted(set(chosen))
+    assert max(sampler.visits.values()) <= RESTART_RATIO * min(sampler.visits.values()) + 2, sampler.visits
+
+
+@pytest.mark.parametrize("sampling", ["langevin", "uniform"])
+def test_the_sampler_counts_each_views_choices(sampling):
+    """The visits are what the summary reports as view_use and what a checkpoint keeps."""
+    pool, sampler = _pool(5, 0.5), ViewSampler(seed=1)
+    chosen = [sampler.choose(pool, _flat_loss, BootstrapConfig(sampling=sampling)).index for _ in range(30)]
+    assert sampler.visits == {pool[i].name: chosen.count(i) for i in set(chosen)}
+    assert sum(sampler.visits.values()) == 30
+
+
+def test_restart_view_keeps_the_chain_until_a_view_is_refined_too_often():
+    assert restart_view(2, [1, 1, 3, 1]) == 2            # 3 <= 2 * 1 + 1: the chain stays
+    assert restart_view(2, [1, 0, 4, 1]) == 1            # 4 > 2 * 0 + 1: the least refined view, first of ties
+    assert restart_view(0, [0, 0, 0]) == 0               # nothing chosen yet: the chain stays where it starts
+    assert restart_view(3, [5, 2, 2, 7]) == 1            # 7 > 2 * 2 + 1: the first of the two least refined
