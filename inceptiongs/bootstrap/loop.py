@@ -30,7 +30,7 @@ from .plan import RoundPlan, photo_first_s
 from .pool import ViewPool, in_use, supervised_count
 from .probe import measured_outlook, photo_until
 from .refine import active_views, render_l1, virtual_loss, virtual_step
-from .round_views import add_round_views, open_round, regenerate_pool
+from .round_views import add_round_views, open_round, regenerate_pool, remade_if_stale
 from .state import LoopState, Setting, evaluate, model
 from .summary_file import SUMMARY_FILE, virtual_step_count
 
@@ -171,7 +171,8 @@ def virtual_or_photo_step(setting: Setting, config: BootstrapConfig, state: Loop
     """On a virtual slot a view chosen by the sampler when one may be sampled (the step: a
     variant's ``take_step``, else refine.virtual_step), else a photo step -> the step's record."""
     s, counts = setting, state.counts
-    active = [pool.entries[i] for i in active_views(pool.entries, config)] if pool.entries else []
+    numbers = active_views(pool.entries, config) if pool.entries else []
+    active = [pool.entries[i] for i in numbers]
     virtual_slot = step % config.virtual_every == 0
     if pool.entries and virtual_slot and not active:
         counts["idle"] += 1
@@ -181,17 +182,23 @@ def virtual_or_photo_step(setting: Setting, config: BootstrapConfig, state: Loop
     def photo_step() -> dict:
         return train_step(step, state.train, s.data, s.train_config, s.sh_max, s.rasterizer, s.log)
 
-    if not (active and virtual_slot):
+    def real_step() -> dict:
         record = photo_step()
         record["kind"] = "real"
         counts["real"] += 1
         return record
+
+    if not (active and virtual_slot):
+        return real_step()
     sh_degree = sh_degree_at(step, s.train_config, s.sh_max)
     frozen = model(state.train)
     choice = pool.sampler.choose(active, lambda i, w2c: render_l1(s.rasterizer, frozen, active[i], sh_degree, w2c),
                                  config)
+    view = remade_if_stale(setting, config, state, pool, numbers[choice.index])
+    if not active_views([view], config):
+        counts["idle"] += 1       # made again, the gate left it out: the slot goes to the photos
+        return real_step()
     scale = state.conscience.scale if state.conscience is not None else 1.0
-    view = active[choice.index]
     record = None
     for variant in config.variants.values():
         record = variant.take_step(lambda: virtual_loss(step, state.train, s.train_config, s.sh_max, view, choice,

@@ -32,6 +32,9 @@ class ViewPool:
     pending_round: int | None = None
     mark: Callable | None = None
     regenerations: list[dict] = field(default_factory=list)
+    # Indices of supervised entries whose I* predates the last regeneration: made again when
+    # the sampler next chooses them (round_views.remade_if_stale).
+    stale: set[int] = field(default_factory=set)
 
 
 def in_use(pool: ViewPool) -> bool:

@@ -129,17 +129,40 @@ def add_round_views(setting: Setting, config: BootstrapConfig, plan: RoundPlan, 
 
 
 def regenerate_pool(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool) -> None:
-    """I* of every pool view again, from the Gaussians as they are now: the prior then repairs
-    the refined render rather than the stage-I one (the bootstrap's feedback loop)."""
+    """I* of the pool's views again, from the Gaussians as they are now: the fill then repairs
+    the refined render rather than the stage-I one (the bootstrap's feedback loop). A view the
+    gate left out is made again now, so that it is judged again; a supervised one is marked
+    stale and made again when the sampler next chooses it (:func:`remade_if_stale`). Between two
+    regenerations the sampler chooses about regenerate_every / virtual_every views, often far
+    fewer than the pool holds (bonsai with 23 flags: 12 of 46), and a view made again but not
+    chosen before the next regeneration was time taken from the photo steps."""
     began = time.perf_counter()
     maker = target_maker(setting, state)
     device = state.train.params["means"].device
+    remade = 0
     for number, entry in enumerate(pool.entries):
+        if entry.supervised:
+            pool.stale.add(number)
+            continue
         if state.clock.wait_or_stop() or state.clock.out_of_time():
             break  # the views not reached keep their I*
         pool.entries[number] = on_device(make_view(maker, entry.camera, entry.round, False, config, pool)[0], device)
+        remade += 1
     iteration = state.train.iteration
-    pool.regenerations.append({"iteration": iteration, "views": len(pool.entries),
+    pool.regenerations.append({"iteration": iteration, "views": remade, "when_chosen": len(pool.stale),
                                "supervised": supervised_count(pool), "seconds": time.perf_counter() - began})
-    setting.log(f"step {iteration}: regenerated {len(pool.entries)} virtual views in "
-                f"{pool.regenerations[-1]['seconds']:.1f} s")
+    setting.log(f"step {iteration}: regenerated {remade} left-out virtual views in "
+                f"{pool.regenerations[-1]['seconds']:.1f} s; {len(pool.stale)} others when next chosen")
+
+
+def remade_if_stale(setting: Setting, config: BootstrapConfig, state: LoopState, pool: ViewPool,
+                    number: int) -> VirtualTarget:
+    """The pool's view ``number``, its I* made again first when a regeneration marked it stale
+    (the gate judges it again: the result may be left out)."""
+    if number not in pool.stale:
+        return pool.entries[number]
+    pool.stale.discard(number)
+    entry = pool.entries[number]
+    remade = make_view(target_maker(setting, state), entry.camera, entry.round, False, config, pool)[0]
+    pool.entries[number] = on_device(remade, state.train.params["means"].device)
+    return pool.entries[number]

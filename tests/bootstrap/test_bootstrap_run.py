@@ -177,15 +177,56 @@ def test_regeneration_follows_the_refined_gaussians_and_the_target_can_be_superv
     assert len(views) == 2 * 2 + 1 and views[0]["t"] == 0.0 and views[0]["name"].endswith("_target")
     # Before step 4 of 8; not before step 8, the round's last (nothing would learn from it).
     assert [r["iteration"] for r in summary["regenerations"]] == [result.start_iteration + 3]
-    assert summary["regenerations"][0]["views"] == len(views)
-    # Refinement changed the Gaussians before the regeneration: every image is new.
-    assert result.cache_misses == 2 * len(views) and result.cache_hits == 0
+    # Every view is in use (no gate): none is made again at once, each when next chosen.
+    regeneration = summary["regenerations"][0]
+    assert regeneration["views"] == 0 and regeneration["when_chosen"] == len(views)
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    chosen_after = {r["view"] for r in records if r.get("kind") == "virtual" and r["iteration"] > result.start_iteration + 3}
+    assert chosen_after
+    # Refinement changed the Gaussians before the regeneration: each view made again is new.
+    assert result.cache_misses == len(views) + len(chosen_after) and result.cache_hits == 0
     # Without the options, a round generates once, at K * L views.
     again = run_bootstrap(stage1, tmp_path / "once", _targets(stage1),
                           _config(iterations=8, save_views=0, regenerate_every=0, include_target=False),
                           progress=False)
     assert again.cache_misses == again.virtual_views == 4
     assert json.loads((tmp_path / "once" / "bootstrap" / "summary.json").read_text())["regenerations"] == []
+
+
+@pytest.mark.slow
+def test_a_regeneration_judges_left_out_views_at_once_and_the_others_when_chosen(stage1, tmp_path, monkeypatch):
+    """A view the gate left out is made again at the regeneration (it may come back); a view in
+    use is made again only when next chosen, and one the gate then leaves out gives its slot to
+    the photos. The gate is stood in for: the target pose is left out from the start, and every
+    view made after the regeneration's first is left out."""
+    from inceptiongs.bootstrap import round_views
+
+    made = []
+    real_make_view = round_views.make_view
+
+    def make_view(maker, camera, round_number, save, config, pool):
+        entry, sources = real_make_view(maker, camera, round_number, save, config, pool)
+        made.append(camera.name)
+        left_out = camera.name.endswith("_target") or len(made) > 6
+        return dataclasses.replace(entry, supervised=not left_out), sources
+
+    monkeypatch.setattr(round_views, "make_view", make_view)
+    out = tmp_path / "gate"
+    # The real gate on, at a margin no view fails by: only the stand-in leaves views out.
+    config = _config(iterations=8, regenerate_every=4, save_views=0, agreement_min_db=-1000.0)
+    result = run_bootstrap(stage1, out, _targets(stage1), config, progress=False)
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    views = [v["name"] for v in summary["rounds"][0]["views"]]
+    regeneration = summary["regenerations"][0]
+    assert regeneration["views"] == 1 and regeneration["when_chosen"] == len(views) - 1
+    assert made[len(views)] == views[0] and views[0].endswith("_target")    # the left-out one, at once
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    after = [r for r in records if r.get("iteration", 0) > regeneration["iteration"] and "kind" in r]
+    # Steps 5..8 of 8 after it; the virtual slots (every 2nd step) each chose a stale view, made it again
+    # (left out now) and took a photo step instead.
+    assert after and all(r["kind"] == "real" for r in after)
+    assert summary["steps"]["idle"] >= 1 and len(made) == len(views) + 1 + summary["steps"]["idle"]
+    assert result.iteration == result.start_iteration + 8
 
 
 def test_a_bootstrap_with_every_default_loads_no_experimental_code(stage1, tmp_path):
