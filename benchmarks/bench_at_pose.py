@@ -1,6 +1,6 @@
 """Does training on I* lift the views it is made at? Virtual views at flagged held-out poses.
 
-    python benchmarks/bench_at_pose.py RUN OUT [--iterations 600] [--seed 0]
+    python benchmarks/bench_at_pose.py RUN OUT [--iterations 600 | --minutes M] [--seed 0]
         [--variants '{"NAME": {BOOTSTRAP SETTINGS}, ...}']
 
 On the stage-I run RUN (read, never written; `--protocol unstructured`), every other held-out
@@ -13,8 +13,9 @@ virtual view: ``include_target``). The baseline is stage I continued on the phot
 number of steps. Prints, per run, the mean PSNR of the flagged views, of the other scarce views
 and of the covered group, and each against the baseline.
 
-Steps, not time: the comparison asks what the supervision can teach at its own poses, before
-the virtual steps' cost (about two photo steps each on a CPU) is charged.
+By default steps, not time: the comparison asks what the supervision can teach at its own
+poses, before the virtual steps' cost is charged. With ``--minutes M`` every run, the baseline
+included, has M minutes instead (and no step limit): the same-time comparison.
 """
 
 from __future__ import annotations
@@ -58,7 +59,13 @@ def scores(run: Path, flagged: list[str], others: list[str]) -> tuple[float, flo
             float(data["groups"]["covered"]["psnr"]))
 
 
-def bootstrap(run: Path, out: Path, name: str, settings: dict, flags: Path, iterations: int, seed: int) -> Path:
+def steps_made(run: Path, folder: Path) -> int:
+    """Steps ``folder`` made after the stage-I run ``run`` (by their configs' iteration counts)."""
+    return TrainConfig.load(folder / "config.json").iterations - TrainConfig.load(run / "config.json").iterations
+
+
+def bootstrap(run: Path, out: Path, name: str, settings: dict, flags: Path, iterations: int, seed: int,
+              minutes: float | None) -> Path:
     settings = dict(settings)
     jstar = settings.pop("_jstar", False)
     settings = {"follow_outlook": False, **({} if jstar else {"k": 1, "l": 1}), **settings}
@@ -67,7 +74,7 @@ def bootstrap(run: Path, out: Path, name: str, settings: dict, flags: Path, iter
     config.write_text(json.dumps(settings))
     command = [sys.executable, "-m", "inceptiongs", "bootstrap", str(run), *([] if jstar else ["--targets", str(flags)]),
                "--iterations", str(iterations), "--seed", str(seed), "--config", str(config), "--out", str(folder),
-               "--overwrite"]
+               "--overwrite", *([] if minutes is None else ["--minutes", str(minutes)])]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         raise SystemExit(f"{' '.join(command)} failed:\n{result.stderr[-2000:]}")
@@ -79,6 +86,8 @@ def main() -> int:
     parser.add_argument("run")
     parser.add_argument("out")
     parser.add_argument("--iterations", type=int, default=600)
+    parser.add_argument("--minutes", type=float, default=None,
+                        help="every run (the baseline too) has this many minutes and no step limit")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variants", type=json.loads, default=DEFAULT_VARIANTS,
                         help="a JSON object: variant name -> bootstrap settings (module doc)")
@@ -88,18 +97,22 @@ def main() -> int:
     flagged, others, cameras = flagged_views(run)
     flags = out / "flags.json"
     save_flags(flags, [Flag(name, cameras[name], "") for name in flagged])
-    print(f"{run}: {len(flagged)} flagged scarce poses, {len(others)} other scarce views; {args.iterations} steps",
-          flush=True)
+    iterations = args.iterations if args.minutes is None else 10**6
+    print(f"{run}: {len(flagged)} flagged scarce poses, {len(others)} other scarce views; "
+          + (f"{args.iterations} steps" if args.minutes is None else f"{args.minutes:g} minutes each"), flush=True)
     rows = {"stage I": scores(run, flagged, others)}
-    baseline_run(run, out / "baseline", None, args.iterations, seed=args.seed, progress=False, overwrite=True)
+    steps = {}
+    baseline_run(run, out / "baseline", args.minutes, iterations, seed=args.seed, progress=False, overwrite=True)
     rows["baseline"] = scores(out / "baseline", flagged, others)
+    steps["baseline"] = steps_made(run, out / "baseline")
     for name, settings in args.variants.items():
-        rows[name] = scores(bootstrap(run, out, name, settings, flags, args.iterations, args.seed), flagged, others)
+        folder = bootstrap(run, out, name, settings, flags, iterations, args.seed, args.minutes)
+        rows[name], steps[name] = scores(folder, flagged, others), steps_made(run, folder)
         print(f"{name}: done", flush=True)
     base = rows["baseline"]
-    print(f"{'run':28s} {'flagged':>8s} {'others':>8s} {'covered':>8s}   against the baseline")
+    print(f"{'run':28s} {'steps':>6s} {'flagged':>8s} {'others':>8s} {'covered':>8s}   against the baseline")
     for name, row in rows.items():
-        print(f"{name:28s} " + " ".join(f"{value:8.2f}" for value in row) + "   "
+        print(f"{name:28s} {steps.get(name, ''):>6} " + " ".join(f"{value:8.2f}" for value in row) + "   "
               + " / ".join(f"{value - ref:+.2f}" for value, ref in zip(row, base)), flush=True)
     return 0
 
