@@ -73,8 +73,9 @@ class BootstrapConfig(SavedConfig):
                                        "steps", PRIOR_FILL)
     ddim_steps: int = option(10, "DDIM denoising steps per generated image (a prior is used only with fill "
                                  "\"prior\" or blending off)", "steps", PRIOR_FILL)
-    regenerate_every: int = option(50, "every this many refinement steps, I* of every virtual view is made "
-                                       "again from the current Gaussians (their render is what is repaired); "
+    regenerate_every: int = option(50, "every this many refinement steps, I* of the virtual views is made "
+                                       "again from the current Gaussians (their render is what is repaired): "
+                                       "a view left out by the gate at once, a view in use when next chosen; "
                                        "0: once per round", "steps")
 
     # --- blending: what I* is made of ----------------------------------------------------------
