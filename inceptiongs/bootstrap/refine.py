@@ -78,8 +78,9 @@ def probability(l1: float) -> float:
 @dataclass
 class ViewChoice:
     index: int          # into the pool of virtual views
-    weight: float       # multiplies the view's loss: 1/P (Langevin), 1 (uniform)
-    p: float            # P at the chosen view before the step (1 for uniform)
+    # Langevin: the view's update is divided by P = exp(L1(render, I*)), read from the step's own
+    # render (virtual_loss; a render of its own would be the same image); uniform: weight 1.
+    weighted: bool
 
 
 class ViewSampler:
@@ -115,7 +116,7 @@ class ViewSampler:
         """loss_at(index, world_to_camera [4, 4] float64 tensor) -> L1(render at that pose, I*[index]);
         ``config``: the sampling and its Langevin step and noise."""
         if config.sampling == "uniform":
-            return self._chose(pool, ViewChoice(int(self.rng.integers(len(pool))), 1.0, 1.0))
+            return self._chose(pool, ViewChoice(int(self.rng.integers(len(pool))), weighted=False))
         poses = self._pool_poses(pool)
         if self.pose is None:
             self.pose = poses[0].copy()
@@ -130,10 +131,7 @@ class ViewSampler:
         moved = langevin_step(self.pose, np.asarray(grad, np.float64), step, noise, self.rng)
         chosen = int(snap_to_nearest(moved, poses))
         self.pose = poses[chosen].copy()
-        with torch.no_grad():
-            l1 = float(loss_at(chosen, torch.as_tensor(pool[chosen].camera.world_to_camera)))
-        p = probability(l1)
-        return self._chose(pool, ViewChoice(chosen, 1.0 / p, p))  # p >= 1: the division is safe
+        return self._chose(pool, ViewChoice(chosen, weighted=True))
 
     def _chose(self, pool: Sequence[VirtualTarget], choice: ViewChoice) -> ViewChoice:
         name = pool[choice.index].name
@@ -205,7 +203,7 @@ def virtual_view_loss(rgb: torch.Tensor, target: torch.Tensor, config: Bootstrap
 def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
                  choice: ViewChoice, config: BootstrapConfig, rasterizer, lpips=None, scale: float = 1.0
                  ) -> tuple[torch.Tensor, dict, dict]:
-    """A virtual view's weighted loss (choice.weight, the conscience's ``scale``, lambda_virtual),
+    """A virtual view's weighted loss (1/P when the choice is weighted, the conscience's ``scale``, lambda_virtual),
     plus the chosen variants' terms (``extra_loss``, scaled by the conscience too)
     -> (loss, the render's outputs, log record); no backward, no optimiser step."""
     sh_degree = sh_degree_at(step, train_config, sh_max)
@@ -213,6 +211,8 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
     variants = list(config.variants.values())
     outputs = ("rgb",) + tuple(output for variant in variants for output in variant.render_outputs(view))
     out = rasterizer(gaussians, view.camera, outputs=outputs, sh_degree=sh_degree)
+    p = probability(float(view_l1(out["rgb"].detach(), view))) if choice.weighted else 1.0
+    weight = 1.0 / p  # p >= 1: the division is safe
     if config.colour_target():
         weights = view_weights(view.mask, config)
         share = 1.0
@@ -221,7 +221,7 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
             share = max(float(view.evidence.mean()), MIN_WEIGHTED_SHARE)
         loss, record = virtual_view_loss(out["rgb"], view.target, config, train_config.losses.lambda_dssim, lpips, weights,
                                          share)
-        total = config.lambda_virtual * choice.weight * scale * loss
+        total = config.lambda_virtual * weight * scale * loss
     else:
         # No colour target (only a variant's term): the rgb output still enters the graph (at
         # zero weight) so the trainer's densification statistics see the same render as on any
@@ -235,13 +235,13 @@ def virtual_loss(step: int, state, train_config: TrainConfig, sh_max: int, view:
             record.update(extra_record)
             if term is not None:
                 total = total + term
-    record.update(view=view.name, weight=choice.weight, p=choice.p, sh_degree=sh_degree)
+    record.update(view=view.name, weight=weight, p=p, sh_degree=sh_degree)
     return total, out, record
 
 
 def virtual_step(step: int, state, data, train_config: TrainConfig, sh_max: int, view: VirtualTarget,
                  choice: ViewChoice, config: BootstrapConfig, rasterizer, lpips=None, scale: float = 1.0) -> dict:
-    """One optimisation step on a virtual view (weighted by choice.weight and the conscience's
+    """One optimisation step on a virtual view (weighted by 1/P for a weighted choice and the conscience's
     ``scale``); the log record."""
     set_learning_rate(state.optimizer, "means", position_learning_rate(step, train_config, data.extent))
     total, out, record = virtual_loss(step, state, train_config, sh_max, view, choice, config, rasterizer, lpips,
@@ -260,7 +260,12 @@ def render_l1(rasterizer, gaussians, view: VirtualTarget, sh_degree: int,
     the evidence too)."""
     out = rasterizer(gaussians, view.camera, outputs=("rgb",), sh_degree=sh_degree,
                     world_to_camera=world_to_camera)
-    residual = (out["rgb"] - view.target).abs()
+    return view_l1(out["rgb"], view)
+
+
+def view_l1(rgb: torch.Tensor, view: VirtualTarget) -> torch.Tensor:
+    """rgb: [H, W, 3] -> mean |rgb - I*|, only where the view's evidence weights are set (if any)."""
+    residual = (rgb - view.target).abs()
     if view.evidence is not None:
         residual = residual * view.evidence
     return residual.mean()

@@ -118,8 +118,10 @@ def test_bootstrap_writes_a_run_folder_and_keeps_covered_views(stage1, boot):
     assert [r["iteration"] for r in steps] == list(range(result.start_iteration + 1, result.iteration + 1))
     assert {r["kind"] for r in steps} == {"real", "virtual"}
     virtual = [r for r in steps if r["kind"] == "virtual"]
-    # Langevin: each update is divided by P = exp(L1) >= 1.
+    # Langevin: each update is divided by P = exp(L1) >= 1, L1 that of the step's own render
+    # (no per-pixel weights here, so the logged virtual_l1 is that L1).
     assert all(0 < r["weight"] <= 1 and abs(r["weight"] * r["p"] - 1) < 1e-9 for r in virtual)
+    assert all(r["p"] == pytest.approx(np.exp(r["virtual_l1"]), rel=1e-6) for r in virtual)
     assert all(isinstance(r["wall_s"], float) for r in records)
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     views = summary["rounds"][0]["views"]
@@ -420,7 +422,7 @@ def test_informative_views_and_the_additive_step():
 
     train_config = TrainConfig(scene="unused")
     # The loop hands the variant its virtual loss and photo step (additive.py imports nothing of refine).
-    record = additive_step(lambda: virtual_loss(10, state, train_config, 0, views[1], ViewChoice(1, 1.0, 1.0), config,
+    record = additive_step(lambda: virtual_loss(10, state, train_config, 0, views[1], ViewChoice(1, weighted=False), config,
                                                 render_fn), photo_step)
     assert record["kind"] == "additive" and record["virtual_branch"] == "informative_l1"
     photo_only = torch.autograd.grad(photo_loss(), params["sh_dc"])[0]

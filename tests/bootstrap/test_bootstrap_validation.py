@@ -221,7 +221,7 @@ def test_pixels_without_evidence_carry_no_virtual_gradient():
     def gradient(evidence):
         view = VirtualTarget("v", None, target, torch.ones(*size, 1), target, False, 1, evidence=evidence)
         loss, _, _ = virtual_loss(10, SimpleNamespace(params=params), TrainConfig(scene="unused"), 0, view,
-                                  ViewChoice(0, 1.0, 1.0), BootstrapConfig(tau=-1.0), render_fn)
+                                  ViewChoice(0, weighted=False), BootstrapConfig(tau=-1.0), render_fn)
         return torch.autograd.grad(loss, params["sh_dc"])[0], view
 
     unweighted, _ = gradient(None)
