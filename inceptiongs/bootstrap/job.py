@@ -57,11 +57,11 @@ class BootstrapJob:
         result = bootstrap_blocks(stage1, out_dir, targets, self.config,
                                   lambda run, block_out, block_targets, block_config: run_bootstrap(
                                       run, block_out, block_targets, block_config, control=control, log=out.log,
-                                      progress=False, overwrite=self.overwrite), out.log)
+                                      progress=False, overwrite=self.overwrite), out.log, progress=False)
         iteration = max((block.iteration for block in result.results), default=stage1.config.iterations)
         out.snapshot(iteration, load_run(out_dir, warn=out.log)[0], {})
         refined = ", ".join(str(index + 1) for index in result.refined)
-        out.finish("bootstrap", iteration, result.finished, {},
+        out.finish("bootstrap", iteration, result.finished, result.last_eval,
                    f"block(s) {refined} refined, the others kept, {out_dir}")
 
 

@@ -598,3 +598,55 @@ def test_the_viewers_bootstrap_job_refines_only_the_blocks_the_flag_sees(blocks_
     last = box.latest()
     assert last is not None and len(last.gaussians["means"]) == len(after) == sum(kept)
     assert "refined" in last.message and "bootstrap finished" in last.message, last.message
+    # Its last word carries the merged result's held-out scores, as an ordinary bootstrap's does.
+    assert last.metrics and last.metrics == json.loads((out / "bootstrap" / "summary.json").read_text())["last_eval"]
+
+
+def flat_eval(run: Path, capsys) -> tuple[dict, dict | None]:
+    """`inceptiongs eval RUN --json`'s group scores, flat ("scarce_psnr", ...), and its verdict (None: none)."""
+    assert main(["eval", str(run), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    return ({f"{group}_{metric}": entry[metric] for group, entry in printed["groups"].items()
+             for metric in ("psnr", "ssim") if entry[metric] is not None}, printed.get("verdict"))
+
+
+def test_a_blocks_bootstraps_summary_scores_the_merged_model_as_eval_does(blocks_run, tmp_path, capsys):
+    """A bootstrap of a run in blocks recorded only its blocks' own scores (each on its block's
+    split), so every verdict said there were no held-out scores to judge it by: its summary holds
+    the merged input's and the merged result's held-out scores, in an ordinary bootstrap's keys."""
+    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, report_verdicts, verdict_line
+
+    scene_dir, run, _ = blocks_run
+    flagged = one_block_view(load_scene(scene_dir), read_plan(run))
+    out = tmp_path / "boot"
+    settings = tmp_path / "virtual.json"
+    settings.write_text(json.dumps({"follow_outlook": False}))
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
+                             "--iterations", "8", "--config", str(settings), "--target-view", flagged.name],
+                            env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    before, _ = flat_eval(run, capsys)
+    after, verdict_printed = flat_eval(out, capsys)
+    assert set(summary["initial_eval"]) == set(before) and set(summary["last_eval"]) == set(after)
+    assert {"scarce_psnr", "covered_psnr", "all_psnr"} <= set(before)
+    for key in before:
+        assert summary["initial_eval"][key] == pytest.approx(before[key], abs=1e-4), key
+        assert summary["last_eval"][key] == pytest.approx(after[key], abs=1e-4), key
+    assert summary["last_eval"] != summary["initial_eval"]     # the refined block changed the merged model
+    assert "scoring the input" in result.stderr and "scoring the result" in result.stderr   # said before each
+    # The command prints them as an ordinary bootstrap does.
+    assert f"PSNR {before['scarce_psnr']:6.2f} -> {after['scarce_psnr']:6.2f} dB" in result.stdout
+    # Every verdict judges it: the viewer's and eval's (read_bootstrap_verdict), report's.
+    verdict = read_bootstrap_verdict(out)
+    assert verdict is not None and verdict.before == summary["initial_eval"] and verdict.after == summary["last_eval"]
+    line = verdict_line(verdict)
+    assert "no held-out scores" not in line and line.startswith("held-out scarce views:"), line
+    assert verdict.virtual_steps == summary["virtual_steps"] > 0     # the blocks' step counts, added up
+    assert verdict.iterations == (summary["start_iteration"], summary["iteration"])
+    assert verdict_printed is not None and verdict_printed["line"] == line
+    assert verdict_printed["stage1"] == summary["initial_eval"] and verdict_printed["bootstrap"] == summary["last_eval"]
+    assert report_verdicts([out]) == [f"{out.name}: {line}"]
+    # The outlook the refined block followed, named as that block's.
+    block = summary["blocks_refined"][0]
+    assert summary["outlook"]["line"] == f"block {block + 1}: {summary['blocks'][0]['summary']['outlook']['line']}"
