@@ -35,7 +35,7 @@ from ..runs.frames import to_normalized_frame
 from ..train.blocks import BlockPlan, block_dir, merge_blocks, read_plan
 from ..train.partition import photos_seeing
 from .config import BootstrapConfig
-from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE
+from .summary_file import BOOTSTRAP_DIR, SUMMARY_FILE, read_summary
 from .targets import Target
 
 
@@ -76,9 +76,12 @@ def bootstrap_blocks(stage1, out_dir: Path, targets: Sequence[Target] | None, co
         if not blocks:
             raise InputError(f"{run_dir}: no block's cell is seen from the flagged views")
     refined = sorted(blocks)
+    outside = [index for index in refined if not 0 <= index < len(plan.cells)]
+    if outside:
+        raise InputError(f"{run_dir / 'blocks.json'}: the run has {len(plan.cells)} blocks, no block {outside[0] + 1}")
     names = ", ".join(f"{i + 1}" for i in refined)
-    log(f"blocks: refining block(s) {names} of {len(plan.cells)} (the flagged views see their cells); "
-        f"the others are kept as they are")
+    why = "the flagged views see their cells" if targets else "on their photos alone: the same-time baseline"
+    log(f"blocks: refining block(s) {names} of {len(plan.cells)} ({why}); the others are kept as they are")
     if rasterizer is None:
         from .runner import run_rasterizer
         rasterizer = run_rasterizer(stage1, log)
@@ -89,7 +92,7 @@ def bootstrap_blocks(stage1, out_dir: Path, targets: Sequence[Target] | None, co
     results = []
     for index in refined:
         results.append(run_one(block_dir(run_dir, index), block_dir(out_dir, index), targets, share))
-        if not results[-1].finished:
+        if stopped_by_user(results[-1]):   # a block out of its share of time leaves the next its own share
             break
     finished = len(results) == len(refined) and all(result.finished for result in results)
     sources = [block_dir(out_dir, i) if i in refined else block_dir(run_dir, i) for i in range(len(plan.cells))]
@@ -102,6 +105,12 @@ def bootstrap_blocks(stage1, out_dir: Path, targets: Sequence[Target] | None, co
                          progress, log, f"the result {out_dir}")
     write_blocks_summary(out_dir, stage1, refined, results, targets, finished, initial, last)
     return BlocksBootstrapResult(out_dir, refined, results, finished, count, initial, last)
+
+
+def stopped_by_user(result) -> bool:
+    """Whether the block bootstrap ``result`` (a BootstrapResult) ended on the user's stop, as its
+    summary says, rather than at its last step or at the end of its time."""
+    return (read_summary(result.out_dir) or {}).get("stopped") is True
 
 
 def merged_scores(gaussians, scene, split: Split, rasterizer, progress: bool, log: Callable[[str], None],

@@ -610,21 +610,29 @@ def flat_eval(run: Path, capsys) -> tuple[dict, dict | None]:
              for metric in ("psnr", "ssim") if entry[metric] is not None}, printed.get("verdict"))
 
 
-def test_a_blocks_bootstraps_summary_scores_the_merged_model_as_eval_does(blocks_run, tmp_path, capsys):
-    """A bootstrap of a run in blocks recorded only its blocks' own scores (each on its block's
-    split), so every verdict said there were no held-out scores to judge it by: its summary holds
-    the merged input's and the merged result's held-out scores, in an ordinary bootstrap's keys."""
-    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, report_verdicts, verdict_line
-
+@pytest.fixture(scope="module")
+def blocks_bootstrap(blocks_run, tmp_path_factory):
+    """`inceptiongs bootstrap` of the blocks run for a view one block sees -> (RUN2, its process)."""
     scene_dir, run, _ = blocks_run
     flagged = one_block_view(load_scene(scene_dir), read_plan(run))
-    out = tmp_path / "boot"
-    settings = tmp_path / "virtual.json"
+    out = tmp_path_factory.mktemp("blocks_bootstrap") / "boot"
+    settings = out.parent / "virtual.json"
     settings.write_text(json.dumps({"follow_outlook": False}))
     result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
                              "--iterations", "8", "--config", str(settings), "--target-view", flagged.name],
                             env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
+    return out, result
+
+
+def test_a_blocks_bootstraps_summary_scores_the_merged_model_as_eval_does(blocks_run, blocks_bootstrap, capsys):
+    """A bootstrap of a run in blocks recorded only its blocks' own scores (each on its block's
+    split), so every verdict said there were no held-out scores to judge it by: its summary holds
+    the merged input's and the merged result's held-out scores, in an ordinary bootstrap's keys."""
+    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, report_verdicts, verdict_line
+
+    _, run, _ = blocks_run
+    out, result = blocks_bootstrap
     summary = json.loads((out / "bootstrap" / "summary.json").read_text())
     before, _ = flat_eval(run, capsys)
     after, verdict_printed = flat_eval(out, capsys)
@@ -650,3 +658,34 @@ def test_a_blocks_bootstraps_summary_scores_the_merged_model_as_eval_does(blocks
     # The outlook the refined block followed, named as that block's.
     block = summary["blocks_refined"][0]
     assert summary["outlook"]["line"] == f"block {block + 1}: {summary['blocks'][0]['summary']['outlook']['line']}"
+
+
+def test_the_viewers_baseline_of_a_blocks_bootstrap_is_its_same_time_baseline(blocks_run, blocks_bootstrap):
+    """The viewer offers the same-time baseline of a result it can judge: of a blocks bootstrap,
+    the blocks it refined continued on their photos alone for its time (the whole merged model
+    continued would start at another iteration, and the verdict would refuse it)."""
+    from app.job_requests import baseline_job_for
+    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, verdict_line
+    from inceptiongs.live import JobControl, SnapshotBox
+
+    _, run, _ = blocks_run
+    out, _ = blocks_bootstrap
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    job = baseline_job_for(read_bootstrap_verdict(out))
+    assert job.blocks == tuple(summary["blocks_refined"]) and job.seconds == pytest.approx(summary["wall_s"])
+    box = SnapshotBox()
+    job.run(box, JobControl())
+    baseline = json.loads((job.out_dir / "bootstrap" / "summary.json").read_text())
+    assert baseline["baseline"] is True and baseline["blocks_refined"] == summary["blocks_refined"]
+    assert baseline["start_iteration"] == summary["start_iteration"] and baseline["last_eval"]
+    assert box.latest().metrics == baseline["last_eval"]
+    # The blocks nobody refined are the stage-I run's in the baseline too.
+    kept = json.loads((job.out_dir / PLAN_FILE).read_text())["kept_gaussians"]
+    other = next(i for i in range(len(kept)) if i not in summary["blocks_refined"])
+    start = sum(kept[:other])
+    before_start = sum(json.loads((run / PLAN_FILE).read_text())["kept_gaussians"][:other])
+    assert np.array_equal(read_ply(run / "model.ply").means[before_start:before_start + kept[other]].numpy(),
+                          read_ply(job.out_dir / "model.ply").means[start:start + kept[other]].numpy())
+    verdict = read_bootstrap_verdict(out)
+    assert verdict.baseline_dir == Path(job.out_dir) and verdict.baseline == baseline["last_eval"], verdict.refused
+    assert "the same-time baseline" in verdict_line(verdict)
