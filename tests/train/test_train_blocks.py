@@ -689,3 +689,24 @@ def test_the_viewers_baseline_of_a_blocks_bootstrap_is_its_same_time_baseline(bl
     verdict = read_bootstrap_verdict(out)
     assert verdict.baseline_dir == Path(job.out_dir) and verdict.baseline == baseline["last_eval"], verdict.refused
     assert "the same-time baseline" in verdict_line(verdict)
+
+
+def test_blocks_sharing_a_time_budget_each_get_their_share(blocks_run, tmp_path):
+    """A block that ran out of its share of --minutes ended the bootstrap there: the next block was
+    never refined and the merge found no model.ply for it."""
+    scene_dir, run, _ = blocks_run
+    from inceptiongs.bootstrap.blocks import blocks_holding
+    from inceptiongs.bootstrap.targets import Target
+
+    scene, plan = load_scene(scene_dir), read_plan(run)
+    both = next(camera for camera in scene.cameras
+                if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 2)
+    out = tmp_path / "boot"
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
+                             "--iterations", "100000", "--minutes", "0.05", "--target-view", both.name],
+                            env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["blocks_refined"] == [0, 1] and summary["finished"] is False     # out of time, not stopped
+    for entry in summary["blocks"]:
+        assert entry["summary"]["iteration"] > entry["summary"]["start_iteration"], entry["block"]
