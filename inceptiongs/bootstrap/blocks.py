@@ -95,6 +95,7 @@ def bootstrap_blocks(stage1, out_dir: Path, targets: Sequence[Target] | None, co
         if stopped_by_user(results[-1]):   # a block out of its share of time leaves the next its own share
             break
     finished = len(results) == len(refined) and all(result.finished for result in results)
+    refined = refined[:len(results)]    # stopped: the blocks after the stop keep their stage-I Gaussians
     sources = [block_dir(out_dir, i) if i in refined else block_dir(run_dir, i) for i in range(len(plan.cells))]
     parent = TrainConfig.load(run_dir / "config.json")
     merged_config = dataclasses.replace(parent, iterations=max(result.iteration for result in results))

@@ -710,3 +710,35 @@ def test_blocks_sharing_a_time_budget_each_get_their_share(blocks_run, tmp_path)
     assert summary["blocks_refined"] == [0, 1] and summary["finished"] is False     # out of time, not stopped
     for entry in summary["blocks"]:
         assert entry["summary"]["iteration"] > entry["summary"]["start_iteration"], entry["block"]
+
+
+def test_a_stop_in_the_first_of_two_blocks_merges_it_with_the_others_as_they_were(blocks_run, tmp_path):
+    """A stop ended the blocks' loop, and the merge then looked for the unstarted block's model in
+    RUN2 and failed, where the command promises the refined blocks so far are merged."""
+    from inceptiongs.bootstrap.blocks import blocks_holding, bootstrap_blocks
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.runner import run_bootstrap
+    from inceptiongs.bootstrap.stage1 import load_stage1
+    from inceptiongs.bootstrap.targets import Target
+    from inceptiongs.live import JobControl
+
+    scene_dir, run, _ = blocks_run
+    scene, plan = load_scene(scene_dir), read_plan(run)
+    both = next(Target(camera.name, camera, "view") for camera in scene.cameras
+                if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 2)
+    control = JobControl()
+    control.stop.set()      # the user's stop, already given as the first block starts
+    out = tmp_path / "boot"
+    result = bootstrap_blocks(load_stage1(run), out, [both], BootstrapConfig(iterations=8, follow_outlook=False),
+                              lambda block_run, block_out, targets, config: run_bootstrap(
+                                  block_run, block_out, targets, config, control=control, progress=False,
+                                  log=lambda line: None), lambda line: None, progress=False)
+    assert result.refined == [0] and not result.finished and not block_dir(out, 1).exists()
+    written = json.loads((out / PLAN_FILE).read_text())
+    assert written["refined"] == [0] and written["sources"][1] == str(block_dir(run, 1))
+    kept, kept_before = written["kept_gaussians"], json.loads((run / PLAN_FILE).read_text())["kept_gaussians"]
+    assert kept[1] == kept_before[1]
+    assert np.array_equal(read_ply(run / "model.ply").means[kept_before[0]:].numpy(),
+                          read_ply(out / "model.ply").means[kept[0]:].numpy())
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["blocks_refined"] == [0] and summary["last_eval"] and summary["finished"] is False
