@@ -48,16 +48,21 @@ def baseline_job_for(verdict):
     """The same-time baseline of the bootstrap result ``verdict`` (verdict.Verdict) is about: its
     stage-I run continued on the photos alone for the bootstrap's wall time, into a fresh
     ``RUN_baseline[_N]`` beside the stage-I run (where `inceptiongs demo` puts it, and where
-    the verdict looks)."""
+    the verdict looks). Of a run in blocks, the blocks the bootstrap refined are continued, as its
+    summary names them."""
     from inceptiongs.bootstrap.job import BaselineJob
+    from inceptiongs.bootstrap.summary_file import read_summary
 
     if verdict is None or verdict.stage1_run is None or not verdict.seconds:
         raise InputError("no bootstrap result with a known time and stage-I run to run a baseline for")
     stage1 = Path(verdict.stage1_run)
     if not (stage1 / "config.json").is_file():
         raise InputError(f"{stage1}: the bootstrap's stage-I run is not there (moved or deleted)")
+    refined = (read_summary(verdict.out_dir) or {}).get("blocks_refined")
+    blocks = tuple(refined) if isinstance(refined, list) and refined and all(
+        isinstance(index, int) and not isinstance(index, bool) for index in refined) else None
     return BaselineJob(run_dir=stage1, out_dir=new_baseline_dir(stage1), seconds=float(verdict.seconds),
-                       eval_every=VIEWER_EVAL_EVERY)
+                       eval_every=VIEWER_EVAL_EVERY, blocks=blocks)
 
 
 def bootstrap_job_for(run_dir: Path | None, flags_file: Path, config=None):

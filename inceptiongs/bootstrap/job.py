@@ -57,11 +57,11 @@ class BootstrapJob:
         result = bootstrap_blocks(stage1, out_dir, targets, self.config,
                                   lambda run, block_out, block_targets, block_config: run_bootstrap(
                                       run, block_out, block_targets, block_config, control=control, log=out.log,
-                                      progress=False, overwrite=self.overwrite), out.log)
+                                      progress=False, overwrite=self.overwrite), out.log, progress=False)
         iteration = max((block.iteration for block in result.results), default=stage1.config.iterations)
         out.snapshot(iteration, load_run(out_dir, warn=out.log)[0], {})
         refined = ", ".join(str(index + 1) for index in result.refined)
-        out.finish("bootstrap", iteration, result.finished, {},
+        out.finish("bootstrap", iteration, result.finished, result.last_eval,
                    f"block(s) {refined} refined, the others kept, {out_dir}")
 
 
@@ -82,6 +82,9 @@ class BaselineJob:
     eval_every: int = 0
     log_every: int = 1
     snapshot_every: int = 5
+    # A run in blocks: the blocks the bootstrap refined (its summary's blocks_refined), continued
+    # here, the others kept, so the baseline starts where the bootstrap did.
+    blocks: tuple | None = None
 
     def run(self, box: SnapshotBox, control: JobControl) -> None:
         from .runner import run_bootstrap
@@ -91,7 +94,28 @@ class BaselineJob:
         config = BootstrapConfig(iterations=BASELINE_STEP_CAP, minutes=self.seconds / 60.0, rounds=1,
                                  log_every=self.log_every, eval_every=self.eval_every).validate()
         out.log(f"baseline: stage I continued on the photos alone for {self.seconds:.0f} s -> {self.out_dir}")
-        result = run_bootstrap(load_stage1(self.run_dir), Path(self.out_dir), None, config, control=control,
+        stage1 = load_stage1(self.run_dir)
+        if stage1.config.blocks:
+            self.run_blocks(stage1, config, control, out)
+            return
+        result = run_bootstrap(stage1, Path(self.out_dir), None, config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
                                progress=False)
         out.finish("baseline", result.iteration, result.finished, result.last_eval, str(self.out_dir))
+
+    def run_blocks(self, stage1, config: BootstrapConfig, control: JobControl, out: JobPublisher) -> None:
+        """A run trained in blocks: the bootstrap's blocks continued on their photos alone, sharing
+        its time, and merged with the others (blocks.bootstrap_blocks without targets), as
+        :meth:`BootstrapJob.run_blocks` shows the merged result once written."""
+        from ..runs.load import load_run
+        from .blocks import bootstrap_blocks
+        from .runner import run_bootstrap
+
+        out_dir = Path(self.out_dir)
+        result = bootstrap_blocks(stage1, out_dir, None, config,
+                                  lambda run, block_out, _targets, block_config: run_bootstrap(
+                                      run, block_out, None, block_config, control=control, log=out.log,
+                                      progress=False), out.log, blocks=self.blocks, progress=False)
+        iteration = max((block.iteration for block in result.results), default=stage1.config.iterations)
+        out.snapshot(iteration, load_run(out_dir, warn=out.log)[0], {})
+        out.finish("baseline", iteration, result.finished, result.last_eval, str(out_dir))

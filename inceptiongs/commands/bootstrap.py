@@ -148,13 +148,18 @@ def run(args) -> int:
     print(f"{result.virtual_views} virtual views ({result.cache_hits} from the cache), "
           f"iterations {result.start_iteration}..{result.iteration}, {result.wall_s:.1f} s, "
           f"{result.num_gaussians} Gaussians")
-    for group in ("scarce", "covered", "all"):
-        before, after = result.initial_eval.get(f"{group}_psnr"), result.last_eval.get(f"{group}_psnr")
-        if before is not None and after is not None:
-            print(f"{group:>8} PSNR {before:6.2f} -> {after:6.2f} dB   SSIM "
-                  f"{result.initial_eval[f'{group}_ssim']:.4f} -> {result.last_eval[f'{group}_ssim']:.4f}")
+    print_scores(result.initial_eval, result.last_eval)
     print(f"wrote {out_dir}")
     return 0
+
+
+def print_scores(initial_eval: dict, last_eval: dict) -> None:
+    """One line per held-out group scored before and after: PSNR and SSIM, input -> result."""
+    for group in ("scarce", "covered", "all"):
+        before, after = initial_eval.get(f"{group}_psnr"), last_eval.get(f"{group}_psnr")
+        if before is not None and after is not None:
+            print(f"{group:>8} PSNR {before:6.2f} -> {after:6.2f} dB   SSIM "
+                  f"{initial_eval[f'{group}_ssim']:.4f} -> {last_eval[f'{group}_ssim']:.4f}")
 
 
 def run_in_blocks(run_dir: Path) -> bool:
@@ -189,13 +194,15 @@ def run_blocks(args, run_dir: Path, out_dir: Path, config) -> int:
         result = bootstrap_blocks(stage1, out_dir, targets, config,
                                   lambda run, out, block_targets, block_config: run_bootstrap(
                                       run, out, block_targets, block_config, control=control,
-                                      overwrite=args.overwrite, rasterizer=device.rasterizer, log=say), say)
+                                      overwrite=args.overwrite, rasterizer=device.rasterizer, log=say), say,
+                                  rasterizer=device.rasterizer)
     if stopping.signum is not None:
         print(f"{out_dir}: stopped; the refined blocks so far are merged into model.ply", file=sys.stderr)
         return stopping.exit_status
     for index, block in zip(result.refined, result.results):
         print(f"block {index + 1}: iterations {block.start_iteration}..{block.iteration}, {block.virtual_views} "
               f"virtual views, {block.wall_s:.1f} s")
+    print_scores(result.initial_eval, result.last_eval)   # the merged model, on the whole run's held-out views
     print(f"wrote {out_dir}: {result.num_gaussians} Gaussians, blocks {', '.join(str(i + 1) for i in result.refined)} "
           f"refined (inceptiongs eval {out_dir})")
     return 0

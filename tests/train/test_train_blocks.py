@@ -598,3 +598,147 @@ def test_the_viewers_bootstrap_job_refines_only_the_blocks_the_flag_sees(blocks_
     last = box.latest()
     assert last is not None and len(last.gaussians["means"]) == len(after) == sum(kept)
     assert "refined" in last.message and "bootstrap finished" in last.message, last.message
+    # Its last word carries the merged result's held-out scores, as an ordinary bootstrap's does.
+    assert last.metrics and last.metrics == json.loads((out / "bootstrap" / "summary.json").read_text())["last_eval"]
+
+
+def flat_eval(run: Path, capsys) -> tuple[dict, dict | None]:
+    """`inceptiongs eval RUN --json`'s group scores, flat ("scarce_psnr", ...), and its verdict (None: none)."""
+    assert main(["eval", str(run), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    return ({f"{group}_{metric}": entry[metric] for group, entry in printed["groups"].items()
+             for metric in ("psnr", "ssim") if entry[metric] is not None}, printed.get("verdict"))
+
+
+@pytest.fixture(scope="module")
+def blocks_bootstrap(blocks_run, tmp_path_factory):
+    """`inceptiongs bootstrap` of the blocks run for a view one block sees -> (RUN2, its process)."""
+    scene_dir, run, _ = blocks_run
+    flagged = one_block_view(load_scene(scene_dir), read_plan(run))
+    out = tmp_path_factory.mktemp("blocks_bootstrap") / "boot"
+    settings = out.parent / "virtual.json"
+    settings.write_text(json.dumps({"follow_outlook": False}))
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
+                             "--iterations", "8", "--config", str(settings), "--target-view", flagged.name],
+                            env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return out, result
+
+
+def test_a_blocks_bootstraps_summary_scores_the_merged_model_as_eval_does(blocks_run, blocks_bootstrap, capsys):
+    """A bootstrap of a run in blocks recorded only its blocks' own scores (each on its block's
+    split), so every verdict said there were no held-out scores to judge it by: its summary holds
+    the merged input's and the merged result's held-out scores, in an ordinary bootstrap's keys."""
+    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, report_verdicts, verdict_line
+
+    _, run, _ = blocks_run
+    out, result = blocks_bootstrap
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    before, _ = flat_eval(run, capsys)
+    after, verdict_printed = flat_eval(out, capsys)
+    assert set(summary["initial_eval"]) == set(before) and set(summary["last_eval"]) == set(after)
+    assert {"scarce_psnr", "covered_psnr", "all_psnr"} <= set(before)
+    for key in before:
+        assert summary["initial_eval"][key] == pytest.approx(before[key], abs=1e-4), key
+        assert summary["last_eval"][key] == pytest.approx(after[key], abs=1e-4), key
+    assert summary["last_eval"] != summary["initial_eval"]     # the refined block changed the merged model
+    assert "scoring the input" in result.stderr and "scoring the result" in result.stderr   # said before each
+    # The command prints them as an ordinary bootstrap does.
+    assert f"PSNR {before['scarce_psnr']:6.2f} -> {after['scarce_psnr']:6.2f} dB" in result.stdout
+    # Every verdict judges it: the viewer's and eval's (read_bootstrap_verdict), report's.
+    verdict = read_bootstrap_verdict(out)
+    assert verdict is not None and verdict.before == summary["initial_eval"] and verdict.after == summary["last_eval"]
+    line = verdict_line(verdict)
+    assert "no held-out scores" not in line and line.startswith("held-out scarce views:"), line
+    assert verdict.virtual_steps == summary["virtual_steps"] > 0     # the blocks' step counts, added up
+    assert verdict.iterations == (summary["start_iteration"], summary["iteration"])
+    assert verdict_printed is not None and verdict_printed["line"] == line
+    assert verdict_printed["stage1"] == summary["initial_eval"] and verdict_printed["bootstrap"] == summary["last_eval"]
+    assert report_verdicts([out]) == [f"{out.name}: {line}"]
+    # The outlook the refined block followed, named as that block's.
+    block = summary["blocks_refined"][0]
+    assert summary["outlook"]["line"] == f"block {block + 1}: {summary['blocks'][0]['summary']['outlook']['line']}"
+
+
+def test_the_viewers_baseline_of_a_blocks_bootstrap_is_its_same_time_baseline(blocks_run, blocks_bootstrap):
+    """The viewer offers the same-time baseline of a result it can judge: of a blocks bootstrap,
+    the blocks it refined continued on their photos alone for its time (the whole merged model
+    continued would start at another iteration, and the verdict would refuse it)."""
+    from app.job_requests import baseline_job_for
+    from inceptiongs.evaluation.verdict import read_bootstrap_verdict, verdict_line
+    from inceptiongs.live import JobControl, SnapshotBox
+
+    _, run, _ = blocks_run
+    out, _ = blocks_bootstrap
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    job = baseline_job_for(read_bootstrap_verdict(out))
+    assert job.blocks == tuple(summary["blocks_refined"]) and job.seconds == pytest.approx(summary["wall_s"])
+    box = SnapshotBox()
+    job.run(box, JobControl())
+    baseline = json.loads((job.out_dir / "bootstrap" / "summary.json").read_text())
+    assert baseline["baseline"] is True and baseline["blocks_refined"] == summary["blocks_refined"]
+    assert baseline["start_iteration"] == summary["start_iteration"] and baseline["last_eval"]
+    assert box.latest().metrics == baseline["last_eval"]
+    # The blocks nobody refined are the stage-I run's in the baseline too.
+    kept = json.loads((job.out_dir / PLAN_FILE).read_text())["kept_gaussians"]
+    other = next(i for i in range(len(kept)) if i not in summary["blocks_refined"])
+    start = sum(kept[:other])
+    before_start = sum(json.loads((run / PLAN_FILE).read_text())["kept_gaussians"][:other])
+    assert np.array_equal(read_ply(run / "model.ply").means[before_start:before_start + kept[other]].numpy(),
+                          read_ply(job.out_dir / "model.ply").means[start:start + kept[other]].numpy())
+    verdict = read_bootstrap_verdict(out)
+    assert verdict.baseline_dir == Path(job.out_dir) and verdict.baseline == baseline["last_eval"], verdict.refused
+    assert "the same-time baseline" in verdict_line(verdict)
+
+
+def test_blocks_sharing_a_time_budget_each_get_their_share(blocks_run, tmp_path):
+    """A block that ran out of its share of --minutes ended the bootstrap there: the next block was
+    never refined and the merge found no model.ply for it."""
+    scene_dir, run, _ = blocks_run
+    from inceptiongs.bootstrap.blocks import blocks_holding
+    from inceptiongs.bootstrap.targets import Target
+
+    scene, plan = load_scene(scene_dir), read_plan(run)
+    both = next(camera for camera in scene.cameras
+                if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 2)
+    out = tmp_path / "boot"
+    result = subprocess.run([sys.executable, "-m", "inceptiongs", "bootstrap", str(run), "--out", str(out),
+                             "--iterations", "100000", "--minutes", "0.05", "--target-view", both.name],
+                            env={**os.environ, **ONE_THREAD}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["blocks_refined"] == [0, 1] and summary["finished"] is False     # out of time, not stopped
+    for entry in summary["blocks"]:
+        assert entry["summary"]["iteration"] > entry["summary"]["start_iteration"], entry["block"]
+
+
+def test_a_stop_in_the_first_of_two_blocks_merges_it_with_the_others_as_they_were(blocks_run, tmp_path):
+    """A stop ended the blocks' loop, and the merge then looked for the unstarted block's model in
+    RUN2 and failed, where the command promises the refined blocks so far are merged."""
+    from inceptiongs.bootstrap.blocks import blocks_holding, bootstrap_blocks
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.runner import run_bootstrap
+    from inceptiongs.bootstrap.stage1 import load_stage1
+    from inceptiongs.bootstrap.targets import Target
+    from inceptiongs.live import JobControl
+
+    scene_dir, run, _ = blocks_run
+    scene, plan = load_scene(scene_dir), read_plan(run)
+    both = next(Target(camera.name, camera, "view") for camera in scene.cameras
+                if len(blocks_holding([Target(camera.name, camera, "view")], plan, scene.points)) == 2)
+    control = JobControl()
+    control.stop.set()      # the user's stop, already given as the first block starts
+    out = tmp_path / "boot"
+    result = bootstrap_blocks(load_stage1(run), out, [both], BootstrapConfig(iterations=8, follow_outlook=False),
+                              lambda block_run, block_out, targets, config: run_bootstrap(
+                                  block_run, block_out, targets, config, control=control, progress=False,
+                                  log=lambda line: None), lambda line: None, progress=False)
+    assert result.refined == [0] and not result.finished and not block_dir(out, 1).exists()
+    written = json.loads((out / PLAN_FILE).read_text())
+    assert written["refined"] == [0] and written["sources"][1] == str(block_dir(run, 1))
+    kept, kept_before = written["kept_gaussians"], json.loads((run / PLAN_FILE).read_text())["kept_gaussians"]
+    assert kept[1] == kept_before[1]
+    assert np.array_equal(read_ply(run / "model.ply").means[kept_before[0]:].numpy(),
+                          read_ply(out / "model.ply").means[kept[0]:].numpy())
+    summary = json.loads((out / "bootstrap" / "summary.json").read_text())
+    assert summary["blocks_refined"] == [0] and summary["last_eval"] and summary["finished"] is False
