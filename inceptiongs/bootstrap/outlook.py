@@ -168,7 +168,25 @@ def run_outlook(run_dir: str | Path) -> Outlook:
         lines = read_metrics(Path(run_dir) / "metrics.jsonl")
     except InputError as exc:
         return Outlook("unknown", f"repair outlook: unknown ({exc})")
-    return outlook_from_curve(lines)
+    outlook = outlook_from_curve(lines)
+    if outlook.verdict == "unknown" and holds_out_both_groups(Path(run_dir) / "split.json"):
+        # A run in blocks (its blocks' curves are theirs) or a log from elsewhere: the views are
+        # held out, the curve has no scores of them.
+        return Outlook("unknown", "repair outlook: unknown (stage I's log holds no scores of its held-out views; "
+                                  "a bootstrap measures the outlook with a short probe of photo steps first)")
+    return outlook
+
+
+def holds_out_both_groups(split_file: Path) -> bool:
+    """Whether the split in ``split_file`` holds out scarce and covered views (False: unreadable)."""
+    import json
+
+    try:
+        split = json.loads(split_file.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(split, dict) and all(isinstance(split.get(group), list) and split[group]
+                                           for group in ("scarce_test", "covered_test"))
 
 
 def recorded_outlook(run_dir: str | Path) -> tuple[str, Outlook] | None:

@@ -12,7 +12,7 @@ import pytest
 
 from inceptiongs.bootstrap.outlook import (NOTHING_TO_REPAIR_DB, STILL_RISING_DB_PER_MIN, gain_decay_minutes,
                                            gain_per_minute, outlook_from_curve, photo_first_minutes,
-                                           recorded_outlook)
+                                           recorded_outlook, run_outlook)
 
 
 def _curve(scarce: list[float], covered: list[float], minutes_apart: float = 1.0) -> list[dict]:
@@ -103,6 +103,20 @@ def test_without_scarce_and_covered_groups_the_outlook_is_unknown():
     lines = [{"iteration": 0, "train_s": 0.0, "all_psnr": 20.0}, {"iteration": 9, "train_s": 60.0, "all_psnr": 22.0}]
     outlook = outlook_from_curve(lines)
     assert outlook.verdict == "unknown" and "--protocol unstructured" in outlook.line
+
+
+def test_a_log_without_scores_of_views_the_split_holds_out_does_not_ask_for_another_protocol(tmp_path):
+    """A run in blocks (its merged log has no held-out scores; the blocks' curves are theirs) holds
+    both groups out: the outlook is unknown because of the log, not the protocol."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text(json.dumps({"iteration": 9, "train_s": 60.0, "loss": 0.1}) + "\n")
+    split = {"train": [0, 1], "test": [2, 3], "scarce_test": [2], "covered_test": [3]}
+    (run / "split.json").write_text(json.dumps(split))
+    outlook = run_outlook(run)
+    assert outlook.verdict == "unknown" and "probe" in outlook.line and "--protocol" not in outlook.line
+    (run / "split.json").write_text(json.dumps({**split, "scarce_test": []}))   # really no scarce group
+    assert "--protocol unstructured" in run_outlook(run).line
 
 
 def test_the_threshold_separates_the_two_cases_at_the_stated_gap():
