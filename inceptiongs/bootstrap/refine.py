@@ -88,9 +88,9 @@ class ViewSampler:
 
     The pose state starts at the first view of the pool; after each Langevin step it is
     snapped to the nearest virtual view and continues from that view's pose (the state stays
-    on the pool, so it cannot drift away from the views that have an I*). Before a step, a
-    chain sitting on a view refined more than RESTART_RATIO times as often as the least
-    refined one (plus one) restarts there (:func:`restart_view`). Its state is the random
+    on the pool, so it cannot drift away from the views that have an I*). A chain sitting on a
+    view refined more than RESTART_RATIO times as often as the least refined one (plus one)
+    restarts at that one, which is refined next (:func:`restart_view`). Its state is the random
     generator, the pose and ``visits`` (view name -> times chosen; a checkpoint keeps the
     pose and the visits).
     """
@@ -120,8 +120,13 @@ class ViewSampler:
         poses = self._pool_poses(pool)
         if self.pose is None:
             self.pose = poses[0].copy()
-        current = restart_view(int(snap_to_nearest(self.pose, poses)), [self.visits.get(v.name, 0) for v in pool])
-        self.pose = poses[current].copy()
+        current = int(snap_to_nearest(self.pose, poses))
+        restart = restart_view(current, [self.visits.get(v.name, 0) for v in pool])
+        if restart != current:
+            # The restart view itself is refined: a Langevin step from it may drift straight back
+            # to the view refined too often (bonsai: one view took 88 of 150 virtual steps).
+            self.pose = poses[restart].copy()
+            return self._chose(pool, ViewChoice(restart, weighted=True))
         camera = pool[current].camera
         # log P = L1: ascend it, towards the views the model renders worst (grad of L1 w.r.t. the
         # pose through the differentiable rasterizer, chained to the 7-D pose by langevin.py).

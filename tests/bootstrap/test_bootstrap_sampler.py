@@ -35,6 +35,20 @@ def test_every_view_of_a_pool_spread_over_units_is_refined():
     assert max(sampler.visits.values()) <= RESTART_RATIO * min(sampler.visits.values()) + 2, sampler.visits
 
 
+def _pull_to_the_origin(index: int, world_to_camera: torch.Tensor) -> torch.Tensor:
+    # L1 grows towards x = 0, steeply: the drift carries any pose to the first view in one step.
+    return 0.1 + 100.0 / (1.0 + world_to_camera[0, 3] ** 2)
+
+
+def test_a_drift_towards_one_view_does_not_take_every_step():
+    """A steep L1 towards view 0 (the Langevin drift would bring the chain back to it from
+    anywhere): the view a restart picks is the one refined, so every view still is."""
+    pool, sampler = _pool(10, 0.5), ViewSampler(seed=0)
+    chosen = [sampler.choose(pool, _pull_to_the_origin, BootstrapConfig()).index for _ in range(40)]
+    assert set(chosen) == set(range(10)), chosen
+    assert max(sampler.visits.values()) <= RESTART_RATIO * min(sampler.visits.values()) + 2, sampler.visits
+
+
 @pytest.mark.parametrize("sampling", ["langevin", "uniform"])
 def test_the_sampler_counts_each_views_choices(sampling):
     """The visits are what the summary reports as view_use and what a checkpoint keeps."""
