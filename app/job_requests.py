@@ -1,5 +1,6 @@
 """What the Training panel's job buttons build: stage-I training of the scene into a fresh run
-folder, "Resume" of the open run from its newest checkpoint, stage-II bootstrapping of the flagged
+folder, "Resume" of the open run from its newest checkpoint (of the open bootstrap result stopped
+before its end: the bootstrap, into the same folder), stage-II bootstrapping of the flagged
 views into a fresh folder beside the run, and the same-time baseline of a bootstrap result (folders:
 app/runs.py). Built when the user presses the button, so flags made since the viewer opened count;
 each comes as a :class:`JobRequest`, the question asked before it runs."""
@@ -14,7 +15,8 @@ from inceptiongs.errors import InputError
 from .capabilities import one_line, training_unavailable
 from .job_settings import VIEWER_EVAL_EVERY, JobSettings
 from .progress import format_duration
-from .runs import new_baseline_dir, new_bootstrap_dir, new_train_dir, resume_blocked_reason
+from .runs import (bootstrap_resume_refusal, new_baseline_dir, new_bootstrap_dir, new_train_dir,
+                   resume_blocked_reason)
 
 
 def train_job_for(source, settings: JobSettings | None = None):
@@ -42,6 +44,33 @@ def resume_job_for(run_dir: Path | None, settings: JobSettings | None = None):
     if blocked is not None:
         raise InputError(f"{run_dir}: a bootstrap result; {blocked}")
     return TrainJob(config=resumed_config(Path(run_dir)), run_dir=Path(run_dir), resume=True)
+
+
+def bootstrap_resume_job_for(out_dir: Path | None):
+    """Continue the bootstrap stopped in ``out_dir`` from its newest checkpoint into the same
+    folder, with the targets and settings it was started with (RUN2/bootstrap/targets.json and
+    config.json), as `inceptiongs bootstrap RUN --out RUN2 --resume` does; InputError (one line)
+    for what is not continued (runs.bootstrap_resume_refusal) or a stage-I run no longer there."""
+    from inceptiongs.bootstrap.config import BootstrapConfig
+    from inceptiongs.bootstrap.job import BootstrapJob
+    from inceptiongs.bootstrap.runner import BLOCKS_NOT_RESUMED
+    from inceptiongs.bootstrap.summary_file import BOOTSTRAP_DIR, read_summary
+    from inceptiongs.commands.bootstrap import run_in_blocks
+
+    if out_dir is None:
+        raise InputError("no bootstrap result is open to resume")
+    out_dir = Path(out_dir)
+    refused = bootstrap_resume_refusal(out_dir)
+    if refused is not None:
+        raise InputError(f"{out_dir}: {refused}")
+    stage1 = (read_summary(out_dir) or {}).get("run")
+    if not isinstance(stage1, str) or not (Path(stage1) / "config.json").is_file():
+        raise InputError(f"{out_dir}: its stage-I run ({stage1}) is not there (moved or deleted)")
+    if run_in_blocks(Path(stage1)):    # as the command refuses `--resume` there
+        raise InputError(f"{out_dir}: {BLOCKS_NOT_RESUMED}; bootstrap its flagged views again (into a new folder)")
+    saved = out_dir / BOOTSTRAP_DIR / "config.json"
+    config = BootstrapConfig.load(saved) if saved.is_file() else BootstrapConfig()  # the settings it started with
+    return BootstrapJob(run_dir=Path(stage1), out_dir=out_dir, config=config, resume=True)
 
 
 def baseline_job_for(verdict):
@@ -87,7 +116,7 @@ class JobRequest:
     mis-click never starts minutes of work). ``job``: built when asked (what could not be built
     was said at once); ``out_dir``: where it writes; ``message``: the status once it starts."""
 
-    kind: str       # "training", "resume", "bootstrap", "baseline"
+    kind: str       # "training", "resume", "bootstrap resume", "bootstrap", "baseline"
     job: object
     out_dir: Path | None
     message: str
@@ -131,6 +160,25 @@ def resume_request(run_dir: Path | None, settings: JobSettings, status) -> JobRe
         return None
     return JobRequest("resume", job, job.run_dir, f"resuming {job.run_dir}",
                       f"Resume {job.run_dir} from its newest checkpoint with its saved plan?")
+
+
+def bootstrap_resume_request(out_dir: Path | None, status) -> JobRequest | None:
+    """Continue the bootstrap stopped in ``out_dir`` (the open result) into the same folder; None
+    (said in ``status``, one line) when it is not continued."""
+    from inceptiongs.runs.checkpoint import list_checkpoints
+
+    try:
+        job = bootstrap_resume_job_for(out_dir)
+    except Exception as exc:  # noqa: BLE001 - shown in the status line
+        status.text = f"bootstrap resume could not start: {one_line(exc)}"
+        return None
+    step = list_checkpoints(job.out_dir)[-1][0]   # there: bootstrap_resume_job_for refuses a folder without one
+    length = budget_text(job.config.minutes, None)
+    return JobRequest("bootstrap resume", job, job.out_dir,
+                      f"resuming the bootstrap in {job.out_dir} at iteration {step} with its saved targets and "
+                      f"settings",
+                      f"Resume the bootstrap stopped in {job.out_dir} at iteration {step}, into the same folder, with "
+                      f"its saved targets and settings{' (' + length + ' in all)' if length else ''}?")
 
 
 def bootstrap_request(run_dir: Path | None, flags, settings: JobSettings, status, config=None) -> JobRequest | None:

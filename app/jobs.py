@@ -10,13 +10,14 @@ from pathlib import Path
 
 from inceptiongs.errors import InputError
 
-from .job_requests import JobRequest, baseline_request, bootstrap_request, resume_request, training_request
+from .job_requests import (JobRequest, baseline_request, bootstrap_request, bootstrap_resume_request, resume_request,
+                           training_request)
 from .job_settings import JobSettings
 from .live_training import LiveTraining
 from .poorly_fit import read_poorly_fit_photos
 from .progress import closing_line, final_scores, format_duration, plan_of, replan_line, resume_line
 from .run_list import RunLabels
-from .runs import run_dir_of
+from .runs import is_bootstrap_result, run_dir_of
 from .sources import open_scene_run
 from .verdict import read_verdict, verdict_line
 
@@ -78,9 +79,12 @@ class Jobs:
     def request(self, kind: str, config=None) -> JobRequest | None:
         """The ``kind`` job ("training", "resume", "bootstrap", "baseline") built for the open source
         and run from the dialog's settings (``config``: the bootstrap's, default the dialog's);
-        None (said in the status line) when it cannot be built."""
+        None (said in the status line) when it cannot be built. "resume" of a bootstrap result
+        continues the bootstrap stopped there (a "bootstrap resume" request)."""
         build = {"training": lambda: training_request(self.view.source, self.settings, self.factory, self.status),
-                 "resume": lambda: resume_request(self.run_dir, self.settings, self.status),
+                 "resume": lambda: (bootstrap_resume_request(self.run_dir, self.status)
+                                    if is_bootstrap_result(self.run_dir)   # a stopped bootstrap goes on as one
+                                    else resume_request(self.run_dir, self.settings, self.status)),
                  "bootstrap": lambda: bootstrap_request(self.run_dir, self.flags, self.settings, self.status, config),
                  "baseline": lambda: baseline_request(self.verdict, self.status)}[kind]
         return build()
@@ -140,7 +144,7 @@ class Jobs:
             self.start_request(self.request("training"))
 
     def resume_training(self) -> None:
-        """Continue the open run from its newest checkpoint, at once."""
+        """Continue the open run from its newest checkpoint (a stopped bootstrap: the bootstrap), at once."""
         if not self.alive:
             self.start_request(self.request("resume"))
 

@@ -692,8 +692,7 @@ def _progress(jobs, run) -> None:
         total = plan.steps
         # The bar counts iterations as the status and the trainer do ("iteration 410 / 1499"),
         # a resume's starting point named beside it.
-        resumed = plan.kind == "training" and plan.start_iteration > 0  # a bootstrap starts at its run's end
-        label = run.state + (f", resumed at iteration {plan.start_iteration}" if resumed else "")
+        label = run.state + (f", resumed at iteration {plan.start_iteration}" if plan.resumed else "")
         progress.bar_text = f"iteration {progress.iteration}" + (f" / {plan.end_iteration}" if total else "")
         if total:
             if plan.config is not None:

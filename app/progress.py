@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from inceptiongs.bootstrap.job import BaselineJob, BootstrapJob
+from inceptiongs.bootstrap.summary_file import read_summary, run_seconds
 from inceptiongs.errors import InputError
 from inceptiongs.evaluation.report import eval_series, read_metrics
 from inceptiongs.runs.checkpoint import list_checkpoints
@@ -26,7 +27,8 @@ class JobPlan:
     """start/end: the iterations the job runs from and to; budget_s: its time budget (None:
     the whole schedule); metrics: the metrics.jsonl it appends to (None: unknown); config: the
     run's config.json, whose ``iterations`` is the end when the trainer re-sizes the schedule
-    to the budget (None: the end is fixed)."""
+    to the budget (None: the end is fixed); resumed: the job continues from a checkpoint at
+    ``start_iteration`` (a stopped run or bootstrap)."""
 
     start_iteration: int = 0
     end_iteration: int | None = None
@@ -34,6 +36,7 @@ class JobPlan:
     metrics: Path | None = None
     kind: str = "job"
     config: Path | None = None
+    resumed: bool = False
 
     @property
     def steps(self) -> int | None:
@@ -60,18 +63,30 @@ def plan_of(job) -> JobPlan:
         # A resumed run's budget counts the training it had: what is left of it is this job's.
         budget_s = None if config.minutes is None else max(60.0 * config.minutes - trained_s, 0.0)
         return JobPlan(start, config.iterations, budget_s, Path(job.run_dir) / "metrics.jsonl", "training",
-                       Path(job.run_dir) / "config.json" if config.size_to_minutes else None)
+                       Path(job.run_dir) / "config.json" if config.size_to_minutes else None, resumed=start > 0)
     if isinstance(job, BootstrapJob):
-        config = job.config
-        start = stage1_iteration(job.run_dir)
-        out = job.out_dir
-        return JobPlan(start, start + config.rounds * config.iterations,
-                       None if config.minutes is None else 60.0 * config.minutes,
-                       None if out is None else Path(out) / "metrics.jsonl", "bootstrap")
+        return bootstrap_plan(job)
     if isinstance(job, BaselineJob):   # runs for its time: the end is not known in steps
         return JobPlan(stage1_iteration(job.run_dir), None, job.seconds, Path(job.out_dir) / "metrics.jsonl",
                        "baseline")
     return JobPlan()
+
+
+def bootstrap_plan(job: BootstrapJob) -> JobPlan:
+    """A bootstrap's plan: from its stage-I run's end for its rounds' steps; a resumed one starts at
+    its newest checkpoint, its budget less the time its summary says it ran."""
+    config = job.config
+    start = stage1_iteration(job.run_dir)
+    end = start + config.rounds * config.iterations
+    budget_s = None if config.minutes is None else 60.0 * config.minutes
+    out = None if job.out_dir is None else Path(job.out_dir)
+    found = list_checkpoints(out) if job.resume and out is not None else []
+    if found:
+        start = found[-1][0]
+        spent_s = run_seconds(read_summary(out) or {}) or 0.0
+        budget_s = None if budget_s is None else max(budget_s - spent_s, 0.0)
+    return JobPlan(start, end, budget_s, None if out is None else out / "metrics.jsonl", "bootstrap",
+                   resumed=bool(found))
 
 
 def trained_seconds(metrics: Path, iteration: int) -> float:

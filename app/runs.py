@@ -7,7 +7,8 @@ panel's field); a bootstrap of ``RUN`` writes ``RUN_bootstrap`` (then ``RUN_boot
 same-time baseline a verdict offers ``RUN_baseline`` beside it.
 Saved PLYs and screenshots go to ``NAME_saved`` in the same runs folder. Every job gets a folder
 of its own, never one that exists; only "Resume" writes into an existing folder: the open run,
-which the user chose. The cache (a scene's work folder) keeps only what can be rebuilt."""
+or the open bootstrap result stopped before its end, which the user chose. The cache (a scene's
+work folder) keeps only what can be rebuilt."""
 
 from __future__ import annotations
 
@@ -102,10 +103,14 @@ def run_dir_of(source) -> Path | None:
 
 
 def can_resume(run_dir: Path | None) -> bool:
-    """A stage-I run folder with a config and a checkpoint to continue from (a bootstrap's
-    result has both, but is not one: resume_blocked_reason)."""
-    return (run_dir is not None and (Path(run_dir) / "config.json").is_file()
-            and latest_checkpoint(Path(run_dir)) is not None and not is_bootstrap_run(run_dir))
+    """A stage-I run folder with a config and a checkpoint to continue from, or a bootstrap
+    stopped before its end that can be continued (a finished bootstrap's result has a config and
+    checkpoints too, but is not one: bootstrap_resume_refusal)."""
+    if run_dir is None or not (Path(run_dir) / "config.json").is_file():
+        return False
+    if is_bootstrap_run(run_dir):
+        return bootstrap_resume_refusal(run_dir) is None
+    return latest_checkpoint(Path(run_dir)) is not None
 
 
 def is_bootstrap_run(run_dir: Path | None) -> bool:
@@ -115,21 +120,54 @@ def is_bootstrap_run(run_dir: Path | None) -> bool:
     return run_dir is not None and (Path(run_dir) / BOOTSTRAP_DIR / "config.json").is_file()
 
 
+def is_bootstrap_result(run_dir: Path | None) -> bool:
+    """A stage-II output folder of either kind: an ordinary bootstrap's (is_bootstrap_run) or one
+    of a run in blocks, whose configs are its blocks' and whose RUN2 holds only the summary."""
+    from inceptiongs.bootstrap.summary_file import SUMMARY_FILE  # noqa: PLC0415
+
+    return run_dir is not None and (is_bootstrap_run(run_dir) or (Path(run_dir) / SUMMARY_FILE).is_file())
+
+
+# The ways forward from a bootstrap result that "resume" does not continue.
+BASELINE_NOT_RESUMED = ("this is a same-time baseline (stage I continued on the photos for its bootstrap's time): "
+                        "resumed, it would run longer than its bootstrap and no verdict would count it; open its "
+                        "stage-I run to train further")
+REPAIR_NOT_RESUMED = ("resume continues stage-I training, which would undo this bootstrap's repair: "
+                      "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
+FINISHED_NOT_RESUMED = ("this bootstrap finished: nothing is left to resume (stage-I training would undo this "
+                        "bootstrap's repair); \"Bootstrap flagged views\" repairs it further (into a new folder)")
+
+
+def bootstrap_resume_refusal(run_dir: Path) -> str | None:
+    """Why the bootstrap result in ``run_dir`` is not continued where it stopped (one phrase), or
+    None when it is: a bootstrap (not a same-time baseline, not one of a run in blocks) whose
+    summary says it was stopped before its end, with a checkpoint, that no other process writes."""
+    from inceptiongs.bootstrap.runner import BLOCKS_NOT_RESUMED, TARGETS_FILE  # noqa: PLC0415
+    from inceptiongs.bootstrap.summary_file import BOOTSTRAP_DIR, read_summary  # noqa: PLC0415
+    from inceptiongs.runs.lock import writer_of  # noqa: PLC0415
+
+    writer = writer_of(run_dir)   # first: a folder being written has a summary of its start, not its end
+    if writer is not None:
+        return f"in use by {writer} (a job writing this folder): wait for it to end"
+    summary = read_summary(run_dir) or {}
+    no_targets = is_bootstrap_run(run_dir) and not (Path(run_dir) / BOOTSTRAP_DIR / TARGETS_FILE).is_file()
+    if summary.get("baseline") is True or no_targets:   # the loop without targets
+        return BASELINE_NOT_RESUMED
+    if "blocks_refined" in summary:
+        return f"{BLOCKS_NOT_RESUMED}; bootstrap its flagged views again (into a new folder)"
+    if summary.get("stopped") is not True:
+        return FINISHED_NOT_RESUMED if "iteration" in summary else REPAIR_NOT_RESUMED
+    if latest_checkpoint(Path(run_dir)) is None:
+        return "this bootstrap stopped before it saved a checkpoint: nothing to resume from; bootstrap it again"
+    return None
+
+
 def resume_blocked_reason(run_dir: Path | None) -> str | None:
     """Why "resume" is disabled for ``run_dir``, or None when it is offered (or not relevant).
-    A bootstrap's result holds a stage-I config and checkpoints, so resuming it would continue
-    stage-I training on the repaired model, undoing what the virtual views taught it, and the
-    bootstrap itself cannot continue from a checkpoint."""
-    from inceptiongs.bootstrap.runner import BOOTSTRAP_DIR, TARGETS_FILE  # noqa: PLC0415
-
-    if not is_bootstrap_run(run_dir):
-        return None
-    if not (Path(run_dir) / BOOTSTRAP_DIR / TARGETS_FILE).is_file():   # the loop without targets: a baseline
-        return ("this is a same-time baseline (stage I continued on the photos for its bootstrap's time): "
-                "resumed, it would run longer than its bootstrap and no verdict would count it; open its "
-                "stage-I run to train further")
-    return ("resume continues stage-I training, which would undo this bootstrap's repair: "
-            "\"Bootstrap flagged views\" repairs it further (into a new folder), or open its stage-I run")
+    A bootstrap's result holds a stage-I config and checkpoints, so resuming it as a run would
+    continue stage-I training on the repaired model, undoing what the virtual views taught it:
+    what "resume" continues there is the bootstrap itself, when it was stopped before its end."""
+    return bootstrap_resume_refusal(run_dir) if is_bootstrap_run(run_dir) else None
 
 
 def describe_model(source, run_dir: Path | None) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..errors import InputError
 from ..live import JobControl, JobPublisher, SnapshotBox
 from .config import BootstrapConfig
 
@@ -13,7 +14,9 @@ from .config import BootstrapConfig
 class BootstrapJob:
     """Stage II on ``run_dir`` into ``out_dir`` for the views flagged in ``targets_file`` (None:
     the scene's flags.json, else the split's j*), publishing a snapshot (numpy copies) every
-    ``snapshot_every`` refinement steps."""
+    ``snapshot_every`` refinement steps. ``resume``: continue the stopped bootstrap in ``out_dir``
+    from its newest checkpoint with the targets it was started with (RUN2/bootstrap/targets.json;
+    ``targets_file`` is not read), as `inceptiongs bootstrap RUN --out RUN2 --resume` does."""
 
     run_dir: Path
     out_dir: Path | None = None
@@ -21,29 +24,50 @@ class BootstrapJob:
     config: BootstrapConfig = field(default_factory=BootstrapConfig)
     snapshot_every: int = 5
     overwrite: bool = False  # replace a result already in out_dir (else refused)
+    resume: bool = False
 
     def run(self, box: SnapshotBox, control: JobControl) -> None:
         from ..runs.folder import next_free_folder
-        from .runner import default_out_dir, resolve_targets, run_bootstrap
+        from .runner import default_out_dir, run_bootstrap
         from .stage1 import load_stage1
 
         out = JobPublisher(box)
+        if self.resume and self.out_dir is None:
+            raise InputError(f"{self.run_dir}: resuming a bootstrap needs the folder it wrote (out_dir)")
         # No folder given: a fresh one, never an earlier result.
         out_dir = Path(self.out_dir) if self.out_dir is not None else next_free_folder(default_out_dir(self.run_dir))
         stage1 = load_stage1(self.run_dir)
-        targets = resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds,
-                                  run_dir=self.run_dir)
-        out.log(f"bootstrap: {len(targets)} target view(s) ({', '.join(t.name for t in targets)}) -> {out_dir}")
+        targets = self.targets(stage1, out_dir)
+        resumed = "resumed, " if self.resume else ""
+        out.log(f"bootstrap: {resumed}{len(targets)} target view(s) ({', '.join(t.name for t in targets)}) "
+                f"-> {out_dir}")
         if stage1.config.blocks:
             self.run_blocks(stage1, out_dir, targets, control, out)
             return
         result = run_bootstrap(stage1, out_dir, targets, self.config, control=control,
                                on_snapshot=out.snapshot, snapshot_every=self.snapshot_every, log=out.log,
-                               progress=False, overwrite=self.overwrite)
+                               progress=False, overwrite=self.overwrite, resume=self.resume)
         used = (f"{result.virtual_views} virtual views" if result.supervised_views in (None, result.virtual_views)
                 else f"{result.supervised_views} of {result.virtual_views} virtual views used (the others' photos "
                      f"agree with the render better than with each other)")
         out.finish("bootstrap", result.iteration, result.finished, result.last_eval, f"{used}, {out_dir}")
+
+    def targets(self, stage1, out_dir: Path) -> list:
+        """The views this job repairs: those flagged (``targets_file``, resolved as the command
+        resolves --targets), or a resumed bootstrap's own; InputError (one line) for a resume of
+        what no bootstrap job continues (a run in blocks, a same-time baseline)."""
+        from .runner import BLOCKS_NOT_RESUMED, resolve_targets, saved_targets
+
+        if not self.resume:
+            return resolve_targets(stage1.scene, stage1.split, self.targets_file, None, self.config.rounds,
+                                   run_dir=self.run_dir)
+        if stage1.config.blocks:
+            raise InputError(f"{out_dir}: {BLOCKS_NOT_RESUMED}; bootstrap its flagged views again")
+        saved = saved_targets(out_dir)
+        if not saved:
+            raise InputError(f"{out_dir}: no bootstrap targets saved (a same-time baseline is not a bootstrap to "
+                             f"resume)")
+        return saved
 
     def run_blocks(self, stage1, out_dir: Path, targets, control: JobControl, out: JobPublisher) -> None:
         """A run trained in blocks: only the blocks the flagged views see are refined, as `inceptiongs

@@ -30,6 +30,11 @@ from .summary_file import BOOTSTRAP_DIR, read_summary  # noqa: F401 (BOOTSTRAP_D
 from .targets import Target, flag_targets, named_target, split_targets
 
 
+# Why `bootstrap --resume` and the viewer's resume refuse a bootstrap of a run in blocks: its blocks
+# are refined one after the other into folders of their own and merged; RUN2 has no checkpoint of its own.
+BLOCKS_NOT_RESUMED = "a bootstrap of a run in blocks is not resumed"
+
+
 def default_out_dir(run_dir: str | Path) -> Path:
     run_dir = Path(run_dir)
     return run_dir.with_name(run_dir.name + "_bootstrap")
@@ -184,10 +189,7 @@ def _run_bootstrap(run, out_dir: Path, targets, config: BootstrapConfig, control
 def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
     """The newest checkpoint of the stopped bootstrap in ``out_dir`` and its targets (None: the
     same-time baseline); InputError (one line) when there is nothing to continue."""
-    import json
-
     from ..runs.checkpoint import latest_checkpoint, load_newest_checkpoint
-    from .targets import targets_from_json
 
     if latest_checkpoint(out_dir) is None:
         raise InputError(f"{out_dir}: no bootstrap checkpoint to resume from (run `inceptiongs bootstrap` "
@@ -196,14 +198,24 @@ def resumable(out_dir: Path) -> tuple[dict, list[Target] | None]:
     if not isinstance(payload.get("bootstrap"), dict) or "round" not in payload["bootstrap"]:
         raise InputError(f"{path}: not a bootstrap checkpoint (a stage-I run is continued by `inceptiongs train "
                          f"--resume`)")
-    targets_path = out_dir / BOOTSTRAP_DIR / TARGETS_FILE
+    return payload, saved_targets(out_dir)
+
+
+def saved_targets(out_dir: Path) -> list[Target] | None:
+    """The targets the bootstrap in ``out_dir`` was started with (RUN2/bootstrap/targets.json;
+    None: it has none, a same-time baseline); InputError (one line) when the file is unreadable."""
+    import json
+
+    from .targets import targets_from_json
+
+    targets_path = Path(out_dir) / BOOTSTRAP_DIR / TARGETS_FILE
     if not targets_path.is_file():
-        return payload, None
+        return None
     try:
         data = json.loads(targets_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{targets_path}: cannot read the bootstrap's targets ({exc})") from None
-    return payload, targets_from_json(data, str(targets_path))
+    return targets_from_json(data, str(targets_path))
 
 
 def baseline_run(run: Stage1 | str | Path, out_dir: str | Path, minutes: float | None, iterations: int,

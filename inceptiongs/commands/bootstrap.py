@@ -174,14 +174,13 @@ def run_blocks(args, run_dir: Path, out_dir: Path, config) -> int:
     """Stage II on a run in blocks: only the blocks the flagged views see are refined
     (inceptiongs.bootstrap.blocks); the others stay as they are."""
     from ..bootstrap.blocks import bootstrap_blocks
-    from ..bootstrap.runner import check_output_folder, load_stage1, resolve_targets, run_bootstrap
+    from ..bootstrap.runner import BLOCKS_NOT_RESUMED, check_output_folder, load_stage1, resolve_targets, run_bootstrap
     from ..live import JobControl
     from ..rasterizer.interface import resolve_device
     from ..stop_signals import stop_on_signals
 
     if args.resume:
-        raise InputError(f"{out_dir}: a bootstrap of a run in blocks is not resumed; run it again (--overwrite "
-                         f"replaces the stopped one)")
+        raise InputError(f"{out_dir}: {BLOCKS_NOT_RESUMED}; run it again (--overwrite replaces the stopped one)")
     check_output_folder(out_dir, args.overwrite)
     device = resolve_device(*recorded_device(run_dir))
     stage1 = load_stage1(run_dir)
