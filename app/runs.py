@@ -122,8 +122,8 @@ def is_bootstrap_run(run_dir: Path | None) -> bool:
 
 def is_bootstrap_result(run_dir: Path | None) -> bool:
     """A stage-II output folder of either kind: an ordinary bootstrap's (is_bootstrap_run) or one
-    of a run in blocks, whose configs are its blocks' and whose RUN2 holds only the summary."""
-    from inceptiongs.bootstrap.summary_file import SUMMARY_FILE  # noqa: PLC0415
+    of a run in blocks, whose bootstrap configs are its blocks' (RUN2/bootstrap holds the summary)."""
+    from inceptiongs.bootstrap.summary_file import SUMMARY_FILE
 
     return run_dir is not None and (is_bootstrap_run(run_dir) or (Path(run_dir) / SUMMARY_FILE).is_file())
 
@@ -142,11 +142,11 @@ def bootstrap_resume_refusal(run_dir: Path) -> str | None:
     """Why the bootstrap result in ``run_dir`` is not continued where it stopped (one phrase), or
     None when it is: a bootstrap (not a same-time baseline, not one of a run in blocks) whose
     summary says it was stopped before its end, with a checkpoint, that no other process writes."""
-    from inceptiongs.bootstrap.runner import BLOCKS_NOT_RESUMED, TARGETS_FILE  # noqa: PLC0415
-    from inceptiongs.bootstrap.summary_file import BOOTSTRAP_DIR, read_summary  # noqa: PLC0415
-    from inceptiongs.runs.lock import writer_of  # noqa: PLC0415
+    from inceptiongs.bootstrap.runner import BLOCKS_NOT_RESUMED, TARGETS_FILE
+    from inceptiongs.bootstrap.summary_file import BOOTSTRAP_DIR, read_summary
+    from inceptiongs.runs.lock import writer_of
 
-    writer = writer_of(run_dir)   # first: a folder being written has a summary of its start, not its end
+    writer = writer_of(run_dir)   # first: one being resumed elsewhere still holds the summary of its stop
     if writer is not None:
         return f"in use by {writer} (a job writing this folder): wait for it to end"
     summary = read_summary(run_dir) or {}
