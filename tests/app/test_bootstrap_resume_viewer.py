@@ -134,6 +134,7 @@ def test_the_panel_resumes_a_stopped_bootstrap_to_its_end(xvfb, stopped, tmp_pat
         asked = viewer.jobs.pending
         assert asked is not None and asked.kind == "bootstrap resume", viewer.status
         assert viewer.jobs.training is None                      # asked first: nothing runs yet
+        shown = viewer.view.model_version
         click_widget(viewer, "start the job")
         job = viewer.jobs.training.job
         assert job.resume and job.out_dir == out
@@ -143,6 +144,7 @@ def test_the_panel_resumes_a_stopped_bootstrap_to_its_end(xvfb, stopped, tmp_pat
         assert not run.alive and run.error is None, run.error
         assert "bootstrap finished" in run.progress.message, run.progress.message
         assert run.progress.iteration == start + STEPS
+        assert viewer.view.model_version > shown, "the refinement should be shown live"
         summary = json.loads((out / "bootstrap" / "summary.json").read_text())
         assert summary["stopped"] is False and summary["resumed_at"] == stopped_at
         assert summary["iteration"] == start + STEPS
