@@ -108,8 +108,11 @@ class BootstrapConfig(SavedConfig):
     virtual_every: int = option(4, "every n-th refinement step is a virtual view (the variant "
                                    "\"additive\": carries one)", "steps")
     lambda_virtual: float = option(1.0, "loss weight of a virtual view against a photo's", "weight")
-    tau: float = option(0.2, "a virtual view's loss is perceptual when its SSIM loss (1 - SSIM) <= tau, "
-                             "else L1 + D-SSIM", "SSIM loss, in [0, 2]")
+    tau: float | None = option(None, "a virtual view's loss is perceptual when its SSIM loss (1 - SSIM) <= "
+                                     "tau, else L1 + D-SSIM; null: 0.2 (the paper's) with lpips_weights, else 0 "
+                                     "(the weight-free MS-SSIM-G stands in for LPIPS only when tau is given: on "
+                                     "bonsai it halved what flagged views gained, docs/results.md)",
+                               "SSIM loss, in [0, 2]")
     generated_weight: float = option(1.0, "loss weight of a virtual view's untrusted (fill) pixels against "
                                           "the pixels trusted from warped photos; 1: the paper's loss on I*; "
                                           "lower trusts a weak fill less", "weight, in [0, 1]")
@@ -198,7 +201,7 @@ class BootstrapConfig(SavedConfig):
             raise InputError(f"{source}: prior must be 'trained' or 'untrained', got {self.prior!r}")
         if self.delta is not None and not self.delta > 0:
             raise InputError(f"{source}: delta must be > 0, got {self.delta}")
-        if not 0 <= self.tau <= 2:
+        if self.tau is not None and not 0 <= self.tau <= 2:
             raise InputError(f"{source}: tau (an SSIM loss, in [0, 2]) out of range: {self.tau}")
         if not 0 <= self.generated_weight <= 1:
             raise InputError(f"{source}: generated_weight must be in [0, 1], got {self.generated_weight}")

@@ -34,7 +34,7 @@ from .perceptual import perceptual_name
 from .plan import RoundPlan, following_line, photo_first_s, plan_rounds
 from .probe import can_probe, plan_probe
 from .pool import ViewPool
-from .refine import ViewSampler, continuation_config
+from .refine import ViewSampler, continuation_config, perceptual_tau
 from .stage1 import Stage1
 from .state import LoopState, Setting, held_out_scores
 from .summary_file import BOOTSTRAP_DIR
@@ -229,7 +229,8 @@ def prepare(run: Stage1, out_dir: Path, targets: Sequence[Target] | None, config
                 ", then the held-out views are scored again (follow_outlook: false makes virtual views from the start)")
     # The one place the LPIPS weights are loaded (plain tensors, lpips_net; null: MS-SSIM-G, perceptual.py).
     lpips = load_lpips(config.lpips_weights) if config.lpips_weights else None
-    summary["perceptual"] = perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
+    summary["perceptual"] = (perceptual_name(lpips) + (f" ({config.lpips_weights})" if lpips is not None else "")
+                             if perceptual_tau(config, lpips) > 0 else "none (tau 0: every virtual loss is L1 + D-SSIM)")
     cache = GenerationCache(boot_dir / "cache")
     sampler = ViewSampler(config.seed)
     saved = (resume or {}).get("bootstrap", {})

@@ -241,12 +241,33 @@ def test_the_tau_test_judges_structure_only_where_the_loss_is():
     render = torch.rand(32, 32, 3, generator=g)          # no structure in common
     weights = torch.zeros(32, 32, 1)
     weights[:8] = 1.0                                    # a quarter of the pixels carry loss
-    config = BootstrapConfig()
+    config = BootstrapConfig(tau=0.2)
     _, diluted = virtual_view_loss(render, target, config, 0.2, weights=weights)
     _, judged = virtual_view_loss(render, target, config, 0.2, weights=weights, weighted_share=0.25)
     # The zero-weight pixels equal I* and dilute the SSIM loss below tau; divided by their share it is not.
     assert diluted["virtual_ssim_loss"] <= config.tau < diluted["virtual_ssim_loss"] / 0.25
     assert diluted["virtual_branch"] == "perceptual" and judged["virtual_branch"] == "l1_ssim"
+
+
+def test_without_lpips_weights_the_default_never_takes_the_weight_free_perceptual_branch():
+    """tau unset: the paper's 0.2 with LPIPS weights, 0 without; a tau given is used as given."""
+    from inceptiongs.bootstrap.refine import LPIPS_TAU, perceptual_tau, virtual_view_loss
+
+    g = torch.Generator().manual_seed(4)
+    target = torch.rand(32, 32, 3, generator=g)
+    render = (target + 0.01 * torch.rand(32, 32, 3, generator=g)).clamp(0, 1)   # the right structure
+    _, default = virtual_view_loss(render, target, BootstrapConfig(), 0.2)
+    _, given = virtual_view_loss(render, target, BootstrapConfig(tau=0.2), 0.2)
+    assert default["virtual_ssim_loss"] <= 0.2
+    assert default["virtual_branch"] == "l1_ssim" and given["virtual_branch"] == "perceptual"
+
+    def lpips(a, b):     # stands in for the network: only its presence matters here
+        return (a - b).abs().mean()
+
+    _, with_weights = virtual_view_loss(render, target, BootstrapConfig(), 0.2, lpips=lpips)
+    assert with_weights["virtual_branch"] == "perceptual"
+    assert perceptual_tau(BootstrapConfig(), lpips) == LPIPS_TAU and perceptual_tau(BootstrapConfig()) == 0.0
+    assert perceptual_tau(BootstrapConfig(tau=0.5)) == 0.5
 
 
 def test_only_pixels_on_the_targets_own_surface_count_when_a_region_is_given(grid):

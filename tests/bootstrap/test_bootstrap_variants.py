@@ -37,10 +37,11 @@ def write(path: Path, data: dict) -> Path:
 
 
 def test_a_flat_file_of_the_default_path_loads_as_the_default_and_loads_no_variant(tmp_path):
+    # (Such files wrote tau 0.2, then the default; it is kept as the setting the run was made with.)
     path = write(tmp_path / "config.json", FLAT_FILE)
     script = (f"import sys; from inceptiongs.bootstrap.config import BootstrapConfig as B; "
               f"c = B.load({str(path)!r}); print(c == __import__('dataclasses').replace(B(), iterations=40, "
-              f"follow_outlook=False), sorted(m for m in sys.modules if 'bootstrap.experimental' in m))")
+              f"follow_outlook=False, tau=0.2), sorted(m for m in sys.modules if 'bootstrap.experimental' in m))")
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.split() == ["True", "[]"], out.stdout + out.stderr
 
