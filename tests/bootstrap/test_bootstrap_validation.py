@@ -16,7 +16,7 @@ from inceptiongs.bootstrap.experimental.validation import (PhotoEvidence, eviden
                                                            margin_db, measure_evidence, photo_evidence,
                                                            validation_photos, view_margins)
 from inceptiongs.bootstrap.virtual_views import VirtualView
-from plane_cases import FOCAL, HEIGHT, PLANE_Z, WIDTH, camera_at
+from plane_cases import HEIGHT, PLANE_Z, WIDTH, camera_at
 
 HELD_OUT = 0
 # World x ranges on the plane: seen truly by the neighbours, hidden by an occluder in their photos
