@@ -30,6 +30,7 @@ import numpy as np
 
 import inceptiongs  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp)
 from inceptiongs.bootstrap.runner import baseline_run
+from inceptiongs.bootstrap.summary_file import read_summary
 from inceptiongs.io.flags import Flag, save_flags
 from inceptiongs.runs.config import TrainConfig
 from inceptiongs.scene.loader import load_scene
@@ -59,9 +60,11 @@ def scores(run: Path, flagged: list[str], others: list[str]) -> tuple[float, flo
             float(data["groups"]["covered"]["psnr"]))
 
 
-def steps_made(run: Path, folder: Path) -> int:
-    """Steps ``folder`` made after the stage-I run ``run`` (by their configs' iteration counts)."""
-    return TrainConfig.load(folder / "config.json").iterations - TrainConfig.load(run / "config.json").iterations
+def steps_made(folder: Path) -> int:
+    """Steps the bootstrap or baseline in ``folder`` made (its summary's first and last iteration;
+    a stage-I config's ``iterations`` is its schedule's length, not its last step)."""
+    summary = read_summary(folder) or {}
+    return int(summary["iteration"]) - int(summary["start_iteration"])
 
 
 def bootstrap(run: Path, out: Path, name: str, settings: dict, flags: Path, iterations: int, seed: int,
@@ -104,10 +107,10 @@ def main() -> int:
     steps = {}
     baseline_run(run, out / "baseline", args.minutes, iterations, seed=args.seed, progress=False, overwrite=True)
     rows["baseline"] = scores(out / "baseline", flagged, others)
-    steps["baseline"] = steps_made(run, out / "baseline")
+    steps["baseline"] = steps_made(out / "baseline")
     for name, settings in args.variants.items():
         folder = bootstrap(run, out, name, settings, flags, iterations, args.seed, args.minutes)
-        rows[name], steps[name] = scores(folder, flagged, others), steps_made(run, folder)
+        rows[name], steps[name] = scores(folder, flagged, others), steps_made(folder)
         print(f"{name}: done", flush=True)
     base = rows["baseline"]
     print(f"{'run':28s} {'steps':>6s} {'flagged':>8s} {'others':>8s} {'covered':>8s}   against the baseline")
