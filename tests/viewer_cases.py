@@ -239,6 +239,13 @@ def click_widget(viewer, label: str) -> None:
     click_at(viewer, 0.5 * (x0 + x1), 0.5 * (y0 + y1))
 
 
+def open_edit_section(viewer) -> None:
+    """Fold the panel's other sections and open "Edit", so its widgets fit the window."""
+    for header in ("View", "Inspect", "Flags", "Training"):
+        click_widget(viewer, header)
+    click_widget(viewer, "Edit")
+
+
 def choose(viewer, combo: str, choice: str) -> None:
     """Open the panel's combo ``combo`` and click its ``choice``, as a user picks from a list."""
     click_widget(viewer, combo)

@@ -15,7 +15,7 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (click_at, click_widget, flag_a_view, open_grid_viewer, opened, press_key,
+from viewer_cases import (click_at, click_widget, flag_a_view, open_edit_section, open_grid_viewer, opened, press_key,
                           scroll_panel_to, start_job, synthetic_gaussians, wait_for_job_end, write_grid_model)
 
 pytestmark = pytest.mark.gl
@@ -565,9 +565,7 @@ def test_ctrl_q_quits_while_a_text_field_has_the_keys(xvfb, tmp_path):
 
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
         viewer.step()
-        for header in ("View", "Inspect", "Flags", "Training"):
-            click_widget(viewer, header)
-        click_widget(viewer, "Edit")
+        open_edit_section(viewer)
         scroll_panel_to(viewer, "save PLY")
         x0, y0, x1, y1 = viewer.ui.rects["file"]
         click_at(viewer, x0 + 6, 0.5 * (y0 + y1))

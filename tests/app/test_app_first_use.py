@@ -14,7 +14,7 @@ import glfw
 import numpy as np
 import pytest
 
-from viewer_cases import (MovingGridJob, click_at, click_widget, flag_a_view, open_grid_viewer, open_viewer, opened,
+from viewer_cases import (MovingGridJob, click_at, click_widget, flag_a_view, open_edit_section, open_grid_viewer, open_viewer, opened,
                           press_key, scroll_panel_to, start_job, synthetic_gaussians, type_into, write_grid_model)
 
 pytestmark = pytest.mark.gl
@@ -127,9 +127,7 @@ def test_save_ply_and_f12_never_overwrite_and_name_the_file(xvfb, tmp_path):
 
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
         viewer.step()
-        for header in ("View", "Inspect", "Flags", "Training"):
-            click_widget(viewer, header)
-        click_widget(viewer, "Edit")
+        open_edit_section(viewer)
         click_widget(viewer, "crop box (drag its handles)")
         total = viewer.view.edit.count
         type_into(viewer, "max", "0")
@@ -163,9 +161,7 @@ def test_a_saved_edit_reopens_level_and_where_it_was_seen(xvfb, demo_scene, tmp_
         viewer.view.snap_to_camera(2)
         viewer.step()
         seen = viewer.view.source.scene.normalization.camera_to_original(viewer.view.current_camera())
-        for header in ("View", "Inspect", "Flags", "Training"):
-            click_widget(viewer, header)
-        click_widget(viewer, "Edit")
+        open_edit_section(viewer)
         scroll_panel_to(viewer, "save PLY")
         type_into(viewer, "file", str(tmp_path / "edit.ply"))
         click_widget(viewer, "save PLY")
@@ -494,9 +490,7 @@ def test_save_writes_the_format_its_name_says(xvfb, tmp_path):
 
     with opened(open_grid_viewer, write_grid_model(tmp_path / "model.ply"), 640, 480) as viewer:
         viewer.step()
-        for header in ("View", "Inspect", "Flags", "Training"):
-            click_widget(viewer, header)
-        click_widget(viewer, "Edit")
+        open_edit_section(viewer)
         shown = viewer.view.edit.count
         for name, format_name in (("web.splat", "splat"), ("web.spz", "spz"), ("web.compressed.ply", "compressed-ply"),
                                   ("web.compressed.ply", "compressed-ply")):   # again: a fresh name, same format
