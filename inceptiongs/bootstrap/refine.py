@@ -32,6 +32,7 @@ from .langevin import DEFAULT_NOISE_SCALE, DEFAULT_STEP_SIZE, langevin_step, pos
     snap_to_nearest
 from .perceptual import perceptual_distance
 from .variants import Variant
+from .virtual_views import flag_of
 
 # Opacity resets wipe every Gaussian's opacity; in a refinement of a few hundred steps the
 # covered regions would not recover, so the continuation never resets (a step count no run reaches).
@@ -44,11 +45,13 @@ MIN_WEIGHTED_SHARE = 1e-3
 # The paper's tau, used when tau is not given and LPIPS weights are (perceptual_tau).
 LPIPS_TAU = 0.2
 # A Langevin step moves the pose by ~0.03 scene units, while the virtual views of several
-# flags lie units apart: left alone the chain stays among the first views for hundreds of
-# steps (bonsai, 23 flags: 10 of them refined in 150 virtual steps, the other 13 never, and
-# those lost 0.2-0.7 dB to the photo steps they gave up). A view refined more than this many
-# times as often as the least refined one (plus one) restarts the chain at that least refined
-# view: every view is refined, and the chain may still prefer the worse ones up to this ratio.
+# flags lie units apart: left alone the chain stays among the first flags' views for hundreds
+# of steps (bonsai, 23 flags: 10 of them refined in 150 virtual steps, the other 13 never, and
+# those lost 0.2-0.7 dB to the photo steps they gave up). A flag whose views were refined more
+# than this many times as often as the least refined flag's (plus one) restarts the chain at
+# that flag: every flag is refined, and the chain may still prefer the worse ones up to this
+# ratio. Among one flag's views the chain moves freely: balancing those too cost the demo's
+# single flag 0.14-0.18 dB (its steps spread over views the gate then left out).
 RESTART_RATIO = 2
 
 
@@ -91,8 +94,9 @@ class ViewSampler:
     The pose state starts at the first view of the pool; after each Langevin step it is
     snapped to the nearest virtual view and continues from that view's pose (the state stays
     on the pool, so it cannot drift away from the views that have an I*). A chain sitting on a
-    view refined more than RESTART_RATIO times as often as the least refined one (plus one)
-    restarts at that one, which is refined next (:func:`restart_view`). Its state is the random
+    flag refined more than RESTART_RATIO times as often as the least refined flag (plus one)
+    restarts at that flag's least refined view, which is refined next (:func:`restart_view`;
+    a view's flag: virtual_views.flag_of). Its state is the random
     generator, the pose and ``visits`` (view name -> times chosen; a checkpoint keeps the
     pose and the visits).
     """
@@ -123,7 +127,7 @@ class ViewSampler:
         if self.pose is None:
             self.pose = poses[0].copy()
         current = int(snap_to_nearest(self.pose, poses))
-        restart = restart_view(current, [self.visits.get(v.name, 0) for v in pool])
+        restart = restart_view(current, [self.visits.get(v.name, 0) for v in pool], [flag_of(v.name) for v in pool])
         if restart != current:
             # The restart view itself is refined: a Langevin step from it may drift straight back
             # to the view refined too often (bonsai: one view took 88 of 150 virtual steps).
@@ -146,12 +150,21 @@ class ViewSampler:
         return choice
 
 
-def restart_view(current: int, visits: Sequence[int]) -> int:
-    """The view a Langevin step starts from: ``current``, or the least refined view (the first
-    of ties) when ``current`` was refined more than RESTART_RATIO times as often plus one.
-    visits: [V] times each pool view was chosen."""
-    least = int(np.argmin(visits))
-    return least if visits[current] > RESTART_RATIO * visits[least] + 1 else current
+def restart_view(current: int, visits: Sequence[int], flags: Sequence[str] | None = None) -> int:
+    """The view a Langevin step starts from: ``current``, or, when the flag of ``current`` was
+    refined more than RESTART_RATIO times as often as the least refined flag plus one, that
+    flag's least refined view (the first of ties, flags by their first view).
+    visits: [V] times each pool view was chosen; flags: [V] each view's flag (None: every view
+    its own)."""
+    flags = list(range(len(visits))) if flags is None else list(flags)
+    per_flag: dict = {}
+    for flag, count in zip(flags, visits):
+        per_flag[flag] = per_flag.get(flag, 0) + count
+    least_flag = min(per_flag, key=per_flag.get)     # dicts keep first-seen order: the first of ties
+    if per_flag[flags[current]] <= RESTART_RATIO * per_flag[least_flag] + 1:
+        return current
+    members = [i for i, flag in enumerate(flags) if flag == least_flag]
+    return min(members, key=lambda i: visits[i])
 
 
 def pixel_weights(mask: torch.Tensor, generated_weight: float) -> torch.Tensor | None:

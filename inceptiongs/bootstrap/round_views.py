@@ -21,7 +21,7 @@ from .state import LoopState, Setting, model
 from .targets import Target
 from .variants import PlacedViews, PlacementRequest
 from .view_targets import TargetMaker, TargetSetting
-from .virtual_views import VirtualView, virtual_views
+from .virtual_views import VirtualView, pool_view_name, virtual_views
 
 
 def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], config: BootstrapConfig
@@ -106,7 +106,7 @@ def add_round_views(setting: Setting, config: BootstrapConfig, plan: RoundPlan, 
     for number, (target_index, view) in enumerate(new_views):
         if state.clock.wait_or_stop() or state.clock.out_of_time():
             break
-        name = f"r{round_index + 1}_t{target_index}_{view.name}"
+        name = pool_view_name(round_index + 1, target_index, view.name)
         entry, sources = make_view(maker, view.camera.with_pose(view.camera.world_to_camera, name=name),
                                    round_index + 1, number < config.save_views, config, pool)
         pool.entries.append(on_device(entry, device))

@@ -24,6 +24,7 @@ Degenerate cases (decided here, tested in tests/test_bootstrap_geometry.py):
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -81,6 +82,21 @@ def nearest_training_views(target: Camera, cameras: Sequence[Camera], candidates
              for i in indices]
     keyed.sort()
     return [i for _, i in keyed[:k]]
+
+
+def pool_view_name(round_number: int, target_index: int, view_name: str) -> str:
+    """e.g. 'r1_t3_virtual_s0007_t03of04': a pool view of round 1 made for flag 3 (target index)."""
+    return f"r{round_number}_t{target_index}_{view_name}"
+
+
+_POOL_VIEW_NAME = re.compile(r"r\d+_(t\d+)_")
+
+
+def flag_of(name: str) -> str:
+    """The flag a pool view was made for ('t3' for 'r1_t3_...', whichever round made it); a
+    name not made by :func:`pool_view_name` is its own flag."""
+    match = _POOL_VIEW_NAME.match(name)
+    return match.group(1) if match else name
 
 
 def virtual_view_name(source: int, step: int, steps: int) -> str:
