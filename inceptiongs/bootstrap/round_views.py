@@ -37,14 +37,14 @@ def round_virtual_views(goal: Sequence[Target], cameras, train: Sequence[int], c
     return views[:config.max_virtual_views]
 
 
-def target_maker(setting: Setting, state: LoopState) -> TargetMaker:
+def target_maker(setting: Setting, state: LoopState, depths: dict | None = None) -> TargetMaker:
     """I* from the Gaussians as they are now, made where the refinement renders: on a GPU the
     renders, warps and splatted depths of a round stay on it (bonsai at 800x533 on an H200:
-    13 views in 1.5 s)."""
+    13 views in 1.5 s). ``depths``: surface depths kept from earlier makers (ViewPool.depths)."""
     run = setting.run
     made_with = TargetSetting(list(run.scene.cameras), run.split.train, setting.data.images, setting.cache,
                               setting.boot_dir / "views", setting.rasterizer, setting.prior, setting.prior_hash)
-    return TargetMaker(made_with, model(state.train), state.train.sky)
+    return TargetMaker(made_with, model(state.train), state.train.sky, depths)
 
 
 def make_view(maker: TargetMaker, camera, round_number: int, save: bool, config: BootstrapConfig,
@@ -137,7 +137,8 @@ def regenerate_pool(setting: Setting, config: BootstrapConfig, state: LoopState,
     fewer than the pool holds (bonsai with 23 flags: 12 of 46), and a view made again but not
     chosen before the next regeneration was time taken from the photo steps."""
     began = time.perf_counter()
-    maker = target_maker(setting, state)
+    pool.depths.clear()     # from here on the depths are the Gaussians' as they are now
+    maker = target_maker(setting, state, pool.depths)
     device = state.train.params["means"].device
     remade = 0
     for number, entry in enumerate(pool.entries):
@@ -163,6 +164,6 @@ def remade_if_stale(setting: Setting, config: BootstrapConfig, state: LoopState,
         return pool.entries[number]
     pool.stale.discard(number)
     entry = pool.entries[number]
-    remade = make_view(target_maker(setting, state), entry.camera, entry.round, False, config, pool)[0]
+    remade = make_view(target_maker(setting, state, pool.depths), entry.camera, entry.round, False, config, pool)[0]
     pool.entries[number] = on_device(remade, state.train.params["means"].device)
     return pool.entries[number]

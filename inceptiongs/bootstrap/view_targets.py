@@ -39,28 +39,39 @@ def blend_sources(camera: Camera, cameras: Sequence[Camera], train: Sequence[int
 
 
 class ModelRenders:
-    """One render per (camera, output) of one model: the warps' depths, the fill, the PNGs."""
+    """One render per (camera, output) of one model: the warps' depths, the fill, the PNGs.
+    ``depths``: a dict the surface depths are kept in instead of this object's own, so that
+    several makers share them (the pool's for one regeneration interval: pool.ViewPool.depths)."""
 
-    def __init__(self, gaussians: Gaussians, rasterizer, sky) -> None:
+    def __init__(self, gaussians: Gaussians, rasterizer, sky, depths: dict | None = None) -> None:
         self.gaussians, self.rasterizer, self.sky = gaussians, rasterizer, sky
         self._cache: dict[tuple[str, str], torch.Tensor] = {}
+        self._depths = self._cache if depths is None else depths
 
-    def _cached(self, camera: Camera, output: str, compute: Callable[[], torch.Tensor]) -> torch.Tensor:
-        key = (camera.name + str(camera.world_to_camera.tobytes()), output)
-        if key not in self._cache:
+    @staticmethod
+    def _key(camera: Camera, output: str) -> tuple[str, str]:
+        return camera.name + str(camera.world_to_camera.tobytes()), output
+
+    def _cached(self, camera: Camera, output: str, compute: Callable[[], torch.Tensor],
+                cache: dict | None = None) -> torch.Tensor:
+        cache = self._cache if cache is None else cache
+        key = self._key(camera, output)
+        if key not in cache:
             with torch.no_grad():
-                self._cache[key] = compute()
-        return self._cache[key]
+                cache[key] = compute()
+        return cache[key]
 
     def forget(self) -> None:
         """Drop every kept render (a caller that visits many views once keeps none of them)."""
         self._cache.clear()
+        self._depths.clear()
 
     def depth(self, camera: Camera) -> torch.Tensor:
         """[H, W, 1] the scene's own surface depth: the sky shell blended in pulls a faint
         surface's depth far behind it, and the warps then place the photos wrongly and reject them."""
         return self._cached(camera, "surface_depth",
-                            lambda: render_surface_depth(self.gaussians, camera, self.sky, self.rasterizer))
+                            lambda: render_surface_depth(self.gaussians, camera, self.sky, self.rasterizer),
+                            self._depths)
 
     def rgb(self, camera: Camera) -> torch.Tensor:
         """[H, W, 3] float32 in [0, 1]."""
@@ -88,10 +99,10 @@ class TargetMaker:
     """I* at virtual views from ``current`` (its G-buffer, its render for the prior's start and
     as the fill, its depth for warping)."""
 
-    def __init__(self, setting: TargetSetting, current: Gaussians, sky) -> None:
+    def __init__(self, setting: TargetSetting, current: Gaussians, sky, depths: dict | None = None) -> None:
         self.setting = setting
         self.current = current
-        self.renders = ModelRenders(current, setting.rasterizer, sky)
+        self.renders = ModelRenders(current, setting.rasterizer, sky, depths)
 
     # Only a prior's fill needs these, once per maker: without a prior nothing copies or hashes
     # the model (on a GPU that would move every Gaussian to the host each regeneration).

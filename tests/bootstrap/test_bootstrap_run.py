@@ -231,6 +231,41 @@ def test_a_regeneration_judges_left_out_views_at_once_and_the_others_when_chosen
     assert result.iteration == result.start_iteration + 8
 
 
+@pytest.mark.slow
+def test_views_made_again_share_the_depths_of_one_regeneration_interval(stage1, tmp_path, monkeypatch):
+    """A view made again when chosen keeps the surface depths rendered since the last
+    regeneration for the next ones (ViewPool.depths); each regeneration starts them afresh."""
+    import inspect
+
+    from inceptiongs.bootstrap import round_views
+
+    seen = []
+    real_target_maker = round_views.target_maker
+
+    def target_maker(setting, state, depths=None):
+        caller = inspect.stack()[1].function
+        seen.append((caller, None) if depths is None else (caller, id(depths), len(depths)))
+        return real_target_maker(setting, state, depths)
+
+    monkeypatch.setattr(round_views, "target_maker", target_maker)
+    summary_out = tmp_path / "shared"
+    run_bootstrap(stage1, summary_out, _targets(stage1), _config(iterations=20, regenerate_every=8, save_views=0, sampling="uniform"),
+                  progress=False)
+    summary = json.loads((summary_out / "bootstrap" / "summary.json").read_text())
+    assert len(summary["regenerations"]) == 2
+    assert seen[0] == ("add_round_views", None)                         # the round's own maker
+    shared = seen[1:]
+    assert len({entry[1] for entry in shared}) == 1                      # then one dict throughout
+    regenerations = [size for caller, _, size in shared if caller == "regenerate_pool"]
+    remakes = [size for caller, _, size in shared if caller == "remade_if_stale"]
+    # Each regeneration starts from an empty dict (remakes had filled it before the second);
+    # views made again after another found the depths it rendered.
+    assert regenerations == [0, 0], seen
+    assert len(remakes) >= 2 and max(remakes) > 0, seen
+    second = next(i for i, entry in enumerate(shared) if entry[0] == "regenerate_pool" and i > 0)
+    assert any(entry[2] > 0 for entry in shared[:second] if entry[0] == "remade_if_stale"), seen
+
+
 def test_a_bootstrap_with_every_default_loads_no_experimental_code(stage1, tmp_path):
     """The default path reaches the variants only by name (bootstrap/variants.py): a run that
     chooses none, virtual steps included, never imports bootstrap/experimental."""

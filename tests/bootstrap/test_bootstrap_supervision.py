@@ -227,3 +227,34 @@ def test_the_priors_fill_is_generated_on_its_device_and_returned_on_the_models(t
     assert fill.shape == (camera.height, camera.width, 3) and float(fill.mean()) == 0.25
     again, hit = TargetMaker(setting, current, sky=None).fill(camera, config)
     assert hit and torch.equal(again, fill) and MetaPrior.seen == ["meta"]   # the cache, not the prior
+
+
+def test_makers_sharing_the_pools_depths_render_each_cameras_depth_once(tmp_path):
+    """A view made again when chosen reads the surface depths rendered since the last
+    regeneration (ViewPool.depths); a maker without the dict renders its own; forgetting clears it."""
+    from inceptiongs.bootstrap.generation import GenerationCache
+    from inceptiongs.bootstrap.view_targets import TargetMaker, TargetSetting
+
+    from rasterize_cases import random_gaussians
+
+    calls = []
+
+    def rasterizer(gaussians, camera, outputs=("rgb",), **kwargs):
+        calls.append(camera.name)
+        shape = (camera.height, camera.width)
+        return {"depth": torch.ones(*shape, 1), "alpha": torch.ones(*shape, 1), "rgb": torch.zeros(*shape, 3)}
+
+    cameras = [camera_at("a", (0.0, 0.0, 0.0)), camera_at("b", (0.5, 0.0, 0.0))]
+    setting = TargetSetting(cameras, [0, 1], {}, GenerationCache(tmp_path), tmp_path, rasterizer=rasterizer)
+    current, depths = random_gaussians(n=20, degree=0, seed=1), {}
+    first = TargetMaker(setting, current, sky=None, depths=depths)
+    for camera in cameras:
+        first.renders.depth(camera)
+    assert calls == ["a", "b"] and len(depths) == 2
+    second = TargetMaker(setting, current, sky=None, depths=depths)
+    assert torch.equal(second.renders.depth(cameras[1]), depths[next(k for k in depths if k[0].startswith("b"))])
+    assert calls == ["a", "b"]                                   # kept, not rendered again
+    TargetMaker(setting, current, sky=None).renders.depth(cameras[0])
+    assert calls == ["a", "b", "a"]                              # its own cache
+    second.renders.forget()
+    assert depths == {}
