@@ -317,17 +317,73 @@ def looked_at(means: np.ndarray, cameras: list[Camera]) -> np.ndarray:
     return seen
 
 
+# A model file without its capture (no cameras, no sparse points) may still carry stage I's sky
+# shell: Gaussians all around the scene, far outside it, with next to nothing in between (the
+# demo's courtyard: 7.7 % of its Gaussians 30-50 units from its middle, 0.1 % between 18 and 30,
+# the scene within 18). Seen from the model's mean, the shell begins beyond the innermost empty
+# band of radii [a, SHELL_GAP * a) (holding under SHELL_GAP_SHARE of the Gaussians) that has
+# between SHELL_OUTSIDE[0] and SHELL_OUTSIDE[1] of them beyond it and SHELL_MIN_INSIDE within it,
+# and whose outer Gaussians surround the centre: at least SHELL_MIN_FACES of the six directions of
+# a cube around it hold SHELL_FACE_SHARE of them each (a street's far end holds one or two). The
+# courtyard saved alone opened with its camera in the shell, the scene a small square behind
+# a ring of blurred sky.
+SHELL_GAP = 1.3
+SHELL_GAP_SHARE = 0.002
+SHELL_OUTSIDE = (0.01, 0.95)
+SHELL_MIN_INSIDE = 0.05
+SHELL_MIN_FACES = 4
+SHELL_FACE_SHARE = 0.02
+SHELL_MIN_POINTS = 100
+SHELL_CANDIDATES = 64
+
+
+def _surrounds(offsets: np.ndarray) -> bool:
+    """Whether ``offsets`` [M, 3] from a centre point to at least SHELL_MIN_FACES cube faces."""
+    axis = np.abs(offsets).argmax(axis=1)
+    faces = 2 * axis + (offsets[np.arange(len(offsets)), axis] > 0)
+    shares = np.bincount(faces, minlength=6) / max(len(offsets), 1)
+    return int((shares >= SHELL_FACE_SHARE).sum()) >= SHELL_MIN_FACES
+
+
+def model_shell(means: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(centre [3], radius): a sky shell around the model ``means`` [N, 3] is what lies farther
+    than radius from centre (see SHELL_*); None when the model has none."""
+    sample = np.asarray(statistics_sample(means), np.float64)
+    sample = sample[np.isfinite(sample).all(axis=1)]
+    if len(sample) < SHELL_MIN_POINTS:
+        return None
+    centre = sample.mean(axis=0)
+    distance = np.linalg.norm(sample - centre, axis=1)
+    ordered = np.sort(distance)
+    low, high = float(np.percentile(distance, 100.0 * SHELL_MIN_INSIDE)), float(ordered[-1])
+    if not (low > 0.0 and high > low * SHELL_GAP):
+        return None
+    count = len(ordered)
+    for radius in np.geomspace(low, high / SHELL_GAP, SHELL_CANDIDATES):
+        within, past = np.searchsorted(ordered, [radius, radius * SHELL_GAP])
+        outside = (count - past) / count
+        if (past - within) / count >= SHELL_GAP_SHARE or not SHELL_OUTSIDE[0] <= outside <= SHELL_OUTSIDE[1]:
+            continue
+        if within / count >= SHELL_MIN_INSIDE and _surrounds(sample[distance >= radius * SHELL_GAP] - centre):
+            return centre, float(radius * math.sqrt(SHELL_GAP))
+    return None
+
+
 def inside_shell(means: np.ndarray, cameras: list[Camera], points: np.ndarray | None) -> np.ndarray:
     """[N] bool: which of ``means`` [N, 3] lie inside the sky shell stage I puts around a capture
     (sky.shell_geometry: a sphere around the cameras' centroid at SKY_RADIUS_FACTOR times the far
     extent of the scene's sparse ``points`` [P, 3] and the cameras), closer than the fraction of
-    its radius that sky.in_background calls background. All True without cameras or points."""
+    its radius that sky.in_background calls background. Without cameras or points, the shell is
+    one found in the model itself (model_shell); all True when there is none."""
     import torch  # noqa: PLC0415 (torch: only here)
 
     from inceptiongs.train.sky import in_background, shell_geometry  # noqa: PLC0415
 
     if not len(cameras) or points is None or len(points) == 0:
-        return np.ones(len(means), bool)
+        found = model_shell(means)
+        if found is None:
+            return np.ones(len(means), bool)
+        return np.linalg.norm(np.asarray(means, np.float64) - found[0], axis=1) <= found[1]
     centre, radius = shell_geometry(list(cameras), points)
     sphere = torch.tensor([*centre, radius], dtype=torch.float64)
     return ~in_background(torch.from_numpy(np.asarray(means, np.float64)), sphere).numpy()
@@ -405,16 +461,22 @@ def leveled(nav: NavigationState, up: np.ndarray) -> NavigationState:
 def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 60.0,
                  up: np.ndarray | None = None) -> NavigationState:
     """A view of a point set without cameras: looking at the median of ``means`` [N, 3] from
-    far enough that the robust extent (the 5-95 % range) fills the field of view."""
+    just far enough that the sphere around the robust extent (the 5-95 % box) fits the
+    ``width`` x ``height`` view, as Home frames a scene (``framed``); a sky shell found in the
+    model (model_shell) left out of both: the courtyard's opened with the camera in its shell."""
     up = np.array([0.0, -1.0, 0.0]) if up is None else np.asarray(up, np.float64)
     if len(means) == 0:
         center_of_interest, extent = np.zeros(3), 1.0
     else:
         means = statistics_sample(means)
+        inside = means[inside_shell(means, [], None)]   # a sky shell saved with the model is not the scene
+        means = inside if len(inside) >= 3 else means
         center_of_interest = np.median(means, axis=0)
         lo, hi = np.percentile(means, [5, 95], axis=0)
         extent = float(max(np.linalg.norm(hi - lo), 1e-3))
-    distance = extent / math.tan(math.radians(fov_y_deg) * 0.5)
+    half_y = math.radians(fov_y_deg) * 0.5
+    half_x = math.atan(math.tan(half_y) * width / max(height, 1))
+    distance = 0.5 * extent / math.sin(min(half_x, half_y))
     # Look along the world axis most orthogonal to up, from the +z side like a default 3DGS view.
     forward = np.array([0.0, 0.0, 1.0])
     forward = forward - (forward @ up) * up

@@ -80,6 +80,47 @@ def test_default_view_sees_all_points():
     assert inside.mean() > 0.9
 
 
+def _shell(count: int, radius: float, rng, centre=(0.0, 0.0, 0.0), thickness: float = 0.15) -> np.ndarray:
+    """``count`` points all around ``centre``, radius * (1 +- thickness): a stage-I sky shell."""
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return np.asarray(centre) + directions * radius * rng.uniform(1 - thickness, 1 + thickness, size=(count, 1))
+
+
+@pytest.mark.parametrize("scene_count, shell_count", [(9000, 800), (1500, 8000)])
+def test_a_sky_shell_saved_with_a_model_is_found_and_left_out_of_the_opening_view(scene_count, shell_count):
+    """A model file alone (no cameras, no sparse points) with stage I's shell around it, a thin
+    one or one that holds most Gaussians: the shell is found, and the opening view frames the
+    scene from inside it."""
+    rng = np.random.default_rng(3)
+    scene = rng.normal(size=(scene_count, 3)) * np.array([3.0, 1.0, 3.0]) + np.array([2.0, 0.0, -1.0])
+    shell = _shell(shell_count, 40.0, rng, centre=(1.0, -2.0, 0.0))
+    means = np.concatenate([scene, shell])
+    found = navigation.model_shell(means)
+    assert found is not None
+    centre, radius = found
+    # The shell is all beyond the radius; of the scene at most its far tail (a normal's 4 sigma).
+    assert np.all(np.linalg.norm(shell - centre, axis=1) > radius)
+    assert np.mean(np.linalg.norm(scene - centre, axis=1) < radius) > 0.995
+    state = navigation.default_view(means, 320, 240)
+    assert np.linalg.norm(state.center - centre) < 0.8 * 40.0 * 0.85          # inside the shell, not in it
+    pixels, depth = editing.project_means(scene, state.camera(320, 240))
+    inside = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < 320) & (pixels[:, 1] >= 0) & (pixels[:, 1] < 240)
+    assert inside.mean() > 0.9
+
+
+def test_a_model_without_a_shell_is_not_given_one():
+    """A blob; a street whose two far ends are apart from its middle; a blob with a few floaters
+    far off to one side: nothing surrounds them, so nothing is left out."""
+    rng = np.random.default_rng(4)
+    blob = rng.normal(size=(5000, 3))
+    ends = np.concatenate([rng.normal(size=(3000, 3)) + [x, 0.0, 0.0] for x in (-30.0, 0.0, 30.0)])
+    floaters = np.concatenate([blob, rng.normal(size=(200, 3)) + [50.0, 5.0, 0.0]])
+    for means in (blob, ends, floaters):
+        assert navigation.model_shell(means) is None
+        assert navigation.inside_shell(means, [], None).all()
+
+
 def test_look_at_shows_world_up_as_image_up():
     up = np.array([0.0, 0.0, 1.0])
     pose = look_at(np.array([3.0, 1.0, 0.5]), np.zeros(3), up)

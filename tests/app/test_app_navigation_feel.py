@@ -84,7 +84,8 @@ def test_home_leaves_out_a_sky_shell_that_holds_most_of_the_gaussians():
     """The statuette's 3-minute run: 11,700 of its 18,700 Gaussians are sky shell, so the median
     of what the cameras see lay on the shell, the outlier cut kept it, and Home (and the opening
     view) framed a bowl of radius 4.2 with the statuette (radius 0.23) a dot in it. With the scene's sparse
-    points the shell is left out where stage I puts it (sky.shell_geometry)."""
+    points the shell is left out where stage I puts it (sky.shell_geometry); without them, where
+    the model shows it."""
     from inceptiongs.app.navigation import NavigationState, framed, scene_of_interest
     from inceptiongs.train.sky import shell_geometry
 
@@ -99,7 +100,8 @@ def test_home_leaves_out_a_sky_shell_that_holds_most_of_the_gaussians():
     directions = np.random.default_rng(1).normal(size=(3 * len(grid), 3))
     shell = centre + radius * directions / np.linalg.norm(directions, axis=1, keepdims=True)
     means = np.concatenate([grid, shell])                        # three shell Gaussians to one of the grid
-    assert len(scene_of_interest(means, cameras)) > len(grid)    # without the points: the shell is kept
+    # Without the points the shell is found in the model itself (navigation.model_shell).
+    assert len(scene_of_interest(means, cameras)) == len(grid)
     kept = scene_of_interest(means, cameras, points)
     assert len(kept) == len(grid) and np.abs(kept).max() < 2.0
     nav = framed(NavigationState.from_camera(cameras[5]), means, 800, 600, 0.0, cameras, points)
