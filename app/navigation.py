@@ -411,6 +411,15 @@ def scene_of_interest(means: np.ndarray, cameras: list[Camera], points: np.ndarr
     return near if len(near) >= 3 else seen
 
 
+def sphere_fit_distance(radius: float, fov_y_deg: float, width: float, height: float) -> float:
+    """How far from its centre a camera of ``fov_y_deg`` stands for a sphere of ``radius`` to
+    touch the sides of a ``width`` x ``height`` view (the narrower pair of them)."""
+    focal = 0.5 * height / math.tan(math.radians(fov_y_deg) * 0.5)
+    half_y = math.radians(fov_y_deg) * 0.5
+    half_x = math.atan(0.5 * width / focal)
+    return radius / math.sin(min(half_x, half_y))
+
+
 def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, covered_left: float = 0.0,
            cameras: list[Camera] = (), points: np.ndarray | None = None) -> NavigationState:
     """``nav`` moved back along its viewing direction until the scene's robust bounds (the
@@ -421,9 +430,7 @@ def framed(nav: NavigationState, means: np.ndarray, width: int, height: int, cov
     rotation = looking_down(nav.rotation, nav.up, FRAME_ELEVATION_DEG) if len(cameras) else nav.rotation
     covered_left = float(np.clip(covered_left, 0.0, 0.6 * width))  # a panel over most of it: frame anyway
     focal = 0.5 * height / math.tan(math.radians(nav.fov_y_deg) * 0.5)
-    half_y = math.radians(nav.fov_y_deg) * 0.5
-    half_x = math.atan(0.5 * (width - covered_left) / focal)
-    distance = radius / math.sin(min(half_x, half_y))  # the bounding sphere touches the free part's sides
+    distance = sphere_fit_distance(radius, nav.fov_y_deg, width - covered_left, height)
     # The centre shows at the middle of the free part: the camera slides left of it by the
     # middle's offset from the image centre at that distance.
     offset_px = 0.5 * covered_left
@@ -474,9 +481,7 @@ def default_view(means: np.ndarray, width: int, height: int, fov_y_deg: float = 
         center_of_interest = np.median(means, axis=0)
         lo, hi = np.percentile(means, [5, 95], axis=0)
         extent = float(max(np.linalg.norm(hi - lo), 1e-3))
-    half_y = math.radians(fov_y_deg) * 0.5
-    half_x = math.atan(math.tan(half_y) * width / max(height, 1))
-    distance = 0.5 * extent / math.sin(min(half_x, half_y))
+    distance = sphere_fit_distance(0.5 * extent, fov_y_deg, width, max(height, 1))
     # Look along the world axis most orthogonal to up, from the +z side like a default 3DGS view.
     forward = np.array([0.0, 0.0, 1.0])
     forward = forward - (forward @ up) * up

@@ -48,14 +48,10 @@ class ModelRenders:
         self._cache: dict[tuple[str, str], torch.Tensor] = {}
         self._depths = self._cache if depths is None else depths
 
-    @staticmethod
-    def _key(camera: Camera, output: str) -> tuple[str, str]:
-        return camera.name + str(camera.world_to_camera.tobytes()), output
-
     def _cached(self, camera: Camera, output: str, compute: Callable[[], torch.Tensor],
                 cache: dict | None = None) -> torch.Tensor:
         cache = self._cache if cache is None else cache
-        key = self._key(camera, output)
+        key = (camera.name + str(camera.world_to_camera.tobytes()), output)
         if key not in cache:
             with torch.no_grad():
                 cache[key] = compute()
